@@ -1,0 +1,5 @@
+"""The `petsoft` console command."""
+
+
+def main(argv=None) -> int:
+    raise SystemExit("petsoft: not yet implemented")

@@ -1,0 +1,49 @@
+"""User-facing errors.
+
+Every mistake a user can make (a bad experiment file, a broken mesh, an inverted element) raises a
+subclass of :class:`PetsoftError` whose message says what is wrong, where (file, key, line,
+element, node) and what would be valid. The command line prints the message without a traceback
+and exits with status 2; anything else is a bug in petsoft and keeps its traceback.
+"""
+
+
+class PetsoftError(Exception):
+    """Base class of errors caused by user input, reported without a traceback."""
+
+
+class ExperimentError(PetsoftError):
+    """An experiment file (TOML) is malformed, has unknown keys or out-of-range values."""
+
+
+class ExpressionError(ExperimentError):
+    """An expression in an experiment file cannot be parsed or uses something not allowed."""
+
+
+class MeshError(PetsoftError):
+    """A mesh cannot be used: no tetrahedra, degenerate/inverted cells, bad coordinates..."""
+
+
+class InvertedElementError(PetsoftError):
+    """A deformation inverted an element (J <= 0) where the material law is undefined.
+
+    Parameters
+    ----------
+    element : int
+        Index of the first inverted element (in the numbering of the caller's arrays; assembly
+        translates it to the global element number before the message reaches a user).
+    jacobian : float
+        The determinant of the deformation gradient found there.
+    """
+
+    def __init__(self, element: int, jacobian: float, message: str | None = None):
+        self.element = int(element)
+        self.jacobian = float(jacobian)
+        super().__init__(
+            message
+            or f"element {self.element} is inverted (det F = {self.jacobian:.3e} <= 0): the "
+            "material law is undefined there; reduce the load step or time step"
+        )
+
+
+class SolverError(PetsoftError):
+    """A PETSc solver (SNES, KSP, TAO, TS) diverged; the message says where and why."""

@@ -1,0 +1,1 @@
+"""Element kernels: pure functions over arrays of elements (numpy reference and compiled C)."""
