@@ -611,7 +611,8 @@ def box_mesh(
     counts = _cell_counts(cells, where)
     nx, ny, nz = counts
 
-    axes = [corner[a] + lengths[a] * np.arange(counts[a] + 1) / counts[a] for a in range(3)]
+    # Fractions first so that node coordinates are as exact as possible (0.4 * 3/24 == 0.05).
+    axes = [corner[a] + lengths[a] * (np.arange(counts[a] + 1) / counts[a]) for a in range(3)]
     # Node (i, j, k) has index i + (nx+1) * (j + (ny+1) * k): x varies fastest.
     zz, yy, xx = np.meshgrid(axes[2], axes[1], axes[0], indexing="ij")
     points = np.column_stack([xx.ravel(), yy.ravel(), zz.ravel()])
