@@ -624,9 +624,8 @@ def box_mesh(
     base = (ii + (nx + 1) * (jj + (ny + 1) * kk)).ravel()
     tets = (base[:, None, None] + corner_offset[_KUHN][None]).reshape(-1, 4).astype(np.int64)
 
-    source = (
-        f"box(size={[float(v) for v in lengths]}, cells={list(counts)}"
-        + (f", origin={[float(v) for v in corner]})" if any(corner) else ")")
+    source = f"box(size={[float(v) for v in lengths]}, cells={list(counts)}" + (
+        f", origin={[float(v) for v in corner]})" if any(corner) else ")"
     )
     return Mesh(
         points=points,

@@ -1,0 +1,459 @@
+"""XDMF (v3) + HDF5 output of fields on a tetrahedral mesh, for ParaView and meshio.
+
+This module owns petsoft's trajectory and result files: a small XML ``.xdmf`` file that describes
+the data, and the heavy arrays in an HDF5 file with the same stem beside it (``out/run.xdmf`` +
+``out/run.h5``). It is serial: in a parallel run the caller gathers global arrays on rank 0 and
+calls it there only.
+
+Crash consistency is the point of the design. Nothing that looks complete is ever half written:
+
+* The HDF5 file is first written (mesh and static cell data) under a temporary name and renamed
+  into place; an existing ``.xdmf`` of the same name is removed before, so an old series never
+  points into the new data.
+* Each frame's arrays are appended to the HDF5 file, which is opened for that frame only and
+  closed (so flushed, and readable by ParaView between frames) before the ``.xdmf`` is rewritten
+  through a temporary file and :func:`os.replace`. The ``.xdmf`` on disk therefore only ever
+  references frames whose data are complete; a crash leaves a consistent prefix of the series.
+
+Layout of the HDF5 file::
+
+    /mesh/geometry                (N, 3) float64   node coordinates (reference configuration)
+    /mesh/topology                (E, 4) int64     tetrahedra
+    /mesh/cell_data/<name>        (E, ...)         cell data given once, repeated in every frame
+    /frames/<k>/point/<name>      (N, ...)         point data of frame k (k = 0, 1, ...)
+    /frames/<k>/cell/<name>       (E, ...)         cell data of frame k
+    /frames/<k>                   attrs: time
+
+Each frame is a ``Uniform`` grid of a ``Temporal`` collection, with its own ``<Time>`` and
+references to the shared geometry and topology (no ``xi:include``), which both ParaView's XDMF3
+readers and :class:`meshio.xdmf.TimeSeriesReader` read. :func:`write_xdmf` writes one static grid
+instead, which :func:`meshio.read` reads.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Mapping
+from pathlib import Path
+from xml.sax.saxutils import escape, quoteattr
+
+import numpy as np
+
+__all__ = ["XdmfWriter", "write_xdmf"]
+
+# XDMF number type and precision of each dtype we store (others are converted, see _as_storable).
+_XDMF_TYPES = {
+    "float32": ("Float", 4),
+    "float64": ("Float", 8),
+    "int32": ("Int", 4),
+    "int64": ("Int", 8),
+}
+
+
+def _as_storable(name: str, data: object, n: int, what: str) -> np.ndarray:
+    """Check one field's array and convert it to a dtype both ParaView and meshio read.
+
+    Float arrays keep float32/float64 (float16 becomes float32); booleans and integers narrower
+    than 32 bits become int32, unsigned 32/64-bit integers int64 (XDMF readers disagree on
+    ``UChar``/``UInt`` precisions, so stay with the common ones).
+    """
+    arr = np.asarray(data)
+    if arr.ndim == 0 or arr.shape[0] != n:
+        raise ValueError(
+            f"{what} {name!r} has shape {arr.shape}; its first dimension must be the number of "
+            f"{'nodes' if what.startswith('point') else 'cells'}, {n}"
+        )
+    if arr.dtype.kind == "f":
+        return np.ascontiguousarray(arr, np.float32 if arr.itemsize <= 4 else np.float64)
+    if arr.dtype.kind == "b" or (arr.dtype.kind in "iu" and arr.itemsize < 4):
+        return np.ascontiguousarray(arr, np.int32)
+    if arr.dtype.kind == "i":
+        return np.ascontiguousarray(arr)
+    if arr.dtype.kind == "u":
+        if arr.size and arr.max() > np.iinfo(np.int64).max:
+            raise ValueError(f"{what} {name!r} has values too large for int64")
+        return np.ascontiguousarray(arr, np.int64)
+    raise TypeError(f"{what} {name!r} has dtype {arr.dtype}; XDMF output takes real numbers")
+
+
+def _attribute_type(arr: np.ndarray) -> str:
+    """XDMF AttributeType from an array's shape (as meshio and ParaView understand it)."""
+    if arr.ndim == 1 or (arr.ndim == 2 and arr.shape[1] == 1):
+        return "Scalar"
+    if arr.ndim == 2 and arr.shape[1] in (2, 3):
+        return "Vector"
+    if (arr.ndim == 2 and arr.shape[1] == 9) or (arr.ndim == 3 and arr.shape[1:] == (3, 3)):
+        return "Tensor"
+    if arr.ndim == 2 and arr.shape[1] == 6:
+        return "Tensor6"
+    return "Matrix"
+
+
+def _dataset_names(names: list[str]) -> list[str]:
+    """HDF5 link names for field names: readable, without '/' or ':' (XDMF uses 'file:/path')."""
+    out: list[str] = []
+    for name in names:
+        base = re.sub(r"[^A-Za-z0-9_.\-]", "_", name) or "field"
+        if base in (".", ".."):
+            base = "field"
+        key, i = base, 1
+        while key in out:
+            key, i = f"{base}_{i}", i + 1
+        out.append(key)
+    return out
+
+
+def _check_path(path: Path, h5_path: Path) -> None:
+    if h5_path == path:
+        raise ValueError(f"XDMF path {path} must not end in .h5")
+    if ":" in h5_path.name:
+        # XDMF references data as "file.h5:/path": a colon in the file name is ambiguous.
+        raise ValueError(f"XDMF output name {path.name!r} must not contain ':'")
+
+
+def _check_mesh(points: object, tets: object) -> tuple[np.ndarray, np.ndarray]:
+    pts = np.asarray(points, dtype=np.float64)
+    cells = np.asarray(tets)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points must be an (N, 3) array, got shape {pts.shape}")
+    if cells.ndim != 2 or cells.shape[1] != 4 or cells.dtype.kind not in "iu":
+        raise ValueError(f"tets must be an (E, 4) integer array, got {cells.shape} {cells.dtype}")
+    cells = cells.astype(np.int64)
+    if cells.size and (cells.min() < 0 or cells.max() >= len(pts)):
+        raise ValueError(f"tets refer to nodes outside 0..{len(pts) - 1}")
+    return np.ascontiguousarray(pts), np.ascontiguousarray(cells)
+
+
+def _check_fields(fields: Mapping[str, object] | None, n: int, what: str) -> dict[str, np.ndarray]:
+    if fields is None:
+        return {}
+    if not isinstance(fields, Mapping):
+        raise TypeError(f"{what} must be a dict of name -> array, got {type(fields).__name__}")
+    return {str(k): _as_storable(str(k), v, n, what) for k, v in fields.items()}
+
+
+def _data_item(h5name: str, h5path: str, arr_shape: tuple, dtype: np.dtype) -> str:
+    kind, prec = _XDMF_TYPES[dtype.name]
+    dims = " ".join(str(s) for s in arr_shape)
+    return (
+        f'<DataItem DataType="{kind}" Precision="{prec}" Dimensions="{dims}" Format="HDF">'
+        f"{escape(h5name)}:{escape(h5path)}</DataItem>"
+    )
+
+
+def _attribute(name: str, center: str, h5name: str, h5path: str, arr: np.ndarray) -> str:
+    return (
+        f'<Attribute Name={quoteattr(name)} AttributeType="{_attribute_type(arr)}" '
+        f'Center="{center}">{_data_item(h5name, h5path, arr.shape, arr.dtype)}</Attribute>'
+    )
+
+
+def _mesh_xml(h5name: str, points: np.ndarray, tets: np.ndarray) -> str:
+    """Topology and Geometry elements referencing ``/mesh/topology`` and ``/mesh/geometry``."""
+    return (
+        f'<Topology TopologyType="Tetrahedron" NumberOfElements="{len(tets)}" '
+        f'NodesPerElement="4">{_data_item(h5name, "/mesh/topology", tets.shape, tets.dtype)}'
+        "</Topology>\n"
+        f'<Geometry GeometryType="XYZ">'
+        f"{_data_item(h5name, '/mesh/geometry', points.shape, points.dtype)}</Geometry>\n"
+    )
+
+
+def _grid(name: str, mesh_xml: str, fields: list[str], time: float | None = None) -> str:
+    """A Uniform grid: optional time, the mesh, then one Attribute per field."""
+    when = "" if time is None else f'<Time Value="{time!r}"/>\n'
+    body = "".join(f + "\n" for f in fields)
+    return f'<Grid Name="{name}" GridType="Uniform">\n{when}{mesh_xml}{body}</Grid>\n'
+
+
+def _replace_text(path: Path, text: str, fsync: bool) -> None:
+    """Write ``text`` to ``path`` atomically: a temporary file beside it, then os.replace."""
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "w", encoding="utf-8") as f:
+            f.write(text)
+            if fsync:
+                f.flush()
+                os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _fsync_path(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _write_h5_atomically(path: Path, fill, fsync: bool) -> None:
+    """Create the HDF5 file ``path`` by ``fill(h5file)`` under a temporary name, then rename."""
+    import h5py
+
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with h5py.File(tmp, "w") as f:
+            f.attrs["format"] = "petsoft-xdmf-data"
+            f.attrs["version"] = 1
+            fill(f)
+        if fsync:
+            _fsync_path(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _xdmf_document(grids: str) -> str:
+    return (
+        '<?xml version="1.0" encoding="utf-8"?>\n'
+        '<Xdmf Version="3.0">\n<Domain>\n' + grids + "</Domain>\n</Xdmf>\n"
+    )
+
+
+class XdmfWriter:
+    """A time series of point and cell data on a fixed tetrahedral mesh, crash-consistent.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The ``.xdmf`` file to write; the data go to ``path.with_suffix(".h5")``. Existing files of
+        these names are replaced. Missing parent directories are created.
+    points : numpy.ndarray
+        ``(N, 3)`` node coordinates (written once).
+    tets : numpy.ndarray
+        ``(E, 4)`` tetrahedra (written once).
+    cell_data : dict of str to numpy.ndarray, optional
+        Cell data that do not change (region tags, material ids): written once and shown in
+        every frame.
+    fsync : bool, optional
+        Also ``fsync`` the data before each ``.xdmf`` update, so that the series survives a power
+        loss and not only a crash of the process. Off by default: it costs a disk round trip per
+        frame.
+
+    Examples
+    --------
+    >>> with XdmfWriter("out/run.xdmf", mesh.points, mesh.tets) as out:  # doctest: +SKIP
+    ...     for t, u in steps:
+    ...         out.write(t, {"displacement": u})
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        points: np.ndarray,
+        tets: np.ndarray,
+        *,
+        cell_data: dict[str, np.ndarray] | None = None,
+        fsync: bool = False,
+    ) -> None:
+        self.path = Path(path)
+        self.h5_path = self.path.with_suffix(".h5")
+        _check_path(self.path, self.h5_path)
+        self.points, self.tets = _check_mesh(points, tets)
+        self.static_cell_data = _check_fields(cell_data, len(self.tets), "cell_data")
+        self.fsync = bool(fsync)
+        self.times: list[float] = []
+        self._frame_xml: list[str] = []  # serialised <Grid> of each complete frame
+        self._closed = False
+
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        # An old .xdmf would reference frames the new .h5 does not have: remove it first.
+        self.path.unlink(missing_ok=True)
+        static = self.static_cell_data
+        keys = _dataset_names(list(static))
+
+        def fill(f):
+            f["mesh/geometry"] = self.points
+            f["mesh/topology"] = self.tets
+            for key, arr in zip(keys, static.values(), strict=True):
+                f[f"mesh/cell_data/{key}"] = arr
+            f.create_group("frames")
+
+        _write_h5_atomically(self.h5_path, fill, self.fsync)
+
+        # The part of every frame's grid that never changes: mesh and static cell data.
+        h5 = self.h5_path.name
+        self._mesh_xml = _mesh_xml(h5, self.points, self.tets)
+        self._static_xml = {
+            name: _attribute(name, "Cell", h5, f"/mesh/cell_data/{key}", arr)
+            for key, (name, arr) in zip(keys, static.items(), strict=True)
+        }
+
+    # ---------------------------------------------------------------------------------------
+
+    @property
+    def num_frames(self) -> int:
+        """Number of frames completely written (and referenced by the ``.xdmf``)."""
+        return len(self.times)
+
+    def write(
+        self,
+        time: float,
+        point_data: dict[str, np.ndarray],
+        cell_data: dict[str, np.ndarray] | None = None,
+    ) -> None:
+        """Append one frame and update the ``.xdmf`` to include it.
+
+        Parameters
+        ----------
+        time : float
+            The frame's time; finite and greater than the previous frame's.
+        point_data : dict of str to numpy.ndarray
+            Arrays with one row per node, e.g. ``{"displacement": u}`` with ``u`` of shape (N, 3).
+        cell_data : dict of str to numpy.ndarray, optional
+            Arrays with one row per tetrahedron. A name also given as static cell data shadows it
+            in this frame.
+
+        Raises
+        ------
+        ValueError
+            On a closed writer, a bad time or arrays of the wrong length. Nothing is written then.
+        """
+        import h5py
+
+        if self._closed:
+            raise ValueError(f"{self.path}: write() after close()")
+        t = float(time)
+        if not np.isfinite(t):
+            raise ValueError(f"{self.path}: frame time must be finite, got {time!r}")
+        if self.times and not t > self.times[-1]:
+            raise ValueError(
+                f"{self.path}: frame times must increase; got {t!r} after {self.times[-1]!r}"
+            )
+        # Check every array before touching the file, so a bad call writes nothing.
+        pdata = _check_fields(point_data, len(self.points), "point_data")
+        cdata = _check_fields(cell_data, len(self.tets), "cell_data")
+
+        k = len(self.times)
+        group = f"frames/{k}"
+        pkeys = _dataset_names(list(pdata))
+        ckeys = _dataset_names(list(cdata))
+        with h5py.File(self.h5_path, "r+") as f:
+            if group in f:  # left over by a write that failed half-way: never referenced
+                del f[group]
+            g = f.create_group(group)
+            g.attrs["time"] = t
+            for key, arr in zip(pkeys, pdata.values(), strict=True):
+                g[f"point/{key}"] = arr
+            for key, arr in zip(ckeys, cdata.values(), strict=True):
+                g[f"cell/{key}"] = arr
+        # Closing the file flushed it; only now may the .xdmf mention the frame.
+        if self.fsync:
+            _fsync_path(self.h5_path)
+
+        h5 = self.h5_path.name
+        # A per-frame cell field replaces a static one of the same name.
+        static = [xml for name, xml in self._static_xml.items() if name not in cdata]
+        fields = (
+            static
+            + [
+                _attribute(name, "Node", h5, f"/{group}/point/{key}", arr)
+                for key, (name, arr) in zip(pkeys, pdata.items(), strict=True)
+            ]
+            + [
+                _attribute(name, "Cell", h5, f"/{group}/cell/{key}", arr)
+                for key, (name, arr) in zip(ckeys, cdata.items(), strict=True)
+            ]
+        )
+        grid = _grid(f"frame_{k}", self._mesh_xml, fields, time=t)
+        self._frame_xml.append(grid)
+        self.times.append(t)
+        try:
+            self._write_series()
+        except BaseException:
+            # The .xdmf on disk still holds the previous frames; keep our record in step with it.
+            self._frame_xml.pop()
+            self.times.pop()
+            raise
+
+    def _write_series(self) -> None:
+        collection = (
+            '<Grid Name="TimeSeries" GridType="Collection" CollectionType="Temporal">\n'
+            + "".join(self._frame_xml)
+            + "</Grid>\n"
+        )
+        _replace_text(self.path, _xdmf_document(collection), self.fsync)
+
+    def close(self) -> None:
+        """Finish the series. Idempotent.
+
+        Every written frame is already on disk; a writer closed before any frame writes a
+        ``.xdmf`` of the bare mesh (with its static cell data) so the output is still viewable.
+        """
+        if self._closed:
+            return
+        self._closed = True
+        if not self.times:
+            grid = _grid("mesh", self._mesh_xml, list(self._static_xml.values()))
+            _replace_text(self.path, _xdmf_document(grid), self.fsync)
+
+    def __enter__(self) -> XdmfWriter:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        state = "closed" if self._closed else "open"
+        return f"XdmfWriter({str(self.path)!r}, {self.num_frames} frames, {state})"
+
+
+def write_xdmf(
+    path: str | Path,
+    points: np.ndarray,
+    tets: np.ndarray,
+    point_data: dict[str, np.ndarray] | None = None,
+    cell_data: dict[str, np.ndarray] | None = None,
+    *,
+    fsync: bool = False,
+) -> None:
+    """Write one static result (no time) as ``path`` (.xdmf) + ``path.with_suffix(".h5")``.
+
+    Both files are written under temporary names and renamed into place (the ``.h5`` first, after
+    removing any old ``.xdmf``), so a crash never leaves a ``.xdmf`` pointing at missing data.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The ``.xdmf`` file.
+    points, tets : numpy.ndarray
+        ``(N, 3)`` coordinates and ``(E, 4)`` tetrahedra.
+    point_data, cell_data : dict of str to numpy.ndarray, optional
+        Fields with one row per node / per tetrahedron.
+    fsync : bool, optional
+        ``fsync`` both files before renaming them.
+    """
+    path = Path(path)
+    h5_path = path.with_suffix(".h5")
+    _check_path(path, h5_path)
+    pts, cells = _check_mesh(points, tets)
+    pdata = _check_fields(point_data, len(pts), "point_data")
+    cdata = _check_fields(cell_data, len(cells), "cell_data")
+    pkeys, ckeys = _dataset_names(list(pdata)), _dataset_names(list(cdata))
+
+    def fill(f):
+        f["mesh/geometry"] = pts
+        f["mesh/topology"] = cells
+        for key, arr in zip(pkeys, pdata.values(), strict=True):
+            f[f"point_data/{key}"] = arr
+        for key, arr in zip(ckeys, cdata.values(), strict=True):
+            f[f"cell_data/{key}"] = arr
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.unlink(missing_ok=True)
+    _write_h5_atomically(h5_path, fill, fsync)
+    h5 = h5_path.name
+    fields = [
+        _attribute(name, "Node", h5, f"/point_data/{key}", arr)
+        for key, (name, arr) in zip(pkeys, pdata.items(), strict=True)
+    ] + [
+        _attribute(name, "Cell", h5, f"/cell_data/{key}", arr)
+        for key, (name, arr) in zip(ckeys, cdata.items(), strict=True)
+    ]
+    grid = _grid("mesh", _mesh_xml(h5, pts, cells), fields)
+    _replace_text(path, _xdmf_document(grid), fsync)
