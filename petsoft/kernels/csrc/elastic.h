@@ -1,0 +1,52 @@
+/* Compiled hyperelastic element kernels for linear (P1) tetrahedra.
+ *
+ * The formulas are those of petsoft/kernels/materials.py and reference.py (the numpy
+ * specification, which the tests compare against). Every function loops over all n elements
+ * itself; arrays are C-contiguous float64, element-major:
+ *   dN     (n, 4, 3)  shape-function gradients          u    (n, 4, 3) displacements
+ *   volume (n,)       reference volumes (> 0)           mu, lam (n,) Lame parameters
+ *   energy (n,)       volume * psi(F)
+ *   gradient (n, 12)  dW/du, dof 3a+i                   hessian (n, 12, 12) d2W/du2
+ * with F = I + sum_a u_a (x) dN_a.
+ *
+ * Models: 0 linear, 1 stvk, 2 corotated, 3 neohookean (the order of materials.MODELS).
+ *
+ * Return status (all functions): -1 success; e >= 0 the first element whose det F <= 0 for the
+ * neo-Hookean model (its det F is stored in *bad_jacobian if that is not NULL; elements after
+ * it are not computed); PETSOFT_BAD_MODEL for an unknown model code.
+ */
+#ifndef PETSOFT_ELASTIC_H
+#define PETSOFT_ELASTIC_H
+
+#include <stdint.h>
+
+#define PETSOFT_MODEL_LINEAR 0
+#define PETSOFT_MODEL_STVK 1
+#define PETSOFT_MODEL_COROTATED 2
+#define PETSOFT_MODEL_NEOHOOKEAN 3
+#define PETSOFT_BAD_MODEL (-2)
+
+/* Element energies. */
+int64_t petsoft_elastic_energy(int32_t model, int64_t n, const double *dN, const double *volume,
+                               const double *u, const double *mu, const double *lam,
+                               double *energy, double *bad_jacobian);
+
+/* Element gradients and Hessians. Either output may be NULL to skip it. With project_spd != 0
+ * the Hessian is built from the positive semi-definite projection of dP/dF (viewed as a
+ * symmetric 9x9 matrix, negative eigenvalues clamped to zero). */
+int64_t petsoft_elastic_gradient_hessian(int32_t model, int64_t n, const double *dN,
+                                         const double *volume, const double *u,
+                                         const double *mu, const double *lam,
+                                         int32_t project_spd, double *gradient, double *hessian,
+                                         double *bad_jacobian);
+
+/* Pointwise constitutive law: psi (n,), P (n, 3, 3), dPdF (n, 3, 3, 3, 3) from F (n, 3, 3).
+ * P and dPdF may be NULL. */
+int64_t petsoft_material_response(int32_t model, int64_t n, const double *F, const double *mu,
+                                  const double *lam, double *psi, double *P, double *dPdF,
+                                  double *bad_jacobian);
+
+/* In-place positive semi-definite projection of n symmetric 9x9 matrices (n, 81). */
+void petsoft_project_spd9(int64_t n, double *A);
+
+#endif
