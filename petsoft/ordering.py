@@ -1,0 +1,53 @@
+"""Space-filling-curve orderings of mesh entities.
+
+Cells sorted along a Morton (Z-order) curve of their centroids are close in memory when they are
+close in space: assembly gets cache locality and PETSc's cheap ``simple`` partitioner, which cuts
+the cell list into contiguous chunks, produces compact subdomains with short interfaces. (PTScotch
+on the uninterpolated mesh took 10 s for 384k tets on 2 ranks here; this takes 0.1 s.)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+_BITS = 21  # 3 x 21 bits fit an int64 key
+
+
+def _spread_bits(v: np.ndarray) -> np.ndarray:
+    """Insert two zero bits between the low 21 bits of each value (for 3D interleaving)."""
+    v = v.astype(np.uint64) & np.uint64(0x1FFFFF)
+    v = (v | (v << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
+    v = (v | (v << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+    v = (v | (v << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+    v = (v | (v << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+    v = (v | (v << np.uint64(2))) & np.uint64(0x1249249249249249)
+    return v
+
+
+def morton_keys(points: np.ndarray) -> np.ndarray:
+    """Morton keys of points (n, 3) quantised on their bounding box."""
+    points = np.asarray(points, dtype=np.float64)
+    if len(points) == 0:
+        return np.zeros(0, dtype=np.uint64)
+    lo = points.min(axis=0)
+    extent = np.maximum(points.max(axis=0) - lo, np.finfo(float).tiny)
+    q = np.floor((points - lo) / extent.max() * ((1 << _BITS) - 1)).astype(np.int64)
+    return (_spread_bits(q[:, 0]) | (_spread_bits(q[:, 1]) << np.uint64(1))
+            | (_spread_bits(q[:, 2]) << np.uint64(2)))
+
+
+def morton_order(points: np.ndarray) -> np.ndarray:
+    """Permutation sorting points along the Morton curve (stable, deterministic)."""
+    return np.argsort(morton_keys(points), kind="stable")
+
+
+def first_touch_order(cells: np.ndarray, nvertices: int) -> np.ndarray:
+    """Vertex permutation numbering vertices in order of first appearance in ``cells``.
+
+    Returns ``perm`` with ``perm[new] = old``; vertices in no cell come last.
+    """
+    flat = np.asarray(cells, dtype=np.int64).ravel()
+    _, first = np.unique(flat, return_index=True)
+    used = flat[np.sort(first)]
+    unused = np.setdiff1d(np.arange(nvertices), used, assume_unique=False)
+    return np.concatenate([used, unused])
