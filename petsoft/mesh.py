@@ -243,14 +243,17 @@ def _read_meshio(path: Path):
         raise MeshError(f"mesh file {path} is not a regular file")
     try:
         # meshio reports problems with all sorts of exceptions (ReadError, KeyError, ValueError,
-        # UnicodeDecodeError, ...) depending on the format, so catch them all and say which file.
+        # UnicodeDecodeError, ...) depending on the format, and even sys.exit() when no reader
+        # for the extension accepts the file: catch them all and say which file.
         return meshio.read(path)
-    except Exception as exc:
-        detail = str(exc).strip() or type(exc).__name__
+    except (Exception, SystemExit) as exc:
+        if isinstance(exc, SystemExit):
+            detail = "no meshio reader for this extension accepted it"
+        else:
+            detail = f"{str(exc).strip() or 'error'} ({type(exc).__name__})"
         raise MeshError(
-            f"cannot read mesh file {path}: {detail} ({type(exc).__name__}); petsoft reads "
-            "any format meshio reads (gmsh .msh, .vtu, .vtk, .xdmf, medit .mesh, ...), chosen "
-            "by the file extension"
+            f"cannot read mesh file {path}: {detail}; petsoft reads any format meshio reads "
+            "(gmsh .msh, .vtu, .vtk, .xdmf, medit .mesh, ...), chosen by the file extension"
         ) from exc
 
 
@@ -442,7 +445,8 @@ def validate(mesh: Mesh) -> Mesh:
             f"{tets[e].tolist()}) is degenerate: volume {vol[e]:.3e} m^3 for mean edge length "
             f"{h[e]:.3e} m (needs |volume| > {DEGENERATE_RTOL:g} * edge^3); "
             f"{len(degenerate)} of {ne} tetrahedra are degenerate "
-            f"({_listing(degenerate)}). Every tetrahedron needs 4 distinct, non-coplanar vertices"
+            f"({_listing(degenerate, 'tetrahedron ')}). "
+            "Every tetrahedron needs 4 distinct, non-coplanar vertices"
         )
 
     negative = vol < 0
@@ -508,7 +512,7 @@ def _check_node_indices(cells: np.ndarray, n: int, src: str, kind: str, counting
             f"{src}: {kind} {e} (0-based, {counting}; nodes {cells[e].tolist()}) refers to "
             f"node {node}, which does not exist: the mesh has {n} nodes, so valid 0-based "
             f"indices are 0..{n - 1}; {len(rows)} {kind}(s) refer to missing nodes "
-            f"({_listing(rows)})"
+            f"({_listing(rows, kind + ' ')})"
         )
 
 
