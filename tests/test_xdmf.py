@@ -1,0 +1,309 @@
+"""Tests of petsoft.xdmf: what meshio reads back, and that a crash never leaves a .xdmf that
+references incomplete data.
+
+No MPI here: under ``mpiexec -n 2`` each rank runs these independently in its own tmp_path.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import h5py
+import meshio
+import numpy as np
+import pytest
+
+from petsoft import xdmf as xdmf_mod
+from petsoft.mesh import box_mesh
+from petsoft.xdmf import XdmfWriter, write_xdmf
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture
+def mesh():
+    return box_mesh([0.4, 0.04, 0.04], [4, 2, 1])
+
+
+def _frame_fields(mesh, k):
+    rng = np.random.default_rng(k)
+    return (
+        {
+            "displacement": rng.standard_normal((mesh.num_points, 3)),
+            "speed": rng.random(mesh.num_points),
+        },
+        {"energy": rng.random(mesh.num_cells)},
+    )
+
+
+def _read_series(path):
+    """(points, cells, [(t, point_data, cell_data), ...]) as meshio's TimeSeriesReader sees it."""
+    with meshio.xdmf.TimeSeriesReader(path) as reader:
+        points, cells = reader.read_points_cells()
+        frames = [reader.read_data(k) for k in range(reader.num_steps)]
+    return points, cells, frames
+
+
+def _leftovers(directory):
+    return sorted(p.name for p in Path(directory).iterdir() if ".tmp-" in p.name)
+
+
+def test_series_round_trip(tmp_path, mesh):
+    path = tmp_path / "out" / "run.xdmf"  # parent directory is created
+    tags = np.arange(mesh.num_cells) % 3
+    times = [0.0, 0.1 + 0.2, 1.0 / 3.0]  # times that only survive as exact repr
+    written = []
+    with XdmfWriter(path, mesh.points, mesh.tets, cell_data={"region": tags}) as out:
+        assert not path.exists()  # nothing that looks like a result before the first frame
+        for k, t in enumerate(times):
+            pdata, cdata = _frame_fields(mesh, k)
+            out.write(t, pdata, cdata)
+            written.append((pdata, cdata))
+            # After every frame the file on disk is complete and holds exactly the frames so far.
+            _, _, frames = _read_series(path)
+            assert len(frames) == k + 1
+        assert out.num_frames == 3
+    assert path.with_suffix(".h5").exists()
+    ET.parse(path)  # well-formed XML
+
+    points, cells, frames = _read_series(path)
+    np.testing.assert_array_equal(points, mesh.points)
+    assert len(cells) == 1 and cells[0].type == "tetra"
+    np.testing.assert_array_equal(cells[0].data, mesh.tets)
+    assert [f[0] for f in frames] == times
+    for (_, pdata, cdata), (pref, cref) in zip(frames, written, strict=True):
+        assert set(pdata) == {"displacement", "speed"}
+        for name, arr in pref.items():
+            np.testing.assert_array_equal(pdata[name], arr)
+            assert pdata[name].dtype == np.float64
+        np.testing.assert_array_equal(cdata["energy"][0], cref["energy"])
+        np.testing.assert_array_equal(cdata["region"][0], tags)  # static data in every frame
+    assert _leftovers(path.parent) == []
+
+
+def test_h5_layout(tmp_path, mesh):
+    path = tmp_path / "run.xdmf"
+    with XdmfWriter(path, mesh.points, mesh.tets) as out:
+        out.write(0.5, {"u": mesh.points})
+    with h5py.File(tmp_path / "run.h5", "r") as f:
+        np.testing.assert_array_equal(f["mesh/geometry"][()], mesh.points)
+        np.testing.assert_array_equal(f["mesh/topology"][()], mesh.tets)
+        assert f["frames/0"].attrs["time"] == 0.5
+        np.testing.assert_array_equal(f["frames/0/point/u"][()], mesh.points)
+
+
+def test_static_result_round_trip(tmp_path, mesh):
+    path = tmp_path / "static.xdmf"
+    u = np.linspace(0, 1, 3 * mesh.num_points).reshape(-1, 3)
+    stress = np.arange(9 * mesh.num_cells, dtype=float).reshape(-1, 3, 3)
+    write_xdmf(
+        path, mesh.points, mesh.tets, {"u": u}, {"stress": stress, "id": np.arange(mesh.num_cells)}
+    )
+    m = meshio.read(path)
+    np.testing.assert_array_equal(m.points, mesh.points)
+    np.testing.assert_array_equal(m.cells[0].data, mesh.tets)
+    np.testing.assert_array_equal(m.point_data["u"], u)
+    np.testing.assert_array_equal(m.cell_data["stress"][0], stress)
+    np.testing.assert_array_equal(m.cell_data["id"][0], np.arange(mesh.num_cells))
+    assert 'AttributeType="Tensor"' in path.read_text()
+    assert _leftovers(tmp_path) == []
+
+    # Overwriting with a different mesh replaces both files consistently.
+    small = box_mesh([1, 1, 1], [1, 1, 1])
+    write_xdmf(path, small.points, small.tets, {"u": small.points})
+    m = meshio.read(path)
+    np.testing.assert_array_equal(m.points, small.points)
+    np.testing.assert_array_equal(m.point_data["u"], small.points)
+
+
+def test_static_result_without_fields(tmp_path, mesh):
+    path = tmp_path / "bare.xdmf"
+    write_xdmf(path, mesh.points, mesh.tets)
+    m = meshio.read(path)
+    np.testing.assert_array_equal(m.cells[0].data, mesh.tets)
+
+
+def test_close_without_frames_writes_the_mesh(tmp_path, mesh):
+    path = tmp_path / "empty.xdmf"
+    tags = np.ones(mesh.num_cells, np.int64)
+    out = XdmfWriter(path, mesh.points, mesh.tets, cell_data={"region": tags})
+    out.close()
+    out.close()  # idempotent
+    m = meshio.read(path)
+    np.testing.assert_array_equal(m.points, mesh.points)
+    np.testing.assert_array_equal(m.cell_data["region"][0], tags)
+    with pytest.raises(ValueError, match="after close"):
+        out.write(0.0, {})
+
+
+def test_dtypes_and_names(tmp_path, mesh):
+    path = tmp_path / "d.xdmf"
+    pdata = {
+        "von Mises / Pa": np.arange(mesh.num_points, dtype=np.float32),
+        "von Mises _ Pa": np.arange(mesh.num_points, dtype=np.float64),  # same h5 key
+        "fixed": np.arange(mesh.num_points) % 2 == 0,
+        "small": np.arange(mesh.num_points, dtype=np.uint8),
+        'a<b>&"c"': np.zeros((mesh.num_points, 3)),
+    }
+    with XdmfWriter(path, mesh.points, mesh.tets) as out:
+        out.write(1.0, pdata)
+    _, _, [(t, got, _)] = _read_series(path)
+    assert t == 1.0 and set(got) == set(pdata)
+    assert got["von Mises / Pa"].dtype == np.float32
+    np.testing.assert_array_equal(got["von Mises / Pa"], pdata["von Mises / Pa"])
+    np.testing.assert_array_equal(got["von Mises _ Pa"], pdata["von Mises _ Pa"])
+    assert got["fixed"].dtype == np.int32
+    np.testing.assert_array_equal(got["fixed"], pdata["fixed"].astype(np.int32))
+    np.testing.assert_array_equal(got["small"], pdata["small"].astype(np.int32))
+
+
+def test_frame_cell_data_shadows_static(tmp_path, mesh):
+    path = tmp_path / "s.xdmf"
+    with XdmfWriter(path, mesh.points, mesh.tets, cell_data={"c": np.zeros(mesh.num_cells)}) as out:
+        out.write(0.0, {}, {"c": np.ones(mesh.num_cells)})
+        out.write(1.0, {})
+    _, _, frames = _read_series(path)
+    np.testing.assert_array_equal(frames[0][2]["c"][0], 1.0)
+    np.testing.assert_array_equal(frames[1][2]["c"][0], 0.0)
+
+
+def test_output_moves_with_its_directory(tmp_path, mesh):
+    with XdmfWriter(tmp_path / "a" / "run.xdmf", mesh.points, mesh.tets) as out:
+        out.write(0.0, {"u": mesh.points})
+    (tmp_path / "a").rename(tmp_path / "b")  # the .h5 is referenced relative to the .xdmf
+    _, _, [(_, pdata, _)] = _read_series(tmp_path / "b" / "run.xdmf")
+    np.testing.assert_array_equal(pdata["u"], mesh.points)
+
+
+def test_new_writer_replaces_old_series(tmp_path, mesh):
+    path = tmp_path / "run.xdmf"
+    with XdmfWriter(path, mesh.points, mesh.tets) as out:
+        for k in range(3):
+            out.write(k, {"u": mesh.points * k})
+    out = XdmfWriter(path, mesh.points, mesh.tets)
+    # The old .xdmf referenced frames the new .h5 does not have: it is gone until a frame is in.
+    assert not path.exists()
+    out.write(5.0, {"u": mesh.points})
+    _, _, frames = _read_series(path)
+    assert [f[0] for f in frames] == [5.0]
+    out.close()
+
+
+# ------------------------------------------------------------------------------------------------
+# bad calls write nothing
+
+
+def test_bad_calls(tmp_path, mesh):
+    path = tmp_path / "bad.xdmf"
+    out = XdmfWriter(path, mesh.points, mesh.tets)
+    with pytest.raises(ValueError, match=r"point_data 'u' has shape \(3, 3\).*number of nodes"):
+        out.write(0.0, {"u": np.zeros((3, 3))})
+    with pytest.raises(ValueError, match="cell_data 'e'.*number of cells, 48"):
+        out.write(0.0, {"u": mesh.points}, {"e": np.zeros(5)})
+    with pytest.raises(TypeError, match="dtype complex128"):
+        out.write(0.0, {"u": mesh.points.astype(complex)})
+    with pytest.raises(ValueError, match="finite"):
+        out.write(float("nan"), {})
+    assert not path.exists() and out.num_frames == 0
+    out.write(1.0, {"u": mesh.points})
+    with pytest.raises(ValueError, match="must increase"):
+        out.write(1.0, {"u": mesh.points})
+    out.close()
+    _, _, frames = _read_series(path)
+    assert len(frames) == 1
+
+
+def test_bad_construction(tmp_path, mesh):
+    with pytest.raises(ValueError, match=r"must not end in \.h5"):
+        XdmfWriter(tmp_path / "x.h5", mesh.points, mesh.tets)
+    with pytest.raises(ValueError, match="must not contain ':'"):
+        XdmfWriter(tmp_path / "a:b.xdmf", mesh.points, mesh.tets)
+    with pytest.raises(ValueError, match=r"\(N, 3\)"):
+        XdmfWriter(tmp_path / "x.xdmf", mesh.points[:, :2], mesh.tets)
+    with pytest.raises(ValueError, match="outside"):
+        XdmfWriter(tmp_path / "x.xdmf", mesh.points, mesh.tets + 1000)
+    with pytest.raises(ValueError, match="cell_data 'r'"):
+        XdmfWriter(tmp_path / "x.xdmf", mesh.points, mesh.tets, cell_data={"r": [1, 2]})
+
+
+# ------------------------------------------------------------------------------------------------
+# crashes
+
+
+def test_failure_while_writing_frame_data(tmp_path, mesh, monkeypatch):
+    """A frame whose HDF5 write fails half-way is never referenced; the next one replaces it."""
+    path = tmp_path / "run.xdmf"
+    out = XdmfWriter(path, mesh.points, mesh.tets)
+    out.write(0.0, {"u": mesh.points, "v": mesh.points})
+    before = path.read_bytes()
+
+    real = h5py.Group.__setitem__
+
+    def failing(self, name, value):
+        if str(name).endswith("point/v"):
+            raise OSError("disk full (simulated)")
+        return real(self, name, value)
+
+    monkeypatch.setattr(h5py.Group, "__setitem__", failing)
+    with pytest.raises(OSError, match="simulated"):
+        out.write(1.0, {"u": 2 * mesh.points, "v": 2 * mesh.points})
+    monkeypatch.undo()
+
+    assert path.read_bytes() == before and out.num_frames == 1
+    _, _, frames = _read_series(path)
+    assert [f[0] for f in frames] == [0.0]
+
+    out.write(2.0, {"u": 3 * mesh.points, "v": 3 * mesh.points})
+    out.close()
+    _, _, frames = _read_series(path)
+    assert [f[0] for f in frames] == [0.0, 2.0]
+    np.testing.assert_array_equal(frames[1][1]["v"], 3 * mesh.points)
+
+
+def test_failure_while_replacing_xdmf(tmp_path, mesh, monkeypatch):
+    path = tmp_path / "run.xdmf"
+    out = XdmfWriter(path, mesh.points, mesh.tets)
+    out.write(0.0, {"u": mesh.points})
+    before = path.read_bytes()
+
+    def failing(src, dst):
+        raise OSError("rename failed (simulated)")
+
+    monkeypatch.setattr(xdmf_mod.os, "replace", failing)
+    with pytest.raises(OSError, match="simulated"):
+        out.write(1.0, {"u": mesh.points})
+    monkeypatch.undo()
+    assert path.read_bytes() == before and out.num_frames == 1
+    assert _leftovers(tmp_path) == []  # the temporary file is cleaned up
+    out.write(2.0, {"u": mesh.points})
+    out.close()
+    assert [f[0] for f in _read_series(path)[2]] == [0.0, 2.0]
+
+
+def test_killed_process_leaves_consistent_prefix(tmp_path):
+    """A process that dies without closing the writer leaves a readable series of its frames."""
+    script = textwrap.dedent(
+        """
+        import os, sys
+        import numpy as np
+        from petsoft.mesh import box_mesh
+        from petsoft.xdmf import XdmfWriter
+        m = box_mesh([1, 1, 1], [2, 2, 2])
+        out = XdmfWriter(sys.argv[1], m.points, m.tets, fsync=True)
+        for k in range(3):
+            out.write(0.5 * k, {"u": m.points * k})
+        os._exit(3)  # no close(), no atexit, no flushing of Python objects
+        """
+    )
+    path = tmp_path / "killed.xdmf"
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    proc = subprocess.run([sys.executable, "-c", script, str(path)], env=env, timeout=60)
+    assert proc.returncode == 3
+    points, _, frames = _read_series(path)
+    assert [f[0] for f in frames] == [0.0, 0.5, 1.0]
+    np.testing.assert_array_equal(frames[2][1]["u"], points * 2)
