@@ -329,21 +329,36 @@ def _mean_edge_lengths(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return sum(np.linalg.norm(p[:, i] - p[:, j], axis=1) for i, j in pairs) / 6.0
 
 
+def _unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distinct rows of an (M, 3) int array, the index of each row among them, and counts.
+
+    Same result as ``np.unique(rows, axis=0, return_inverse=True, return_counts=True)``, but a
+    lexicographic sort of the columns is several times faster than numpy's row-as-void sort.
+    """
+    order = np.lexsort(rows.T[::-1])
+    srt = rows[order]
+    new = np.ones(len(rows), bool)
+    new[1:] = np.any(srt[1:] != srt[:-1], axis=1)
+    group = np.cumsum(new) - 1
+    inverse = np.empty(len(rows), np.int64)
+    inverse[order] = group
+    counts = np.bincount(group)
+    return srt[new], inverse, counts
+
+
 def _face_table(tets: np.ndarray):
     """All 4E outward faces, and for each its class among the geometrically equal faces.
 
     Returns
     -------
     faces : (4E, 3) outward-oriented faces, row ``4*e + i`` is the face opposite vertex i of e.
-    keys : (U, 3) the distinct faces with sorted vertices.
+    keys : (U, 3) the distinct faces with sorted vertices, in lexicographic order.
     inverse : (4E,) index into ``keys`` of each face.
     counts : (U,) how many tetrahedra share each distinct face.
     """
     faces = tets[:, _TET_FACES].reshape(-1, 3)
-    keys, inverse, counts = np.unique(
-        np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True
-    )
-    return faces, keys, inverse.reshape(-1), counts
+    keys, inverse, counts = _unique_rows(np.sort(faces, axis=1))
+    return faces, keys, inverse, counts
 
 
 def boundary_facets(tets: np.ndarray) -> np.ndarray:
@@ -551,9 +566,7 @@ def _check_faces(
             continue
         s = np.sort(tris, axis=1)
         # Locate each triangle among the sorted distinct faces (lexicographic row search).
-        both = np.concatenate([keys, s])
-        _, inv = np.unique(both, axis=0, return_inverse=True)
-        inv = inv.reshape(-1)
+        _, inv, _ = _unique_rows(np.concatenate([keys, s]))
         face_of = np.full(inv.max() + 1, -1, np.int64)
         face_of[inv[: len(keys)]] = np.arange(len(keys))
         match = face_of[inv[len(keys) :]]

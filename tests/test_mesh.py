@@ -651,3 +651,14 @@ def test_boundary_facets_fast_enough():
     mesh = box_mesh([1, 1, 1], [20, 20, 40])
     bf = boundary_facets(mesh.tets)
     assert len(bf) == 4 * (400 + 800 + 800)
+
+
+def test_unique_rows_matches_numpy():
+    from petsoft.mesh import _unique_rows
+
+    rows = np.random.default_rng(0).integers(0, 4, size=(500, 3))
+    keys, inverse, counts = _unique_rows(rows)
+    k2, i2, c2 = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+    np.testing.assert_array_equal(keys, k2)
+    np.testing.assert_array_equal(inverse, i2.reshape(-1))
+    np.testing.assert_array_equal(counts, c2)
