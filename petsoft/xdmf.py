@@ -208,6 +208,22 @@ def _write_h5_atomically(path: Path, fill, fsync: bool) -> None:
             tmp.unlink()
 
 
+def _open_for_append(path: Path):
+    """Open the HDF5 file to add a frame, without HDF5's file lock.
+
+    Someone watching the run (ParaView, a script with h5py) holds a shared lock on the file; the
+    exclusive lock HDF5 wants for writing would then fail and kill the simulation. The frames a
+    reader can know of (through the .xdmf) are complete and never modified, so writing without
+    the lock is safe for them.
+    """
+    import h5py
+
+    try:
+        return h5py.File(path, "r+", locking=False)
+    except TypeError:  # h5py < 3.5 has no `locking`: fall back to HDF5's default
+        return h5py.File(path, "r+")
+
+
 def _xdmf_document(grids: str) -> str:
     return (
         '<?xml version="1.0" encoding="utf-8"?>\n'
@@ -314,8 +330,6 @@ class XdmfWriter:
         ValueError
             On a closed writer, a bad time or arrays of the wrong length. Nothing is written then.
         """
-        import h5py
-
         if self._closed:
             raise ValueError(f"{self.path}: write() after close()")
         t = float(time)
@@ -333,7 +347,7 @@ class XdmfWriter:
         group = f"frames/{k}"
         pkeys = _dataset_names(list(pdata))
         ckeys = _dataset_names(list(cdata))
-        with h5py.File(self.h5_path, "r+") as f:
+        with _open_for_append(self.h5_path) as f:
             if group in f:  # left over by a write that failed half-way: never referenced
                 del f[group]
             g = f.create_group(group)

@@ -307,3 +307,29 @@ def test_killed_process_leaves_consistent_prefix(tmp_path):
     points, _, frames = _read_series(path)
     assert [f[0] for f in frames] == [0.0, 0.5, 1.0]
     np.testing.assert_array_equal(frames[2][1]["u"], points * 2)
+
+
+def test_writing_while_another_process_reads(tmp_path, mesh):
+    """A viewer holding the .h5 open (shared HDF5 lock) must not make the writer fail."""
+    path = tmp_path / "watched.xdmf"
+    out = XdmfWriter(path, mesh.points, mesh.tets)
+    out.write(0.0, {"u": mesh.points})
+    reader = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, h5py; f = h5py.File(sys.argv[1], 'r'); print('open', flush=True); "
+            "sys.stdin.read()",
+            str(path.with_suffix(".h5")),
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert reader.stdout.readline().strip() == "open"
+        out.write(1.0, {"u": 2 * mesh.points})
+    finally:
+        reader.communicate("", timeout=60)
+    out.close()
+    assert [f[0] for f in _read_series(path)[2]] == [0.0, 1.0]
