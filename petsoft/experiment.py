@@ -521,7 +521,9 @@ class _Reader:
         return f"{self.name}.{_key_part(k)}" if self.name else _key_part(k)
 
     def header(self) -> str:
-        return f"[{self.name}]" if self.name else "the top level"
+        if not self.name:
+            return "the top level"
+        return self.name if self.name.endswith("]") else f"[{self.name}]"
 
     def fail(self, k: str | None, message: str) -> NoReturn:
         raise ExperimentError(f"{self.source}: {self.key(k)}{message}")
@@ -536,7 +538,7 @@ class _Reader:
         for k in self.data:
             if k not in allowed:
                 close = _suggest(k, allowed)
-                hint = f"; did you mean {self.key(close)}?" if close else ""
+                hint = f"; did you mean {self.key(close)}?" if close else "."
                 raise ExperimentError(
                     f"{self.source}: unknown key {self.key(k)}{hint} Valid keys in "
                     f"{self.header()}: {', '.join(allowed)}{note}"
@@ -595,7 +597,7 @@ class _Reader:
             self.wrong_type(k, v, f"a string, one of {listing}")
         if v not in choices:
             close = _suggest(v, choices) or _suggest(v.lower(), choices)
-            hint = f'; did you mean "{close}"?' if close else ""
+            hint = f'; did you mean "{close}"?' if close else "."
             self.fail(k, f" = {_show(v)} is not a valid choice{hint} Valid: {listing}")
         return v
 
@@ -881,10 +883,16 @@ def _read_mesh(r: _Reader | None, top: _Reader, base: Path) -> MeshSpec:
     box = r.table("box", header="an inline table { size = [lx, ly, lz], cells = [nx, ny, nz] }")
     assert box is not None
     box.check_keys(("size", "cells"))
-    size = box.vector("size", rng=_POSITIVE, unit="mesh units, each > 0")
+    size = box.vector("size", rng=_POSITIVE, unit="mesh units")
     cells_raw = box.get("cells", what="an array of 3 integers >= 1")
-    if not isinstance(cells_raw, list) or len(cells_raw) != 3:
+    if not isinstance(cells_raw, list):
         box.wrong_type("cells", cells_raw, "an array of 3 integers, each >= 1")
+    if len(cells_raw) != 3:
+        box.fail(
+            "cells",
+            f" = {_show(cells_raw)} has {len(cells_raw)} entries: expected an array of 3 "
+            "integers, each >= 1",
+        )
     cells = []
     for i, c in enumerate(cells_raw):
         item = _Reader({f"cells[{i}]": c}, box.name, box.source)
@@ -907,6 +915,9 @@ def _read_material(r: _Reader | None) -> dict[str, MaterialSpec]:
     scalars = _Reader({k: v for k, v in r.data.items() if not isinstance(v, dict)}, r.name,
                       r.source)  # fmt: skip
     scalars.check_keys(_MATERIAL_KEYS, note=" (and [material.<region>] tables for regions)")
+    for k in _MATERIAL_KEYS:
+        if isinstance(r.data.get(k), dict):
+            r.wrong_type(k, r.data[k], "a string" if k == "model" else "a number")
     values = _material_values(scalars)
     for k, (rng, unit) in _MATERIAL_RANGES.items():
         if k not in values:
@@ -916,8 +927,6 @@ def _read_material(r: _Reader | None) -> dict[str, MaterialSpec]:
     for name, table in r.data.items():
         if not isinstance(table, dict):
             continue
-        if name in _MATERIAL_KEYS:
-            r.wrong_type(name, table, "a number" if name != "model" else "a string")
         if name == "default":
             r.fail(name, " is reserved: the default material is [material] itself")
         sub = _Reader(table, r.key(name), r.source)
@@ -992,9 +1001,8 @@ def _read_boundary(r: _Reader) -> BoundarySpec:
             owners = [kd for kd, keys in _BOUNDARY_KEYS.items() if k in keys]
             close = _suggest(k, allowed)
             hint = f"; did you mean {r.key(close)}?" if close else ""
-            belongs = (
-                f" ({k} belongs to kind = {' or '.join(repr(o) for o in owners)})" if owners else ""
-            )
+            quoted = " or ".join(f'"{o}"' for o in owners)
+            belongs = f" ({k} belongs to kind = {quoted})" if owners else ""
             raise ExperimentError(
                 f'{r.source}: {r.key(k)} is not a key of a boundary with kind = "{kind}"{hint}'
                 f"{belongs}. Valid keys for this kind: {', '.join(allowed)}"
