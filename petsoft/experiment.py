@@ -31,6 +31,9 @@ Decisions the format leaves open
   experiment file every step and no checkpoints (``checkpoint_every = 0``). ``[time]`` has no
   defaults for ``end`` and ``step``; without ``[time]`` :attr:`Experiment.time` is None (fine for
   ``static`` and ``modes``; ``simulate`` must refuse it).
+* Expressions and points (``where``, displacements, tractions, initial fields, ``probes``,
+  ``[[mass]] at``, collider geometry) are in the coordinates of the mesh after ``scale``, i.e. in
+  metres, like the markers of a recording (formats.md section 2).
 * Paths (``mesh.file``, ``output.directory``) are resolved relative to the experiment file's
   directory and stored absolute; the mesh file must exist. :func:`write_toml` writes them relative
   to the new file's directory.
@@ -53,6 +56,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import json
+import keyword
 import math
 import os
 import re
@@ -954,11 +958,11 @@ def _read_regions(r: _Reader | None) -> dict[str, RegionSpec]:
                 f" = {_show(table)}: regions are tables: write [region.{_key_part(name)}] "
                 'with where = "<condition of x, y, z>"',
             )
-        if not name.isidentifier() or name in _RESERVED_NAMES:
+        if not _is_region_name(name) or name != name.strip():
             r.fail(
                 name,
                 ": a region name must be an identifier (letters, digits, _) other than x, y, z, "
-                "t, pi, default, and, or, not and the function names, so that a boundary's "
+                "t, pi, default, Python keywords and the function names, so that a boundary's "
                 "where can name it",
             )
         sub = _Reader(table, r.key(name), r.source)
@@ -990,7 +994,7 @@ def _read_gravity(r: _Reader | None) -> GravitySpec:
 
 def _is_region_name(text: str) -> bool:
     s = text.strip()
-    return s.isidentifier() and s not in _RESERVED_NAMES
+    return s.isidentifier() and not keyword.iskeyword(s) and s not in _RESERVED_NAMES
 
 
 def _read_boundary(r: _Reader) -> BoundarySpec:

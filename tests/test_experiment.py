@@ -466,6 +466,8 @@ INVALID = [
     ("region.x", {"where": "y < 0"}, ["region.x", "identifier"]),
     ("region.my-region", {"where": "y < 0"}, ["region.my-region:", "identifier"]),
     ("region.my region", {"where": "y < 0"}, ['region."my region":', "identifier"]),
+    ("region.True", {"where": "y < 0"}, ["region.True:", "identifier"]),
+    ("boundary.0.where", "True", ["boundary[0].where", "True", "not allowed"]),
     ("region.inc", "x < 0", ['region.inc = "x < 0"', "[region.inc]"]),
     ("region.inc", {}, ["region.inc.where is missing"]),
     ("region.inc", {"where": "x < 0", "were": 1}, ["region.inc.were", "did you mean"]),
