@@ -1,5 +1,97 @@
-"""The `petsoft` console command."""
+"""The `petsoft` console command: parses petsoft's own arguments, hands the rest to PETSc.
+
+PETSc options (single dash, e.g. ``-ksp_type cg -pc_type gamg``) go after the experiment file;
+petsoft's own options use two dashes and may stand anywhere. PETSc is initialised with those
+options before any module that imports it, so the command line always wins over defaults.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+
+_PETSC_OPTION = re.compile(r"^-[A-Za-z][A-Za-z0-9_]+")
+_FLAGS_WITHOUT_VALUE = {"--restart", "--spd", "--quiet", "--help"}
 
 
-def main(argv=None) -> int:
-    raise SystemExit("petsoft: not yet implemented")
+def split_arguments(argv: list[str]) -> tuple[list[str], list[str]]:
+    """Split argv into petsoft's arguments and PETSc options (in their order)."""
+    ours, petsc, i = [], [], 0
+    in_petsc = False
+    while i < len(argv):
+        tok = argv[i]
+        if tok.startswith("--"):
+            ours.append(tok)
+            if ("=" not in tok and tok not in _FLAGS_WITHOUT_VALUE and in_petsc
+                    and i + 1 < len(argv) and not argv[i + 1].startswith("-")):
+                ours.append(argv[i + 1])
+                i += 1
+        elif _PETSC_OPTION.match(tok):
+            in_petsc = True
+            petsc.append(tok)
+        elif in_petsc:
+            petsc.append(tok)           # the value of the preceding PETSc option
+        else:
+            ours.append(tok)
+        i += 1
+    return ours, petsc
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="petsoft",
+        description="Simulate soft deformable objects with PETSc. PETSc options (e.g. "
+                    "-ksp_type cg -pc_type gamg) go after the experiment file.")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    s = sub.add_parser("static", help="quasistatic equilibrium of an experiment",
+                       description="Solve the quasistatic problem of EXPERIMENT.toml; writes "
+                                   "displacement.xdmf/.h5 and summary.json.")
+    s.add_argument("experiment", help="experiment file (TOML, see the formats spec)")
+    _static_options(s)
+    d = sub.add_parser("demo", help="run the embedded example (no input needed)",
+                       description="Solve an embedded neo-Hookean cantilever under gravity and an "
+                                   "end load; writes results and a plot to --out.")
+    d.add_argument("--out", default="petsoft-demo", help="output directory (default %(default)s)")
+    d.add_argument("--method", choices=("snes", "tao"), default="snes")
+    d.add_argument("--load-steps", type=int, default=4)
+    return p
+
+
+def _static_options(s) -> None:
+    s.add_argument("--out", help="output directory (default: [output] directory)")
+    s.add_argument("--method", choices=("snes", "tao"), default="snes",
+                   help="Newton on the residual (snes) or energy minimisation (tao)")
+    s.add_argument("--load-steps", type=int, default=1, help="equal load increments (>= 1)")
+    s.add_argument("--spd", action="store_true",
+                   help="project element tangents to positive semi-definite")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``petsoft`` command."""
+    argv = sys.argv[1:] if argv is None else argv
+    ours, petsc_args = split_arguments(argv)
+    args = _parser().parse_args(ours)
+    if getattr(args, "load_steps", 1) < 1:
+        _parser().error("--load-steps must be >= 1")
+    import petsc4py
+
+    petsc4py.init(["petsoft", *petsc_args])
+    from petsc4py import PETSc
+
+    from .errors import PetsoftError
+
+    try:
+        from . import commands
+
+        return commands.run(args)
+    except PetsoftError as exc:
+        if PETSc.COMM_WORLD.rank == 0:
+            print(f"petsoft: error: {exc}", file=sys.stderr, flush=True)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -116,6 +116,7 @@ class DistributedMesh:
         self.file_to_local = np.full(nvert, -1, dtype=np.int64)
         self.file_to_local[self.vertex_ids] = np.arange(self.nvertices)
         self._exterior = None
+        self._volumes = None
 
     # -- vectors -------------------------------------------------------------------------------
     def create_global_vec(self) -> PETSc.Vec:
@@ -168,6 +169,15 @@ class DistributedMesh:
         return self.gather(self.to_local(gvec), root=root)
 
     # -- geometry ------------------------------------------------------------------------------
+    @property
+    def cell_volumes(self) -> np.ndarray:
+        """(ne,) reference volumes of the local cells."""
+        if self._volumes is None:
+            X = self.points[self.cells]
+            self._volumes = np.einsum("ij,ij->i", np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]),
+                                      X[:, 3] - X[:, 0]) / 6.0
+        return self._volumes
+
     @property
     def exterior(self) -> tuple[np.ndarray, np.ndarray]:
         """Exterior faces of the whole mesh (file numbering) and the cell holding each."""

@@ -419,7 +419,8 @@ static inline void element_gradient(const State *s, const double *dN, double V, 
 }
 
 /* H[3a+i][3b+k] = V sum_jl dN_a[j] A[3i+j][3k+l] dN_b[l] from a (projected) 9x9 tangent. */
-static void hessian_from_tangent(const double *A, const double *dN, double V, double *H)
+static void hessian_from_tangent(const double *A, const double *dN, double V,
+                                 double *restrict H)
 {
     double T[9][12]; /* T[3i+j][3b+k] = V sum_l A[3i+j][3k+l] dN_b[l] */
     for (int r = 0; r < 9; ++r)
@@ -444,7 +445,7 @@ static void hessian_from_tangent(const double *A, const double *dN, double V, do
  * contract each model's dP/dF (see materials.py) with dN_a[j] dN_b[l]. */
 
 /* linear: H_ab[i][k] = V (mu (dN_a.dN_b delta_ik + dN_a[k] dN_b[i]) + lam dN_a[i] dN_b[k]). */
-static void hessian_linear(const double *dN, double V, double mu, double lam, double *H)
+static void hessian_linear(const double *dN, double V, double mu, double lam, double *restrict H)
 {
     const double vm = V * mu, vl = V * lam;
     for (int a = 0; a < 4; ++a)
@@ -463,7 +464,7 @@ static void hessian_linear(const double *dN, double V, double mu, double lam, do
  * H_ab[i][k] = V (dN_a.S dN_b delta_ik + mu (dN_a.dN_b B_ik + f_a[k] f_b[i]) + lam f_a[i] f_b[k]).
  */
 static void hessian_stvk(const State *s, const double *dN, double V, double mu, double lam,
-                         double *H)
+                         double *restrict H)
 {
     double f[4][3], Sd[4][3];
     apply_nodes(s->F, dN, f);
@@ -486,7 +487,7 @@ static void hessian_stvk(const State *s, const double *dN, double V, double mu, 
  * H_ab[i][k] = V (2 mu dN_a.dN_b delta_ik + lam r_a[i] r_b[k]
  *                 + c1 sum_m T_m w_ma[i] w_mb[k]). */
 static void hessian_corotated(const State *s, const double *dN, double V, double mu, double lam,
-                              double *H)
+                              double *restrict H)
 {
     double r[4][3], w[3][4][3];
     apply_nodes(s->R, dN, r);
@@ -509,7 +510,7 @@ static void hessian_corotated(const State *s, const double *dN, double V, double
 /* neo-Hookean, with spatial gradients g_a = F^{-T} dN_a:
  * H_ab[i][k] = V (mu dN_a.dN_b delta_ik + (mu - lam ln J) g_a[k] g_b[i] + lam g_a[i] g_b[k]). */
 static void hessian_neohookean(const State *s, const double *dN, double V, double mu,
-                               double lam, double *H)
+                               double lam, double *restrict H)
 {
     double g[4][3];
     apply_nodes(s->FinvT, dN, g);

@@ -1,0 +1,128 @@
+"""Building a discrete model from an experiment: mesh, regions, materials, loads, conditions."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from petsc4py import PETSc
+
+from .boundary import DirichletConditions
+from .distributed import DistributedMesh
+from .errors import ExperimentError, PetsoftError
+from .mesh import box_mesh, read_mesh
+from .physics.elastic import ElasticTerm
+from .physics.loads import gravity_forces, traction_forces
+from .regions import RegionResolver
+
+
+def on_root(comm: PETSc.Comm, fn, *args):
+    """Run ``fn`` on rank 0 and share its result; a user error there is raised on every rank."""
+    mpi = comm.tompi4py()
+    result, error = None, None
+    if mpi.rank == 0:
+        try:
+            result = fn(*args)
+        except PetsoftError as exc:
+            error = exc
+    error = mpi.bcast(error, root=0)
+    if error is not None:
+        raise error
+    return result
+
+
+def load_mesh(experiment):
+    """The experiment's mesh (read or generated), validated; call on rank 0."""
+    spec = experiment.mesh
+    if spec.box is not None:
+        size = [s * spec.scale for s in spec.box.size]
+        return box_mesh(size, spec.box.cells)
+    return read_mesh(spec.file, scale=spec.scale)
+
+
+@dataclass
+class Model:
+    """The discrete quasistatic model of an experiment on a distributed mesh.
+
+    Attributes
+    ----------
+    dmesh : DistributedMesh
+    resolver : RegionResolver
+    elastic : ElasticTerm
+    density : ndarray (ne,)
+        Density of each local cell.
+    external : PETSc.Vec
+        Global nodal external forces (gravity + tractions) at full load.
+    dirichlet : DirichletConditions
+    """
+
+    experiment: object
+    dmesh: DistributedMesh
+    resolver: RegionResolver
+    elastic: ElasticTerm
+    density: np.ndarray
+    external: PETSc.Vec
+    dirichlet: DirichletConditions
+
+
+def cell_materials(experiment, resolver: RegionResolver):
+    """Per-cell (file numbering) model, E, nu, density: the default, then region overrides."""
+    ncell = len(resolver.mesh.tets)
+    default = experiment.material_for(None)
+    model = np.full(ncell, default.model, dtype=object)
+    E = np.full(ncell, default.youngs_modulus)
+    nu = np.full(ncell, default.poisson_ratio)
+    rho = np.full(ncell, default.density)
+    for name, spec in experiment.material.items():
+        if name == "default":
+            continue
+        cells = resolver.cell_mask(name, key=f"material.{name}")
+        if not cells.any():
+            raise ExperimentError(f"{experiment.source}: material.{name}: region {name!r} "
+                                  "contains no cell of the mesh")
+        model[cells], E[cells], nu[cells], rho[cells] = (
+            spec.model, spec.youngs_modulus, spec.poisson_ratio, spec.density)
+    return model, E, nu, rho
+
+
+def build_model(experiment, comm: PETSc.Comm | None = None, *, project_spd: bool = False,
+                mesh=None) -> Model:
+    """Distribute the experiment's mesh and assemble its quasistatic model (all ranks call)."""
+    comm = comm if comm is not None else PETSc.COMM_WORLD
+    if experiment.is_mass_spring:
+        raise ExperimentError(f"{experiment.source}: [springs] models are not supported by this "
+                              "command yet; give a [material]")
+    if mesh is None:
+        mesh = on_root(comm, load_mesh, experiment)
+    dmesh = DistributedMesh(mesh, comm)
+    resolver = RegionResolver(dmesh.mesh, experiment.regions, experiment.source)
+    models, E, nu, rho = cell_materials(experiment, resolver)
+    local = dmesh.cell_ids
+    elastic = ElasticTerm(dmesh, models[local], E[local], nu[local], project_spd=project_spd)
+
+    forces = gravity_forces(dmesh, rho[local], experiment.gravity.acceleration)
+    conditions = []
+    for i, b in enumerate(experiment.boundaries):
+        key = f"boundary[{i}].where"
+        if b.kind == "traction":
+            faces = resolver.faces(b.where, key)
+            if dmesh.comm.tompi4py().allreduce(len(faces)) == 0:
+                raise ExperimentError(f"{experiment.source}: {key}: the traction selects no "
+                                      "boundary face (a face belongs when all its vertices do)")
+            pts = dmesh.mesh.points[faces].reshape(-1, 3)
+            t = np.stack([e.evaluate_at(pts, t=0.0) for e in b.value], axis=1).reshape(-1, 3, 3)
+            forces += traction_forces(dmesh, faces, t)
+            continue
+        if b.kind == "prescribed" and b.series is not None:
+            raise ExperimentError(f"{experiment.source}: boundary[{i}].series: measured input "
+                                  "series need a recording; `static` takes expressions only")
+        mask = resolver.vertex_mask(b.where, key)
+        if not mask.any():
+            raise ExperimentError(f"{experiment.source}: {key}: selects no vertex of the mesh")
+        conditions.append((mask, b.component_indices,
+                           b.displacement if b.kind == "prescribed" else None))
+    external = dmesh.create_global_vec()
+    external.zeroEntries()
+    dmesh.add_to_global(forces, external)
+    return Model(experiment, dmesh, resolver, elastic, rho[local], external,
+                 DirichletConditions(dmesh, conditions))

@@ -1,0 +1,109 @@
+"""The hyperelastic term: elastic energy of tetrahedral P1 elements, per-region materials."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..assembly import CHUNK, MatrixAssembler
+from ..errors import InvertedElementError
+from ..kernels import elastic as kernels
+from ..kernels.scatter import scatter_add_vector
+from ..kernels.tet import shape_gradients
+
+
+@dataclass
+class ElementGroup:
+    """Local cells sharing a material model (parameters may vary per cell)."""
+
+    name: str
+    model: str
+    cells: np.ndarray        # local cell indices into DistributedMesh.cells
+    conn: np.ndarray         # (n, 4) local vertex indices
+    dN: np.ndarray           # (n, 4, 3)
+    volume: np.ndarray       # (n,)
+    mu: np.ndarray           # (n,)
+    lam: np.ndarray          # (n,)
+
+
+class ElasticTerm:
+    """Sum of element strain energies W(u) = sum_e V_e psi(F_e).
+
+    Parameters
+    ----------
+    dmesh : DistributedMesh
+    models : sequence of str, one per local cell
+        Material model of each local cell (see :data:`petsoft.kernels.elastic.MODELS`).
+    youngs_modulus, poisson_ratio : ndarray (ne,)
+        Per local cell.
+    project_spd : bool
+        Use the positive semi-definite projection of the material tangent in the Hessian.
+    """
+
+    name = "elastic"
+
+    def __init__(self, dmesh, models, youngs_modulus, poisson_ratio, project_spd: bool = False):
+        self.dmesh = dmesh
+        self.project_spd = project_spd
+        models = np.asarray(models)
+        X = dmesh.points[dmesh.cells]
+        dN, volume = shape_gradients(X)
+        mu, lam = kernels.lame_parameters(np.asarray(youngs_modulus, float),
+                                          np.asarray(poisson_ratio, float))
+        self.groups: list[ElementGroup] = []
+        for model in sorted(set(models.tolist())):
+            cells = np.flatnonzero(models == model)
+            self.groups.append(ElementGroup(
+                f"elastic:{model}", model, cells, np.ascontiguousarray(dmesh.cells[cells]),
+                np.ascontiguousarray(dN[cells]), np.ascontiguousarray(volume[cells]),
+                np.ascontiguousarray(mu[cells]), np.ascontiguousarray(lam[cells])))
+        self._H = np.empty((CHUNK, 12, 12))
+        self._g = np.empty((CHUNK, 12))
+
+    def connectivities(self) -> dict[str, np.ndarray]:
+        return {g.name: g.conn for g in self.groups}
+
+    def _file_error(self, group: ElementGroup, start: int, err: InvertedElementError):
+        element = int(self.dmesh.cell_ids[group.cells[start + err.element]])
+        return InvertedElementError(element, err.jacobian)
+
+    def _chunks(self, group: ElementGroup, u_local: np.ndarray):
+        for start in range(0, len(group.cells), CHUNK):
+            stop = min(start + CHUNK, len(group.cells))
+            yield start, stop, u_local[group.conn[start:stop]]
+
+    def energy(self, u_local: np.ndarray) -> float:
+        """This rank's share of the elastic energy (sum over ranks gives the total)."""
+        total = 0.0
+        for g in self.groups:
+            for start, stop, ue in self._chunks(g, u_local):
+                try:
+                    e = kernels.element_energy(g.model, g.dN[start:stop], g.volume[start:stop], ue,
+                                               g.mu[start:stop], g.lam[start:stop])
+                except InvertedElementError as err:
+                    raise self._file_error(g, start, err) from None
+                total += float(e.sum())
+        return total
+
+    def add_gradient(self, u_local: np.ndarray, out: np.ndarray,
+                     assembler: MatrixAssembler | None = None) -> None:
+        """Add dW/du into the local (nv*3,) array ``out``; with ``assembler`` also the Hessian."""
+        for g in self.groups:
+            for start, stop, ue in self._chunks(g, u_local):
+                n = stop - start
+                H = self._H[:n] if assembler is not None else None
+                try:
+                    kernels.element_gradient_hessian_into(
+                        g.model, g.dN[start:stop], g.volume[start:stop], ue, g.mu[start:stop],
+                        g.lam[start:stop], self._g[:n], H, project_spd=self.project_spd)
+                except InvertedElementError as err:
+                    raise self._file_error(g, start, err) from None
+                if out is not None:
+                    scatter_add_vector(g.conn[start:stop], self._g[:n], out)
+                if assembler is not None:
+                    assembler.add(g.name, H, start)
+
+    def add_hessian(self, u_local: np.ndarray, assembler: MatrixAssembler) -> None:
+        """Add d2W/du2 into the assembler."""
+        self.add_gradient(u_local, None, assembler)

@@ -1,0 +1,260 @@
+"""Quasistatic equilibrium: Newton (SNES) on the residual, or minimisation (TAO) of the energy.
+
+Both solve  grad W(u) = f_ext  with Dirichlet conditions, for the potential
+Pi(u) = W(u) - f_ext . u. Loads and prescribed displacements are applied in ``load_steps`` equal
+increments; a failed increment is retried with half the size. Before each increment the change of
+prescribed displacements is spread into the body by one linear solve with the current tangent
+(a lifting), so that Newton never starts from a configuration with a boundary layer of crushed
+elements.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from .assembly import MatrixAssembler
+from .errors import InvertedElementError, SolverError
+
+SNES_REASONS = {v: k for k, v in PETSc.SNES.ConvergedReason.__dict__.items() if k.isupper()}
+TAO_REASONS = {v: k for k, v in PETSc.TAO.Reason.__dict__.items() if k.isupper()}
+
+
+@dataclass
+class StaticResult:
+    """Displacement and solver statistics of a quasistatic solve."""
+
+    displacement: PETSc.Vec
+    load_steps: int = 0
+    newton_iterations: int = 0
+    linear_iterations: int = 0
+    retries: int = 0
+    wall_time: float = 0.0
+    history: list = field(default_factory=list)
+
+
+class StaticSolver:
+    """Owns the SNES or TAO, the tangent matrix and the work vectors of a quasistatic model.
+
+    Parameters
+    ----------
+    model : petsoft.model.Model
+    method : {"snes", "tao"}
+        Newton on the residual with line search, or minimisation of the potential energy.
+    load_steps : int
+        Number of equal load increments (>= 1).
+    prefix : str
+        Options prefix of the solver objects.
+    monitor : callable(str) or None
+        Receives one progress line per load step (rank 0 prints it).
+    """
+
+    def __init__(self, model, method: str = "snes", load_steps: int = 1, prefix: str = "",
+                 monitor=None):
+        if method not in ("snes", "tao"):
+            raise ValueError(f"method must be 'snes' or 'tao', not {method!r}")
+        self.model, self.method, self.load_steps = model, method, max(1, int(load_steps))
+        self.monitor = monitor
+        dm = model.dmesh
+        self.dmesh = dm
+        self.assembler = MatrixAssembler(dm, model.elastic.connectivities())
+        self.J = self.assembler.create_matrix()
+        self.J.setNearNullSpace(dm.rigid_body_modes())
+        self.F = dm.create_global_vec()
+        self.f = dm.create_global_vec()      # external forces at the current load factor
+        self._g_local = np.zeros(3 * dm.nvertices)
+        self.scale = 1.0
+        self._bad_element = None
+        comm = dm.comm
+        if method == "snes":
+            self.snes = snes = PETSc.SNES().create(comm=comm)
+            snes.setOptionsPrefix(prefix)
+            snes.setType(PETSc.SNES.Type.NEWTONLS)
+            snes.setFunction(self._residual, self.F)
+            # The residual norm is a poor merit function for bending (the axial strain of a
+            # linear prediction inflates it while the energy drops): cp minimises along the
+            # Newton direction using the residual as the energy gradient.
+            snes.getLineSearch().setType(PETSc.SNESLineSearch.Type.CP)
+            snes.setJacobian(self._jacobian, self.J, self.J)
+            snes.setTolerances(rtol=1e-10, atol=1e-12, stol=0.0, max_it=50)
+            self.ksp = snes.getKSP()
+            self._linear_defaults(self.ksp)
+            snes.setFromOptions()
+        else:
+            self.tao = tao = PETSc.TAO().create(comm=comm)
+            tao.setOptionsPrefix(prefix)
+            tao.setType(PETSc.TAO.Type.NLS)
+            tao.setObjectiveGradient(self._objective_gradient, self.F.duplicate())
+            tao.setHessian(self._hessian, self.J, self.J)
+            tao.setTolerances(gatol=0.0, grtol=0.0, gttol=1e-10)
+            tao.setMaximumIterations(50)
+            self.ksp = tao.getKSP()
+            self._linear_defaults(self.ksp)
+            tao.setFromOptions()
+        self.lift_ksp = PETSc.KSP().create(comm=comm)
+        self.lift_ksp.setOptionsPrefix(prefix + "lift_")
+        self._linear_defaults(self.lift_ksp)
+        self.lift_ksp.setOperators(self.J, self.J)
+        self.lift_ksp.setFromOptions()
+
+    @staticmethod
+    def _linear_defaults(ksp: PETSc.KSP) -> None:
+        ksp.setType(PETSc.KSP.Type.CG)
+        ksp.getPC().setType(PETSc.PC.Type.GAMG)
+        ksp.setTolerances(rtol=1e-12, atol=1e-50, max_it=2000)
+
+    # -- callbacks (keep PETSc's signatures, stay thin) -----------------------------------------
+    def _local_state(self, x: PETSc.Vec) -> np.ndarray:
+        return self.dmesh.to_local(x)
+
+    def _gradient(self, x: PETSc.Vec, out: PETSc.Vec, assemble: bool = False) -> bool:
+        """out = grad W(x) - f, prescribed rows zero. False if an element inverted (any rank)."""
+        u = self._local_state(x)
+        self._g_local[:] = 0.0
+        ok = True
+        try:
+            self.model.elastic.add_gradient(u, self._g_local,
+                                            self.assembler if assemble else None)
+        except InvertedElementError as err:
+            self._bad_element = err
+            ok = False
+        ok = bool(self.dmesh.comm.tompi4py().allreduce(ok, op=MPI.LAND))
+        out.zeroEntries()
+        if not ok:
+            out.set(np.inf)
+            return False
+        self.dmesh.add_to_global(self._g_local.reshape(-1, 3), out)
+        out.axpy(-1.0, self.f)
+        self.model.dirichlet.zero_rows(out)
+        return True
+
+    def _residual(self, snes, x, F):
+        if not self._gradient(x, F):
+            snes.setFunctionDomainError()
+
+    def _assemble_tangent(self, x, P) -> None:
+        u = self._local_state(x)
+        self.assembler.begin()
+        self.model.elastic.add_hessian(u, self.assembler)
+        self.assembler.finish(P)
+        self.model.dirichlet.eliminate(P)
+
+    def _jacobian(self, snes, x, J, P):
+        self._assemble_tangent(x, P)
+
+    def _objective_gradient(self, tao, x, G):
+        if not self._gradient(x, G):
+            return np.inf
+        u = self._local_state(x)
+        energy = self.dmesh.allreduce_sum(self.model.elastic.energy(u))
+        return energy - self.f.dot(x)
+
+    def _hessian(self, tao, x, H, P):
+        self._assemble_tangent(x, P)
+
+    # -- driver ----------------------------------------------------------------------------------
+    def _lift(self, x: PETSc.Vec, target: np.ndarray) -> int:
+        """Move prescribed dofs to ``target`` and spread the change with the current tangent."""
+        bc = self.model.dirichlet
+        if bc.count == 0:
+            return 0
+        delta = x.duplicate()
+        delta.zeroEntries()
+        current = self.dmesh.to_local(x)
+        bc.set_values(delta, target - current)
+        if delta.norm(PETSc.NormType.INFINITY) == 0.0:
+            return 0
+        self._assemble_unconstrained(x)
+        rhs = x.duplicate()
+        rhs.zeroEntries()
+        self.J.zeroRowsColumns(bc.global_rows, 1.0, delta, rhs)
+        y = x.duplicate()
+        self.lift_ksp.solve(rhs, y)
+        if self.lift_ksp.getConvergedReason() < 0:
+            raise SolverError(f"the lifting solve of the prescribed displacements diverged "
+                              f"({self.lift_ksp.getConvergedReason()})")
+        x.axpy(1.0, y)
+        return self.lift_ksp.getIterationNumber()
+
+    def _assemble_unconstrained(self, x) -> None:
+        u = self._local_state(x)
+        self.assembler.begin()
+        self.model.elastic.add_hessian(u, self.assembler)
+        self.assembler.finish(self.J)
+
+    def solve(self, x: PETSc.Vec | None = None) -> StaticResult:
+        """Solve for the equilibrium at full load; returns the displacement and statistics."""
+        t0 = time.perf_counter()
+        if x is None:
+            x = self.dmesh.create_global_vec()
+            x.zeroEntries()
+        result = StaticResult(displacement=x)
+        target_full = self.model.dirichlet.values(t=0.0)
+        done, increment = 0.0, 1.0 / self.load_steps
+        retries = 0
+        while done < 1.0 - 1e-12:
+            scale = min(1.0, done + increment)
+            backup = x.copy()
+            self.f.zeroEntries()
+            self.f.axpy(scale, self.model.external)
+            try:
+                lin = self._lift(x, scale * target_full)
+                its, lits, reason = self._solve_increment(x)
+            except InvertedElementError as err:
+                its, lits, reason, self._bad_element = 0, 0, "inverted element", err
+                lin = 0
+            if isinstance(reason, str):
+                retries += 1
+                backup.copy(x)
+                if retries > 8:
+                    detail = f" ({self._bad_element})" if self._bad_element else ""
+                    raise SolverError(
+                        f"quasistatic {self.method.upper()} did not converge at load factor "
+                        f"{scale:.4g}: {reason}{detail}; tried {retries} smaller increments. "
+                        "Try more --load-steps, a different -ksp_type/-pc_type, or check the "
+                        "boundary conditions fix the rigid-body motions")
+                increment *= 0.5
+                self._say(f"load factor {scale:.4g}: {reason}; retrying with increment "
+                          f"{increment:.4g}")
+                continue
+            done = scale
+            result.load_steps += 1
+            result.newton_iterations += its
+            result.linear_iterations += lits + lin
+            result.history.append((scale, its, lits))
+            self._say(f"load factor {scale:.4g}: {its} Newton iterations, {lits} linear "
+                      f"iterations, |u|max = {x.norm(PETSc.NormType.INFINITY):.6g} m")
+        result.retries = retries
+        result.wall_time = time.perf_counter() - t0
+        return result
+
+    def _solve_increment(self, x: PETSc.Vec):
+        self._bad_element = None
+        if self.method == "snes":
+            self.snes.solve(None, x)
+            reason = self.snes.getConvergedReason()
+            its, lits = self.snes.getIterationNumber(), self.snes.getLinearSolveIterations()
+            if reason <= 0:
+                return its, lits, f"SNES {SNES_REASONS.get(reason, reason)}"
+            return its, lits, reason
+        self.tao.setSolution(x)
+        self.tao.solve(x)
+        reason = self.tao.getConvergedReason()
+        its = self.tao.getIterationNumber()
+        lits = self.ksp.getIterationNumber()  # TAO reports no total; this is the last solve
+        if reason <= 0:
+            return its, lits, f"TAO {TAO_REASONS.get(reason, reason)}"
+        return its, lits, reason
+
+    def _say(self, line: str) -> None:
+        if self.monitor is not None and self.dmesh.comm.rank == 0:
+            self.monitor(line)
+
+    def destroy(self) -> None:
+        for obj in ("snes", "tao", "lift_ksp", "J", "F", "f"):
+            if hasattr(self, obj):
+                getattr(self, obj).destroy()
