@@ -26,3 +26,10 @@ def clear_options(keys) -> None:
     opts = PETSc.Options()
     for key in keys:
         opts.delValue(key.lstrip("-"))
+
+
+def set_default_option(key: str, value: str) -> None:
+    """Set an option unless the user already set it (for defaults petsc4py has no setter for)."""
+    opts = PETSc.Options()
+    if not opts.hasName(key):
+        opts.setValue(key, value)

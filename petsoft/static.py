@@ -19,6 +19,7 @@ from petsc4py import PETSc
 
 from .assembly import MatrixAssembler
 from .errors import InvertedElementError, SolverError
+from .options import set_default_option
 
 SNES_REASONS = {v: k for k, v in PETSc.SNES.ConvergedReason.__dict__.items() if k.isupper()}
 TAO_REASONS = {v: k for k, v in PETSc.TAO.Reason.__dict__.items() if k.isupper()}
@@ -78,7 +79,9 @@ class StaticSolver:
             # The residual norm is a poor merit function for bending (the axial strain of a
             # linear prediction inflates it while the energy drops): cp minimises along the
             # Newton direction using the residual as the energy gradient.
-            snes.getLineSearch().setType(PETSc.SNESLineSearch.Type.CP)
+            # (petsc4py 3.18 has no SNES.getLineSearch: the default goes in the options database,
+            # where a user's -snes_linesearch_type still wins.)
+            set_default_option(prefix + "snes_linesearch_type", "cp")
             snes.setJacobian(self._jacobian, self.J, self.J)
             snes.setTolerances(rtol=1e-10, atol=1e-12, stol=0.0, max_it=50)
             self.ksp = snes.getKSP()

@@ -1,0 +1,185 @@
+"""The `petsoft` command end to end: outputs, clear errors for bad input, 1 vs 2 ranks."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from petsoft.cli import split_arguments
+
+serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
+PETSOFT = [sys.executable, "-m", "petsoft.cli"]
+
+EXPERIMENT = """
+[mesh]
+box = {{ size = [0.4, 0.04, 0.04], cells = [16, 2, 2] }}
+
+[material]
+model = "{model}"
+youngs_modulus = 1.0e6
+poisson_ratio = 0.3
+density = 1100.0
+
+[gravity]
+acceleration = [0.0, 0.0, -9.81]
+
+[[boundary]]
+kind = "fixed"
+where = "x < 1e-6"
+
+[[boundary]]
+kind = "traction"
+where = "x > 0.4 - 1e-6"
+value = [0.0, 0.0, -50.0]
+
+[output]
+directory = "out"
+probes = [[0.4, 0.02, 0.02]]
+
+[petsc]
+ksp_type = "cg"
+pc_type = "gamg"
+"""
+
+
+def _env():
+    env = dict(os.environ)
+    env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1", MPLBACKEND="Agg")
+    for k in list(env):  # a child must not inherit this process's MPI singleton state
+        if k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess")):
+            env.pop(k)
+    return env
+
+
+def _run(args, cwd, mpi=0):
+    cmd = PETSOFT + args
+    if mpi:
+        cmd = [shutil.which("mpiexec") or "mpiexec", "-n", str(mpi)] + cmd
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, env=_env(), timeout=300)
+
+
+def _write(tmp_path, text, name="exp.toml"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_split_arguments_keeps_petsc_options_apart():
+    ours, petsc = split_arguments(
+        ["static", "e.toml", "-ksp_type", "cg", "--out", "d", "-pc_type", "gamg", "-snes_view"])
+    assert ours == ["static", "e.toml", "--out", "d"]
+    assert petsc == ["-ksp_type", "cg", "-pc_type", "gamg", "-snes_view"]
+
+
+@serial_only
+def test_static_writes_xdmf_and_summary(tmp_path):
+    import meshio
+
+    exp = _write(tmp_path, EXPERIMENT.format(model="neohookean"))
+    r = _run(["static", str(exp), "-ksp_type", "preonly", "-pc_type", "lu"], tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "max displacement" in r.stdout
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["command"] == "static" and summary["ranks"] == 1
+    assert summary["solver"]["ksp_type"] == "preonly"  # the command line beat [petsc]
+    assert summary["solver"]["newton_iterations"] >= 1
+    tip = summary["probes"][0]["displacement"]
+    # z dominates; the Kuhn split of a 2x2-cell cross-section couples some y motion in
+    assert tip[2] < 0 and abs(tip[2]) > 3 * abs(tip[1])
+    assert summary["max_displacement"] == pytest.approx(
+        np.linalg.norm(tip), rel=0.05)  # the tip corner moves (nearly) the most
+    m = meshio.read(tmp_path / "out" / "displacement.xdmf")
+    u = m.point_data["displacement"]
+    assert u.shape == (17 * 3 * 3, 3)
+    assert np.abs(np.linalg.norm(u, axis=1).max() - summary["max_displacement"]) < 1e-12
+
+
+@serial_only
+def test_two_ranks_give_the_serial_answer(tmp_path):
+    exp = _write(tmp_path, EXPERIMENT.format(model="neohookean"))
+    opts = ["-ksp_rtol", "1e-13", "-snes_rtol", "1e-12"]
+    r1 = _run(["static", str(exp), "--out", "one", *opts], tmp_path)
+    r2 = _run(["static", str(exp), "--out", "two", *opts], tmp_path, mpi=2)
+    assert r1.returncode == 0, r1.stderr
+    assert r2.returncode == 0, r2.stderr + r2.stdout
+    s1 = json.loads((tmp_path / "one" / "summary.json").read_text())
+    s2 = json.loads((tmp_path / "two" / "summary.json").read_text())
+    assert s2["ranks"] == 2
+    a, b = np.array(s1["probes"][0]["displacement"]), np.array(s2["probes"][0]["displacement"])
+    assert np.linalg.norm(a - b) <= 1e-8 * np.linalg.norm(a)
+
+
+@serial_only
+@pytest.mark.parametrize(
+    "change, expected",
+    [
+        (("poisson_ratio = 0.3", "poisson_ratio = 0.5"), ["exp.toml", "poisson_ratio", "0.5"]),
+        (("youngs_modulus = 1.0e6", "youngs_modulus = -3.0"), ["youngs_modulus", "-3"]),
+        (("density = 1100.0", "density = 1100.0\nyoungs_modulu = 2"), ["youngs_modulu",
+                                                                       "youngs_modulus"]),
+        (('where = "x < 1e-6"', "where = \"__import__('os').system('true')\""),
+         ["boundary", "__import__"]),
+        (('model = "{model}"', 'model = "rubber"'), ["model", "rubber", "neohookean"]),
+        (('where = "x < 1e-6"', 'where = "clamp"'), ["clamp", "region"]),
+        (("[mesh]\nbox = {{ size = [0.4, 0.04, 0.04], cells = [16, 2, 2] }}",
+          '[mesh]\nfile = "missing.msh"'), ["missing.msh"]),
+        (("probes = [[0.4, 0.02, 0.02]]", "probes = [[0.9, 0.02, 0.02]]"),
+         ["probes", "outside"]),
+    ],
+)
+def test_bad_input_is_a_clear_error(tmp_path, change, expected):
+    text = EXPERIMENT.replace(change[0], change[1]).format(model="linear")
+    exp = _write(tmp_path, text)
+    r = _run(["static", str(exp)], tmp_path)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    assert "Traceback" not in r.stderr
+    assert r.stderr.startswith("petsoft: error:")
+    for word in expected:
+        assert word in r.stderr, (word, r.stderr)
+    assert not (tmp_path / "out" / "summary.json").exists()
+
+
+@serial_only
+def test_bad_mesh_file_names_the_element(tmp_path):
+    import meshio
+
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], float)
+    cells = np.array([[0, 1, 2, 3], [1, 2, 3, 3]])  # second tet is degenerate
+    meshio.write(tmp_path / "bad.vtu", meshio.Mesh(pts, [("tetra", cells)]))
+    text = EXPERIMENT.replace("[mesh]\nbox = {{ size = [0.4, 0.04, 0.04], cells = [16, 2, 2] }}",
+                              '[mesh]\nfile = "bad.vtu"').format(model="linear")
+    r = _run(["static", str(_write(tmp_path, text))], tmp_path)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "bad.vtu" in r.stderr and "1" in r.stderr
+
+
+@serial_only
+def test_demo_runs_and_plots(tmp_path):
+    r = _run(["demo", "--out", str(tmp_path / "demo")], tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "demo" / "deflection.png").stat().st_size > 10_000
+    summary = json.loads((tmp_path / "demo" / "summary.json").read_text())
+    assert 0.01 < summary["max_displacement"] < 0.4
+
+
+def test_static_command_in_process_on_all_ranks(tmp_path_factory):
+    """The command's driver runs collectively (here on however many ranks pytest runs)."""
+    from petsoft.commands import solve_static
+    from petsoft.experiment import load_experiment
+
+    comm = MPI.COMM_WORLD
+    base = Path(comm.bcast(str(tmp_path_factory.mktemp("inproc")) if comm.rank == 0 else None))
+    if comm.rank == 0:
+        _write(base, EXPERIMENT.format(model="corotated"))
+    comm.Barrier()
+    summary = solve_static(load_experiment(base / "exp.toml"), base / "o", "tao", 2, False)
+    if comm.rank == 0:
+        assert summary["max_displacement"] > 0
+        assert json.loads((base / "o" / "summary.json").read_text())["ranks"] == comm.size
