@@ -189,9 +189,7 @@ def _response(model: str, F: np.ndarray, mu: np.ndarray, lam: np.ndarray, order:
         J = np.linalg.det(F)
         _first_inverted(J)
         logJ = np.log(J)
-        psi = (
-            0.5 * mu * (np.einsum("eij,eij->e", F, F) - 3.0) - mu * logJ + 0.5 * lam * logJ**2
-        )
+        psi = 0.5 * mu * (np.einsum("eij,eij->e", F, F) - 3.0) - mu * logJ + 0.5 * lam * logJ**2
         if order >= 1:
             FinvT = np.swapaxes(np.linalg.inv(F), 1, 2)
             P = mu2 * F + (lam * logJ - mu)[:, None, None] * FinvT
