@@ -9,14 +9,14 @@ PY="$ROOT/.venv/bin/python"
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
 export MPLBACKEND=Agg
 echo "== serial =="
-"$PY" -m pytest -q -p no:cacheprovider "$@" tests
+"$PY" -m pytest -q --color=no -p no:cacheprovider "$@" tests
 echo "== 2 MPI ranks =="
 # Rank 1's report goes to a file (shown if it fails) so the log reads as one run.
 RANK1_LOG="$(mktemp)"
 set +e
 timeout 1800 mpiexec -n 2 bash -c '
   if [ "$OMPI_COMM_WORLD_RANK" = "0" ]; then exec "$0" "$@"; else exec "$0" "$@" > "'"$RANK1_LOG"'" 2>&1; fi
-' "$PY" -m pytest -q -p no:cacheprovider -m "not serial_only" "$@" tests
+' "$PY" -m pytest -q --color=no -p no:cacheprovider -m "not serial_only" "$@" tests
 status=$?
 set -e
 if [ $status -ne 0 ]; then echo "== rank 1 report =="; cat "$RANK1_LOG"; fi
