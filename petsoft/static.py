@@ -136,8 +136,10 @@ class StaticSolver:
         return True
 
     def _residual(self, snes, x, F):
-        if not self._gradient(x, F):
-            snes.setFunctionDomainError()
+        # An inverted element leaves F = inf (petsc4py 3.18 has no setFunctionDomainError): the
+        # line search then shortens the step, or SNES stops with a non-finite norm, and the load
+        # increment is retried smaller.
+        self._gradient(x, F)
 
     def _assemble_tangent(self, x, P) -> None:
         u = self._local_state(x)
