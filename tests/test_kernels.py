@@ -146,13 +146,54 @@ def test_c_matches_numpy(model, project, rng):
     )
     g_c, H_c = compiled.element_gradient_hessian(model, dN, vol, u, mu, lam, project_spd=project)
     np.testing.assert_allclose(g_c, g_ref, rtol=1e-12, atol=1e-12 * np.abs(g_ref).max())
-    # Per element, relative to that element's Hessian (elements differ in stiffness).
-    scale = np.abs(H_ref).max(axis=(1, 2))[:, None, None]
+    # Per element, relative to that element's (unprojected) Hessian: elements differ in
+    # stiffness, and the projection's rounding error scales with what it removes.
+    _, H_full = reference.element_gradient_hessian(model, dN, vol, u, mu, lam)
+    scale = np.abs(H_full).max(axis=(1, 2))[:, None, None]
     assert np.all(np.abs(H_c - H_ref) <= 1e-12 * scale)
     if project and model != "linear":
         # The test is meaningful: some tangents were indefinite and got projected.
-        _, H_full = reference.element_gradient_hessian(model, dN, vol, u, mu, lam)
         assert (np.abs(H_full - H_ref).max(axis=(1, 2)) > 1e-6 * scale[:, 0, 0]).sum() > 5
+
+
+def displacement_for(dN, F):
+    """Element displacements (n, 4, 3) whose deformation gradients are F (n, 3, 3).
+
+    Solves F - I = sum_a u_a (x) dN_a, i.e. (F - I) row-major = kron(I, dN^T) @ u
+    component-major, for the minimum-norm u.
+    """
+    u = np.empty((len(dN), 4, 3))
+    for e in range(len(dN)):  # a handful of test elements
+        M = np.kron(np.eye(3), dN[e].T)
+        u[e] = np.linalg.lstsq(M, (F[e] - np.eye(3)).ravel(), rcond=None)[0].reshape(3, 4).T
+    return u
+
+
+@pytest.mark.parametrize("model", ["stvk", "corotated", "neohookean"])
+def test_projection_with_repeated_and_negative_singular_values(model, rng):
+    """The C projection works in the SVD frame: check it where that frame is not unique
+    (repeated singular values) and, where the model allows it, for det F < 0."""
+    Q = np.linalg.qr(rng.standard_normal((3, 3)))[0]
+    stretches = [
+        [0.6, 0.6, 0.6], [0.5, 0.5, 1.2], [1.3, 0.7, 0.7], [1.0, 1.0, 1.0], [0.3, 0.3, 0.3],
+        [1.5, 1.5, 0.4], [0.2, 1.0, 1.0],
+    ]  # fmt: skip
+    if model != "neohookean":
+        stretches += [[1.0, 1.0, -0.5], [0.8, 0.6, -0.5], [2.0, -0.3, 0.7]]
+    F = np.array([Q @ np.diag(s) @ Q.T for s in stretches])
+    F[1] = F[1] @ Q  # a rotation on top
+    n = len(F)
+    dN, vol, _, mu, lam = random_elements(rng, n)
+    u = displacement_for(dN, F)
+    np.testing.assert_allclose(reference.deformation_gradient(dN, u), F, atol=1e-12)
+    _, H_ref = reference.element_gradient_hessian(model, dN, vol, u, mu, lam, project_spd=True)
+    _, H_c = compiled.element_gradient_hessian(model, dN, vol, u, mu, lam, project_spd=True)
+    # Relative to the unprojected Hessian: some of these tangents are entirely negative, so
+    # the projection is 0 up to rounding of the size of what was removed.
+    _, H_full = reference.element_gradient_hessian(model, dN, vol, u, mu, lam)
+    scale = np.abs(H_full).max(axis=(1, 2))[:, None, None]
+    assert np.all(np.abs(H_c - H_ref) <= 1e-12 * scale)
+    assert np.all(np.linalg.eigvalsh(H_c).min(axis=1) > -1e-12 * scale[:, 0, 0])
 
 
 @pytest.mark.parametrize("model", MODELS)
@@ -213,13 +254,10 @@ def test_patch_affine_displacement_no_interior_force(model, backend, rng):
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_neohookean_inverted_element_named(backend, rng):
     dN, vol, u, mu, lam = random_elements(rng, 12)
-    # Invert elements 9 (det F = -0.5) and 11 (det F = 0): solve F - I = sum_a u_a (x) dN_a
-    # for u, i.e. (F - I) row-major = kron(I, dN^T) @ u component-major (minimum-norm u).
-    for e, Jz in ((9, -0.5), (11, 0.0)):
-        F_target = np.diag([1.0, 1.0, Jz])
-        M = np.kron(np.eye(3), dN[e].T)
-        sol = np.linalg.lstsq(M, (F_target - np.eye(3)).ravel(), rcond=None)[0]
-        u[e] = sol.reshape(3, 4).T
+    # Invert elements 9 (det F = -0.5) and 11 (det F = 0).
+    u[[9, 11]] = displacement_for(
+        dN[[9, 11]], np.array([np.diag([1.0, 1.0, J]) for J in (-0.5, 0.0)])
+    )
     F = reference.deformation_gradient(dN, u)
     np.testing.assert_allclose(np.linalg.det(F[[9, 11]]), [-0.5, 0.0], atol=1e-12)
     for call in (
