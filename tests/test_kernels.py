@@ -362,3 +362,16 @@ def test_empty_element_set(backend):
 
 def test_lame_parameters_reexported():
     assert elastic.lame_parameters is not None and elastic.MODELS == MODELS
+
+
+@pytest.mark.parametrize("mu, lam", [(1.0, -1.0), (-0.5, 2.0)])
+def test_linear_projection_with_nonphysical_parameters(mu, lam, rng):
+    """mu < 0 or 3 lam + 2 mu < 0 makes the linear tangent indefinite (C: numeric 9x9 path)."""
+    dN, vol, u, _, _ = random_elements(rng, 20)
+    _, H_full = reference.element_gradient_hessian("linear", dN, vol, u, mu, lam)
+    _, H_ref = reference.element_gradient_hessian("linear", dN, vol, u, mu, lam, project_spd=True)
+    _, H_c = compiled.element_gradient_hessian("linear", dN, vol, u, mu, lam, project_spd=True)
+    scale = np.abs(H_full).max(axis=(1, 2))[:, None, None]
+    assert np.abs(H_full - H_ref).max() > 1e-3 * scale.max()
+    assert np.all(np.abs(H_c - H_ref) <= 1e-12 * scale)
+    assert np.all(np.linalg.eigvalsh(H_c).min(axis=1) > -1e-12 * scale[:, 0, 0])
