@@ -128,6 +128,10 @@ class StaticSolver:
         ok = bool(self.dmesh.comm.tompi4py().allreduce(ok, op=MPI.LAND))
         out.zeroEntries()
         if not ok:
+            bad = self._bad_element
+            found = [e for e in self.dmesh.comm.tompi4py().allgather(
+                None if bad is None else (bad.element, bad.jacobian)) if e is not None]
+            self._bad_element = InvertedElementError(*found[0])
             out.set(np.inf)
             return False
         self.dmesh.add_to_global(self._g_local.reshape(-1, 3), out)
@@ -244,7 +248,8 @@ class StaticSolver:
             reason = self.snes.getConvergedReason()
             its, lits = self.snes.getIterationNumber(), self.snes.getLinearSolveIterations()
             if reason <= 0:
-                return its, lits, f"SNES {SNES_REASONS.get(reason, reason)}"
+                why = f" ({self._bad_element})" if self._bad_element is not None else ""
+                return its, lits, f"SNES {SNES_REASONS.get(reason, reason)}{why}"
             return its, lits, reason
         self.tao.setSolution(x)
         self.tao.solve(x)
