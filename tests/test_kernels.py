@@ -353,10 +353,13 @@ def test_unknown_backend(rng):
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_empty_element_set(backend):
+@pytest.mark.parametrize("model", MODELS)
+def test_empty_element_set(model, backend):
     dN, vol, u = np.empty((0, 4, 3)), np.empty(0), np.empty((0, 4, 3))
-    W = elastic.element_energy("neohookean", dN, vol, u, 1.0, 1.0, backend=backend)
-    g, H = elastic.element_gradient_hessian("neohookean", dN, vol, u, 1.0, 1.0, backend=backend)
+    W = elastic.element_energy(model, dN, vol, u, 1.0, 1.0, backend=backend)
+    g, H = elastic.element_gradient_hessian(
+        model, dN, vol, u, 1.0, 1.0, project_spd=True, backend=backend
+    )
     assert W.shape == (0,) and g.shape == (0, 12) and H.shape == (0, 12, 12)
 
 
