@@ -1,0 +1,22 @@
+"""The benchmark scripts run: a smoke run of each in a subprocess (serial only)."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.serial_only
+def test_bench_assembly_quick():
+    """``bench_assembly.py --quick`` exits 0 and prints its table (with or without DOLFINx)."""
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "bench_assembly.py"), "--quick"],
+        cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "tets ranks  petsoft tets/s  DOLFINx tets/s  ratio" in proc.stdout, proc.stdout
+    assert "1 MPI rank(s)" in proc.stdout
+    # The DOLFINx peer either ran (and then was checked against petsoft) or says why not.
+    assert "DOLFINx: skipped" in proc.stdout or "K x " in proc.stdout, proc.stdout
