@@ -29,20 +29,10 @@ from _static_cases import (
 )
 from petsc4py import PETSc
 
-from petsoft.errors import SolverError
 from petsoft.model import build_model
 
 MATERIALS = ("linear", "stvk", "corotated", "neohookean")
 MUMPS = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
-
-# A known petsoft bug (strict: fixing it makes the marked tests fail until the mark goes).
-TAO_STALL_BUG = pytest.mark.xfail(
-    strict=True, raises=SolverError,
-    reason="petsoft/static.py:96 gives TAO only a relative tolerance (gatol=grtol=0, "
-           "gttol=1e-10): when the increment's starting gradient is already at round-off (the "
-           "lifting solved it exactly) TAO iterates to DIVERGED_MAXITS and solve() raises "
-           "SolverError after 9 halvings")
-
 
 def _print(*args):
     if PETSc.COMM_WORLD.getRank() == 0:
@@ -74,13 +64,7 @@ def _patch_cases():
     for material in MATERIALS:
         for method in ("snes", "tao"):
             for start in ("zero", "perturbed"):
-                marks = []
-                if (method, start) == ("tao", "zero"):
-                    if material != "linear":
-                        continue  # the same TAO bug for every material: one reproducer is enough
-                    marks = [TAO_STALL_BUG]
-                yield pytest.param(material, method, start, marks=marks,
-                                   id=f"{material}-{method}-{start}")
+                yield pytest.param(material, method, start, id=f"{material}-{method}-{start}")
 
 
 @pytest.mark.parametrize(("material", "method", "start"), list(_patch_cases()))
@@ -217,11 +201,6 @@ def test_cantilever_small_load_matches_timoshenko():
     assert d == pytest.approx(timoshenko, rel=0.02)
 
 
-@pytest.mark.xfail(strict=True, raises=SolverError, reason=(
-    "petsoft/static.py:96: TAO's only stopping test is ||g|| <= 1e-10 ||g0|| (gatol = grtol = "
-    "0); on a slender cantilever the gradient's round-off floor is ~1e-9 ||g0||, so TAO stalls "
-    "after the exact Newton step (DIVERGED_LS_FAILURE/MAXITS), and halving the load only lowers "
-    "||g0||: solve() raises SolverError"))
 def test_tao_solves_linear_cantilever_like_snes():
     """TAO (minimisation) must give the SNES displacement (relative max-norm difference < 1e-8)
     on a small linear cantilever (20 x 1 x 2 hexes, end traction 1 Pa, default solvers)."""
