@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from petsoft.errors import MeshError
+from petsoft.topology import boundary_facets, face_table, unique_rows
 
 __all__ = ["Mesh", "MeshWarning", "boundary_facets", "box_mesh", "read_mesh", "validate"]
 
@@ -48,8 +49,6 @@ DEGENERATE_RTOL = 1e-12
 
 #: The outward faces of a positively oriented tetrahedron (v0, v1, v2, v3): the face opposite
 #: vertex i is row i, ordered so that its right-hand normal points away from vertex i.
-_TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
-
 # How many offending items a message lists before saying "and N more".
 _SHOW = 5
 
@@ -329,62 +328,6 @@ def _mean_edge_lengths(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return sum(np.linalg.norm(p[:, i] - p[:, j], axis=1) for i, j in pairs) / 6.0
 
 
-def _unique_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Distinct rows of an (M, 3) int array, the index of each row among them, and counts.
-
-    Same result as ``np.unique(rows, axis=0, return_inverse=True, return_counts=True)``, but a
-    lexicographic sort of the columns is several times faster than numpy's row-as-void sort.
-    """
-    order = np.lexsort(rows.T[::-1])
-    srt = rows[order]
-    new = np.ones(len(rows), bool)
-    new[1:] = np.any(srt[1:] != srt[:-1], axis=1)
-    group = np.cumsum(new) - 1
-    inverse = np.empty(len(rows), np.int64)
-    inverse[order] = group
-    counts = np.bincount(group)
-    return srt[new], inverse, counts
-
-
-def _face_table(tets: np.ndarray):
-    """All 4E outward faces, and for each its class among the geometrically equal faces.
-
-    Returns
-    -------
-    faces : (4E, 3) outward-oriented faces, row ``4*e + i`` is the face opposite vertex i of e.
-    keys : (U, 3) the distinct faces with sorted vertices, in lexicographic order.
-    inverse : (4E,) index into ``keys`` of each face.
-    counts : (U,) how many tetrahedra share each distinct face.
-    """
-    faces = tets[:, _TET_FACES].reshape(-1, 3)
-    keys, inverse, counts = _unique_rows(np.sort(faces, axis=1))
-    return faces, keys, inverse, counts
-
-
-def boundary_facets(tets: np.ndarray) -> np.ndarray:
-    """The exterior triangles of a tetrahedral mesh, oriented with outward normals.
-
-    A face is exterior when exactly one tetrahedron has it. Faces are found by sorting each
-    face's vertices and grouping equal rows (vectorised, no loop over cells).
-
-    Parameters
-    ----------
-    tets : numpy.ndarray
-        ``(E, 4)`` positively oriented tetrahedra.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``(F, 3)`` int64 triangles whose right-hand normals point out of the mesh, in the order
-        of the tetrahedra they belong to.
-    """
-    tets = np.asarray(tets, dtype=np.int64)
-    if tets.size == 0:
-        return np.zeros((0, 3), np.int64)
-    faces, _, inverse, counts = _face_table(tets)
-    return faces[counts[inverse] == 1]
-
-
 # --------------------------------------------------------------------------------------------
 # Validation
 
@@ -541,7 +484,7 @@ def _check_faces(
     boundary replaced by the outward-oriented boundary face; warns about triangles that are no
     face of any tetrahedron (a surface mesh not matching the volume mesh).
     """
-    faces, keys, inverse, counts = _face_table(tets)
+    faces, keys, inverse, counts = face_table(tets)
     over = np.flatnonzero(counts > 2)
     if len(over):
         k = over[0]
@@ -566,7 +509,7 @@ def _check_faces(
             continue
         s = np.sort(tris, axis=1)
         # Locate each triangle among the sorted distinct faces (lexicographic row search).
-        _, inv, _ = _unique_rows(np.concatenate([keys, s]))
+        _, inv, _ = unique_rows(np.concatenate([keys, s]))
         face_of = np.full(inv.max() + 1, -1, np.int64)
         face_of[inv[: len(keys)]] = np.arange(len(keys))
         match = face_of[inv[len(keys) :]]

@@ -654,10 +654,10 @@ def test_boundary_facets_fast_enough():
 
 
 def test_unique_rows_matches_numpy():
-    from petsoft.mesh import _unique_rows
+    from petsoft.topology import unique_rows
 
     rows = np.random.default_rng(0).integers(0, 4, size=(500, 3))
-    keys, inverse, counts = _unique_rows(rows)
+    keys, inverse, counts = unique_rows(rows)
     k2, i2, c2 = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
     np.testing.assert_array_equal(keys, k2)
     np.testing.assert_array_equal(inverse, i2.reshape(-1))
