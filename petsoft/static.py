@@ -233,6 +233,8 @@ class StaticSolver:
                 self._say(f"load factor {scale:.4g}: {reason}; retrying with increment "
                           f"{increment:.4g}")
                 continue
+            # Iterative solves leave round-off on the prescribed dofs: re-impose them exactly.
+            self.model.dirichlet.set_values(x, scale * target_full)
             done = scale
             result.load_steps += 1
             result.newton_iterations += its
