@@ -1,12 +1,18 @@
 """The PETSc options database: experiment defaults under command-line options.
 
-Precedence, lowest first: defaults in code (set on the objects), the experiment's ``[petsc]``
-table, the command line. ``setFromOptions()`` is called last, once, on each solver object.
+Precedence, lowest first: defaults in code, the experiment's ``[petsc]`` table, the command line.
+Defaults petsc4py has no setter for (e.g. the SNES line search in 3.18) are put in the options
+database only around one object's ``setFromOptions()`` (:func:`scoped_defaults`), so different
+solvers can have different defaults and a user's option always wins.
 """
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 from petsc4py import PETSc
+
+_inserted_by_us: set[str] = set()
 
 
 def apply_experiment_options(table: dict[str, str]) -> list[str]:
@@ -26,10 +32,32 @@ def clear_options(keys) -> None:
     opts = PETSc.Options()
     for key in keys:
         opts.delValue(key.lstrip("-"))
+        _inserted_by_us.discard(key.lstrip("-"))
+
+
+def user_has(key: str) -> bool:
+    """Whether the user (command line, ``[petsc]`` or a caller) set an option."""
+    return PETSc.Options().hasName(key) and key not in _inserted_by_us
 
 
 def set_default_option(key: str, value: str) -> None:
-    """Set an option unless the user already set it (for defaults petsc4py has no setter for)."""
+    """Set an option for the rest of the process unless the user set it."""
+    if not user_has(key):
+        PETSc.Options().setValue(key, value)
+        _inserted_by_us.add(key)
+
+
+@contextmanager
+def scoped_defaults(**defaults: str):
+    """Options present only inside the block (for one ``setFromOptions()``), unless user-set."""
     opts = PETSc.Options()
-    if not opts.hasName(key):
-        opts.setValue(key, value)
+    placed = [k for k in defaults if not user_has(k)]
+    for k in placed:
+        opts.setValue(k, defaults[k])
+        _inserted_by_us.add(k)
+    try:
+        yield
+    finally:
+        for k in placed:
+            opts.delValue(k)
+            _inserted_by_us.discard(k)

@@ -19,7 +19,8 @@ from petsc4py import PETSc
 
 from .assembly import MatrixAssembler
 from .errors import InvertedElementError, SolverError
-from .options import set_default_option
+from .linear import linear_defaults
+from .options import scoped_defaults, user_has
 
 STALL_RTOL = 1e-8  # a stalled solve whose gradient fell this much is converged (round-off)
 SNES_REASONS = {v: k for k, v in PETSc.SNES.ConvergedReason.__dict__.items() if k.isupper()}
@@ -84,14 +85,16 @@ class StaticSolver:
             # where a user's -snes_linesearch_type still wins.)
             # Five secant iterations find the critical point along the Newton direction; one (the
             # default) took steps of 1% on the demo cantilever (112 vs 46 Newton iterations).
-            if not PETSc.Options().hasName(prefix + "snes_linesearch_type"):
-                set_default_option(prefix + "snes_linesearch_type", "cp")
-                set_default_option(prefix + "snes_linesearch_max_it", "5")
+            line_search = {prefix + "snes_linesearch_type": "cp",
+                           prefix + "snes_linesearch_max_it": "5"}
+            if user_has(prefix + "snes_linesearch_type"):
+                line_search = {}
             snes.setJacobian(self._jacobian, self.J, self.J)
             snes.setTolerances(rtol=1e-10, atol=0.0, stol=0.0, max_it=50)
             self.ksp = snes.getKSP()
-            self._linear_defaults(self.ksp)
-            snes.setFromOptions()
+            linear_defaults(self.ksp)
+            with scoped_defaults(**line_search):
+                snes.setFromOptions()
         else:
             self.tao = tao = PETSc.TAO().create(comm=comm)
             tao.setOptionsPrefix(prefix)
@@ -101,19 +104,13 @@ class StaticSolver:
             tao.setTolerances(gatol=0.0, grtol=0.0, gttol=1e-10)
             tao.setMaximumIterations(50)
             self.ksp = tao.getKSP()
-            self._linear_defaults(self.ksp)
+            linear_defaults(self.ksp)
             tao.setFromOptions()
         self.lift_ksp = PETSc.KSP().create(comm=comm)
         self.lift_ksp.setOptionsPrefix(prefix + "lift_")
-        self._linear_defaults(self.lift_ksp)
+        linear_defaults(self.lift_ksp)
         self.lift_ksp.setOperators(self.J, self.J)
         self.lift_ksp.setFromOptions()
-
-    @staticmethod
-    def _linear_defaults(ksp: PETSc.KSP) -> None:
-        ksp.setType(PETSc.KSP.Type.CG)
-        ksp.getPC().setType(PETSc.PC.Type.GAMG)
-        ksp.setTolerances(rtol=1e-12, atol=1e-50, max_it=2000)
 
     # -- callbacks (keep PETSc's signatures, stay thin) -----------------------------------------
     def _local_state(self, x: PETSc.Vec) -> np.ndarray:
