@@ -49,6 +49,7 @@ def _parser() -> argparse.ArgumentParser:
                                    "displacement.xdmf/.h5 and summary.json.")
     s.add_argument("experiment", help="experiment file (TOML, see the formats spec)")
     _static_options(s)
+    _add_simulate_parser(sub)
     d = sub.add_parser("demo", help="run the embedded example (no input needed)",
                        description="Solve an embedded neo-Hookean cantilever under gravity and an "
                                    "end load; writes results and a plot to --out.")
@@ -56,6 +57,22 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--method", choices=("snes", "tao"), default="snes")
     d.add_argument("--load-steps", type=int, default=4)
     return p
+
+
+def _add_simulate_parser(sub) -> None:
+    s = sub.add_parser(
+        "simulate", help="elastodynamics of an experiment over [time]",
+        description="Integrate M q'' = f_el(q) + f_d(v) + f_ext(t) over [time]; writes "
+                    "trajectory.xdmf/.h5, probes.h5 (a recording), energies.csv, summary.json.")
+    s.add_argument("experiment", help="experiment file (TOML) with a [time] section")
+    s.add_argument("--out", help="output directory (default: [output] directory)")
+    s.add_argument("--integrator", help="override [time] integrator "
+                   "(be, si, midpoint, trapezoidal, explicit, ...)")
+    s.add_argument("--solver", choices=("snes", "tao"), default="snes",
+                   help="Newton on the step equations, or (be) minimise the incremental "
+                        "potential with TAO")
+    s.add_argument("--explicit-scheme", choices=("verlet", "euler"), default="verlet",
+                   help="explicit integrator: velocity Verlet or symplectic Euler")
 
 
 def _static_options(s) -> None:

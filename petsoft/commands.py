@@ -42,6 +42,11 @@ def run(args) -> int:
         out = Path(args.out) if args.out else experiment.output.directory
         solve_static(experiment, out, args.method, args.load_steps, args.spd)
         return 0
+    if args.command == "simulate":
+        experiment = load_experiment(args.experiment)
+        out = Path(args.out) if args.out else experiment.output.directory
+        run_simulation(experiment, out, args)
+        return 0
     if args.command == "demo":
         experiment = experiment_from_dict(DEMO_EXPERIMENT, source="<embedded demo>")
         out = Path(args.out)
@@ -119,3 +124,18 @@ def plot_deflection(mesh, u: np.ndarray, path: Path) -> Path:
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def run_simulation(experiment, out: Path, args) -> None:
+    """`petsoft simulate`: build, run and write a dynamic simulation (all ranks call)."""
+    from .dynamics.simulate import Simulation
+
+    apply_experiment_options(experiment.petsc)
+    model = build_model(experiment, PETSc.COMM_WORLD)
+    sim = Simulation(model, experiment, integrator=args.integrator, solver=args.solver,
+                     out=out, monitor=_print, explicit_scheme=args.explicit_scheme)
+    result = sim.run()
+    _print(f"t = {result.time:g} s after {result.steps} steps ({result.retries} retried), "
+           f"{result.newton_iterations} Newton / {result.linear_iterations} linear iterations, "
+           f"{result.wall_time:.3g} s; wrote {out}/")
+    sim.destroy()

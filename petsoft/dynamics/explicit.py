@@ -1,0 +1,134 @@
+"""Explicit integration with the lumped (row-sum) mass: symplectic Euler and velocity Verlet.
+
+symplectic Euler (order 1):  v1 = v0 + h M^-1 f(t0, q0, v0);   q1 = q0 + h v1
+velocity Verlet (order 2):   vh = v0 + h/2 a0;  q1 = q0 + h vh;  a1 = M^-1 f(t1, q1, vh);
+                             v1 = vh + h/2 a1
+
+Both are stable only for h < 2 / omega_max. The limit is estimated before the first step from the
+largest eigenvalue of K(q0) x = omega^2 M_lumped x (SLEPc), and a larger step is refused with a
+clear error instead of blowing up.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from petsc4py import PETSc
+
+from ..errors import ExperimentError
+from .implicit import StepReport
+
+SCHEMES = ("euler", "verlet")
+
+
+def largest_frequency(system, q: PETSc.Vec) -> float:
+    """omega_max (rad/s): sqrt of the largest eigenvalue of K(q) x = omega^2 M_lumped x."""
+    from slepc4py import SLEPc
+
+    K = system.create_matrix()
+    system.assemble_combination(system.dmesh.to_local(q), 0.0, 1.0, 0.0, K, eliminate=False)
+    mass = system.lumped.copy()
+    # prescribed dofs do not move: give them a huge mass so they do not limit the step
+    arr = mass.getArray()
+    arr[system.dirichlet.owned_offsets(mass)] = 1e30 * max(1.0, float(np.abs(arr).max()))
+    Minv = mass.copy()
+    Minv.reciprocal()
+    K.diagonalScale(Minv, None)                    # M^-1 K: same eigenvalues
+    eps = SLEPc.EPS().create(comm=system.comm)
+    eps.setOperators(K)
+    eps.setProblemType(SLEPc.EPS.ProblemType.NHEP)
+    eps.setWhichEigenpairs(SLEPc.EPS.Which.LARGEST_REAL)
+    eps.setDimensions(1)
+    eps.setTolerances(1e-6, 500)
+    eps.setOptionsPrefix("stability_")
+    eps.setFromOptions()
+    eps.solve()
+    if eps.getConverged() < 1:
+        raise RuntimeError("the stability estimate (largest eigenvalue) did not converge")
+    lam = eps.getEigenvalue(0).real
+    for obj in (eps, K, mass, Minv):
+        obj.destroy()
+    return float(np.sqrt(max(lam, 0.0)))
+
+
+class ExplicitIntegrator:
+    """Symplectic Euler or velocity Verlet with the lumped mass (no linear solves)."""
+
+    def __init__(self, system, scheme: str = "verlet"):
+        if scheme not in SCHEMES:
+            raise ValueError(f"explicit scheme must be one of {SCHEMES}")
+        self.system, self.scheme = system, scheme
+        dm = system.dmesh
+        self.inv_mass = system.lumped.copy()
+        self.inv_mass.reciprocal()
+        self.f = dm.create_global_vec()
+        self.a = dm.create_global_vec()
+        self._tmp = dm.create_global_vec()
+        self._a_valid = False
+        self.omega_max = None
+
+    def check_step(self, q0: PETSc.Vec, h: float, source: str = "time.step") -> float:
+        """Estimate the stability limit at q0 and refuse h above it; returns the limit."""
+        self.omega_max = largest_frequency(self.system, q0)
+        limit = 2.0 / self.omega_max if self.omega_max > 0 else np.inf
+        if h > limit:
+            raise ExperimentError(
+                f"{source}: step {h:g} s is above the explicit stability limit {limit:.4g} s "
+                f"(largest frequency {self.omega_max / (2 * np.pi):.4g} Hz, h < 2/omega_max); "
+                f"use a step below {0.9 * limit:.3g} s or an implicit integrator (be, si, alpha, "
+                "midpoint)")
+        return limit
+
+    def _acceleration(self, t: float, q: PETSc.Vec, v: PETSc.Vec, out: PETSc.Vec) -> None:
+        s = self.system
+        s.internal_gradient(q, self.f)
+        self.f.scale(-1.0)
+        self.f.axpy(-1.0, s.damping_apply(v, self._tmp))
+        self.f.axpy(1.0, s.gravity)
+        self.f.axpy(1.0, s.tractions(t, self._tmp))
+        out.pointwiseMult(self.f, self.inv_mass)
+        s.dirichlet.zero_rows(out)
+
+    def step(self, t0, q0, v0, h, q1, v1) -> StepReport:
+        s = self.system
+        g1 = s.prescribed(t0 + h)
+        dq = q0.duplicate()
+        report = StepReport()
+        if self.scheme == "euler":
+            self._acceleration(t0, q0, v0, self.a)
+            v0.copy(v1)
+            v1.axpy(h, self.a)
+            q0.copy(q1)
+            q1.axpy(h, v1)
+            damping_v = v0
+            load_t = t0
+        else:
+            if not self._a_valid:
+                self._acceleration(t0, q0, v0, self.a)
+            v0.copy(v1)
+            v1.axpy(0.5 * h, self.a)                        # half-step velocity
+            q0.copy(q1)
+            q1.axpy(h, v1)
+            s.dirichlet.set_values(q1, g1)
+            vh = v1.copy()
+            self._acceleration(t0 + h, q1, vh, self.a)
+            v1.axpy(0.5 * h, self.a)
+            self._a_valid = True
+            damping_v = vh
+            load_t = t0 + 0.5 * h
+        s.dirichlet.set_values(q1, g1)
+        # supports: velocity of the prescribed motion over the step
+        dq.waxpy(-1.0, q0, q1)
+        bc_v = dq.copy()
+        bc_v.scale(1.0 / h)
+        s.dirichlet.set_values(v1, s.dmesh.to_local(bc_v))
+        report.dissipated = dq.dot(s.damping_apply(damping_v, self._tmp))
+        report.external_work = dq.dot(s.tractions(load_t, self._tmp))
+        for vec in (dq, bc_v):
+            vec.destroy()
+        if self.scheme == "verlet":
+            vh.destroy()
+        return report
+
+    def destroy(self) -> None:
+        for v in (self.inv_mass, self.f, self.a, self._tmp):
+            v.destroy()

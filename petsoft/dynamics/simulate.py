@@ -1,0 +1,241 @@
+"""Running a dynamic simulation of an experiment: the time loop and everything it writes.
+
+Initial state (expressions or static equilibrium), one integrator, steps that are retried with
+half the step when Newton fails, energy bookkeeping, trajectory frames (XDMF + HDF5), probe
+trajectories as a recording (``probes.h5``), a progress line and ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from petsc4py import PETSc
+
+from ..errors import ExperimentError, SolverError
+from ..probes import interpolate, locate
+from .energy import FIELDS, EnergyLedger
+from .explicit import ExplicitIntegrator
+from .implicit import METHODS as IMPLICIT_METHODS
+from .implicit import ImplicitIntegrator
+from .system import DynamicSystem
+
+INTEGRATORS = ("be", "si", "alpha", "midpoint", "trapezoidal", "ere", "explicit", "imex")
+AVAILABLE = IMPLICIT_METHODS + ("explicit",)
+MAX_HALVINGS = 6
+
+
+@dataclass
+class SimulationResult:
+    """The outcome of a run: final state, statistics and the energy table."""
+
+    time: float
+    steps: int
+    q: PETSc.Vec
+    v: PETSc.Vec
+    energies: np.ndarray
+    newton_iterations: int = 0
+    linear_iterations: int = 0
+    retries: int = 0
+    wall_time: float = 0.0
+    probe_times: list = field(default_factory=list)
+    probe_displacements: list = field(default_factory=list)
+
+
+def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: str = "verlet"):
+    """The integrator object for a name of ``[time] integrator``."""
+    if name in IMPLICIT_METHODS:
+        return ImplicitIntegrator(system, name, solver=solver)
+    if name == "explicit":
+        return ExplicitIntegrator(system, explicit_scheme)
+    raise ExperimentError(
+        f"time.integrator = {name!r} is not available in this version of petsoft yet; "
+        f"available: {', '.join(AVAILABLE)}")
+
+
+def initial_state(model, system, experiment, monitor=None):
+    """q0 and v0 (global vectors) from ``[initial]``."""
+    dm = model.dmesh
+    pts = dm.mesh.points
+    init = experiment.initial
+    if init.from_ == "static":
+        from ..static import StaticSolver
+
+        solver = StaticSolver(model, monitor=monitor)
+        q0 = solver.solve().displacement.copy()
+        solver.destroy()
+    else:
+        field_ = np.column_stack([e.evaluate_at(pts) for e in init.displacement])
+        q0 = dm.from_file_field(field_)
+    v0 = dm.from_file_field(np.column_stack([e.evaluate_at(pts) for e in init.velocity]))
+    system.dirichlet.set_values(q0, system.prescribed(0.0))
+    return q0, v0
+
+
+class Simulation:
+    """A dynamic run of an experiment (all ranks construct and run it).
+
+    Parameters
+    ----------
+    model : petsoft.model.Model
+    experiment : Experiment
+        Needs ``[time]``.
+    integrator : str, optional
+        Overrides ``[time] integrator``.
+    solver : {"snes", "tao"}
+        Newton on the step equations, or (backward Euler) minimisation of the incremental
+        potential.
+    out : Path, optional
+        Output directory; None writes nothing.
+    monitor : callable(str), optional
+        Progress lines (printed on rank 0 by the caller's function).
+    """
+
+    def __init__(self, model, experiment, *, integrator: str | None = None, solver: str = "snes",
+                 out: Path | None = None, monitor=None, explicit_scheme: str = "verlet",
+                 progress_every: float = 1.0):
+        if experiment.time is None:
+            raise ExperimentError(f"{experiment.source}: [time] is missing: `simulate` needs "
+                                  "end and step (and optionally integrator)")
+        self.model, self.experiment = model, experiment
+        self.name = integrator or experiment.time.integrator
+        if self.name not in INTEGRATORS:
+            raise ExperimentError(f"integrator {self.name!r} is unknown; valid: "
+                                  f"{', '.join(INTEGRATORS)}")
+        self.system = DynamicSystem(model, experiment.damping.mass, experiment.damping.stiffness)
+        self.integrator = make_integrator(self.system, self.name, solver, explicit_scheme)
+        self.out = Path(out) if out is not None else None
+        self.monitor = monitor
+        self.progress_every = progress_every
+        mesh = model.dmesh.mesh
+        self.probes = experiment.output.probes
+        self.probe_cells = self.probe_weights = None
+        if self.probes:
+            self.probe_cells, self.probe_weights = locate(
+                mesh.points, mesh.tets, self.probes, source=f"{experiment.source}: output.probes")
+
+    def _say(self, line: str) -> None:
+        if self.monitor is not None and self.model.dmesh.comm.rank == 0:
+            self.monitor(line)
+
+    def _advance(self, t, q, v, h, q1, v1, depth=0):
+        """One step of h, as two half steps (recursively) if Newton fails."""
+        report = self.integrator.step(t, q, v, h, q1, v1)
+        if report.converged:
+            return [report]
+        if depth >= MAX_HALVINGS:
+            raise SolverError(
+                f"integrator {self.name}: the step at t = {t:.6g} s (h = {h:.3g} s) failed "
+                f"{MAX_HALVINGS + 1} times with halved steps: {report.reason}. Try a smaller "
+                "[time] step, more damping, or another integrator")
+        self._say(f"  t = {t:.6g} s: Newton failed ({report.reason}); retrying with h = "
+                  f"{h / 2:.3g} s")
+        qm, vm = q.duplicate(), v.duplicate()
+        reports = self._advance(t, q, v, h / 2, qm, vm, depth + 1)
+        reports += self._advance(t + h / 2, qm, vm, h / 2, q1, v1, depth + 1)
+        qm.destroy()
+        vm.destroy()
+        return reports
+
+    def run(self) -> SimulationResult:
+        t_start = time.perf_counter()
+        exp, dm, s = self.experiment, self.model.dmesh, self.system
+        rank0 = dm.comm.rank == 0
+        q, v = initial_state(self.model, s, exp, monitor=self.monitor)
+        q1, v1 = q.duplicate(), v.duplicate()
+        h, nsteps = exp.time.step, exp.time.num_steps
+        if isinstance(self.integrator, ExplicitIntegrator):
+            limit = self.integrator.check_step(q, h, source=f"{exp.source}: time.step")
+            self._say(f"explicit stability limit {limit:.4g} s (step {h:g} s)")
+        ledger = EnergyLedger()
+        writer = None
+        every = exp.output.every
+        if self.out is not None and rank0:
+            from ..xdmf import XdmfWriter
+
+            self.out.mkdir(parents=True, exist_ok=True)
+            writer = XdmfWriter(self.out / "trajectory.xdmf", dm.mesh.points, dm.mesh.tets)
+        result = SimulationResult(0.0, 0, q, v, np.zeros((0, len(FIELDS))))
+        self._frame(writer, 0.0, q, v, result)
+        row = ledger.record(s, 0.0, q, v)
+        self._say(f"petsoft simulate: {self.name}, {nsteps} steps of {h:g} s to "
+                  f"t = {exp.time.end:g} s; {len(dm.mesh.tets)} tets on {dm.comm.size} rank(s); "
+                  f"E0 = {row['kinetic'] + row['elastic'] + row['gravitational']:.6g} J")
+        last_print = time.perf_counter()
+        t = 0.0
+        for n in range(1, nsteps + 1):
+            reports = self._advance(t, q, v, h, q1, v1)
+            for r in reports:
+                ledger.add_step(r)
+                result.newton_iterations += r.newton_iterations
+                result.linear_iterations += r.linear_iterations
+            result.retries += len(reports) - 1
+            q1.copy(q)
+            v1.copy(v)
+            t = n * h
+            row = ledger.record(s, t, q, v)
+            if n % every == 0 or n == nsteps:
+                self._frame(writer, t, q, v, result)
+            now = time.perf_counter()
+            if now - last_print >= self.progress_every or n == nsteps:
+                last_print = now
+                total = row["kinetic"] + row["elastic"] + row["gravitational"]
+                its = reports[-1].newton_iterations
+                self._say(f"step {n}/{nsteps}  t = {t:.6g} s  Newton {its}  E = {total:.6g} J "
+                          f"(kinetic {row['kinetic']:.4g}, dissipated {row['dissipated']:.4g}, "
+                          f"numerical {row['numerical']:.3g})")
+        if writer is not None:
+            writer.close()
+        result.time, result.steps = t, nsteps
+        result.energies = ledger.array()
+        result.wall_time = time.perf_counter() - t_start
+        if self.out is not None:
+            self._write_outputs(result)
+        return result
+
+    def _frame(self, writer, t, q, v, result) -> None:
+        dm = self.model.dmesh
+        u = dm.gather_global(q)
+        w = dm.gather_global(v)
+        if dm.comm.rank != 0:
+            return
+        if writer is not None:
+            writer.write(t, {"displacement": u, "velocity": w})
+        if self.probe_cells is not None:
+            result.probe_times.append(t)
+            result.probe_displacements.append(
+                interpolate(u, dm.mesh.tets, self.probe_cells, self.probe_weights))
+
+    def _write_outputs(self, result: SimulationResult) -> None:
+        from ..recording import write_recording
+        from ..summary import write_summary
+
+        dm = self.model.dmesh
+        u = dm.gather_global(result.q)
+        if dm.comm.rank == 0:
+            max_u = float(np.linalg.norm(u, axis=1).max())
+            header = ",".join(FIELDS)
+            np.savetxt(self.out / "energies.csv", result.energies, delimiter=",", header=header,
+                       comments="")
+            if self.probe_cells is not None:
+                ref = np.asarray(self.probes, dtype=float)
+                pos = ref[None] + np.array(result.probe_displacements)
+                write_recording(self.out / "probes.h5", ref, np.array(result.probe_times), pos,
+                                names=[f"probe{i}" for i in range(len(ref))],
+                                attrs={"source": f"petsoft simulate {self.experiment.source}"})
+        last = dict(zip(FIELDS, result.energies[-1], strict=True))
+        summary = {
+            "final_time": result.time, "steps": result.steps, "integrator": self.name,
+            "energies": {k: float(last[k]) for k in FIELDS if k != "time"},
+        }
+        if dm.comm.rank == 0:
+            summary["max_displacement"] = max_u
+        stats = {"newton_iterations": result.newton_iterations,
+                 "linear_iterations": result.linear_iterations, "retries": result.retries}
+        write_summary(self.out, "simulate", summary, stats, result.wall_time, dm.comm)
+
+    def destroy(self) -> None:
+        self.integrator.destroy()
+        self.system.destroy()

@@ -1,0 +1,182 @@
+"""The semi-discrete second-order system of an experiment: matrices, forces, energies.
+
+``M q'' = -grad W(q) - D v + f_g + f_t(t)`` with
+
+* M the consistent P1 mass matrix (or its row-sum lumping, for explicit integration),
+* W the elastic energy (:class:`petsoft.physics.elastic.ElasticTerm`),
+* D = alpha M + beta K0 Rayleigh damping, K0 the stiffness of the reference configuration (a
+  constant, positive semi-definite matrix, so the damping power v^T D v is never negative and
+  the energy balance is well defined also for nonlinear materials),
+* f_g gravity (a potential: -f_g . q), f_t(t) surface tractions (expressions of x, y, z, t: their
+  work is booked as external work),
+* Dirichlet conditions q_D = g(t) (fixed or prescribed expressions of x, y, z, t).
+
+All matrices share one block-CSR pattern, so an integrator's Jacobian a M + b K(q) + c K0 is a
+combination of value arrays handed to PETSc once.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from petsc4py import PETSc
+
+from ..assembly import MatrixAssembler
+from ..physics.loads import consistent_mass_matrices, gravity_forces, lumped_masses, traction_forces
+
+
+class DynamicSystem:
+    """Owns the matrices and work vectors of the dynamic problem of a :class:`Model`.
+
+    Parameters
+    ----------
+    model : petsoft.model.Model
+        Built by :func:`petsoft.model.build_model` (its ``external`` vector is not used: loads are
+        rebuilt here split into gravity and time-dependent tractions).
+    damping_mass, damping_stiffness : float
+        Rayleigh alpha (1/s) and beta (s).
+    """
+
+    def __init__(self, model, damping_mass: float = 0.0, damping_stiffness: float = 0.0):
+        self.model = model
+        dm = self.dmesh = model.dmesh
+        self.comm = dm.comm
+        self.elastic = model.elastic
+        self.dirichlet = model.dirichlet
+        self.alpha, self.beta = float(damping_mass), float(damping_stiffness)
+        conns = dict(self.elastic.connectivities())
+        self.assembler = MatrixAssembler(dm, conns)
+        # the mass shares the pattern: its element matrices go through the elastic groups' names
+        self.assembler.begin()
+        mass_e = consistent_mass_matrices(dm, model.density)
+        for group in self.elastic.groups:
+            self.assembler.add(group.name, np.ascontiguousarray(mass_e[group.cells]))
+        self.mass_values = self.assembler.values.copy()
+        self.assembler.begin()
+        self.elastic.add_hessian(np.zeros((dm.nvertices, 3)), self.assembler)
+        self.k0_values = self.assembler.values.copy()
+        self.M = self._matrix_from(self.mass_values)
+        self.lumped = dm.create_global_vec()
+        self.lumped.zeroEntries()
+        dm.add_to_global(np.repeat(lumped_masses(dm, model.density)[:, None], 3, axis=1),
+                         self.lumped)
+        self.gravity = dm.create_global_vec()
+        self.gravity.zeroEntries()
+        dm.add_to_global(gravity_forces(dm, model.density,
+                                        model.experiment.gravity.acceleration), self.gravity)
+        self._tractions = self._traction_setup()
+        self._traction_cache = None
+        self._g = np.zeros(3 * dm.nvertices)
+        self._work = dm.create_global_vec()
+
+    # -- matrices ---------------------------------------------------------------------------
+    def _matrix_from(self, values: np.ndarray) -> PETSc.Mat:
+        A = self.assembler.create_matrix()
+        self.assembler.values[:] = values
+        self.assembler.finish(A)
+        return A
+
+    def create_matrix(self) -> PETSc.Mat:
+        """A new matrix with the system's pattern (for Jacobians)."""
+        return self.assembler.create_matrix()
+
+    def assemble_combination(self, q_local: np.ndarray | None, a_mass: float, b_tangent: float,
+                             c_reference: float, out: PETSc.Mat,
+                             eliminate: bool = True) -> PETSc.Mat:
+        """out = a M + b K(q) + c K0 (+ alpha, beta damping folded in by the caller).
+
+        With ``eliminate``, prescribed rows and columns become identity (symmetric).
+        """
+        asm = self.assembler
+        asm.begin()
+        if b_tangent != 0.0:
+            self.elastic.add_hessian(q_local, asm)
+            if b_tangent != 1.0:
+                asm.values *= b_tangent
+        if a_mass != 0.0:
+            asm.values += a_mass * self.mass_values
+        if c_reference != 0.0:
+            asm.values += c_reference * self.k0_values
+        asm.finish(out)
+        if eliminate:
+            self.dirichlet.eliminate(out)
+        return out
+
+    def damping_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = D v = alpha M v + beta K0 v."""
+        out.zeroEntries()
+        if self.alpha == 0.0 and self.beta == 0.0:
+            return out
+        self.M.mult(v, out)
+        out.scale(self.alpha)
+        if self.beta != 0.0:
+            if not hasattr(self, "K0"):
+                self.K0 = self._matrix_from(self.k0_values)
+            self.K0.mult(v, self._work)
+            out.axpy(self.beta, self._work)
+        return out
+
+    # -- forces and energies ----------------------------------------------------------------
+    def internal_gradient(self, q: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = grad W(q) (all rows, including prescribed ones)."""
+        u = self.dmesh.to_local(q)
+        self._g[:] = 0.0
+        self.elastic.add_gradient(u, self._g)
+        out.zeroEntries()
+        self.dmesh.add_to_global(self._g.reshape(-1, 3), out)
+        return out
+
+    def elastic_energy(self, q: PETSc.Vec) -> float:
+        return self.dmesh.allreduce_sum(self.elastic.energy(self.dmesh.to_local(q)))
+
+    def kinetic_energy(self, v: PETSc.Vec) -> float:
+        self.M.mult(v, self._work)
+        return 0.5 * v.dot(self._work)
+
+    def gravitational_energy(self, q: PETSc.Vec) -> float:
+        return -self.gravity.dot(q)
+
+    def _traction_setup(self):
+        exp = self.model.experiment
+        resolver = self.model.resolver
+        out = []
+        for i, b in enumerate(exp.boundaries):
+            if b.kind != "traction":
+                continue
+            faces = resolver.faces(b.where, f"boundary[{i}].where")
+            pts = self.dmesh.mesh.points[faces].reshape(-1, 3)
+            out.append((faces, pts, b.value,
+                        any("t" in e.variables for e in b.value)))
+        return out
+
+    @property
+    def time_dependent_loads(self) -> bool:
+        return any(dep for *_, dep in self._tractions)
+
+    def tractions(self, t: float, out: PETSc.Vec) -> PETSc.Vec:
+        """out = f_t(t), the nodal forces of the surface tractions at time t."""
+        if self._traction_cache is not None and not self.time_dependent_loads:
+            return self._traction_cache.copy(out)
+        local = np.zeros((self.dmesh.nvertices, 3))
+        for faces, pts, value, _ in self._tractions:
+            tv = np.stack([e.evaluate_at(pts, t=t) for e in value], axis=1).reshape(-1, 3, 3)
+            local += traction_forces(self.dmesh, faces, tv)
+        out.zeroEntries()
+        self.dmesh.add_to_global(local, out)
+        if not self.time_dependent_loads:
+            self._traction_cache = out.copy()
+        return out
+
+    def prescribed(self, t: float) -> np.ndarray:
+        """Local (nv, 3) prescribed displacements at time t (zero where not prescribed)."""
+        return self.dirichlet.values(t=t)
+
+    @property
+    def moving_boundary(self) -> bool:
+        """Whether some prescribed displacement depends on time."""
+        return any(disp is not None and any("t" in e.variables for e in disp)
+                   for _, _, disp in self.dirichlet.conditions)
+
+    def destroy(self) -> None:
+        for name in ("M", "K0", "lumped", "gravity", "_work"):
+            if hasattr(self, name):
+                getattr(self, name).destroy()
