@@ -13,6 +13,10 @@ import sys
 
 _PETSC_OPTION = re.compile(r"^-[A-Za-z][A-Za-z0-9_]+")
 _FLAGS_WITHOUT_VALUE = {"--restart", "--spd", "--quiet", "--help"}
+# `modes -n K` (also -n=K, -nK): the one single-dash option of petsoft's own. The PETSc pattern
+# above needs two characters after the dash, so "-n" alone would otherwise pass as the value of a
+# preceding PETSc option.
+_OUR_SHORT_OPTION = re.compile(r"^-n(=?\d+)?$")
 
 
 def split_arguments(argv: list[str]) -> tuple[list[str], list[str]]:
@@ -21,9 +25,11 @@ def split_arguments(argv: list[str]) -> tuple[list[str], list[str]]:
     in_petsc = False
     while i < len(argv):
         tok = argv[i]
-        if tok.startswith("--"):
+        if tok.startswith("--") or _OUR_SHORT_OPTION.match(tok):
             ours.append(tok)
-            if ("=" not in tok and tok not in _FLAGS_WITHOUT_VALUE and in_petsc
+            takes_value = tok == "-n" or (tok.startswith("--") and "=" not in tok
+                                          and tok not in _FLAGS_WITHOUT_VALUE)
+            if (takes_value and in_petsc
                     and i + 1 < len(argv) and not argv[i + 1].startswith("-")):
                 ours.append(argv[i + 1])
                 i += 1
@@ -50,6 +56,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("experiment", help="experiment file (TOML, see the formats spec)")
     _static_options(s)
     _add_simulate_parser(sub)
+    _add_modes_parser(sub)
     d = sub.add_parser("demo", help="run the embedded example (no input needed)",
                        description="Solve an embedded neo-Hookean cantilever under gravity and an "
                                    "end load; writes results and a plot to --out.")
@@ -73,6 +80,28 @@ def _add_simulate_parser(sub) -> None:
                         "potential with TAO")
     s.add_argument("--explicit-scheme", choices=("verlet", "euler"), default="verlet",
                    help="explicit integrator: velocity Verlet or symplectic Euler")
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, not {value}")
+    return value
+
+
+def _add_modes_parser(sub) -> None:
+    m = sub.add_parser(
+        "modes", help="natural frequencies and mode shapes of an experiment",
+        description="Solve K x = omega^2 M x (stiffness at the unloaded reference state, "
+                    "consistent mass, the experiment's supports; loads are ignored) with SLEPc "
+                    "for the lowest modes; writes summary.json (frequencies_hz) and modes.xdmf/.h5 "
+                    "(one frame per mode, time = mode number, M-normalised shapes). Eigensolver "
+                    "options: -eps_type, -eps_tol, -eps_ncv, -eps_target (in (rad/s)^2), "
+                    "-st_pc_factor_mat_solver_type ...")
+    m.add_argument("experiment", help="experiment file (TOML, see the formats spec)")
+    m.add_argument("-n", "--num-modes", type=_positive_int, default=6, dest="num_modes",
+                   metavar="K", help="number of modes (default %(default)s)")
+    m.add_argument("--out", help="output directory (default: [output] directory)")
 
 
 def _static_options(s) -> None:

@@ -47,6 +47,8 @@ def run(args) -> int:
         out = Path(args.out) if args.out else experiment.output.directory
         run_simulation(experiment, out, args)
         return 0
+    if args.command == "modes":
+        return run_modes(args)
     if args.command == "demo":
         experiment = experiment_from_dict(DEMO_EXPERIMENT, source="<embedded demo>")
         out = Path(args.out)
@@ -139,3 +141,54 @@ def run_simulation(experiment, out: Path, args) -> None:
            f"{result.newton_iterations} Newton / {result.linear_iterations} linear iterations, "
            f"{result.wall_time:.3g} s; wrote {out}/")
     sim.destroy()
+
+
+def run_modes(args) -> int:
+    """`petsoft modes`: natural frequencies and mode shapes of an experiment (all ranks call).
+
+    Prints a table, writes ``summary.json`` (``frequencies_hz``, ``eigenvalues``, solver
+    statistics) and ``modes.xdmf``/``.h5``: one frame per mode with time = mode number (1, 2,
+    ...) and the M-normalised shape as the point field ``mode``, so ParaView's time control steps
+    through the modes under one Warp By Vector.
+    """
+    from .modes import compute_modes
+    from .xdmf import XdmfWriter
+
+    t0 = time.perf_counter()
+    comm = PETSc.COMM_WORLD
+    experiment = load_experiment(args.experiment)
+    out = Path(args.out) if args.out else experiment.output.directory
+    apply_experiment_options(experiment.petsc)
+    model = build_model(experiment, comm)
+    mesh = model.dmesh.mesh
+    _print(f"petsoft modes: {len(mesh.tets)} tets, {len(mesh.points)} nodes, "
+           f"{3 * len(mesh.points)} dofs ({model.dirichlet.count} constrained) on {comm.size} "
+           f"rank(s); {args.num_modes} mode(s)")
+    result = compute_modes(model, args.num_modes)
+    writer = XdmfWriter(out / "modes.xdmf", mesh.points, mesh.tets) if comm.rank == 0 else None
+    for k, x in enumerate(result.modes):
+        shape = model.dmesh.gather_global(x)       # collective; None off rank 0
+        if writer is not None:
+            writer.write(float(k + 1), {"mode": shape})
+    if writer is not None:
+        writer.close()
+    _print(f"{'mode':>5} {'frequency (Hz)':>16} {'omega^2 (rad/s)^2':>19} {'rel. residual':>14}")
+    for k, (f, lam, err) in enumerate(zip(result.frequencies_hz, result.eigenvalues,
+                                          result.relative_errors, strict=True)):
+        note = "  rigid body" if k < result.rigid_modes else ""
+        _print(f"{k + 1:>5} {f:>16.8g} {lam:>19.8g} {err:>14.2e}{note}")
+    solver = {**result.solver, "shift": result.shift, "converged": result.converged,
+              "iterations": result.iterations,
+              "max_relative_residual": float(result.relative_errors.max())}
+    results = {"frequencies_hz": [float(f) for f in result.frequencies_hz],
+               "eigenvalues": [float(v) for v in result.eigenvalues],
+               "rigid_body_modes": result.rigid_modes,
+               "mode_shapes": {"file": "modes.xdmf", "field": "mode", "normalisation": "mass"}}
+    path = write_summary(out, "modes", results, solver, time.perf_counter() - t0, comm)
+    factor = result.solver.get("factor_solver_type", result.solver["pc_type"])
+    _print(f"{len(result.modes)} modes, {result.frequencies_hz[0]:.6g} to "
+           f"{result.frequencies_hz[-1]:.6g} Hz ({result.rigid_modes} rigid body), "
+           f"{result.iterations} iteration(s) of {result.solver['eps_type']} + "
+           f"{result.solver['st_type']} ({factor}); wrote {path.parent if path else out}/")
+    result.destroy()
+    return 0

@@ -20,7 +20,11 @@ are known exactly: the combinations of the six rigid motions that vanish on ever
 They are computed directly (M-orthonormalised), reported first with eigenvalue 0, and deflated
 from the Krylov-Schur subspace, which then only finds elastic modes; the factorization uses the
 small negative shift sigma = -RIGID_SHIFT * trace(K) / trace(M), where K - sigma M is positive
-definite.
+definite. Other mechanisms (disconnected parts, hinges) are not detected: the factorization fails
+or the eigenpairs come out inaccurate, and the error says so.
+
+Every returned pair is checked: the relative residual ||K x - omega^2 M x|| / (omega^2 ||M x||)
+must stay below max(1e-6, 100 tol), else a SolverError is raised.
 """
 
 from __future__ import annotations
@@ -37,10 +41,12 @@ from .errors import PetsoftError, SolverError
 from .physics.loads import consistent_mass_matrices
 
 # Shift (as a fraction of trace(K)/trace(M), an upper-end eigenvalue scale ~ c^2/h^2) used when
-# rigid-body modes make K singular. Small enough to lie below the lowest elastic eigenvalue of
-# bodies down to ~1e-3 slenderness on fine meshes (a cantilever's first bending mode is ~1e-6 of
-# the scale on the test meshes), large enough that K - sigma M is factored with ~1e-8 relative
-# accuracy; the error lands in the rigid directions, which deflation removes.
+# rigid-body modes make K singular. It must lie well below the lowest elastic eigenvalue, or
+# shift-and-invert crowds the wanted eigenvalues together and converges slowly: a cantilever's
+# first bending eigenvalue is ~1e-6 of the scale on the test meshes, and bodies 100x more slender
+# or meshes 10x finer still have it above ~1e-9. K - sigma M is then ill-conditioned (~1e10) in
+# the rigid directions only, which are deflated and projected out of the elastic modes (their
+# measured relative residuals stay ~1e-13).
 RIGID_SHIFT = 1e-10
 # A combination of rigid motions counts as unconstrained when less than this fraction of its
 # (Euclidean) norm sits on constrained dofs: 0 up to round-off for a true zero-energy mode, while
@@ -62,8 +68,8 @@ class ModesResult:
     modes : list of PETSc.Vec
         Global mode shapes, M-orthonormal (x_i^T M x_j = delta_ij), zero on constrained dofs.
     relative_errors : ndarray (n,)
-        SLEPc's relative residual ||K x - omega^2 M x|| / |omega^2| of each pair (0 for rigid
-        modes, which are exact).
+        Relative residual ||K x - omega^2 M x|| / (|omega^2| ||M x||) of each pair (for rigid
+        modes, omega^2 = 0, relative to the eigenvalue scale trace(K) / trace(M) instead).
     rigid_modes : int
         How many of the modes are rigid-body modes (the first ones).
     converged : int
@@ -275,18 +281,20 @@ def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "") 
                 eps.setTarget(sigma)
             eps.setDeflationSpace(rigid)
         nelastic = nmodes - nrigid
-        values, vectors, errors = [0.0] * nrigid, rigid[:nrigid], [0.0] * nrigid
+        values, vectors = [0.0] * nrigid, rigid[:nrigid]
         nconv = iterations = 0
         if nelastic > 0:
             eps.setDimensions(nev=nelastic)
             try:
                 eps.solve()
             except PETSc.Error as exc:
-                raise SolverError(
-                    f"modes: the eigensolver failed ({exc}); with a direct solver this usually "
-                    f"means K - sigma M (sigma = {sigma:.6g}) is singular: the structure has a "
-                    "mechanism the Dirichlet conditions do not remove (disconnected parts?). "
-                    "Try a small negative -eps_target") from None
+                # 71: zero pivot, 76: MUMPS failed, 91: the (preonly) solve did not converge.
+                hint = (f"; K - sigma M (sigma = {sigma:.6g}) is singular: the structure has a "
+                        "mechanism the supports do not remove (disconnected parts?) or the target "
+                        "sits on an eigenvalue; try a small negative -eps_target"
+                        if exc.ierr in (71, 76, 91) else "")
+                raise SolverError(f"modes: the eigensolver failed (PETSc error {exc.ierr}: "
+                                  f"{str(exc).strip().splitlines()[-1].strip()}){hint}") from None
             nconv, iterations = eps.getConverged(), eps.getIterationNumber()
             if nconv < nelastic:
                 raise SolverError(
@@ -298,16 +306,23 @@ def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "") 
                 x = K.createVecRight()
                 created.append(x)
                 values.append(eps.getEigenpair(i, x).real)
-                errors.append(eps.computeError(i))
                 vectors.append(x)
         # The pairs nearest a positive target do not come in ascending order; rigid modes
         # (exactly 0) stay first.
         order = np.argsort(values, kind="stable")
         values = np.asarray(values, float)[order]
         vectors = [vectors[i] for i in order]
-        errors = np.asarray(errors, float)[order]
-        _m_normalise(vectors[nrigid:], M, bc)
+        _m_normalise(vectors[nrigid:], M, bc, rigid[:nrigid])
+        errors = _relative_residuals(vectors, values, K, M, scale)
         solver = _solver_info(eps)
+        accurate = max(1e-6, 100.0 * solver["tolerance"])
+        if errors.max(initial=0.0) > accurate:
+            raise SolverError(
+                f"modes: the eigenpairs are inaccurate (relative residual "
+                f"{errors.max():.2e} > {accurate:.0e}): K - sigma M (sigma = {sigma:.6g}) is "
+                "nearly singular: the structure has a mechanism the supports do not remove "
+                "(disconnected parts?), or -eps_target sits on an eigenvalue (try a small "
+                "negative -eps_target)")
     except BaseException:
         for v in created:
             v.destroy()
@@ -323,13 +338,36 @@ def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "") 
                        shift=float(sigma), solver=solver)
 
 
-def _m_normalise(vectors, M: PETSc.Mat, bc) -> None:
-    """Scale each vector to x^T M x = 1, with exact zeros on constrained dofs."""
+def _m_normalise(vectors, M: PETSc.Mat, bc, rigid=()) -> None:
+    """Scale each vector to x^T M x = 1, exactly zero on constrained dofs, M-orthogonal to the
+    rigid modes (purification re-applies the shifted inverse, which amplifies round-off in the
+    rigid directions by 1 / |sigma|: remove it)."""
     if not vectors:
         return
     w = M.createVecLeft()
     for x in vectors:
         bc.zero_rows(x)      # the infinite-eigenvalue components, ~0 after purification
+        for r in rigid:
+            M.mult(r, w)
+            x.axpy(-x.dot(w), r)
         M.mult(x, w)
         x.scale(1.0 / np.sqrt(x.dot(w)))
     w.destroy()
+
+
+def _relative_residuals(vectors, values, K: PETSc.Mat, M: PETSc.Mat, scale: float) -> np.ndarray:
+    """||K x - lambda M x|| / (|lambda| ||M x||) per pair; the eigenvalue scale replaces |lambda|
+    below it (rigid modes, lambda = 0)."""
+    out = np.zeros(len(vectors))
+    if not vectors:
+        return out
+    kx, mx = K.createVecLeft(), M.createVecLeft()
+    for i, (x, lam) in enumerate(zip(vectors, values, strict=True)):
+        K.mult(x, kx)
+        M.mult(x, mx)
+        norm_mx = mx.norm()
+        kx.axpy(-lam, mx)
+        out[i] = kx.norm() / ((abs(lam) if lam != 0.0 else scale) * norm_mx)
+    kx.destroy()
+    mx.destroy()
+    return out
