@@ -1,8 +1,8 @@
 """Explicit integration with the lumped (row-sum) mass: symplectic Euler and velocity Verlet.
 
 symplectic Euler (order 1):  v1 = v0 + h M^-1 f(t0, q0, v0);   q1 = q0 + h v1
-velocity Verlet (order 2):   vh = v0 + h/2 a0;  q1 = q0 + h vh;  a1 = M^-1 f(t1, q1, vh);
-                             v1 = vh + h/2 a1
+velocity Verlet (order 2):   vh = v0 + h/2 a0;  q1 = q0 + h vh;  a1 = M^-1 f(t1, q1, v1*);
+                             v1 = vh + h/2 a1, with v1* a prediction of v1 (damping only)
 
 Both are stable only for h < 2 / omega_max. The limit is estimated before the first step from the
 largest eigenvalue of K(q0) x = omega^2 M_lumped x (SLEPc), and a larger step is refused with a
@@ -25,11 +25,11 @@ def largest_frequency(system, q: PETSc.Vec) -> float:
     from slepc4py import SLEPc
 
     K = system.create_matrix()
-    system.assemble_combination(system.dmesh.to_local(q), 0.0, 1.0, 0.0, K, eliminate=False)
+    system.assemble_combination(q, 0.0, 1.0, 0.0, K, eliminate=False)
     mass = system.lumped.copy()
     # prescribed dofs do not move: give them a huge mass so they do not limit the step
     arr = mass.getArray()
-    arr[system.dirichlet.owned_offsets(mass)] = 1e30 * max(1.0, float(np.abs(arr).max()))
+    arr[system.prescribed_offsets(mass)] = 1e30 * max(1.0, float(np.abs(arr).max()))
     Minv = mass.copy()
     Minv.reciprocal()
     K.diagonalScale(Minv, None)                    # M^-1 K: same eigenvalues
@@ -57,12 +57,12 @@ class ExplicitIntegrator:
         if scheme not in SCHEMES:
             raise ValueError(f"explicit scheme must be one of {SCHEMES}")
         self.system, self.scheme = system, scheme
-        dm = system.dmesh
+        system.lumped_kinetic = True   # the energy it conserves uses the mass it integrates with
         self.inv_mass = system.lumped.copy()
         self.inv_mass.reciprocal()
-        self.f = dm.create_global_vec()
-        self.a = dm.create_global_vec()
-        self._tmp = dm.create_global_vec()
+        self.f = system.create_vec()
+        self.a = system.create_vec()
+        self._tmp = system.create_vec()
         self._a_valid = False
         self.omega_max = None
 
@@ -78,19 +78,28 @@ class ExplicitIntegrator:
                 "midpoint)")
         return limit
 
-    def _acceleration(self, t: float, q: PETSc.Vec, v: PETSc.Vec, out: PETSc.Vec) -> None:
+    def _acceleration(self, t: float, q: PETSc.Vec, v: PETSc.Vec | None,
+                      out: PETSc.Vec) -> None:
+        """out = M^-1 f(t, q, v) (v None: without the damping force)."""
         s = self.system
         s.internal_gradient(q, self.f)
         self.f.scale(-1.0)
-        self.f.axpy(-1.0, s.damping_apply(v, self._tmp))
+        if v is not None:
+            self.f.axpy(-1.0, s.damping_apply(v, self._tmp))
         self.f.axpy(1.0, s.gravity)
         self.f.axpy(1.0, s.tractions(t, self._tmp))
         out.pointwiseMult(self.f, self.inv_mass)
-        s.dirichlet.zero_rows(out)
+        s.zero_prescribed(out)
+
+    def _damping_acceleration(self, v: PETSc.Vec) -> PETSc.Vec:
+        """M^-1 D v (in a work vector)."""
+        self.system.damping_apply(v, self._tmp)
+        self._tmp.pointwiseMult(self._tmp, self.inv_mass)
+        self.system.zero_prescribed(self._tmp)
+        return self._tmp
 
     def step(self, t0, q0, v0, h, q1, v1) -> StepReport:
         s = self.system
-        g1 = s.prescribed(t0 + h)
         dq = q0.duplicate()
         report = StepReport()
         if self.scheme == "euler":
@@ -108,25 +117,30 @@ class ExplicitIntegrator:
             v1.axpy(0.5 * h, self.a)                        # half-step velocity
             q0.copy(q1)
             q1.axpy(h, v1)
-            s.dirichlet.set_values(q1, g1)
+            s.apply_prescribed(q1, t0 + h)
             vh = v1.copy()
-            self._acceleration(t0 + h, q1, vh, self.a)
+            # The damping force needs v1, which the kick computes: predict v1 with the damping
+            # at vh, then kick with the damping at the prediction (second order with damping).
+            self._acceleration(t0 + h, q1, None, self.a)
+            predicted = vh.copy()
+            predicted.axpy(0.5 * h, self.a)
+            predicted.axpy(-0.5 * h, self._damping_acceleration(vh))
+            self.a.axpy(-1.0, self._damping_acceleration(predicted))
             v1.axpy(0.5 * h, self.a)
             self._a_valid = True
-            damping_v = vh
+            damping_v = predicted
             load_t = t0 + 0.5 * h
-        s.dirichlet.set_values(q1, g1)
+        s.apply_prescribed(q1, t0 + h)
         # supports: velocity of the prescribed motion over the step
         dq.waxpy(-1.0, q0, q1)
-        bc_v = dq.copy()
-        bc_v.scale(1.0 / h)
-        s.dirichlet.set_values(v1, s.dmesh.to_local(bc_v))
+        rows = s.prescribed_offsets(v1)
+        v1.getArray()[rows] = dq.getArray(readonly=True)[rows] / h
         report.dissipated = dq.dot(s.damping_apply(damping_v, self._tmp))
         report.external_work = dq.dot(s.tractions(load_t, self._tmp))
-        for vec in (dq, bc_v):
-            vec.destroy()
+        dq.destroy()
         if self.scheme == "verlet":
             vh.destroy()
+            predicted.destroy()
         return report
 
     def destroy(self) -> None:

@@ -72,8 +72,10 @@ class ImplicitIntegrator:
         self.system, self.method, self.solver = system, method, solver
         s = system
         self.J = s.create_matrix()
-        self.J.setNearNullSpace(s.dmesh.rigid_body_modes())
-        vecs = [s.dmesh.create_global_vec() for _ in range(8)]
+        modes = s.near_nullspace()
+        if modes is not None:
+            self.J.setNearNullSpace(modes)
+        vecs = [s.create_vec() for _ in range(8)]
         (self.R, self.q0, self.v0, self.f0, self.f1, self._a, self._b, self._c) = vecs
         self.h = None
         self.t0 = 0.0
@@ -90,7 +92,7 @@ class ImplicitIntegrator:
             snes.setJacobian(self._jacobian_cb, self.J, self.J)
             snes.setTolerances(rtol=1e-10, atol=1e-12, stol=0.0, max_it=25)
             self.ksp = snes.getKSP()
-            linear_defaults(self.ksp, rtol=1e-10)
+            (getattr(s, "linear_defaults", None) or linear_defaults)(self.ksp)
             # The mass term keeps the step's energy convex near the old state: full Newton steps.
             with scoped_defaults(**{prefix + "snes_linesearch_type": "basic"}):
                 snes.setFromOptions()
@@ -103,7 +105,7 @@ class ImplicitIntegrator:
             tao.setTolerances(gatol=1e-12, grtol=0.0, gttol=1e-10)
             tao.setMaximumIterations(25)
             self.ksp = tao.getKSP()
-            linear_defaults(self.ksp, rtol=1e-10)
+            (getattr(s, "linear_defaults", None) or linear_defaults)(self.ksp)
             tao.setFromOptions()
 
     # -- the discrete equations ---------------------------------------------------------------
@@ -128,7 +130,7 @@ class ImplicitIntegrator:
         s.M.mult(self._b, full)
         full.scale(1.0 / h)
         grad = self._c
-        damping = s.dmesh.create_global_vec()
+        damping = s.create_vec()
         if self.method in ("be", "si"):
             s.internal_gradient(q1, grad)
             s.damping_apply(v1, damping)
@@ -171,7 +173,7 @@ class ImplicitIntegrator:
             R.set(np.inf)
             return False
         terms["damping"].destroy()
-        self.system.dirichlet.zero_rows(R)
+        self.system.zero_prescribed(R)
         return True
 
     def _jacobian_coefficients(self) -> tuple[float, float, float]:
@@ -188,7 +190,7 @@ class ImplicitIntegrator:
             state.scale(0.5)
         else:
             state = q1
-        self.system.assemble_combination(self.system.dmesh.to_local(state), a, b, c, P)
+        self.system.assemble_combination(state, a, b, c, P)
 
     # PETSc callbacks (thin)
     def _residual_cb(self, snes, x, F):
@@ -210,7 +212,7 @@ class ImplicitIntegrator:
         value = 0.5 * d.dot(self._b) / h**2 + s.elastic_energy(x) - self.f1.dot(x)
         if s.alpha or s.beta:
             d.waxpy(-1.0, self.q0, x)
-            damp = s.damping_apply(d, s.dmesh.create_global_vec())
+            damp = s.damping_apply(d, s.create_vec())
             value += 0.5 * d.dot(damp) / h
             damp.destroy()
         return value
@@ -231,19 +233,19 @@ class ImplicitIntegrator:
         self.tractions1 = self.f1.copy()
         self.f1.axpy(1.0, gravity)
         if self.method == "midpoint":
-            self.fm = s.tractions(t0 + 0.5 * h, s.dmesh.create_global_vec())
+            self.fm = s.tractions(t0 + 0.5 * h, s.create_vec())
             self.tractions_m = self.fm.copy()
             self.fm.axpy(1.0, gravity)
             self._W0 = s.elastic_energy(q0)
         elif self.method == "trapezoidal":
-            t0_load = s.tractions(t0, s.dmesh.create_global_vec())
+            t0_load = s.tractions(t0, s.create_vec())
             self.tractions_m = t0_load.copy()
             self.tractions_m.axpy(1.0, self.tractions1)
             self.tractions_m.scale(0.5)
             self.fm = self.tractions_m.copy()
             self.fm.axpy(1.0, gravity)
             t0_load.destroy()
-            self.g0 = s.internal_gradient(q0, s.dmesh.create_global_vec())
+            self.g0 = s.internal_gradient(q0, s.create_vec())
 
     def step(self, t0: float, q0: PETSc.Vec, v0: PETSc.Vec, h: float,
              q1: PETSc.Vec, v1: PETSc.Vec) -> StepReport:
@@ -254,7 +256,7 @@ class ImplicitIntegrator:
         # predictor q0 + h v0, with the supports at their new position
         q0.copy(q1)
         q1.axpy(h, v0)
-        s.dirichlet.set_values(q1, s.prescribed(t0 + h))
+        s.apply_prescribed(q1, t0 + h)
         report = StepReport()
         if self.solver == "snes":
             self.snes.solve(None, q1)
@@ -276,15 +278,15 @@ class ImplicitIntegrator:
             report.reason += f" ({self._bad})"
         if not report.converged:
             return report
-        s.dirichlet.set_values(q1, s.prescribed(t0 + h))
+        s.apply_prescribed(q1, t0 + h)
         self._velocity(q1, v1)
         self._work_terms(q1, report)
         return report
 
     def _work_terms(self, q1: PETSc.Vec, report: StepReport) -> None:
-        full = self.system.dmesh.create_global_vec()
+        full = self.system.create_vec()
         terms = self._terms(q1, full)
-        dq = self.system.dmesh.create_global_vec()
+        dq = self.system.create_vec()
         dq.waxpy(-1.0, self.q0, q1)
         report.dissipated = dq.dot(terms["damping"])
         tractions = self.tractions1 if self.method in ("be", "si") else self.tractions_m

@@ -70,7 +70,7 @@ def initial_state(model, system, experiment, monitor=None):
         field_ = np.column_stack([e.evaluate_at(pts) for e in init.displacement])
         q0 = dm.from_file_field(field_)
     v0 = dm.from_file_field(np.column_stack([e.evaluate_at(pts) for e in init.velocity]))
-    system.dirichlet.set_values(q0, system.prescribed(0.0))
+    system.apply_prescribed(q0, 0.0)
     return q0, v0
 
 

@@ -43,6 +43,7 @@ class DynamicSystem:
         self.elastic = model.elastic
         self.dirichlet = model.dirichlet
         self.alpha, self.beta = float(damping_mass), float(damping_stiffness)
+        self.lumped_kinetic = False  # explicit integrators switch to the lumped mass
         conns = dict(self.elastic.connectivities())
         self.assembler = MatrixAssembler(dm, conns)
         # the mass shares the pattern: its element matrices go through the elastic groups' names
@@ -79,17 +80,17 @@ class DynamicSystem:
         """A new matrix with the system's pattern (for Jacobians)."""
         return self.assembler.create_matrix()
 
-    def assemble_combination(self, q_local: np.ndarray | None, a_mass: float, b_tangent: float,
+    def assemble_combination(self, q: PETSc.Vec | None, a_mass: float, b_tangent: float,
                              c_reference: float, out: PETSc.Mat,
                              eliminate: bool = True) -> PETSc.Mat:
-        """out = a M + b K(q) + c K0 (+ alpha, beta damping folded in by the caller).
+        """out = a M + b K(q) + c K0 (the caller folds the Rayleigh coefficients into a and c).
 
         With ``eliminate``, prescribed rows and columns become identity (symmetric).
         """
         asm = self.assembler
         asm.begin()
         if b_tangent != 0.0:
-            self.elastic.add_hessian(q_local, asm)
+            self.elastic.add_hessian(self.dmesh.to_local(q), asm)
             if b_tangent != 1.0:
                 asm.values *= b_tangent
         if a_mass != 0.0:
@@ -115,6 +116,23 @@ class DynamicSystem:
             out.axpy(self.beta, self._work)
         return out
 
+    # -- the interface integrators use (an analytic system can provide the same) -----------
+    def create_vec(self) -> PETSc.Vec:
+        return self.dmesh.create_global_vec()
+
+    def near_nullspace(self):
+        return self.dmesh.rigid_body_modes()
+
+    def apply_prescribed(self, vec: PETSc.Vec, t: float) -> None:
+        """Set the prescribed entries of ``vec`` to the supports' displacement at t."""
+        self.dirichlet.set_values(vec, self.prescribed(t))
+
+    def zero_prescribed(self, vec: PETSc.Vec) -> None:
+        self.dirichlet.zero_rows(vec)
+
+    def prescribed_offsets(self, vec: PETSc.Vec) -> np.ndarray:
+        return self.dirichlet.owned_offsets(vec)
+
     # -- forces and energies ----------------------------------------------------------------
     def internal_gradient(self, q: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
         """out = grad W(q) (all rows, including prescribed ones)."""
@@ -129,7 +147,11 @@ class DynamicSystem:
         return self.dmesh.allreduce_sum(self.elastic.energy(self.dmesh.to_local(q)))
 
     def kinetic_energy(self, v: PETSc.Vec) -> float:
-        self.M.mult(v, self._work)
+        """1/2 v^T M v with the mass the integrator uses (lumped for explicit schemes)."""
+        if self.lumped_kinetic:
+            self._work.pointwiseMult(v, self.lumped)
+        else:
+            self.M.mult(v, self._work)
         return 0.5 * v.dot(self._work)
 
     def gravitational_energy(self, q: PETSc.Vec) -> float:
