@@ -247,7 +247,8 @@ def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "") 
     ModesResult
         Ascending by eigenvalue; the caller destroys it. When the conditions leave rigid-body
         motions free and the target is <= 0, those come first with eigenvalue exactly 0 (see the
-        module docstring), and the rest are elastic modes.
+        module docstring), and the rest are elastic modes; with a positive target only elastic
+        modes (the nearest to it) are returned.
 
     Raises
     ------
@@ -272,14 +273,16 @@ def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "") 
         eps.setFromOptions()
         sigma = eps.getTarget()
         nrigid = 0
-        if rigid and sigma <= 0.0:
-            # Report the exact rigid modes and look for elastic ones in their M-complement; a
-            # singular K cannot be factored at sigma = 0, so move the shift just below 0.
-            nrigid = min(len(rigid), nmodes)
+        if rigid:
+            # Look for elastic modes in the M-complement of the exact rigid ones, which are
+            # reported first when the target is at or below 0; a singular K cannot be factored
+            # at sigma = 0, so move the shift just below 0.
+            eps.setDeflationSpace(rigid)
+            if sigma <= 0.0:
+                nrigid = min(len(rigid), nmodes)
             if sigma == 0.0:
                 sigma = -RIGID_SHIFT * scale
                 eps.setTarget(sigma)
-            eps.setDeflationSpace(rigid)
         nelastic = nmodes - nrigid
         values, vectors = [0.0] * nrigid, rigid[:nrigid]
         nconv = iterations = 0
@@ -312,7 +315,7 @@ def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "") 
         order = np.argsort(values, kind="stable")
         values = np.asarray(values, float)[order]
         vectors = [vectors[i] for i in order]
-        _m_normalise(vectors[nrigid:], M, bc, rigid[:nrigid])
+        _m_normalise(vectors[nrigid:], M, bc, rigid)
         errors = _relative_residuals(vectors, values, K, M, scale)
         solver = _solver_info(eps)
         accurate = max(1e-6, 100.0 * solver["tolerance"])

@@ -261,8 +261,12 @@ def test_free_body_has_six_rigid_modes_then_elastic_ones():
         clear_options(["eps_target"])
     assert other.shift == -1.0 and other.rigid_modes == 6
     assert np.allclose(other.frequencies_hz[6:], result.frequencies_hz[6:], rtol=1e-8, atol=0)
+    # A positive target: only the elastic modes nearest it (the rigid ones stay deflated).
+    near = compute_modes(model, 1, target=1.001 * result.eigenvalues[7])
+    assert near.rigid_modes == 0 and len(near.modes) == 1
+    assert np.isclose(near.frequencies_hz[0], result.frequencies_hz[7], rtol=1e-8, atol=0)
     _print(f"\nfree body: {result.frequencies_hz} Hz (shift {result.shift:.3g})")
-    for r in (result, other):
+    for r in (result, other, near):
         r.destroy()
     K.destroy()
     M.destroy()
