@@ -68,9 +68,9 @@ def _timoshenko(L, a, nmodes=3, nel=400):
     n = 2 * (nel + 1)
     K, M = np.zeros((n, n)), np.zeros((n, n))
     dofs = 2 * np.arange(nel)[:, None] + np.arange(4)[None, :]
-    for d in dofs:                                         # 400 1D elements: a cheap reference
-        K[np.ix_(d, d)] += ke
-        M[np.ix_(d, d)] += me
+    rows, cols = dofs[:, :, None], dofs[:, None, :]
+    np.add.at(K, (rows, cols), ke)
+    np.add.at(M, (rows, cols), me)
     K, M = K[2:, 2:], M[2:, 2:]                            # clamp w and theta at x = 0
     Linv = np.linalg.inv(np.linalg.cholesky(M))
     lam = np.linalg.eigvalsh(Linv @ K @ Linv.T)[:nmodes]
