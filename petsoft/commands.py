@@ -135,7 +135,8 @@ def run_simulation(experiment, out: Path, args) -> None:
     apply_experiment_options(experiment.petsc)
     model = build_model(experiment, PETSc.COMM_WORLD)
     sim = Simulation(model, experiment, integrator=args.integrator, solver=args.solver,
-                     out=out, monitor=_print, explicit_scheme=args.explicit_scheme)
+                     out=out, monitor=_print, explicit_scheme=args.explicit_scheme,
+                     alpha_backend=args.alpha_backend)
     result = sim.run()
     _print(f"t = {result.time:g} s after {result.steps} steps ({result.retries} retried), "
            f"{result.newton_iterations} Newton / {result.linear_iterations} linear iterations, "

@@ -90,7 +90,9 @@ class ImplicitIntegrator:
                 snes.setType(PETSc.SNES.Type.NEWTONLS)
             snes.setFunction(self._residual_cb, self.R)
             snes.setJacobian(self._jacobian_cb, self.J, self.J)
-            snes.setTolerances(rtol=1e-10, atol=1e-12, stol=0.0, max_it=25)
+            # stol: the residual carries 1/h^2 round-off; a Newton update below 1e-12 |q| is
+            # converged
+            snes.setTolerances(rtol=1e-10, atol=1e-12, stol=1e-12, max_it=25)
             self.ksp = snes.getKSP()
             (getattr(s, "linear_defaults", None) or linear_defaults)(self.ksp)
             # The mass term keeps the step's energy convex near the old state: full Newton steps.

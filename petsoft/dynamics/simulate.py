@@ -16,6 +16,7 @@ from petsc4py import PETSc
 
 from ..errors import ExperimentError, SolverError
 from ..probes import interpolate, locate
+from .alpha import AlphaTSIntegrator, GeneralizedAlpha
 from .energy import FIELDS, EnergyLedger
 from .explicit import ExplicitIntegrator
 from .implicit import METHODS as IMPLICIT_METHODS
@@ -23,7 +24,7 @@ from .implicit import ImplicitIntegrator
 from .system import DynamicSystem
 
 INTEGRATORS = ("be", "si", "alpha", "midpoint", "trapezoidal", "ere", "explicit", "imex")
-AVAILABLE = IMPLICIT_METHODS + ("explicit",)
+AVAILABLE = IMPLICIT_METHODS + ("explicit", "alpha")
 MAX_HALVINGS = 6
 
 
@@ -44,12 +45,17 @@ class SimulationResult:
     probe_displacements: list = field(default_factory=list)
 
 
-def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: str = "verlet"):
+def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: str = "verlet",
+                    alpha_radius: float = 0.5, alpha_backend: str = "petsoft"):
     """The integrator object for a name of ``[time] integrator``."""
     if name in IMPLICIT_METHODS:
         return ImplicitIntegrator(system, name, solver=solver)
     if name == "explicit":
         return ExplicitIntegrator(system, explicit_scheme)
+    if name == "alpha":
+        if alpha_backend == "ts":
+            return AlphaTSIntegrator(system, alpha_radius)
+        return GeneralizedAlpha(system, alpha_radius)
     raise ExperimentError(
         f"time.integrator = {name!r} is not available in this version of petsoft yet; "
         f"available: {', '.join(AVAILABLE)}")
@@ -95,7 +101,7 @@ class Simulation:
 
     def __init__(self, model, experiment, *, integrator: str | None = None, solver: str = "snes",
                  out: Path | None = None, monitor=None, explicit_scheme: str = "verlet",
-                 progress_every: float = 1.0):
+                 alpha_backend: str = "petsoft", progress_every: float = 1.0):
         if experiment.time is None:
             raise ExperimentError(f"{experiment.source}: [time] is missing: `simulate` needs "
                                   "end and step (and optionally integrator)")
@@ -105,7 +111,8 @@ class Simulation:
             raise ExperimentError(f"integrator {self.name!r} is unknown; valid: "
                                   f"{', '.join(INTEGRATORS)}")
         self.system = DynamicSystem(model, experiment.damping.mass, experiment.damping.stiffness)
-        self.integrator = make_integrator(self.system, self.name, solver, explicit_scheme)
+        self.integrator = make_integrator(self.system, self.name, solver, explicit_scheme,
+                                          experiment.time.alpha_radius, alpha_backend)
         self.out = Path(out) if out is not None else None
         self.monitor = monitor
         self.progress_every = progress_every
