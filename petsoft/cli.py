@@ -80,6 +80,8 @@ def _add_simulate_parser(sub) -> None:
                         "potential with TAO")
     s.add_argument("--explicit-scheme", choices=("verlet", "euler"), default="verlet",
                    help="explicit integrator: velocity Verlet or symplectic Euler")
+    s.add_argument("--restart", action="store_true",
+                   help="continue from the latest checkpoint in the output directory")
     s.add_argument("--alpha-backend", choices=("petsoft", "ts"), default="petsoft",
                    help="generalized-alpha: petsoft's step (second order) or PETSc TS alpha2 "
                         "(first order for r < 1 in PETSc 3.18, see README)")

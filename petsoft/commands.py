@@ -137,7 +137,7 @@ def run_simulation(experiment, out: Path, args) -> None:
     sim = Simulation(model, experiment, integrator=args.integrator, solver=args.solver,
                      out=out, monitor=_print, explicit_scheme=args.explicit_scheme,
                      alpha_backend=args.alpha_backend)
-    result = sim.run()
+    result = sim.run(restart=args.restart)
     _print(f"t = {result.time:g} s after {result.steps} steps ({result.retries} retried), "
            f"{result.newton_iterations} Newton / {result.linear_iterations} linear iterations, "
            f"{result.wall_time:.3g} s; wrote {out}/")

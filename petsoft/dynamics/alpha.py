@@ -213,15 +213,24 @@ class GeneralizedAlpha:
          self.load) = (s.create_vec() for _ in range(10))
         self._last = None
         self._bad = None
+        self.prefix = prefix
+        self.snes = None
+        self._new_solver()
+
+    def _new_solver(self) -> None:
+        """A fresh SNES (with KSP and PC): see :meth:`step` for why one per step."""
+        if self.snes is not None:
+            self.snes.destroy()
+        s = self.system
         self.snes = snes = PETSc.SNES().create(comm=s.comm)
-        snes.setOptionsPrefix(prefix)
+        snes.setOptionsPrefix(self.prefix)
         snes.setFunction(self._residual_cb, self.R)
         snes.setJacobian(self._jacobian_cb, self.J, self.J)
         # stol: the residual carries 1/h^2 round-off; a Newton update below 1e-12 |q| is converged
         snes.setTolerances(rtol=1e-10, atol=1e-12, stol=1e-12, max_it=25)
         self.ksp = snes.getKSP()
         (getattr(s, "linear_defaults", None) or linear_defaults)(self.ksp)
-        with scoped_defaults(**{prefix + "snes_linesearch_type": "basic"}):
+        with scoped_defaults(**{self.prefix + "snes_linesearch_type": "basic"}):
             snes.setFromOptions()
 
     def consistent_acceleration(self, t0, q0, v0, out) -> None:
@@ -305,6 +314,16 @@ class GeneralizedAlpha:
         dv.destroy()
         return same
 
+    def state(self) -> dict:
+        """Internal state a restart needs: the acceleration the next step starts from."""
+        return {"acceleration": self.a0} if self._last is not None else {}
+
+    def restore(self, t, q, v, state: dict) -> None:
+        """Continue from a checkpoint exactly (else the next step recomputes a0)."""
+        if "acceleration" in state:
+            state["acceleration"].copy(self.a0)
+            self._last = (t, q.copy(), v.copy())
+
     def step(self, t0, q0, v0, h, q1, v1) -> StepReport:
         s = self.system
         if not self._continues(t0, q0, v0):
@@ -320,6 +339,10 @@ class GeneralizedAlpha:
         q1.axpy(0.5 * h * h, self.a0)
         s.apply_prescribed(q1, t0 + h)
         self._bad = None
+        # A fresh solver each step: algebraic multigrid keeps state between set-ups (its random
+        # generator survives KSPReset), and a run restarted from a checkpoint must compute
+        # bit for bit what the uninterrupted run did. Creating a SNES costs microseconds.
+        self._new_solver()
         self.snes.solve(None, q1)
         report = StepReport()
         reason = self.snes.getConvergedReason()

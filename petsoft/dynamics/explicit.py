@@ -91,6 +91,15 @@ class ExplicitIntegrator:
         out.pointwiseMult(self.f, self.inv_mass)
         s.zero_prescribed(out)
 
+    def state(self) -> dict:
+        """Verlet's acceleration of the last state (what its next half kick uses)."""
+        return {"acceleration": self.a} if self.scheme == "verlet" and self._a_valid else {}
+
+    def restore(self, t, q, v, state: dict) -> None:
+        if "acceleration" in state:
+            state["acceleration"].copy(self.a)
+            self._a_valid = True
+
     def _damping_acceleration(self, v: PETSc.Vec) -> PETSc.Vec:
         """M^-1 D v (in a work vector)."""
         self.system.damping_apply(v, self._tmp)

@@ -80,9 +80,19 @@ class ImplicitIntegrator:
         self.h = None
         self.t0 = 0.0
         self._dg_c = 0.0
-        comm = s.comm
-        if solver == "snes":
-            self.snes = snes = PETSc.SNES().create(comm=comm)
+        self.prefix = prefix
+        self.snes = self.tao = None
+        self._new_solver()
+
+    def _new_solver(self) -> None:
+        """A fresh SNES or TAO (with KSP and PC): see :meth:`step` for why one per step."""
+        for obj in (self.snes, self.tao):
+            if obj is not None:
+                obj.destroy()
+        s, prefix, method = self.system, self.prefix, self.method
+        linear = getattr(s, "linear_defaults", None) or linear_defaults
+        if self.solver == "snes":
+            self.snes = snes = PETSc.SNES().create(comm=s.comm)
             snes.setOptionsPrefix(prefix)
             if method == "si":
                 snes.setType(PETSc.SNES.Type.KSPONLY)
@@ -94,12 +104,12 @@ class ImplicitIntegrator:
             # converged
             snes.setTolerances(rtol=1e-10, atol=1e-12, stol=1e-12, max_it=25)
             self.ksp = snes.getKSP()
-            (getattr(s, "linear_defaults", None) or linear_defaults)(self.ksp)
+            linear(self.ksp)
             # The mass term keeps the step's energy convex near the old state: full Newton steps.
             with scoped_defaults(**{prefix + "snes_linesearch_type": "basic"}):
                 snes.setFromOptions()
         else:
-            self.tao = tao = PETSc.TAO().create(comm=comm)
+            self.tao = tao = PETSc.TAO().create(comm=s.comm)
             tao.setOptionsPrefix(prefix)
             tao.setType(PETSc.TAO.Type.NLS)
             tao.setObjectiveGradient(self._objective_cb, self.R.duplicate())
@@ -107,7 +117,7 @@ class ImplicitIntegrator:
             tao.setTolerances(gatol=1e-12, grtol=0.0, gttol=1e-10)
             tao.setMaximumIterations(25)
             self.ksp = tao.getKSP()
-            (getattr(s, "linear_defaults", None) or linear_defaults)(self.ksp)
+            linear(self.ksp)
             tao.setFromOptions()
 
     # -- the discrete equations ---------------------------------------------------------------
@@ -260,6 +270,10 @@ class ImplicitIntegrator:
         q1.axpy(h, v0)
         s.apply_prescribed(q1, t0 + h)
         report = StepReport()
+        # A fresh solver each step: algebraic multigrid keeps state between set-ups (its random
+        # generator survives KSPReset), and a run restarted from a checkpoint must compute
+        # bit for bit what the uninterrupted run did. Creating a SNES costs microseconds.
+        self._new_solver()
         if self.solver == "snes":
             self.snes.solve(None, q1)
             reason = self.snes.getConvergedReason()
@@ -300,5 +314,5 @@ class ImplicitIntegrator:
 
     def destroy(self) -> None:
         for name in ("snes", "tao", "J", "R", "q0", "v0", "f0", "f1", "_a", "_b", "_c"):
-            if hasattr(self, name):
+            if getattr(self, name, None) is not None:
                 getattr(self, name).destroy()

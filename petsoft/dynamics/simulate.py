@@ -146,33 +146,48 @@ class Simulation:
         vm.destroy()
         return reports
 
-    def run(self) -> SimulationResult:
+    def run(self, restart: bool = False) -> SimulationResult:
+        """Run to ``[time] end`` (from the latest checkpoint with ``restart``)."""
         t_start = time.perf_counter()
         exp, dm, s = self.experiment, self.model.dmesh, self.system
         rank0 = dm.comm.rank == 0
-        q, v = initial_state(self.model, s, exp, monitor=self.monitor)
-        q1, v1 = q.duplicate(), v.duplicate()
         h, nsteps = exp.time.step, exp.time.num_steps
+        ledger = EnergyLedger()
+        if restart:
+            q, v, first, result = self._restore(ledger)
+        else:
+            q, v = initial_state(self.model, s, exp, monitor=self.monitor)
+            first = 1
+            result = SimulationResult(0.0, 0, q, v, np.zeros((0, len(FIELDS))))
+        q1, v1 = q.duplicate(), v.duplicate()
         if isinstance(self.integrator, ExplicitIntegrator):
             limit = self.integrator.check_step(q, h, source=f"{exp.source}: time.step")
             self._say(f"explicit stability limit {limit:.4g} s (step {h:g} s)")
-        ledger = EnergyLedger()
         writer = None
         every = exp.output.every
         if self.out is not None and rank0:
             from ..xdmf import XdmfWriter
 
             self.out.mkdir(parents=True, exist_ok=True)
+            if restart:
+                self._archive_trajectory()
             writer = XdmfWriter(self.out / "trajectory.xdmf", dm.mesh.points, dm.mesh.tets)
-        result = SimulationResult(0.0, 0, q, v, np.zeros((0, len(FIELDS))))
-        self._frame(writer, 0.0, q, v, result)
-        row = ledger.record(s, 0.0, q, v)
+        t = (first - 1) * h
+        if restart:
+            u0, w0 = dm.gather_global(q), dm.gather_global(v)   # collective
+            if writer is not None:
+                writer.write(t, {"displacement": u0, "velocity": w0})
+            row = ledger.rows[-1]
+        else:
+            self._frame(writer, 0.0, q, v, result)
+            row = ledger.record(s, 0.0, q, v)
         self._say(f"petsoft simulate: {self.name}, {nsteps} steps of {h:g} s to "
                   f"t = {exp.time.end:g} s; {len(dm.mesh.tets)} tets on {dm.comm.size} rank(s); "
-                  f"E0 = {row['kinetic'] + row['elastic'] + row['gravitational']:.6g} J")
+                  f"E0 = {row['kinetic'] + row['elastic'] + row['gravitational']:.6g} J"
+                  + (f"; restarted at step {first - 1}, t = {t:g} s" if restart else ""))
         last_print = time.perf_counter()
-        t = 0.0
-        for n in range(1, nsteps + 1):
+        checkpoint_every = exp.output.checkpoint_every if self.out is not None else 0
+        for n in range(first, nsteps + 1):
             reports = self._advance(t, q, v, h, q1, v1)
             for r in reports:
                 ledger.add_step(r)
@@ -185,6 +200,8 @@ class Simulation:
             row = ledger.record(s, t, q, v)
             if n % every == 0 or n == nsteps:
                 self._frame(writer, t, q, v, result)
+            if checkpoint_every and n % checkpoint_every == 0 and n < nsteps:
+                self._checkpoint(n, t, q, v, ledger, result)
             now = time.perf_counter()
             if now - last_print >= self.progress_every or n == nsteps:
                 last_print = now
@@ -201,6 +218,89 @@ class Simulation:
         if self.out is not None:
             self._write_outputs(result)
         return result
+
+    # -- checkpoints ------------------------------------------------------------------------------
+    def _checkpoint(self, n, t, q, v, ledger, result) -> None:
+        from .checkpoint import write_checkpoint
+
+        dm = self.model.dmesh
+        state = getattr(self.integrator, "state", dict)()
+        gathered = {k: dm.gather_global(vec) for k, vec in
+                    {"q": q, "v": v, **{f"integrator:{k}": w for k, w in state.items()}}.items()}
+        if dm.comm.rank == 0:
+            text = (self.experiment.path.read_text() if self.experiment.path is not None
+                    else "")
+            path = write_checkpoint(
+                self.out / "checkpoints", step=n, time=t, step_size=self.experiment.time.step,
+                integrator=self.name,
+                fields={"q": gathered["q"], "v": gathered["v"]},
+                integrator_state={k.split(":", 1)[1]: a for k, a in gathered.items()
+                                  if k.startswith("integrator:")},
+                ledger=ledger, probes=(result.probe_times, result.probe_displacements),
+                mesh=dm.mesh, experiment_text=text, ranks=dm.comm.size)
+            self._say(f"checkpoint {path.name} (step {n}, t = {t:.6g} s)")
+
+    def _restore(self, ledger):
+        """State, first step and result so far from the latest checkpoint (all ranks)."""
+        from ..errors import PetsoftError
+        from .checkpoint import read_latest
+
+        dm = self.model.dmesh
+        mpi = dm.comm.tompi4py()
+        data, error = None, None
+        if mpi.rank == 0:
+            try:
+                data = read_latest(self.out / "checkpoints")
+                if (data["mesh_points"].shape != dm.mesh.points.shape
+                        or not np.array_equal(data["mesh_tets"], dm.mesh.tets)
+                        or not np.array_equal(data["mesh_points"], dm.mesh.points)):
+                    raise PetsoftError(f"{data['path']}: the checkpoint's mesh differs from the "
+                                       "experiment's mesh; restart with the same mesh")
+                if str(data["integrator"]) != self.name:
+                    raise PetsoftError(f"{data['path']}: written by integrator "
+                                       f"{data['integrator']}, not {self.name}")
+                if float(data["step_size"]) != self.experiment.time.step:
+                    raise PetsoftError(f"{data['path']}: step {data['step_size']} s differs from "
+                                       f"[time] step {self.experiment.time.step} s")
+            except PetsoftError as exc:
+                error = exc
+        error = mpi.bcast(error)
+        if error is not None:
+            raise error
+        data = mpi.bcast(data)
+        q = dm.from_file_field(data["fields"]["q"])
+        v = dm.from_file_field(data["fields"]["v"])
+        state = {k: dm.from_file_field(a) for k, a in data["integrator_state"].items()}
+        t = float(data["time"])
+        restore = getattr(self.integrator, "restore", None)
+        if restore is not None:
+            restore(t, q, v, state)
+        rows = data["ledger_rows"]
+        ledger.rows = [dict(zip(FIELDS, r, strict=True)) for r in rows]
+        ledger.dissipated = float(data["ledger"]["dissipated"])
+        ledger.external_work = float(data["ledger"]["external_work"])
+        ledger.initial = float(data["ledger"]["initial"])
+        result = SimulationResult(t, int(data["step"]), q, v, np.zeros((0, len(FIELDS))))
+        result.probe_times = list(data["probe_times"])
+        result.probe_displacements = list(data["probe_displacements"])
+        self._say(f"restarting from {Path(data['path']).name} (step {int(data['step'])}, "
+                  f"t = {t:g} s, written on {int(data['ranks'])} rank(s))")
+        return q, v, int(data["step"]) + 1, result
+
+    def _archive_trajectory(self) -> None:
+        """Move an earlier segment's trajectory.xdmf/.h5 into segments/<k>/ (kept readable)."""
+        xdmf = self.out / "trajectory.xdmf"
+        if not xdmf.exists():
+            return
+        k = 1
+        while (self.out / "segments" / str(k)).exists():
+            k += 1
+        dest = self.out / "segments" / str(k)
+        dest.mkdir(parents=True)
+        for name in ("trajectory.xdmf", "trajectory.h5"):
+            if (self.out / name).exists():
+                (self.out / name).replace(dest / name)
+        self._say(f"earlier trajectory moved to {dest}/")
 
     def _frame(self, writer, t, q, v, result) -> None:
         dm = self.model.dmesh

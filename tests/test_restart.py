@@ -1,0 +1,186 @@
+"""Checkpoints and restarts: bitwise on the same ranks, 1e-10 across rank counts, and a run
+killed (SIGKILL) while writing a checkpoint restarts from the previous valid one."""
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import tomllib
+from mpi4py import MPI
+
+from petsoft.dynamics.checkpoint import checkpoint_files
+from petsoft.dynamics.simulate import Simulation
+from petsoft.experiment import experiment_from_dict
+from petsoft.model import build_model
+
+serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
+
+EXPERIMENT = """
+[mesh]
+box = {{ size = [0.3, 0.04, 0.04], cells = [6, 1, 1] }}
+[material]
+model = "neohookean"
+youngs_modulus = 1.0e5
+poisson_ratio = 0.3
+density = 1000.0
+[damping]
+mass = 1.0
+[gravity]
+acceleration = [0.0, 0.0, -9.81]
+[[boundary]]
+kind = "fixed"
+where = "x < 1e-9"
+[initial]
+displacement = ["0", "0", "0.3*x**2"]
+[time]
+end = 0.12
+step = 0.002
+integrator = "{integrator}"
+[output]
+directory = "out"
+every = 5
+checkpoint_every = 20
+probes = [[0.3, 0.02, 0.02]]
+"""
+
+
+def _shared_dir(tmp_path_factory, name):
+    comm = MPI.COMM_WORLD
+    return Path(comm.bcast(str(tmp_path_factory.mktemp(name)) if comm.rank == 0 else None))
+
+
+def _run(exp, out, restart=False):
+    model = build_model(exp)
+    sim = Simulation(model, exp, out=out)
+    result = sim.run(restart=restart)
+    q = MPI.COMM_WORLD.bcast(model.dmesh.gather_global(result.q))
+    sim.destroy()
+    return q
+
+
+@pytest.mark.parametrize("integrator", ["be", "midpoint", "alpha"])
+def test_restart_is_bitwise_on_the_same_ranks(tmp_path_factory, integrator):
+    """Stop after the step-60 checkpoint (the later ones are deleted, as if the run died), restart:
+    final state, energies and probe trajectories equal the uninterrupted run bit for bit."""
+    base = _shared_dir(tmp_path_factory, f"restart-{integrator}")
+    exp = experiment_from_dict(
+        tomllib.loads(EXPERIMENT.format(integrator=integrator)))
+    q_full = _run(exp, base / "full")
+    q_first = _run(exp, base / "cut")
+    assert np.array_equal(q_first, q_full)
+    if MPI.COMM_WORLD.rank == 0:
+        for step, path in checkpoint_files(base / "cut" / "checkpoints"):
+            if step > 20:
+                path.unlink()
+    MPI.COMM_WORLD.Barrier()
+    q_restart = _run(exp, base / "cut", restart=True)
+    assert np.array_equal(q_restart, q_full)
+    if MPI.COMM_WORLD.rank == 0:
+        a = np.loadtxt(base / "full" / "energies.csv", delimiter=",", skiprows=1)
+        b = np.loadtxt(base / "cut" / "energies.csv", delimiter=",", skiprows=1)
+        assert np.array_equal(a, b)
+        with h5py.File(base / "full" / "probes.h5") as f, h5py.File(base / "cut" /
+                                                                    "probes.h5") as g:
+            assert np.array_equal(f["frames/time"][()], g["frames/time"][()])
+            assert np.array_equal(f["frames/position"][()], g["frames/position"][()])
+        assert (base / "cut" / "segments" / "1" / "trajectory.xdmf").exists()
+
+
+def _env():
+    env = dict(os.environ)
+    env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1")
+    for k in list(env):
+        if k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess")):
+            env.pop(k)
+    return env
+
+
+def _cli(args, cwd, ranks=1, env=None, wait=True):
+    cmd = [sys.executable, "-m", "petsoft.cli", *args]
+    if ranks > 1:
+        cmd = [shutil.which("mpiexec") or "mpiexec", "-n", str(ranks)] + cmd
+    if not wait:
+        return subprocess.Popen(cmd, cwd=cwd, env=env or _env(), stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+    r = subprocess.run(cmd, cwd=cwd, env=env or _env(), capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return r
+
+
+def _final_position(out: Path) -> np.ndarray:
+    with h5py.File(out / "probes.h5") as f:
+        return f["frames/position"][-1]
+
+
+def _final_state(out: Path) -> np.ndarray:
+    import meshio
+
+    with meshio.xdmf.TimeSeriesReader(str(out / "trajectory.xdmf")) as reader:
+        reader.read_points_cells()
+        _, data, _ = reader.read_data(reader.num_steps - 1)
+    return data["displacement"]
+
+
+@serial_only
+@pytest.mark.parametrize("first, second", [(2, 1), (1, 2)])
+def test_restart_on_another_number_of_ranks(tmp_path, first, second):
+    """Checkpoints are in mesh numbering: a run checkpointed on `first` ranks continues on
+    `second` ranks to the uninterrupted answer within 1e-10 (direct solver, so the linear
+    solves do not depend on the partition)."""
+    (tmp_path / "exp.toml").write_text(EXPERIMENT.format(integrator="alpha"))
+    direct = ["-ksp_type", "preonly", "-pc_type", "lu", "-pc_factor_mat_solver_type", "mumps"]
+    _cli(["simulate", "exp.toml", "--out", "full", *direct], tmp_path, ranks=first)
+    _cli(["simulate", "exp.toml", "--out", "cut", *direct], tmp_path, ranks=first)
+    for step, path in checkpoint_files(tmp_path / "cut" / "checkpoints"):
+        if step > 40:
+            path.unlink()
+    r = _cli(["simulate", "exp.toml", "--out", "cut", "--restart", *direct], tmp_path,
+             ranks=second)
+    assert f"written on {first} rank(s)" in r.stdout
+    a, b = _final_state(tmp_path / "full"), _final_state(tmp_path / "cut")
+    assert np.abs(a - b).max() <= 1e-10 * np.abs(a).max()
+
+
+@serial_only
+def test_sigkill_during_checkpoint_write_restarts_from_previous(tmp_path):
+    """SIGKILL while the step-40 checkpoint is half written: the temporary file is left behind,
+    checkpoint 20 stays the latest valid one, and the restart reaches the uninterrupted answer
+    bit for bit."""
+    (tmp_path / "exp.toml").write_text(EXPERIMENT.format(integrator="be"))
+    _cli(["simulate", "exp.toml", "--out", "full"], tmp_path)
+    env = _env()
+    env["PETSOFT_CHECKPOINT_PAUSE"] = "40:60"
+    proc = _cli(["simulate", "exp.toml", "--out", "cut"], tmp_path, env=env, wait=False)
+    partial = tmp_path / "cut" / "checkpoints" / ".checkpoint-00000040.h5.tmp"
+    deadline = time.time() + 120
+    while not partial.exists() and time.time() < deadline:
+        time.sleep(0.05)
+    assert partial.exists(), "the run never started writing checkpoint 40"
+    time.sleep(0.3)  # inside the pause: the file is half written
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=30)
+    assert proc.returncode == -signal.SIGKILL
+    assert [s for s, _ in checkpoint_files(tmp_path / "cut" / "checkpoints")] == [20]
+    r = _cli(["simulate", "exp.toml", "--out", "cut", "--restart"], tmp_path)
+    assert "restarting from checkpoint-00000020.h5" in r.stdout
+    assert np.array_equal(_final_position(tmp_path / "full"), _final_position(tmp_path / "cut"))
+    assert np.array_equal(_final_state(tmp_path / "full"), _final_state(tmp_path / "cut"))
+
+
+def test_restart_without_checkpoint_is_a_clear_error(tmp_path_factory):
+    from petsoft.errors import PetsoftError
+
+    base = _shared_dir(tmp_path_factory, "nocheckpoint")
+    exp = experiment_from_dict(
+        tomllib.loads(EXPERIMENT.format(integrator="be")))
+    with pytest.raises(PetsoftError, match="no complete checkpoint"):
+        _run(exp, base / "empty", restart=True)
