@@ -83,7 +83,9 @@ def write_checkpoint(directory: Path, *, step: int, time: float, step_size: floa
             _time.sleep(float(pause.split(":")[1]))
         times, disp = probes
         f["probes/time"] = np.asarray(times, dtype=float)
-        f["probes/displacement"] = np.asarray(disp, dtype=float).reshape(len(times), -1, 3)
+        disp = np.asarray(disp, dtype=float)
+        f["probes/displacement"] = (disp.reshape(len(times), -1, 3) if disp.size
+                                    else np.zeros((len(times), 0, 3)))
         f["mesh/points"] = mesh.points
         f["mesh/tets"] = mesh.tets
         f["experiment"] = experiment_text

@@ -127,21 +127,22 @@ class Simulation:
         if self.monitor is not None and self.model.dmesh.comm.rank == 0:
             self.monitor(line)
 
-    def _advance(self, t, q, v, h, q1, v1, depth=0):
-        """One step of h, as two half steps (recursively) if Newton fails."""
+    def _advance(self, n, t, q, v, h, q1, v1, depth=0):
+        """Step n (of h from t), as two half steps (recursively) if Newton fails."""
         report = self.integrator.step(t, q, v, h, q1, v1)
         if report.converged:
             return [report]
         if depth >= MAX_HALVINGS:
             raise SolverError(
-                f"integrator {self.name}: the step at t = {t:.6g} s (h = {h:.3g} s) failed "
-                f"{MAX_HALVINGS + 1} times with halved steps: {report.reason}. Try a smaller "
-                "[time] step, more damping, or another integrator")
-        self._say(f"  t = {t:.6g} s: Newton failed ({report.reason}); retrying with h = "
-                  f"{h / 2:.3g} s")
+                f"integrator {self.name}: step {n} at t = {t:.6g} s (h = {h:.3g} s) failed "
+                f"{MAX_HALVINGS + 1} times with halved steps: {report.reason}. The last "
+                "checkpoint is still valid (--restart). Try a smaller [time] step, more "
+                "damping, or another integrator")
+        self._say(f"  step {n}, t = {t:.6g} s: Newton failed ({report.reason}); retrying with "
+                  f"h = {h / 2:.3g} s")
         qm, vm = q.duplicate(), v.duplicate()
-        reports = self._advance(t, q, v, h / 2, qm, vm, depth + 1)
-        reports += self._advance(t + h / 2, qm, vm, h / 2, q1, v1, depth + 1)
+        reports = self._advance(n, t, q, v, h / 2, qm, vm, depth + 1)
+        reports += self._advance(n, t + h / 2, qm, vm, h / 2, q1, v1, depth + 1)
         qm.destroy()
         vm.destroy()
         return reports
@@ -188,7 +189,7 @@ class Simulation:
         last_print = time.perf_counter()
         checkpoint_every = exp.output.checkpoint_every if self.out is not None else 0
         for n in range(first, nsteps + 1):
-            reports = self._advance(t, q, v, h, q1, v1)
+            reports = self._advance(n, t, q, v, h, q1, v1)
             for r in reports:
                 ledger.add_step(r)
                 result.newton_iterations += r.newton_iterations
