@@ -1,11 +1,11 @@
 """Failed Newton steps: retried with half the step (logged); repeated failure stops the run with
 an error naming step, time and reason, and the last checkpoint stays valid for --restart."""
 
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
+import tomllib
 from mpi4py import MPI
 from petsc4py import PETSc
 
