@@ -57,6 +57,7 @@ def _parser() -> argparse.ArgumentParser:
     _static_options(s)
     _add_simulate_parser(sub)
     _add_modes_parser(sub)
+    _add_damping_parser(sub)
     d = sub.add_parser("demo", help="run the embedded example (no input needed)",
                        description="Solve an embedded neo-Hookean cantilever under gravity and an "
                                    "end load; writes results and a plot to --out.")
@@ -107,6 +108,36 @@ def _add_modes_parser(sub) -> None:
     m.add_argument("-n", "--num-modes", type=_positive_int, default=6, dest="num_modes",
                    metavar="K", help="number of modes (default %(default)s)")
     m.add_argument("--out", help="output directory (default: [output] directory)")
+
+
+def _radii(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"not a comma-separated list of numbers: {text!r}") from None
+    if not values or any(not 0.0 <= r <= 1.0 for r in values):
+        raise argparse.ArgumentTypeError(f"radii must lie in [0, 1], not {text!r}")
+    return values
+
+
+def _add_damping_parser(sub) -> None:
+    d = sub.add_parser(
+        "damping", help="artificial damping of the integrators (analytic and measured)",
+        description="Artificial damping ratio d/w = -2 ln(rho)/(tau w) of BE/SI, generalized "
+                    "alpha, midpoint/trapezoidal and the explicit schemes against tau*w: analytic "
+                    "(amplification matrices) and measured (petsoft's integrators on undamped "
+                    "oscillators). With an experiment, also per mode of its body at its [time] "
+                    "step. Writes damping.png, damping.md, CSV tables and summary.json.")
+    d.add_argument("experiment", nargs="?", help="experiment file (TOML) with a [time] step")
+    d.add_argument("--out", help="output directory (default: [output] directory, or "
+                                 "petsoft-damping without an experiment)")
+    d.add_argument("--modes", type=_positive_int, default=6, metavar="K",
+                   help="lowest modes of the body (default %(default)s)")
+    d.add_argument("--radii", type=_radii, default=(0.0, 0.25, 0.5, 0.75, 1.0),
+                   help="generalized-alpha spectral radii (default 0,0.25,0.5,0.75,1)")
+    d.add_argument("--steps", type=_positive_int, default=16, metavar="N",
+                   help="steps per integrator run on each mode (default %(default)s)")
 
 
 def _static_options(s) -> None:

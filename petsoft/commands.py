@@ -49,6 +49,8 @@ def run(args) -> int:
         return 0
     if args.command == "modes":
         return run_modes(args)
+    if args.command == "damping":
+        return run_damping(args)
     if args.command == "demo":
         experiment = experiment_from_dict(DEMO_EXPERIMENT, source="<embedded demo>")
         out = Path(args.out)
@@ -192,4 +194,37 @@ def run_modes(args) -> int:
            f"{result.iterations} iteration(s) of {result.solver['eps_type']} + "
            f"{result.solver['st_type']} ({factor}); wrote {path.parent if path else out}/")
     result.destroy()
+    return 0
+
+
+def run_damping(args) -> int:
+    """`petsoft damping`: artificial damping of the integrators (all ranks call).
+
+    Always the scalar analysis (analytic curves, measured on oscillators); with an experiment also
+    the per-mode table of its body at ``[time] step`` (see :mod:`petsoft.damping`).
+    """
+    from . import damping
+    from .errors import ExperimentError
+
+    t0 = time.perf_counter()
+    comm = PETSc.COMM_WORLD
+    schemes = damping.default_schemes(args.radii)
+    experiment = load_experiment(args.experiment) if args.experiment else None
+    out = Path(args.out) if args.out else (
+        experiment.output.directory if experiment else Path("petsoft-damping"))
+    _print(f"petsoft damping: {len(schemes)} integrators on {len(damping.MEASURED_TAU_OMEGA)} "
+           f"oscillators (tau*w = 1e-2 .. 1e2) on {comm.size} rank(s)")
+    rows = damping.scalar_analysis(schemes, comm=comm)
+    fem = None
+    if experiment is not None:
+        if experiment.time is None:
+            raise ExperimentError(f"{experiment.source}: petsoft damping needs [time] step")
+        apply_experiment_options(experiment.petsc)
+        model = build_model(experiment, comm)
+        _print(f"{experiment.source}: {args.modes} lowest modes at step "
+               f"{experiment.time.step:g} s, {args.steps} steps per run")
+        fem = damping.fem_mode_damping(model, experiment.time.step, schemes, args.modes,
+                                       args.steps, monitor=_print)
+    damping.report(out, schemes, fem, rows, comm, t0, printer=_print,
+                   source=experiment.source if experiment else None)
     return 0

@@ -494,7 +494,11 @@ def fem_mode_damping(model, step: float, schemes, nmodes: int = 6, nsteps: int =
 
 
 def _fmt(value, spec=".6g") -> str:
-    return "unstable" if value is None or not np.isfinite(value) else format(value, spec)
+    if value is None or not np.isfinite(value):
+        return "unstable"
+    if spec.endswith("g") and abs(value) < 1e-12:
+        return "0"       # |mu| = 1 up to the round-off of an eigenvalue solve (CSV: raw values)
+    return format(value, spec)
 
 
 def _relative(measured: float, analytic: float) -> float:
@@ -594,8 +598,8 @@ def plot(rows: list[ScalarRow], path: Path, fem: FemModesResult | None = None) -
             drawn.add(line_key)
             label = {"be": "BE / SI: ln(1+(τω)²)/(τω)",
                      "cayley": "midpoint, trapezoidal: |μ| = 1",
-                     "explicit": "Verlet, sympl. Euler: |μ| = 1 (τω < 2)"}.get(
-                         line_key, f"gen. α, r = {s.radius:g}")
+                     "explicit": "Verlet, sympl. Euler: |μ| = 1 (τω < 2)"}.get(line_key)
+            label = label or f"gen. α, r = {s.radius:g}"
             xs = x[stable(s, x)]
             ax.plot(xs, damping_ratio(analytic_rho(s, xs), xs), color=c, lw=1.6,
                     ls="--" if line_key in ("cayley", "explicit") else "-", label=label)
