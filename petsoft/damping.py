@@ -28,7 +28,9 @@ This module owns three views of that number:
   that scalar trajectory. For a linear material the mode is an invariant subspace of every
   implicit method, so the measured value equals the analytic one at the mode's tau*w (to the
   Newton/eigen-solver tolerances); for a nonlinear material it does so in the small-amplitude
-  limit (the default amplitude is 1e-4 of the body's size). The explicit schemes integrate with
+  limit (the default amplitude is 1e-3 of the body's size; much smaller amplitudes make the
+  round-off of W(q1) - W(q0) stall the discrete-gradient midpoint's Newton iteration on
+  nonlinear materials, reported as a failed run). The explicit schemes integrate with
   the lumped mass, whose modes are not exactly the consistent-mass modes: their measured values
   carry that mode coupling.
 
@@ -380,7 +382,8 @@ class FemModesResult:
     """Measured and analytic rho of each scheme on each elastic mode of a body.
 
     ``rho_measured[key]`` is NaN where the scheme did not run (explicit above its stability
-    limit: ``explicit_limit`` is then the largest stable step, s).
+    limit: ``explicit_limit`` is then the largest stable step, s) or its Newton iteration failed;
+    ``notes[key]`` says which.
     """
 
     step: float
@@ -394,6 +397,7 @@ class FemModesResult:
     nsteps: int = 0
     material: str = ""
     rigid_modes: int = 0
+    notes: dict = field(default_factory=dict)
 
     @property
     def tau_omega(self) -> np.ndarray:
@@ -401,7 +405,7 @@ class FemModesResult:
 
 
 def fem_mode_damping(model, step: float, schemes, nmodes: int = 6, nsteps: int = 16,
-                     amplitude: float = 1e-4, monitor=None) -> FemModesResult:
+                     amplitude: float = 1e-3, monitor=None) -> FemModesResult:
     """Artificial damping of each scheme on each of the ``nmodes`` lowest modes of a body.
 
     Parameters
@@ -445,44 +449,49 @@ def fem_mode_damping(model, step: float, schemes, nmodes: int = 6, nsteps: int =
     for scheme in schemes:
         result.rho_analytic[scheme.key] = np.where(stable(scheme, result.tau_omega),
                                                    analytic_rho(scheme, result.tau_omega), np.nan)
-        measured = np.full(len(shapes), np.nan)
-        integrator = scheme.integrator(system)
+        measured = result.rho_measured[scheme.key] = np.full(len(shapes), np.nan)
         if scheme.explicit:
+            probe = scheme.integrator(system)
+            q.zeroEntries()
             try:
-                q.zeroEntries()
-                result.explicit_limit = integrator.check_step(q, step)
+                result.explicit_limit = probe.check_step(q, step)
             except ExperimentError:
-                result.explicit_limit = 2.0 / integrator.omega_max
-                integrator.destroy()
+                result.explicit_limit = 2.0 / probe.omega_max
                 # the body is unstable at this step, even where its lowest modes alone are not
                 result.rho_analytic[scheme.key] = measured
-                result.rho_measured[scheme.key] = measured
+                result.notes[scheme.key] = (f"unstable: step above the limit "
+                                            f"{result.explicit_limit:.4g} s")
+            finally:
+                probe.destroy()
+                system.lumped_kinetic = False
+            if scheme.key in result.notes:
                 if monitor:
-                    monitor(f"  {scheme.label}: unstable at step {step:g} s "
-                            f"(limit {result.explicit_limit:.4g} s), not run")
+                    monitor(f"  {scheme.label}: {result.notes[scheme.key]}, not run")
                 continue
         for k, (x, mx, w) in enumerate(zip(shapes, Mx, omega, strict=True)):
-            scale = amplitude * size / x.norm(PETSc.NormType.INFINITY)
+            # a fresh integrator per run: no state (Verlet's acceleration, alpha's) carries over
+            integrator = scheme.integrator(system)
             x.copy(q)
-            q.scale(scale)
+            q.scale(amplitude * size / x.norm(PETSc.NormType.INFINITY))
             v.zeroEntries()
             y = np.empty((nsteps + 1, 2))
             y[0] = w * mx.dot(q), mx.dot(v)
-            if scheme.explicit:
-                integrator._a_valid = False      # a new run: Verlet's cached acceleration is stale
             for n in range(nsteps):
                 report = integrator.step(n * step, q, v, step, q1, v1)
                 if not report.converged:
-                    raise RuntimeError(f"{scheme.label} on mode {elastic[k] + 1}, step {n}: "
-                                       f"{report.reason}")
+                    result.notes[scheme.key] = (f"mode {k + 1 + result.rigid_modes} step {n}: "
+                                                f"not converged ({report.reason})")
+                    break
                 q1.copy(q)
                 v1.copy(v)
                 y[n + 1] = w * mx.dot(q), mx.dot(v)
-            measured[k] = fit_spectral_radius(y[None], floor=1e-7)[0]
-        integrator.destroy()
-        result.rho_measured[scheme.key] = measured
+            else:
+                measured[k] = fit_spectral_radius(y[None], floor=1e-7)[0]
+            integrator.destroy()
+        system.lumped_kinetic = False
         if monitor:
-            monitor(f"  {scheme.label}: {len(shapes)} modes x {nsteps} steps")
+            monitor(f"  {scheme.label}: {len(shapes)} modes x {nsteps} steps"
+                    + (f"; {result.notes[scheme.key]}" if scheme.key in result.notes else ""))
     for obj in (q, v, q1, v1, *Mx, system):
         obj.destroy()
     modes.destroy()
@@ -495,24 +504,31 @@ def fem_mode_damping(model, step: float, schemes, nmodes: int = 6, nsteps: int =
 
 def _fmt(value, spec=".6g") -> str:
     if value is None or not np.isfinite(value):
-        return "unstable"
+        return "—"
     if spec.endswith("g") and abs(value) < 1e-12:
         return "0"       # |mu| = 1 up to the round-off of an eigenvalue solve (CSV: raw values)
     return format(value, spec)
 
 
-def _relative(measured: float, analytic: float) -> float:
-    """|measured - analytic| / |analytic|, or the absolute difference where analytic ~ 0."""
+def _deviation(measured: float, analytic: float) -> float:
+    """|measured - analytic| / |analytic|, or the absolute difference where |analytic| < 1e-6."""
     diff = abs(measured - analytic)
     return diff / abs(analytic) if abs(analytic) > 1e-6 else diff
 
 
-def scalar_table_rows(rows: list[ScalarRow], at=TABLE_TAU_OMEGA) -> list[dict]:
-    """Rows (scheme, tau*w, analytic and measured d/w) at the tau*w values ``at``."""
+def _number(value) -> float | None:
+    value = float(value)
+    return value if np.isfinite(value) else None
+
+
+def scalar_table_rows(rows: list[ScalarRow], at=None) -> list[dict]:
+    """Rows (scheme, tau*w, rho and d/w analytic and measured) at the tau*w values ``at``
+    (default: all measured values)."""
     out = []
     for row in rows:
-        for t in at:
-            i = int(np.argmin(np.abs(row.tau_omega - t)))
+        index = (range(len(row.tau_omega)) if at is None
+                 else [int(np.argmin(np.abs(row.tau_omega - t))) for t in at])
+        for i in index:
             ok = bool(row.stable[i])
             da, dm = float(row.d_analytic[i]), float(row.d_measured[i])
             out.append({"scheme": row.scheme.label, "key": row.scheme.key,
@@ -521,12 +537,14 @@ def scalar_table_rows(rows: list[ScalarRow], at=TABLE_TAU_OMEGA) -> list[dict]:
                         "rho_measured": float(row.rho_measured[i]),
                         "d_over_omega_analytic": da if ok else None,
                         "d_over_omega_measured": dm if ok else None,
-                        "deviation": _relative(dm, da) if ok else None})
+                        "deviation": _deviation(dm, da) if ok else None,
+                        "note": "" if ok else (f"unstable: rho = {row.rho_analytic[i]:.4g} "
+                                               f"(measured {row.rho_measured[i]:.4g})")})
     return out
 
 
 def fem_table_rows(fem: FemModesResult) -> list[dict]:
-    """Rows (mode, frequency, tau*w, scheme, analytic and measured d/w)."""
+    """Rows (mode, frequency, tau*w, scheme, analytic and measured d/w, note)."""
     out = []
     x = fem.tau_omega
     for scheme in fem.schemes:
@@ -537,9 +555,10 @@ def fem_table_rows(fem: FemModesResult) -> list[dict]:
             out.append({"mode": k + 1 + fem.rigid_modes,
                         "frequency_hz": float(fem.frequencies_hz[k]),
                         "tau_omega": float(x[k]), "scheme": scheme.label, "key": scheme.key,
-                        "d_over_omega_analytic": float(da[k]) if np.isfinite(da[k]) else None,
-                        "d_over_omega_measured": float(dm[k]) if np.isfinite(dm[k]) else None,
-                        "deviation": _relative(dm[k], da[k]) if ok else None})
+                        "d_over_omega_analytic": _number(da[k]),
+                        "d_over_omega_measured": _number(dm[k]),
+                        "deviation": _deviation(dm[k], da[k]) if ok else None,
+                        "note": "" if ok else fem.notes.get(scheme.key, "")})
     return out
 
 
@@ -555,12 +574,12 @@ def _markdown(rows: list[dict], columns: list[tuple[str, str, str]]) -> list[str
 SCALAR_COLUMNS = [("scheme", "scheme", ""), ("tau_omega", "τω", "g"),
                   ("d_over_omega_analytic", "d/ω analytic", ".6g"),
                   ("d_over_omega_measured", "d/ω measured", ".6g"),
-                  ("deviation", "rel. dev.", ".1e")]
+                  ("deviation", "deviation", ".1e"), ("note", "note", "")]
 FEM_COLUMNS = [("mode", "mode", ""), ("frequency_hz", "f (Hz)", ".5g"),
                ("tau_omega", "τω", ".4g"), ("scheme", "scheme", ""),
                ("d_over_omega_analytic", "d/ω analytic", ".6g"),
                ("d_over_omega_measured", "d/ω measured", ".6g"),
-               ("deviation", "rel. dev.", ".1e")]
+               ("deviation", "deviation", ".1e"), ("note", "note", "")]
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
@@ -601,8 +620,11 @@ def plot(rows: list[ScalarRow], path: Path, fem: FemModesResult | None = None) -
                      "explicit": "Verlet, sympl. Euler: |μ| = 1 (τω < 2)"}.get(line_key)
             label = label or f"gen. α, r = {s.radius:g}"
             xs = x[stable(s, x)]
-            ax.plot(xs, damping_ratio(analytic_rho(s, xs), xs), color=c, lw=1.6,
-                    ls="--" if line_key in ("cayley", "explicit") else "-", label=label)
+            dashed = line_key in ("cayley", "explicit")
+            # the d = 0 lines coincide: dashed and on top, so that alpha r = 1 shows between
+            ax.plot(xs, damping_ratio(analytic_rho(s, xs), xs), color=c, lw=1.2 if dashed else 1.6,
+                    ls=(0, (4, 4)) if line_key == "cayley" else ((4, (4, 4)) if dashed else "-"),
+                    label=label, zorder=3 if dashed else 2)
         ok = r.stable
         ax.plot(r.tau_omega[ok], r.d_measured[ok], ls="none", marker=markers.get(s.name, "o"),
                 mfc="none" if s.name not in ("si", "trapezoidal") else c, color=c, ms=6,
@@ -619,8 +641,8 @@ def plot(rows: list[ScalarRow], path: Path, fem: FemModesResult | None = None) -
         ax.plot([], [], ls="none", marker="*", ms=11, color="0.6", mec="k", mew=0.4,
                 label=f"FEM modes ({len(xf)}), τ = {fem.step:g} s")
     ax.axvspan(EXPLICIT_LIMIT, 1e2, color="tab:orange", alpha=0.08)
-    ax.text(2.3, 0.02, "explicit schemes\nunstable (τω ≥ 2)", color="tab:orange", fontsize=8,
-            va="bottom")
+    ax.text(0.98, 0.6, "explicit schemes\nunstable (τω ≥ 2)", color="tab:orange", fontsize=9,
+            ha="right", transform=ax.get_xaxis_transform())
     ax.set_xscale("log")
     ax.set_xlim(1e-2, 1e2)
     ax.set_ylim(-0.03, None)
@@ -644,17 +666,9 @@ def report(out: Path, schemes, fem: FemModesResult | None, rows: list[ScalarRow]
     """
     from .summary import write_summary
 
-    table = scalar_table_rows(rows)
+    table = scalar_table_rows(rows, TABLE_TAU_OMEGA)
+    full = scalar_table_rows(rows)
     fem_rows = fem_table_rows(fem) if fem is not None else []
-    full = []
-    for r in rows:
-        for i, x in enumerate(r.tau_omega):
-            ok = bool(r.stable[i])
-            full.append({"scheme": r.scheme.label, "key": r.scheme.key, "tau_omega": float(x),
-                         "stable": ok, "rho_analytic": float(r.rho_analytic[i]),
-                         "rho_measured": float(r.rho_measured[i]),
-                         "d_over_omega_analytic": float(r.d_analytic[i]) if ok else None,
-                         "d_over_omega_measured": float(r.d_measured[i]) if ok else None})
     results = {}
     if comm.rank != 0:
         return results
@@ -691,7 +705,8 @@ def report(out: Path, schemes, fem: FemModesResult | None, rows: list[ScalarRow]
         "definition": "d/omega = -2 ln(rho) / (tau omega), rho = spectral radius per step",
         "tau_omega": list(TABLE_TAU_OMEGA),
         "schemes": {s.key: {"label": s.label,
-                            **{f"{k}": [r[k] for r in table if r["key"] == s.key]
+                            **{k: [_number(r[k]) if r[k] is not None else None
+                                   for r in table if r["key"] == s.key]
                                for k in ("d_over_omega_analytic", "d_over_omega_measured",
                                          "rho_analytic", "rho_measured")}}
                     for s in schemes},
@@ -708,12 +723,11 @@ def report(out: Path, schemes, fem: FemModesResult | None, rows: list[ScalarRow]
             "amplitude": fem.amplitude, "steps": fem.nsteps, "rigid_modes": fem.rigid_modes,
             "frequencies_hz": fem.frequencies_hz.tolist(), "tau_omega": fem.tau_omega.tolist(),
             "explicit_limit": fem.explicit_limit,
-            "d_over_omega_analytic": {k: [None if not np.isfinite(d) else float(d)
-                                          for d in damping_ratio(v, fem.tau_omega)]
+            "d_over_omega_analytic": {k: list(map(_number, damping_ratio(v, fem.tau_omega)))
                                       for k, v in fem.rho_analytic.items()},
-            "d_over_omega_measured": {k: [None if not np.isfinite(d) else float(d)
-                                          for d in damping_ratio(v, fem.tau_omega)]
+            "d_over_omega_measured": {k: list(map(_number, damping_ratio(v, fem.tau_omega)))
                                       for k, v in fem.rho_measured.items()},
+            "notes": fem.notes,
             "max_deviation_implicit": max(fem_dev) if fem_dev else None,
         }
     solver = {"fit": "least-squares one-step map of (w q, v) delay vectors (DMD)",
