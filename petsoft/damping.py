@@ -598,7 +598,7 @@ def plot(rows: list[ScalarRow], path: Path, fem: FemModesResult | None = None) -
     import matplotlib.pyplot as plt
 
     x = np.logspace(-2, 2, 400)
-    fig, ax = plt.subplots(figsize=(9, 5.6))
+    fig, ax = plt.subplots(figsize=(12, 5.6))
     alphas = [r for r in rows if r.scheme.name == "alpha"]
     cmap = plt.get_cmap("viridis")
     colors = {"be": "black", "si": "black", "midpoint": "tab:red", "trapezoidal": "tab:red",
@@ -639,10 +639,10 @@ def plot(rows: list[ScalarRow], path: Path, fem: FemModesResult | None = None) -
             ax.plot(xf[ok], dm[ok], ls="none", marker="*", ms=11, color=colors.get(s.key, "k"),
                     mec="k", mew=0.4)
         ax.plot([], [], ls="none", marker="*", ms=11, color="0.6", mec="k", mew=0.4,
-                label=f"FEM modes ({len(xf)}), τ = {fem.step:g} s")
+                label=f"FEM modes ({len(xf)}; colour: integrator), τ = {fem.step:g} s")
     ax.axvspan(EXPLICIT_LIMIT, 1e2, color="tab:orange", alpha=0.08)
-    ax.text(0.98, 0.6, "explicit schemes\nunstable (τω ≥ 2)", color="tab:orange", fontsize=9,
-            ha="right", transform=ax.get_xaxis_transform())
+    ax.text(0.99, 0.6, "explicit schemes\nunstable (τω ≥ 2)", color="tab:orange", fontsize=9,
+            ha="right", transform=ax.transAxes)
     ax.set_xscale("log")
     ax.set_xlim(1e-2, 1e2)
     ax.set_ylim(-0.03, None)
@@ -651,7 +651,8 @@ def plot(rows: list[ScalarRow], path: Path, fem: FemModesResult | None = None) -
     ax.set_title("Artificial damping of petsoft's integrators on q'' + ω²q = 0 "
                  "(lines: analytic, markers: measured)", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7.5, ncol=2, loc="upper left")
+    # outside the axes: inside it would hide the curves' peaks and the FEM markers
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     fig.savefig(path, dpi=130)
     plt.close(fig)
