@@ -138,6 +138,10 @@ def _add_damping_parser(sub) -> None:
                    help="generalized-alpha spectral radii (default 0,0.25,0.5,0.75,1)")
     d.add_argument("--steps", type=_positive_int, default=16, metavar="N",
                    help="steps per integrator run on each mode (default %(default)s)")
+    d.add_argument("--amplitude", type=float, default=1e-3, metavar="A",
+                   help="initial max displacement / body size of each mode run (default "
+                        "%(default)s; smaller for nonlinear materials approaches the linear "
+                        "values, but stalls the midpoint rule's Newton on round-off)")
 
 
 def _static_options(s) -> None:

@@ -224,7 +224,7 @@ def run_damping(args) -> int:
         _print(f"{experiment.source}: {args.modes} lowest modes at step "
                f"{experiment.time.step:g} s, {args.steps} steps per run")
         fem = damping.fem_mode_damping(model, experiment.time.step, schemes, args.modes,
-                                       args.steps, monitor=_print)
+                                       args.steps, args.amplitude, monitor=_print)
     damping.report(out, schemes, fem, rows, comm, t0, printer=_print,
                    source=experiment.source if experiment else None)
     return 0

@@ -382,8 +382,9 @@ class FemModesResult:
     """Measured and analytic rho of each scheme on each elastic mode of a body.
 
     ``rho_measured[key]`` is NaN where the scheme did not run (explicit above its stability
-    limit: ``explicit_limit`` is then the largest stable step, s) or its Newton iteration failed;
-    ``notes[key]`` says which.
+    limit: ``explicit_limit`` is then the largest stable step, s; ``notes[key]`` says so) or its
+    Newton iteration failed (``failures[(key, k)]`` for mode index k). ``notes`` also carries the
+    explicit schemes' lumped-mass caveat.
     """
 
     step: float
@@ -398,6 +399,7 @@ class FemModesResult:
     material: str = ""
     rigid_modes: int = 0
     notes: dict = field(default_factory=dict)
+    failures: dict = field(default_factory=dict)
 
     @property
     def tau_omega(self) -> np.ndarray:
@@ -479,8 +481,8 @@ def fem_mode_damping(model, step: float, schemes, nmodes: int = 6, nsteps: int =
             for n in range(nsteps):
                 report = integrator.step(n * step, q, v, step, q1, v1)
                 if not report.converged:
-                    result.notes[scheme.key] = (f"mode {k + 1 + result.rigid_modes} step {n}: "
-                                                f"not converged ({report.reason})")
+                    result.failures[scheme.key, k] = (f"step {n} not converged "
+                                                      f"({report.reason})")
                     break
                 q1.copy(q)
                 v1.copy(v)
@@ -489,9 +491,13 @@ def fem_mode_damping(model, step: float, schemes, nmodes: int = 6, nsteps: int =
                 measured[k] = fit_spectral_radius(y[None], floor=1e-7)[0]
             integrator.destroy()
         system.lumped_kinetic = False
+        if scheme.explicit:
+            result.notes[scheme.key] = ("lumped mass: the consistent-mass mode is not one of its "
+                                        "modes, the fit sees their beating")
+        failed = sum(1 for key, _ in result.failures if key == scheme.key)
         if monitor:
             monitor(f"  {scheme.label}: {len(shapes)} modes x {nsteps} steps"
-                    + (f"; {result.notes[scheme.key]}" if scheme.key in result.notes else ""))
+                    + (f"; {failed} run(s) failed" if failed else ""))
     for obj in (q, v, q1, v1, *Mx, system):
         obj.destroy()
     modes.destroy()
@@ -558,7 +564,7 @@ def fem_table_rows(fem: FemModesResult) -> list[dict]:
                         "d_over_omega_analytic": _number(da[k]),
                         "d_over_omega_measured": _number(dm[k]),
                         "deviation": _deviation(dm[k], da[k]) if ok else None,
-                        "note": "" if ok else fem.notes.get(scheme.key, "")})
+                        "note": fem.failures.get((scheme.key, k), fem.notes.get(scheme.key, ""))})
     return out
 
 
@@ -729,6 +735,8 @@ def report(out: Path, schemes, fem: FemModesResult | None, rows: list[ScalarRow]
             "d_over_omega_measured": {k: list(map(_number, damping_ratio(v, fem.tau_omega)))
                                       for k, v in fem.rho_measured.items()},
             "notes": fem.notes,
+            "failures": [{"scheme": key, "mode": k + 1 + fem.rigid_modes, "reason": why}
+                         for (key, k), why in fem.failures.items()],
             "max_deviation_implicit": max(fem_dev) if fem_dev else None,
         }
     solver = {"fit": "least-squares one-step map of (w q, v) delay vectors (DMD)",
