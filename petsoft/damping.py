@@ -37,8 +37,10 @@ This module owns three views of that number:
 The fit: a trajectory y_n = (w q_n, v_n) of a linear one-step method satisfies z_{n+1} = A z_n for
 the delay vectors z_n = (y_n, y_{n+1}) (4 components, enough for the 3-dimensional state of
 generalized alpha, whose acceleration is not observed), so A is found by least squares over the
-run (dynamic mode decomposition, with the singular values below 1e-8 of the largest dropped:
-modes the run does not excite are not fitted), and rho is the largest modulus of its eigenvalues.
+run (dynamic mode decomposition, keeping at most the method's state size of singular directions
+and none below 1e-8 of the largest: modes the run does not excite are not fitted, and on a FEM
+body the little of other modes in the projection gets no eigenvalue of its own), and rho is the
+largest modulus of its eigenvalues.
 It measures the per-step decay of the principal mode's amplitude over the whole run, independent
 of the phase at which the run stops.
 """
@@ -94,6 +96,11 @@ class Scheme:
     @property
     def explicit(self) -> bool:
         return self.name in ("verlet", "euler")
+
+    @property
+    def state_size(self) -> int:
+        """Dimension of the one-step map on one oscillator: (q, v), or (q, v, a) for alpha."""
+        return 3 if self.name == "alpha" else 2
 
     def integrator(self, system):
         """The petsoft integrator object of this scheme on ``system`` (the caller destroys it)."""
@@ -244,7 +251,7 @@ def stable(scheme: Scheme, tau_omega) -> np.ndarray:
 # The measurement: fit the one-step map to trajectories
 
 
-def fit_spectral_radius(y: np.ndarray, floor: float = 1e-10) -> np.ndarray:
+def fit_spectral_radius(y: np.ndarray, floor: float = 1e-10, rank: int = 4) -> np.ndarray:
     """Per-step growth factor of the principal mode of each trajectory, by least squares.
 
     Parameters
@@ -254,6 +261,11 @@ def fit_spectral_radius(y: np.ndarray, floor: float = 1e-10) -> np.ndarray:
     floor : float
         Pairs of steps where the state has fallen below ``floor`` times its initial size are left
         out (round-off and solver tolerances dominate there).
+    rank : int
+        At most this many singular directions are fitted: the method's state size. On a FEM
+        body the projection on a mode also carries a little of other modes (nonlinear coupling,
+        a lumped mass); a fit of full rank would give that residue eigenvalues of its own, of
+        any modulus.
 
     Returns
     -------
@@ -274,7 +286,8 @@ def fit_spectral_radius(y: np.ndarray, floor: float = 1e-10) -> np.ndarray:
     z1 = np.where(keep, z1 / scale, 0.0)
     # rows are snapshots: z1 = z0 A^T; A^T = V S^+ U^T z1 with small singular values dropped
     U, S, Vt = np.linalg.svd(z0, full_matrices=False)
-    Sinv = np.where(S > RANK_TOL * S[:, :1], 1.0 / np.where(S > 0, S, 1.0), 0.0)
+    kept = (S > RANK_TOL * S[:, :1]) & (np.arange(S.shape[1]) < rank)
+    Sinv = np.where(kept, 1.0 / np.where(S > 0, S, 1.0), 0.0)
     At = np.swapaxes(Vt, 1, 2) @ (Sinv[:, :, None] * (np.swapaxes(U, 1, 2) @ z1))
     return spectral_radius(At)
 
@@ -313,7 +326,7 @@ def measure_oscillators(scheme: Scheme, tau_omega, nsteps: int = 40, tau: float 
         obj.destroy()
     # ownership ranges ascend with the rank: concatenating the ranks' blocks restores the order
     parts = system.comm.tompi4py().allgather(np.ascontiguousarray(np.swapaxes(history, 0, 1)))
-    return fit_spectral_radius(np.concatenate(parts, axis=0))
+    return fit_spectral_radius(np.concatenate(parts, axis=0), rank=scheme.state_size)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -488,7 +501,8 @@ def fem_mode_damping(model, step: float, schemes, nmodes: int = 6, nsteps: int =
                 v1.copy(v)
                 y[n + 1] = w * mx.dot(q), mx.dot(v)
             else:
-                measured[k] = fit_spectral_radius(y[None], floor=1e-7)[0]
+                measured[k] = fit_spectral_radius(y[None], floor=1e-7,
+                                                  rank=scheme.state_size)[0]
             integrator.destroy()
         system.lumped_kinetic = False
         if scheme.explicit:

@@ -110,7 +110,7 @@ def test_fit_recovers_the_spectral_radius_of_a_known_map():
         for _ in range(30):
             ys.append(state[:2] * ([x, 1.0] if len(T) == 3 else 1.0))   # (q, h v) -> (w q, v)
             state = T @ state
-        rho = D.fit_spectral_radius(np.array(ys)[None])[0]
+        rho = D.fit_spectral_radius(np.array(ys)[None], rank=scheme.state_size)[0]
         assert rho == pytest.approx(D.spectral_radius(T[None])[0], rel=1e-10), scheme
 
 
