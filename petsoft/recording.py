@@ -52,6 +52,7 @@ def write_recording(path: Path, reference: np.ndarray, times: np.ndarray,
                                  dtype=h5py.string_dtype("utf-8"))
             f["frames/time"] = times
             f["frames/position"] = positions
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; a recording is shared data
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

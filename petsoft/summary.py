@@ -33,5 +33,6 @@ def write_summary(directory: Path, command: str, results: dict, solver: dict, wa
     with os.fdopen(fd, "w") as f:
         json.dump(data, f, indent=2)
         f.write("\n")
+    os.chmod(tmp, 0o644)  # mkstemp creates 0600; a summary is for everyone to read
     os.replace(tmp, path)
     return path

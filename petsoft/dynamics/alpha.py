@@ -161,6 +161,9 @@ class AlphaTSIntegrator:
         u, v = ts.getSolution2()
         u.copy(q1)
         v.copy(v1)
+        if self._last is not None:
+            self._last[1].destroy()
+            self._last[2].destroy()
         self._last = (t0 + h, q1.copy(), v1.copy())
         # work terms paired with dq by the trapezoidal rule (the scheme's own pairing is not
         # an exact energy identity: the remainder shows as numerical dissipation)
@@ -300,6 +303,12 @@ class GeneralizedAlpha:
         s.assemble_combination(self.qf, self.am / (self.beta * h * h) + s.alpha * c, self.af,
                                s.beta * c, P)
 
+    def _forget(self) -> None:
+        if self._last is not None:
+            self._last[1].destroy()
+            self._last[2].destroy()
+        self._last = None
+
     def _continues(self, t0, q0, v0) -> bool:
         if self._last is None:
             return False
@@ -322,7 +331,17 @@ class GeneralizedAlpha:
         """Continue from a checkpoint exactly (else the next step recomputes a0)."""
         if "acceleration" in state:
             state["acceleration"].copy(self.a0)
+            self._remember(t, q, v)
+
+    def _remember(self, t, q, v) -> None:
+        """Keep (t, q, v): where the next step must start for a0 to be valid."""
+        if self._last is None:
             self._last = (t, q.copy(), v.copy())
+            return
+        _, q_last, v_last = self._last
+        q.copy(q_last)
+        v.copy(v_last)
+        self._last = (t, q_last, v_last)
 
     def step(self, t0, q0, v0, h, q1, v1) -> StepReport:
         s = self.system
@@ -353,7 +372,7 @@ class GeneralizedAlpha:
         if self._bad is not None:
             report.reason += f" ({self._bad})"
         if not report.converged:
-            self._last = None
+            self._forget()
             traction_f.destroy()
             return report
         s.apply_prescribed(q1, t0 + h)
@@ -366,7 +385,7 @@ class GeneralizedAlpha:
         report.external_work = dq.dot(traction_f)
         report.boundary_work = dq.dot(full)
         self.a1.copy(self.a0)   # the new step starts from this step's acceleration
-        self._last = (t0 + h, q1.copy(), v1.copy())
+        self._remember(t0 + h, q1, v1)
         for vec in (full, dq, traction_f):
             vec.destroy()
         return report
