@@ -306,12 +306,14 @@ class InitialSpec:
 @dataclass(frozen=True)
 class TimeSpec:
     """``[time]``: ``end`` > 0 and 0 < ``step`` <= ``end`` (s), the integrator, and the
-    generalized-alpha ``alpha_radius`` in [0, 1]."""
+    generalized-alpha ``alpha_radius`` in [0, 1], and for ``imex`` the number of lowest modes
+    integrated explicitly (``imex_slow_modes`` >= 1; the rest implicitly)."""
 
     end: float
     step: float
     integrator: str = "be"
     alpha_radius: float = 0.5
+    imex_slow_modes: int = 6
 
     @property
     def num_steps(self) -> int:
@@ -1076,7 +1078,7 @@ def _read_initial(r: _Reader | None) -> InitialSpec:
 def _read_time(r: _Reader | None) -> TimeSpec | None:
     if r is None:
         return None
-    r.check_keys(("end", "step", "integrator", "alpha_radius"))
+    r.check_keys(("end", "step", "integrator", "alpha_radius", "imex_slow_modes"))
     end = r.number("end", rng=_POSITIVE, unit="s")
     step = r.number("step", rng=_POSITIVE, unit="s")
     if step > end:
@@ -1086,6 +1088,7 @@ def _read_time(r: _Reader | None) -> TimeSpec | None:
         step=step,
         integrator=r.choice("integrator", INTEGRATORS, "be"),
         alpha_radius=r.number("alpha_radius", 0.5, _UNIT),
+        imex_slow_modes=r.integer("imex_slow_modes", 6, _INT_POSITIVE),
     )
 
 

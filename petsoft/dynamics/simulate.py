@@ -24,7 +24,7 @@ from .implicit import ImplicitIntegrator
 from .system import DynamicSystem
 
 INTEGRATORS = ("be", "si", "alpha", "midpoint", "trapezoidal", "ere", "explicit", "imex")
-AVAILABLE = IMPLICIT_METHODS + ("explicit", "alpha")
+AVAILABLE = IMPLICIT_METHODS + ("explicit", "alpha", "imex")
 MAX_HALVINGS = 6
 
 
@@ -46,7 +46,8 @@ class SimulationResult:
 
 
 def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: str = "verlet",
-                    alpha_radius: float = 0.5, alpha_backend: str = "petsoft"):
+                    alpha_radius: float = 0.5, alpha_backend: str = "petsoft",
+                    imex_slow_modes: int = 6):
     """The integrator object for a name of ``[time] integrator``."""
     if name in IMPLICIT_METHODS:
         return ImplicitIntegrator(system, name, solver=solver)
@@ -56,6 +57,10 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
         if alpha_backend == "ts":
             return AlphaTSIntegrator(system, alpha_radius)
         return GeneralizedAlpha(system, alpha_radius)
+    if name == "imex":
+        from .imex import ModalImexIntegrator
+
+        return ModalImexIntegrator(system, slow_modes=imex_slow_modes, fast="be")
     raise ExperimentError(
         f"time.integrator = {name!r} is not available in this version of petsoft yet; "
         f"available: {', '.join(AVAILABLE)}")
@@ -112,7 +117,8 @@ class Simulation:
                                   f"{', '.join(INTEGRATORS)}")
         self.system = DynamicSystem(model, experiment.damping.mass, experiment.damping.stiffness)
         self.integrator = make_integrator(self.system, self.name, solver, explicit_scheme,
-                                          experiment.time.alpha_radius, alpha_backend)
+                                          experiment.time.alpha_radius, alpha_backend,
+                                          experiment.time.imex_slow_modes)
         self.out = Path(out) if out is not None else None
         self.monitor = monitor
         self.progress_every = progress_every
