@@ -24,7 +24,8 @@ from .implicit import ImplicitIntegrator
 from .system import DynamicSystem
 
 INTEGRATORS = ("be", "si", "alpha", "midpoint", "trapezoidal", "ere", "explicit", "imex")
-AVAILABLE = IMPLICIT_METHODS + ("explicit", "alpha", "imex")
+AVAILABLE = IMPLICIT_METHODS + ("explicit", "alpha", "imex", "ere")
+assert set(AVAILABLE) == set(INTEGRATORS)  # every integrator of the format is implemented
 MAX_HALVINGS = 6
 
 
@@ -57,6 +58,10 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
         if alpha_backend == "ts":
             return AlphaTSIntegrator(system, alpha_radius)
         return GeneralizedAlpha(system, alpha_radius)
+    if name == "ere":
+        from .ere import EREIntegrator
+
+        return EREIntegrator(system)
     if name == "imex":
         from .imex import ModalImexIntegrator
 
