@@ -20,3 +20,16 @@ def test_bench_assembly_quick():
     assert "1 MPI rank(s)" in proc.stdout
     # The DOLFINx peer either ran (and then was checked against petsoft) or says why not.
     assert "DOLFINx: skipped" in proc.stdout or "K x " in proc.stdout, proc.stdout
+
+
+@pytest.mark.serial_only
+def test_bench_step_quick():
+    """``bench_step.py --quick`` exits 0 and prints its table (with or without DOLFINx)."""
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "bench_step.py"), "--quick"],
+        cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "dofs ranks solver" in proc.stdout, proc.stdout
+    assert "1 MPI rank(s)" in proc.stdout
+    # The DOLFINx peer either ran (and its q1 was compared with petsoft's) or says why not.
+    assert "DOLFINx: skipped" in proc.stdout or "correctness (gamg" in proc.stdout, proc.stdout
