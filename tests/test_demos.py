@@ -30,5 +30,5 @@ def test_twisted_bar_demo_quick(tmp_path):
     assert (tmp_path / "midpoint" / "trajectory.xdmf").exists()
     table = {line.split()[0]: float(line.split()[1]) for line in r.stdout.splitlines()
              if line.split() and line.split()[0] in ("be", "midpoint")}
-    assert table["midpoint"] == pytest.approx(1.0, abs=1e-6)   # energy kept
+    assert table["midpoint"] == pytest.approx(1.0, abs=1e-6)   # no numerical damping
     assert table["be"] < table["midpoint"]                       # backward Euler damps
