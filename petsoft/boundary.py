@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
+from .errors import PetsoftError
+
 ZERO = None  # marker: a fixed (zero) condition
 
 
@@ -42,15 +44,31 @@ class DirichletConditions:
         self.count = dmesh.comm.tompi4py().allreduce(len(self.global_rows))
 
     def values(self, t: float = 0.0, scale: float = 1.0) -> np.ndarray:
-        """Local (nv, 3) array: prescribed values at prescribed dofs, 0 elsewhere."""
+        """Local (nv, 3) array: prescribed values at prescribed dofs, 0 elsewhere.
+
+        Collective: an error evaluating a condition on some rank (a time outside a recorded
+        input, an expression going non-finite) is raised on every rank, not left to deadlock
+        the ranks that had nothing to evaluate.
+        """
         out = np.zeros((self.dmesh.nvertices, 3))
-        for k, (_, components, displacement) in enumerate(self.conditions):
-            if displacement is None:
-                continue
-            for c in components:
-                rows = np.flatnonzero(self.owner[:, c] == k)
-                if len(rows):
+        error = None
+        try:
+            for k, (_, components, displacement) in enumerate(self.conditions):
+                if displacement is None:
+                    continue
+                for c in components:
+                    rows = np.flatnonzero(self.owner[:, c] == k)
+                    # evaluated even with no local rows, so every rank checks t the same way
                     out[rows, c] = displacement[c].evaluate_at(self.dmesh.points[rows], t=t)
+        except PetsoftError as exc:
+            error = exc
+        messages = [m for m in self.dmesh.comm.tompi4py().allgather(
+            None if error is None else (type(error), str(error))) if m is not None]
+        if messages:
+            if error is not None:
+                raise error
+            kind, text = messages[0]
+            raise kind(text)
         return scale * out
 
     def owned_offsets(self, vec: PETSc.Vec) -> np.ndarray:

@@ -81,6 +81,7 @@ def _add_simulate_parser(sub) -> None:
                         "potential with TAO")
     s.add_argument("--explicit-scheme", choices=("verlet", "euler"), default="verlet",
                    help="explicit integrator: velocity Verlet or symplectic Euler")
+    s.add_argument("--recording", help="recording (HDF5) whose /inputs drive `series` supports")
     s.add_argument("--restart", action="store_true",
                    help="continue from the latest checkpoint in the output directory")
     s.add_argument("--alpha-backend", choices=("petsoft", "ts"), default="petsoft",

@@ -135,7 +135,7 @@ def run_simulation(experiment, out: Path, args) -> None:
     from .dynamics.simulate import Simulation
 
     apply_experiment_options(experiment.petsc)
-    model = build_model(experiment, PETSc.COMM_WORLD)
+    model = build_model(experiment, PETSc.COMM_WORLD, recording=args.recording)
     sim = Simulation(model, experiment, integrator=args.integrator, solver=args.solver,
                      out=out, monitor=_print, explicit_scheme=args.explicit_scheme,
                      alpha_backend=args.alpha_backend)

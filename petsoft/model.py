@@ -86,8 +86,11 @@ def cell_materials(experiment, resolver: RegionResolver):
 
 
 def build_model(experiment, comm: PETSc.Comm | None = None, *, project_spd: bool = False,
-                mesh=None) -> Model:
-    """Distribute the experiment's mesh and assemble its quasistatic model (all ranks call)."""
+                mesh=None, recording=None) -> Model:
+    """Distribute the experiment's mesh and assemble its model (all ranks call).
+
+    ``recording`` is the HDF5 recording whose ``/inputs`` drive ``series`` supports.
+    """
     comm = comm if comm is not None else PETSc.COMM_WORLD
     if experiment.is_mass_spring:
         raise ExperimentError(f"{experiment.source}: [springs] models are not supported by this "
@@ -113,14 +116,19 @@ def build_model(experiment, comm: PETSc.Comm | None = None, *, project_spd: bool
             t = np.stack([e.evaluate_at(pts, t=0.0) for e in b.value], axis=1).reshape(-1, 3, 3)
             forces += traction_forces(dmesh, faces, t)
             continue
+        displacement = b.displacement if b.kind == "prescribed" else None
         if b.kind == "prescribed" and b.series is not None:
-            raise ExperimentError(f"{experiment.source}: boundary[{i}].series: measured input "
-                                  "series need a recording; `static` takes expressions only")
+            if recording is None:
+                raise ExperimentError(
+                    f"{experiment.source}: boundary[{i}].series = {b.series!r}: a measured input "
+                    "needs its recording (petsoft simulate ... --recording RECORDING.h5)")
+            from .recording import read_input_series
+
+            displacement = read_input_series(recording, b.series)
         mask = resolver.vertex_mask(b.where, key)
         if not mask.any():
             raise ExperimentError(f"{experiment.source}: {key}: selects no vertex of the mesh")
-        conditions.append((mask, b.component_indices,
-                           b.displacement if b.kind == "prescribed" else None))
+        conditions.append((mask, b.component_indices, displacement))
     external = dmesh.create_global_vec()
     external.zeroEntries()
     dmesh.add_to_global(forces, external)

@@ -58,3 +58,72 @@ def write_recording(path: Path, reference: np.ndarray, times: np.ndarray,
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+class SeriesComponent:
+    """One component of a measured input series, usable where an Expression of t is expected.
+
+    Linear interpolation in time; asking for a time outside the recorded span is an error (no
+    silent extrapolation of a measurement).
+    """
+
+    variables = frozenset({"t"})
+
+    def __init__(self, times: np.ndarray, values: np.ndarray, source: str):
+        self.times, self.values, self.source = times, values, source
+
+    def evaluate_at(self, points, t: float | None = None) -> np.ndarray:
+        from .errors import ExperimentError
+
+        t = 0.0 if t is None else float(t)
+        span = self.times[-1] - self.times[0]
+        if t < self.times[0] - 1e-12 * max(span, 1.0) or t > self.times[-1] + 1e-12 * max(
+                span, 1.0):
+            raise ExperimentError(
+                f"{self.source}: t = {t:g} s is outside the recorded input "
+                f"[{self.times[0]:g}, {self.times[-1]:g}] s; shorten [time] end or record longer")
+        return np.full(len(points), np.interp(t, self.times, self.values))
+
+
+def read_input_series(path: Path, name: str) -> tuple[SeriesComponent, ...]:
+    """The measured input ``/inputs/<name>`` of a recording as three time series (x, y, z).
+
+    ``name`` may be given as ``"inputs/shaker"`` or ``"shaker"``.
+
+    Raises
+    ------
+    ExperimentError
+        Naming the file and dataset: missing file, unknown input (listing the available ones),
+        wrong shapes, non-finite values or times that do not strictly increase.
+    """
+    import h5py
+
+    from .errors import ExperimentError
+
+    path = Path(path)
+    key = name.split("/", 1)[1] if name.startswith("inputs/") else name
+    if not path.is_file():
+        raise ExperimentError(f"{path}: recording not found (needed for the input {name!r})")
+    with h5py.File(path, "r") as f:
+        inputs = f.get("inputs")
+        available = sorted(inputs.keys()) if inputs is not None else []
+        if key not in available:
+            raise ExperimentError(f"{path}: no measured input {name!r}; the recording has "
+                                  f"{', '.join('inputs/' + a for a in available) or 'none'}")
+        times = np.asarray(inputs[key]["time"][()], dtype=float)
+        values = np.asarray(inputs[key]["value"][()], dtype=float)
+    where = f"{path}: /inputs/{key}"
+    if times.ndim != 1 or len(times) < 2:
+        raise ExperimentError(f"{where}/time must be a 1-D array of at least 2 times, "
+                              f"got shape {times.shape}")
+    if values.shape != (len(times), 3):
+        raise ExperimentError(f"{where}/value must have shape ({len(times)}, 3), got "
+                              f"{values.shape}")
+    if not (np.isfinite(times).all() and np.isfinite(values).all()):
+        raise ExperimentError(f"{where}: NaN or infinite entries (a support input must be "
+                              "complete)")
+    bad = np.flatnonzero(np.diff(times) <= 0)
+    if len(bad):
+        raise ExperimentError(f"{where}/time must increase strictly; it does not after index "
+                              f"{bad[0]} (t = {times[bad[0]]:g} s)")
+    return tuple(SeriesComponent(times, values[:, c], f"{where} ({'xyz'[c]})") for c in range(3))
