@@ -149,10 +149,22 @@ class StaticSolver:
         # increment is retried smaller.
         self._gradient(x, F)
 
-    def _assemble_tangent(self, x, P) -> None:
+    def _collective_hessian(self, x) -> None:
+        """Element tangents into the assembler; an inversion on any rank raises on all ranks
+        (raising on one rank only would leave the others in the next collective)."""
         u = self._local_state(x)
         self.assembler.begin()
-        self.model.elastic.add_hessian(u, self.assembler)
+        local = None
+        try:
+            self.model.elastic.add_hessian(u, self.assembler)
+        except InvertedElementError as err:
+            local = (err.element, err.jacobian)
+        found = [e for e in self.dmesh.comm.tompi4py().allgather(local) if e is not None]
+        if found:
+            raise InvertedElementError(*found[0])
+
+    def _assemble_tangent(self, x, P) -> None:
+        self._collective_hessian(x)
         self.assembler.finish(P)
         self.model.dirichlet.eliminate(P)
 
@@ -194,9 +206,7 @@ class StaticSolver:
         return self.lift_ksp.getIterationNumber()
 
     def _assemble_unconstrained(self, x) -> None:
-        u = self._local_state(x)
-        self.assembler.begin()
-        self.model.elastic.add_hessian(u, self.assembler)
+        self._collective_hessian(x)
         self.assembler.finish(self.J)
 
     def solve(self, x: PETSc.Vec | None = None) -> StaticResult:
