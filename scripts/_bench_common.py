@@ -7,6 +7,7 @@ mpi4py (not petsc4py) at import time, and DOLFINx only inside :func:`import_dolf
 from __future__ import annotations
 
 import logging
+import sys
 import time
 
 import numpy as np
@@ -30,14 +31,23 @@ def wall(fn) -> float:
     return COMM.allreduce(time.perf_counter() - t0, op=MPI.MAX)
 
 
-def timed_interleaved(fns: list, repeat: int) -> list[np.ndarray]:
+def timed_interleaved(fns: list, repeat: int, report=None) -> list[np.ndarray]:
     """``repeat`` rounds, each calling every function of ``fns`` once (in turn, so slow phases of
-    a shared machine hit all of them alike); returns each function's wall times."""
+    a shared machine hit all of them alike); returns each function's wall times.
+    ``report(round, k, seconds)`` is called after each (outside the timing)."""
     times = [np.empty(repeat) for _ in fns]
     for i in range(repeat):
         for k, fn in enumerate(fns):
             times[k][i] = wall(fn)
+            if report is not None:
+                report(i, k, times[k][i])
     return times
+
+
+def progress(*args) -> None:
+    """A progress line on rank 0's stderr (long runs say what they are doing)."""
+    if RANK == 0:
+        print("[progress]", *args, file=sys.stderr, flush=True)
 
 
 def setup_clock():

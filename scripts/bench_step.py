@@ -81,16 +81,24 @@ Things to try
 * ``--dolfinx-cflags "-O2 -g0"`` (DOLFINx's default JIT flags; the default here is petsoft's
   kernel flags ``-O3 -fno-math-errno``), ``--bend 0.2`` (fewer Newton iterations).
 * ``taskset -c 0`` to pin a serial run; on this 2-core shared machine 2-rank runs are noisy.
+* ``OPENBLAS_NUM_THREADS=2`` (threaded BLAS inside MUMPS; the script sets 1 unless the
+  environment sets it).
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import os
 import sys
 from contextlib import contextmanager
 
-import numpy as np
+# One BLAS (OpenBLAS is threaded on Debian; MUMPS uses it) / OpenMP thread per rank unless the
+# environment says otherwise: ranks = cores, and a serial run is serial. Before numpy and PETSc.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
 
 SOLVERS = {
     "gamg": {},  # petsoft's default: CG + GAMG, near-nullspace from the integrator
@@ -129,6 +137,7 @@ from _bench_common import (  # noqa: E402
     gather_owned,
     import_dolfinx,
     match_points,
+    progress,
     say,
     setup_clock,
     timed_interleaved,
@@ -251,6 +260,9 @@ class PetsoftCase:
     def its(self) -> tuple[int, int]:
         return self.report.newton_iterations, self.report.linear_iterations
 
+    def pc(self) -> PETSc.PC:
+        return self.integ.ksp.getPC()
+
     def solution(self):
         """(q1, q0) gathered on rank 0 as (N, 3) arrays in the mesh's vertex numbering."""
         return self.dmesh.gather_global(self.q1), self.dmesh.gather_global(self.q0)
@@ -364,6 +376,9 @@ class DolfinxCase:
     def its(self) -> tuple[int, int]:
         return self.result[0], self.problem.ksp_its
 
+    def pc(self) -> PETSc.PC:
+        return self.solver.krylov_solver.getPC()
+
     def solution(self, points: np.ndarray):
         """q1 gathered on rank 0 as an (N, 3) array in petsoft's vertex numbering."""
         vert = match_points(points, self.V.tabulate_dof_coordinates())
@@ -439,6 +454,24 @@ def phases_text(stage, code: str, repeat: int, total: float) -> str:
     return ", ".join(parts)
 
 
+MUMPS_ORDERINGS = {0: "AMD", 2: "AMF", 3: "SCOTCH", 4: "PORD", 5: "METIS", 6: "QAMD",
+                   7: "auto"}
+
+
+def mumps_text(pc: PETSc.PC) -> str:
+    """The ordering MUMPS used and the size and cost of its last factorisation."""
+    try:
+        F = pc.getFactorMatrix()
+        order = MUMPS_ORDERINGS.get(F.getMumpsInfog(7), str(F.getMumpsInfog(7)))
+        par = {1: "sequential", 2: "parallel"}.get(F.getMumpsInfog(32), "?")
+        entries = F.getMumpsInfog(29)              # effective entries in the factors
+        entries = entries if entries >= 0 else -entries * 1e6
+        return (f"; MUMPS: {par} {order} ordering, {entries:.3g} factor entries, "
+                f"{F.getMumpsRinfog(3):.3g} flop per factorisation")
+    except Exception as exc:  # an older petsc4py or another solver package
+        return f"; MUMPS statistics unavailable ({type(exc).__name__})"
+
+
 def check(pets: PetsoftCase, dolf: DolfinxCase, solver: str) -> None:
     """Print the relative difference of both codes' q1."""
     qp, q0 = pets.solution()
@@ -457,12 +490,17 @@ def run_solver(cases, solver: str, repeat: int, dofs: int):
     fns, stages = [], []
     for code, case in cases:
         case.make_solver(solver)
-        case.setup[f"{solver}: warm-up step"] = wall(case.step)
+        t = case.setup[f"{solver}: warm-up step"] = wall(case.step)
         case.check_report()
+        progress(f"{dofs} dofs, {solver}: {code} warm-up step {t:.2f} s")
         stage = PETSc.Log.Stage(f"{code} {solver} {dofs}")
         stages.append(stage)
         fns.append(staged(stage, case.step))
-    times = timed_interleaved(fns, repeat)
+
+    def report(i: int, k: int, t: float) -> None:
+        progress(f"{dofs} dofs, {solver}: {cases[k][0]} step {i + 1}/{repeat} {t:.2f} s")
+
+    times = timed_interleaved(fns, repeat, report)
     for _, case in cases:
         case.check_report()
     return times, stages
@@ -495,6 +533,7 @@ def main() -> None:
         pets = PetsoftCase(cells)
         dolf = DolfinxCase(mods, pets.dmesh.mesh, cflags) if mods is not None else None
         ntets = 6 * cells[0] * cells[1] * cells[2]
+        progress(f"{pets.dofs} dofs ({ntets} tets): models built")
         details.append(f"{pets.dofs} dofs ({ntets} tets, cells {cells}):")
         for solver in ARGS.solvers:
             if solver == "mumps" and pets.dofs > ARGS.mumps_max_dofs:
@@ -514,7 +553,8 @@ def main() -> None:
                     details.append(
                         f"  {solver:5} {code:7} best {t.min():.4f} median {np.median(t):.4f} "
                         f"s/step, {t.min() / n_it:.4f} s/Newton it; per step: "
-                        f"{phases_text(stage, code, repeat, t.mean())}")
+                        f"{phases_text(stage, code, repeat, t.mean())}"
+                        + (mumps_text(case.pc()) if solver == "mumps" else ""))
                 rows.append((pets.dofs, solver, times, its))
                 for _, case in cases:
                     case.drop_solver()
