@@ -51,6 +51,14 @@ def run(args) -> int:
         return run_modes(args)
     if args.command == "damping":
         return run_damping(args)
+    if args.command == "import":
+        from .importers import run_import
+
+        return run_import(args)
+    if args.command == "synth":
+        from .synth import run_synth
+
+        return run_synth(args)
     if args.command == "demo":
         experiment = experiment_from_dict(DEMO_EXPERIMENT, source="<embedded demo>")
         out = Path(args.out)
