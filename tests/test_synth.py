@@ -13,8 +13,8 @@ from mpi4py import MPI
 
 from petsoft.mesh import box_mesh, read_mesh, signed_volumes
 from petsoft.recording import read_recording
-from petsoft.topology import exterior_faces
 from petsoft.synth import SynthError, refine_mesh, run_synth, surface_nodes
+from petsoft.topology import exterior_faces
 
 EXPERIMENT = """
 [mesh]
