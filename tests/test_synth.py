@@ -11,7 +11,11 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
+from petsoft.calibration.observation import MarkerObserver
+from petsoft.dynamics.simulate import Simulation
+from petsoft.experiment import load_experiment
 from petsoft.mesh import box_mesh, read_mesh, signed_volumes
+from petsoft.model import build_model
 from petsoft.recording import read_recording
 from petsoft.synth import SynthError, refine_mesh, run_synth, surface_nodes
 from petsoft.topology import exterior_faces
@@ -112,6 +116,16 @@ def test_synth_box_clean_noisy_and_refined(tmp_path_factory):
     assert truth["parameters"]["material.youngs_modulus"] == 2.0e5
     assert truth["refine"] == 1 and truth["integrator"] == "be" and truth["step"] == 0.002
     assert json.loads((d / "clean" / "summary.json").read_text())["command"] == "synth"
+    # the observation operator on an ordinary simulation of the same experiment sees the same
+    # final marker positions (B q against synth's gathered barycentric interpolation)
+    experiment = load_experiment(exp)
+    model = build_model(experiment)
+    sim = Simulation(model, experiment)
+    result = sim.run()
+    obs = MarkerObserver.from_recording(sim.system, clean)
+    np.testing.assert_allclose(obs.observe(result.q), clean.positions[-1], rtol=0, atol=1e-13)
+    obs.destroy()
+    sim.destroy()
 
     std = 2e-4
     run_synth(_args(exp, d / "noisy" / "rec.h5", noise=std, dropout=0.25, markers=5))
