@@ -39,7 +39,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from ..errors import ExperimentError, MeshError
-from ..physics.colliders import DEFAULT_STIFFNESS_FACTOR, Collider
+from ..physics.colliders import Collider, default_stiffness
 from ..physics.springs import (
     KINDS,
     SpringNetwork,
@@ -404,7 +404,8 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
         warnings.warn(f"{src}: node(s) {_listing(lonely)} belong to no spring (they move as free "
                       "particles)", MassSpringWarning, stacklevel=2)
 
-    default_k = DEFAULT_STIFFNESS_FACTOR * spec.stiffness
+    default_k = default_stiffness(masses[free], experiment.time.step if experiment.time else None,
+                                  spec.stiffness)
     colliders = [Collider.from_spec(c, default_k) for c in experiment.colliders]
     held = dirichlet.mask.any(axis=1)
     for k, c in enumerate(colliders):
@@ -863,3 +864,26 @@ def locate_nodes(points: np.ndarray, probes, *, source: str = "probes") -> np.nd
                                   f"({dist[node]:.3g} m away)")
         out[i] = node
     return out
+
+
+def rope_mesh(nodes: int, length: float, start=(0.0, 0.0, 0.0),
+              direction=(1.0, 0.0, 0.0)) -> SpringMesh:
+    """A straight rope of ``nodes`` nodes (``nodes - 1`` line cells) of total ``length``."""
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    s = np.linspace(0.0, length, nodes)
+    pts = np.asarray(start, float) + s[:, None] * d
+    lines = np.stack([np.arange(nodes - 1), np.arange(1, nodes)], axis=1)
+    return SpringMesh(pts, lines, np.zeros((0, 3), np.int64), source="<rope>")
+
+
+def cloth_mesh(nx: int, ny: int, width: float, height: float, z: float = 0.0,
+               origin=(0.0, 0.0)) -> SpringMesh:
+    """A flat nx x ny node grid in the plane z = const, each quad split into two triangles."""
+    xs, ys = np.meshgrid(np.linspace(0.0, width, nx) + origin[0],
+                         np.linspace(0.0, height, ny) + origin[1], indexing="ij")
+    pts = np.column_stack([xs.ravel(), ys.ravel(), np.full(nx * ny, float(z))])
+    idx = np.arange(nx * ny).reshape(nx, ny)
+    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    tris = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int64)
+    return SpringMesh(pts, np.zeros((0, 2), np.int64), tris, source="<cloth>")
