@@ -122,3 +122,18 @@ def test_c2_margin_variant_taylor_and_continuity(kind):
     e, de, dde = c._profile(np.array([-1e-12, 1e-12, 0.05 - 1e-12, 0.05 + 1e-12]))
     assert dde[0] == pytest.approx(dde[1], rel=1e-9) and dde[2] == pytest.approx(dde[3], abs=1e-6)
     assert de[0] == pytest.approx(de[1], rel=1e-9)
+
+
+def test_friction_damping_is_the_velocity_jacobian():
+    rng = np.random.default_rng(9)
+    c = Collider("sphere", 300.0, friction=0.7, center=np.zeros(3), radius=1.0)
+    x = _inside(c, rng, 10)
+    v = rng.normal(size=(10, 3)) * 0.01
+    dv = rng.normal(size=(10, 3))
+    D = c.friction_damping(x, v)
+    hs = 1e-4 * 0.5 ** np.arange(5)
+    rem = [np.linalg.norm(c.friction_force(x, v + h * dv) - c.friction_force(x, v)
+                          + h * np.einsum("pij,pj->pi", D, dv)) for h in hs]
+    orders = _orders(rem, hs)
+    assert np.all((orders > 1.8) & (orders < 2.2)), orders
+    assert np.linalg.eigvalsh(D).min() >= -1e-12

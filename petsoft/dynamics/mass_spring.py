@@ -484,6 +484,7 @@ class MassSpringSystem:
         self.gravity = lay.create_global_vec()
         self._work = lay.create_global_vec()
         self._x_last = self.points.copy()
+        self._v_last = np.zeros((hi - lo, 3))
         self.M = self.create_matrix()
         self.K0 = self.create_matrix()
         self._update_mass()
@@ -593,6 +594,14 @@ class MassSpringSystem:
             values += a_mass * self.mass_values
         if c_reference != 0.0:
             values += c_reference * self.k0_values
+            friction = [c for c in self.colliders if c.friction > 0.0]
+            if friction:
+                # c is the velocity coefficient of the scheme (beta = 1): the friction's velocity
+                # Jacobian at the latest velocity joins the damping term
+                lo, hi = self.node_range
+                x, v = self._x_last[lo:hi], self._v_last
+                values += c_reference * self._values(
+                    None, sum(c.friction_damping(x, v) for c in friction))
         self._set(out, values)
         if eliminate:
             self.dirichlet.eliminate(out)
@@ -693,6 +702,7 @@ class MassSpringSystem:
             lo, hi = self.node_range
             x = self._x_last[lo:hi]
             vl = v.getArray(readonly=True).reshape(-1, 3)
+            self._v_last = vl.copy()
             f = sum(c.friction_force(x, vl) for c in friction)
             arr = out.getArray()
             arr -= f.ravel()

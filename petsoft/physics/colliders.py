@@ -32,9 +32,10 @@ Coulomb friction -mu |f_n| v_t / |v_t|, smoothed as -mu |f_n| v_t / sqrt(|v_t|^2
 (eps_v = :data:`FRICTION_VELOCITY`), *lagged*: the normal force magnitude |f_n| = k p and the
 normal n are those of the last configuration the contact forces were evaluated at (the current
 Newton iterate), and the force enters as a velocity-dependent damping force, so its work is
-booked as dissipation (it is never negative: f . v_t <= 0). Its derivative with respect to the
-velocity is not in the Jacobian (the lag makes it a fixed-point term; Newton converges linearly
-while sliding).
+booked as dissipation (it is never negative: f . v_t <= 0). Its velocity derivative at the latest
+velocity, -df/dv (:meth:`Collider.friction_damping`, PSD), joins the Jacobians' damping term, so
+Newton also converges when a sliding node comes to rest (the viscous regime is stiff: mu |f_n| /
+eps_v); the normal force's dependence on the position is the lagged part.
 """
 
 from __future__ import annotations
@@ -142,3 +143,15 @@ class Collider:
         vt = v - np.einsum("pi,pi->p", v, n)[:, None] * n
         speed = np.sqrt(np.einsum("pi,pi->p", vt, vt) + FRICTION_VELOCITY ** 2)
         return -(self.friction * fn / speed)[:, None] * vt
+
+    def friction_damping(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(P, 3, 3) -d(friction force)/dv at (x, v), normal force held (lagged): PSD,
+        mu |f_n| (P / s - v_t v_t^T / s^3) with P = I - n n^T, s = sqrt(|v_t|^2 + eps_v^2)."""
+        phi, n, _ = self.distance(x)
+        fn = -self._profile(phi)[1]
+        vt = v - np.einsum("pi,pi->p", v, n)[:, None] * n
+        s = np.sqrt(np.einsum("pi,pi->p", vt, vt) + FRICTION_VELOCITY ** 2)
+        P = np.eye(3)[None] - n[:, :, None] * n[:, None, :]
+        outer = vt[:, :, None] * vt[:, None, :]
+        c = self.friction * fn
+        return (c / s)[:, None, None] * P - (c / s ** 3)[:, None, None] * outer
