@@ -1,4 +1,4 @@
-"""Colliders: consistent penalty energy/force/Hessian (Taylor tests), PSD clamp, friction, errors."""
+"""Colliders: consistent penalty energy/force/Hessian (Taylor tests), PSD clamp, friction."""
 
 import numpy as np
 import pytest
@@ -43,7 +43,7 @@ def test_contact_force_and_jacobian_taylor(c):
         # the plane's penalty is exactly quadratic in contact: the gradient's Taylor remainder is
         # round-off, not O(h^2)
         scale = [h * np.linalg.norm(np.einsum("pij,pj->pi", H, dx)) for h in hs]
-        assert max(r / s for r, s in zip(remG, scale)) < 1e-8
+        assert max(r / s for r, s in zip(remG, scale, strict=True)) < 1e-8
         checks = [remE]
     for rem in checks:
         orders = _orders(rem, hs)

@@ -5,6 +5,7 @@ Runs serially and under ``mpiexec -n 2`` (every test collectively on every rank)
 """
 
 import dataclasses
+import os
 import warnings
 from pathlib import Path
 
@@ -271,8 +272,8 @@ def test_friction_decelerates_a_sliding_pair_at_mu_g(tmp_path):
     """Two nodes joined by a spring slide together on a plane at v0 = 0.3 m/s with Coulomb
     friction mu = 0.5: the velocity drops by mu g per second (BE: exactly per step once the normal
     force is settled), they stop at v0 / (mu g) = 61 ms and stay at rest (Newton gets through the
-    stick with the friction's velocity Jacobian, at most after a halved step), and the dissipated energy is the kinetic
-    energy lost."""
+    stick with the friction's velocity Jacobian, at most after a halved step), and the dissipated
+    energy is the kinetic energy lost."""
     m, mu, g, v0, h = 0.1, 0.5, 9.81, 0.3, 0.002
     k_c = 4 * m / h ** 2                                  # the default contact stiffness
     sink = m * g / k_c                                    # equilibrium penetration
@@ -301,6 +302,41 @@ def test_friction_decelerates_a_sliding_pair_at_mu_g(tmp_path):
     assert result.retries <= 2        # the stick transition may need one halved step
     assert np.abs(sim.model.dmesh.to_all(result.v)).max() < 1e-3
     sim.destroy()
+
+
+@pytest.mark.serial_only
+def test_petsoft_simulate_command_on_the_pendulum(tmp_path):
+    """`petsoft simulate` (the console command, 1 and 2 ranks) on the pendulum experiment with
+    the clamped Jacobian: the same probe trajectory, XDMF with a line cell, summary.json."""
+    import json
+    import shutil
+    import subprocess
+    import sys
+
+    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1")
+    for k in list(env):  # a child must not inherit this process's MPI singleton state
+        if k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess")):
+            env.pop(k)
+    text = (ROOT / "scripts" / "stiff_spring_pendulum.toml").read_text()
+    (tmp_path / "p.toml").write_text(text.replace("end = 2.0", "end = 0.1"))
+    shutil.copy(ROOT / "scripts" / "stiff_spring_pendulum.msh", tmp_path)
+    traj = []
+    for ranks in (1, 2):
+        out = tmp_path / f"out{ranks}"
+        cmd = [sys.executable, "-m", "petsoft.cli", "simulate", "p.toml", "--out", str(out),
+               "--integrator", "si", "--spd"]
+        if ranks > 1:
+            cmd = [shutil.which("mpiexec") or "mpiexec", "-n", str(ranks)] + cmd
+        run = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, env=env,
+                             timeout=300)
+        assert run.returncode == 0, run.stderr
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["steps"] == 10 and summary["integrator"] == "si"
+        assert summary["ranks"] == ranks
+        traj.append(_read_probes(out))
+    assert traj[0].shape == (11, 1, 3)
+    assert np.allclose(traj[0], traj[1], rtol=0, atol=1e-12)
 
 
 def test_serial_equals_two_ranks(tmp_path):

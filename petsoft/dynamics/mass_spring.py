@@ -732,7 +732,7 @@ class MassSpringSystem:
         return 3 * ids[:, None] + np.arange(3)
 
     def parameter_names(self) -> list[str]:
-        """Names (as :func:`petsoft.experiment.parameter_names`) of the differentiable parameters."""
+        """The differentiable parameters, named as :func:`petsoft.experiment.parameter_names`."""
         names = ["springs.stiffness", "springs.damping"]
         if np.any(self.kind == KINDS.index("bending")):
             names.append("springs.bending")
