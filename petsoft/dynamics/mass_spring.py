@@ -555,13 +555,6 @@ class MassSpringSystem:
         self.mass_values = self._values(None, m[:, None, None] * np.eye(3)[None])
         self._set(self.M, self.mass_values)
 
-    def _unit_blocks(self, select: np.ndarray | None = None) -> np.ndarray:
-        """(St, 6, 6) reference spring matrices with unit stiffness (of the selected springs)."""
-        t = self.touch
-        k = np.ones(len(t)) if select is None else select[t].astype(float)
-        return expand_blocks(spring_hessian_blocks(self.points, self.edges[t],
-                                                   self.rest_lengths[t], k))
-
     def _update_reference(self) -> None:
         """K0 = beta_user K_ref + dashpots (K_ref: the spring Hessian at rest)."""
         t = self.touch
@@ -811,28 +804,20 @@ class MassSpringSystem:
             if name in ("springs.stiffness", "springs.bending"):
                 sel = bend if name == "springs.bending" else ~bend
                 arr[:] = self._spring_node_gradient(x, sel.astype(float))
-                # D v contains beta_user K_ref(k) v
+                # D v contains beta_user K_ref(k) v, linear in k
                 if self.damping_stiffness != 0.0:
-                    kv = self._matvec(self._values(self._unit_blocks(sel), None), v)
-                    arr += self.damping_stiffness * kv.getArray(readonly=True).reshape(-1, 3)
-                    kv.destroy()
+                    arr += self.damping_stiffness * self._unit_product(
+                        "bending" if name == "springs.bending" else "stiffness", v)
             elif name == "springs.damping":
-                t_ = self.touch
-                dash = expand_blocks(dashpot_blocks(self.points, self.edges[t_],
-                                                    (~bend[t_]).astype(float)))
-                dv = self._matvec(self._values(dash, None), v)
-                arr[:] = dv.getArray(readonly=True).reshape(-1, 3)
-                dv.destroy()
+                arr[:] = self._unit_product("damping", v)
             elif name == "springs.node_mass":
                 arr[:] = al + self.alpha * vl - self.acceleration
             elif name == "damping.mass":
                 arr[:] = self.masses[lo:hi, None] * vl
             elif name == "damping.stiffness":
-                kv = self._matvec(self._values(expand_blocks(spring_hessian_blocks(
-                    self.points, self.edges[self.touch], self.rest_lengths[self.touch],
-                    self.stiffness[self.touch])), None), v)
-                arr[:] = kv.getArray(readonly=True).reshape(-1, 3)
-                kv.destroy()
+                p = self.get_parameters()
+                arr[:] = (p["springs.stiffness"] * self._unit_product("stiffness", v)
+                          + p["springs.bending"] * self._unit_product("bending", v))
             else:
                 arr[:] = 0.0
                 arr[:, "xyz".index(name[-1])] = -self.masses[lo:hi]
@@ -840,18 +825,32 @@ class MassSpringSystem:
             out.append(d)
         return out
 
-    def _matvec(self, values: np.ndarray, v: PETSc.Vec) -> PETSc.Vec:
-        A = self._set(self.create_matrix(), values)
-        y = self.create_vec()
-        A.mult(v, y)
-        A.destroy()
-        return y
+    def _unit_product(self, which: str, v: PETSc.Vec) -> np.ndarray:
+        """(nloc, 3) product of v with a unit-coefficient matrix, built once: the rest stiffness
+        of the non-bending ("stiffness") or bending springs, or the dashpots ("damping")."""
+        mats = self.__dict__.setdefault("_unit_matrices", {})
+        if which not in mats:
+            bend = self.kind == KINDS.index("bending")
+            t = self.touch
+            if which == "damping":
+                blocks = dashpot_blocks(self.points, self.edges[t], (~bend[t]).astype(float))
+            else:
+                blocks = spring_hessian_blocks(self.points, self.edges[t], self.rest_lengths[t],
+                                               (bend if which == "bending" else ~bend)[t]
+                                               .astype(float))
+            mats[which] = self._set(self.create_matrix(),
+                                    self._values(expand_blocks(blocks), None))
+        y = self._work
+        mats[which].mult(v, y)
+        return y.getArray(readonly=True).reshape(-1, 3).copy()
 
     def destroy(self) -> None:
         for name in ("M", "K0", "lumped", "gravity", "_work"):
             obj = getattr(self, name, None)
             if obj is not None:
                 obj.destroy()
+        for A in self.__dict__.get("_unit_matrices", {}).values():
+            A.destroy()
 
 
 def locate_nodes(points: np.ndarray, probes, *, source: str = "probes") -> np.ndarray:
