@@ -6,7 +6,6 @@ Runs serially and under ``mpiexec -n 2`` (every test collectively on every rank)
 
 import dataclasses
 import os
-import warnings
 from pathlib import Path
 
 import h5py
@@ -506,9 +505,3 @@ def test_probe_off_the_nodes_and_tractions_are_errors(tmp_path):
             tmp_path, rope_mesh(2, 1.0), {"stiffness": 1.0, "node_mass": 1.0},
             boundary=[{"kind": "traction", "where": "x > 0.5", "value": [1.0, 0, 0]}]))
 
-
-def test_mass_spring_warnings_do_not_leak():
-    """Guard: the module's warning class is a UserWarning (filterable like MeshWarning)."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        assert issubclass(MassSpringWarning, UserWarning)
