@@ -443,10 +443,22 @@ class MassSpringSystem:
 
     Attributes
     ----------
-    edges, rest_lengths, stiffness, damping_coefficients : ndarray
-        The springs (S, 2), their rest lengths, stiffnesses and dashpot coefficients.
+    points : ndarray (N, 3)
+        Reference node coordinates (file numbering; the state q is the displacement from them).
+    edges, kind, rest_lengths, stiffness, damping_coefficients : ndarray
+        The springs (S, 2) (node pairs), their kind (index into
+        :data:`petsoft.physics.springs.KINDS`), rest lengths, stiffnesses and dashpot coefficients
+        (per spring, all springs, on every rank).
     masses : ndarray (N,)
-        Lumped node masses; ``fixed`` (N, 3) bool: prescribed components.
+        Lumped node masses (``lumped`` is the same as a global Vec, 3 entries per node).
+    fixed : ndarray (N, 3) bool
+        Prescribed components (fixed or prescribed ``[[boundary]]``); values: :meth:`prescribed`.
+    node_range : (int, int)
+        The nodes this rank owns (dofs 3 lo .. 3 hi of every global vector).
+    colliders : list of Collider
+    alpha, damping_stiffness : float
+        Rayleigh coefficients; ``beta`` is 1 and ``K0`` = damping_stiffness K_ref + dashpots
+        (see the module docstring).
     """
 
     def __init__(self, model: MassSpringModel, damping_mass: float = 0.0,
