@@ -495,11 +495,13 @@ def test_collider_containing_a_fixed_node_is_an_error(tmp_path):
             collider=[{"kind": "sphere", "center": [1.2, 0, 0], "radius": 0.3}]))
 
 
-def test_probe_off_the_nodes_and_tractions_are_errors(tmp_path):
+def test_probe_off_the_nodes_imex_and_tractions_are_errors(tmp_path):
     exp = _experiment(tmp_path, rope_mesh(2, 1.0), {"stiffness": 1.0, "node_mass": 1.0},
                       time={"end": 0.1, "step": 0.1}, output={"probes": [[0.5, 0.0, 0.0]]})
     with pytest.raises(ExperimentError, match=r"output.probes\[0\].*not a node"):
         Simulation(build_mass_spring_model(exp), exp)
+    with pytest.raises(ExperimentError, match=r"imex .* does not apply to \[springs\]"):
+        Simulation(build_mass_spring_model(exp), exp, integrator="imex")
     with pytest.raises(ExperimentError, match=r"boundary\[0\]: tractions"):
         build_mass_spring_model(_experiment(
             tmp_path, rope_mesh(2, 1.0), {"stiffness": 1.0, "node_mass": 1.0},
