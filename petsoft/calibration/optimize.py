@@ -26,7 +26,9 @@ Methods (``method=``):
     TAO ``nm``. TAO's simplex has no bounds, so the objective is evaluated at the clipped point
     plus a penalty ``mu (1 + |f|) |z - clip(z)|^2`` outside; the returned z is clipped. TAO nm
     stops on the spread of f over the simplex, so its default tolerance is ``gatol**2`` (z to
-    about ``gatol``) unless the caller gives ``gatol``.
+    about ``gatol``) unless the caller gives ``gatol``. Its simplex can collapse at a
+    non-stationary point, so it is restarted from its result with a simplex of size
+    ``nm_restart_lambda`` while that still lowers f (at most ``nm_restarts`` times).
 
 Every rank runs the same deterministic algorithm on its own copy of the (small, replicated)
 vectors: TAO lives on ``COMM_SELF``, and every evaluation goes through the problem, which may be
@@ -53,6 +55,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.errors import SolverError
+from petsoft.options import scoped_defaults
 
 METHODS = ("gd", "newton", "lbfgs", "gauss-newton", "nelder-mead")
 
@@ -390,7 +393,8 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
     options : dict, optional
         Defaults overridden by the options database: ``gatol`` (1e-8), ``grtol`` (1e-8),
         ``max_it`` (1000; 20000 for "gd"), ``max_funcs`` (10000; 100000 for "gd"), ``c1``
-        (1e-4, Armijo), ``alpha_max`` (1.0, "gd"), ``nm_penalty`` (1e3), ``fd_step`` (Hessian
+        (1e-4, Armijo), ``alpha_max`` (1.0, "gd"), ``nm_penalty`` (1e3), ``nm_restarts`` (3) and
+        ``nm_restart_lambda`` (0.1, simplex size of a restart), ``fd_step`` (Hessian
         finite-difference step, default from :func:`fd_step`).
     monitor : callable(IterationRecord), optional
         Called on every rank after every iteration (print on rank 0 only).
@@ -412,6 +416,7 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
     if z0.shape != (n,):
         raise OptimizationError(f"start has {z0.size} values for {n} parameters")
     o = {"gatol": 1e-8, "grtol": 1e-8, "c1": 1e-4, "alpha_max": 1.0, "nm_penalty": 1e3,
+         "nm_restarts": 3, "nm_restart_lambda": 0.1,
          "max_it": 20000 if method == "gd" else 1000,
          "max_funcs": 100000 if method == "gd" else 10000, "fd_step": fd_step()}
     unknown = set(options or {}).difference(o)
@@ -433,6 +438,25 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
 
     if method == "gd":
         res = _gradient_descent(ev, z0, lo, hi, o, prefix, record)
+    elif method == "nelder-mead":
+        # TAO nm's simplex can collapse in a narrow curved valley and report convergence at a
+        # non-stationary point (seen on the shifted oscillation: f = 0.386 instead of 0.192 from
+        # a unit simplex). Restarting from the result with a fresh, smaller simplex resolves it;
+        # restart while the objective still improves.
+        res = _tao_minimize(ev, z0, lo, hi, o, prefix, method, record,
+                            (options or {}).get("gatol"))
+        its = res.iterations
+        for _ in range(int(o["nm_restarts"])):
+            again = _tao_minimize(ev, res.z, lo, hi, o, prefix, method, record,
+                                  (options or {}).get("gatol"), o["nm_restart_lambda"])
+            its += again.iterations
+            improved = again.f < res.f - 1e-12 * (1.0 + abs(res.f))
+            if again.f <= res.f:
+                res = again
+            if not improved:
+                break
+        res.iterations = its
+        res.evaluations = ev.count
     else:
         res = _tao_minimize(ev, z0, lo, hi, o, prefix, method, record,
                             (options or {}).get("gatol"))
@@ -504,7 +528,7 @@ def _set_dense(A, values):
 
 
 def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
-                  options_gatol=None) -> OptimizeResult:
+                  options_gatol=None, nm_lambda=None) -> OptimizeResult:
     n = ev.n
     bounded = bool(np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)))
     tao_type = {"newton": "bnls" if bounded else "nls", "lbfgs": "blmvm",
@@ -600,7 +624,11 @@ def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
     tao.setMaximumIterations(int(o["max_it"]))
     tao.setMaximumFunctionEvaluations(int(o["max_funcs"]))
     tao.setSolution(x)
-    tao.setFromOptions()  # last: the command line wins
+    if nm_lambda is None:
+        tao.setFromOptions()  # last: the command line wins
+    else:
+        with scoped_defaults(**{f"{prefix}tao_nm_lambda": str(nm_lambda)}):
+            tao.setFromOptions()
     try:
         tao.solve()
         reason_code = int(tao.getConvergedReason())
