@@ -22,7 +22,8 @@ white) -- the valleys are the bands where w (t - s) matches the data's phase.
 
 Things to try:
 
-* ``--method gauss-newton`` / ``newton`` / ``gd``: the same wrong basin from one start;
+* ``--method gauss-newton`` / ``brgn`` / ``newton`` / ``gd``: the same wrong basin from one
+  start;
 * ``--method nelder-mead``: the simplex (size 1 in z) spans several basins and happens to find
   the global one here -- the lecture's "could search methods skip local minima?";
 * ``--starts 4 --seed 3``: too few starts can all miss the global basin;
@@ -40,7 +41,7 @@ import numpy as np
 import petsc4py
 from mpi4py import MPI
 
-METHODS = ("gd", "newton", "lbfgs", "gauss-newton", "nelder-mead")
+METHODS = ("gd", "newton", "lbfgs", "gauss-newton", "brgn", "nelder-mead")
 
 
 def main(argv=None) -> dict:

@@ -11,7 +11,11 @@ Methods (``method=``):
     trial point is ``clip(z - a g)`` and it is accepted when
     ``f(z_a) <= f(z) + c1 g.(z_a - z)``. The first trial step is ``min(alpha_max, 2 a_prev)``
     (the lecture starts every search at ``alpha_max``; doubling the last accepted step saves
-    evaluations on badly scaled problems and keeps the same acceptance test).
+    evaluations on badly scaled problems and keeps the same acceptance test). Stops on
+    ``|projected g| <= gatol`` or ``<= grtol |f|``; a failed line search whose first trial
+    predicted a decrease below ~1e3 machine epsilons of f is reported as
+    ``CONVERGED_ROUNDOFF`` (no step can pass the test in floating point), otherwise as
+    ``DIVERGED_LS_FAILURE``.
 ``"newton"``
     TAO ``nls`` (``bnls`` when there are bounds) with an n x n Hessian: the Gauss-Newton matrix
     ``J^T J`` when the problem provides ``residual_jacobian``, else central finite differences
@@ -19,10 +23,17 @@ Methods (``method=``):
 ``"lbfgs"``
     TAO ``blmvm`` (limited-memory BFGS with bounds; without bounds it is plain L-BFGS).
 ``"gauss-newton"``
-    TAO ``brgn`` (bounded regularized Gauss-Newton) with the ``lm`` (Levenberg-Marquardt)
-    regularization by default: brgn's own default ``l2prox`` stopped at a biased point in
-    petsc4py 3.18.5 (z = 0.9999 instead of 1 on r = z - 1, weight 1e-4); ``lm`` is exact there,
-    on Rosenbrock and with an active bound. ``-cal_tao_brgn_regularization_type`` overrides.
+    Own projected Levenberg-Marquardt: the step solves ``min |J_F d + r|^2 + lambda |d|^2`` over
+    the free variables F (those not held at a bound by the gradient), the trial point is
+    ``clip(z + d)``, accepted when the actual decrease is a positive fraction of the decrease
+    the linear model predicts; lambda follows Nielsen's update. Residuals are evaluated only
+    inside the bounds. Why not TAO ``brgn`` (checked in petsc4py 3.18.5): with its default
+    ``l2prox`` regularizer it stops at a biased point (z = 0.9999 instead of 1 on r = z - 1,
+    weight 1e-4), and with the ``lm`` regularizer it evaluates the residual outside the bounds
+    (k = 1.73 with k <= 1 on the exponential fit) -- fatal when a bound is a physical limit.
+``"brgn"``
+    TAO ``brgn`` itself, with the ``lm`` regularization by default
+    (``-cal_tao_brgn_regularization_type`` overrides), for comparison; see above for its limits.
 ``"nelder-mead"``
     TAO ``nm``. TAO's simplex has no bounds, so the objective is evaluated at the clipped point
     plus a penalty ``mu (1 + |f|) |z - clip(z)|^2`` outside; the returned z is clipped. TAO nm
@@ -58,7 +69,7 @@ from petsc4py import PETSc
 from petsoft.errors import SolverError
 from petsoft.options import scoped_defaults
 
-METHODS = ("gd", "newton", "lbfgs", "gauss-newton", "nelder-mead")
+METHODS = ("gd", "newton", "lbfgs", "gauss-newton", "brgn", "nelder-mead")
 
 _TAO_REASONS = {
     getattr(PETSc.TAO.Reason, k): k
@@ -388,7 +399,7 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
         Evaluations may be collective on ``problem.comm``; call on every rank of it.
     z0 : array_like, shape (n,)
         Start (clipped into the bounds).
-    method : {"gd", "newton", "lbfgs", "gauss-newton", "nelder-mead"}
+    method : {"gd", "newton", "lbfgs", "gauss-newton", "brgn", "nelder-mead"}
     bounds : (lower, upper), optional
         Bounds on z (``-inf``/``inf`` for none), e.g. ``scaling.bounds()``.
     options : dict, optional
@@ -439,6 +450,8 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
 
     if method == "gd":
         res = _gradient_descent(ev, z0, lo, hi, o, prefix, record)
+    elif method == "gauss-newton":
+        res = _levenberg_marquardt(ev, z0, lo, hi, o, prefix, record)
     elif method == "nelder-mead":
         # TAO nm's simplex can collapse in a narrow curved valley and report convergence at a
         # non-stationary point (seen on the shifted oscillation: f = 0.386 instead of 0.192 from
@@ -494,6 +507,9 @@ def _gradient_descent(ev: _Evaluator, z0, lo, hi, o, prefix, record) -> Optimize
             reason = "DIVERGED_MAXFCN"
             break
         alpha = min(alpha_max, 2.0 * alpha)
+        # Decrease predicted by the first trial; below the rounding error of f no step can pass
+        # the Armijo test, and z is then a minimizer to working precision.
+        predicted = alpha * float(g @ g)
         for _ in range(60):  # 60 halvings take alpha below 1e-18 alpha_max: a failed search
             zt = np.clip(z - alpha * g, lo, hi)
             slope = float(g @ (zt - z))  # < 0 unless the projected step vanishes
@@ -502,7 +518,8 @@ def _gradient_descent(ev: _Evaluator, z0, lo, hi, o, prefix, record) -> Optimize
                 break
             alpha *= 0.5
         else:
-            reason = "DIVERGED_LS_FAILURE"
+            roundoff = predicted <= 1e3 * np.finfo(float).eps * max(abs(f), 1e-300)
+            reason = "CONVERGED_ROUNDOFF" if roundoff else "DIVERGED_LS_FAILURE"
             break
         ft, gt = ev.value_gradient(zt)
         steps.append({"z_old": z, "z_new": zt, "f_old": f, "f_new": ft, "g_old": g,
@@ -513,6 +530,70 @@ def _gradient_descent(ev: _Evaluator, z0, lo, hi, o, prefix, record) -> Optimize
         record(it, z, f, gnorm, alpha)
     return OptimizeResult("gd", z, z, f, gnorm, it, ev.count, reason,
                           reason.startswith("CONVERGED"), steps=steps)
+
+
+def _levenberg_marquardt(ev: _Evaluator, z0, lo, hi, o, prefix, record) -> OptimizeResult:
+    gatol = _option(prefix, "tao_gatol", o["gatol"])
+    grtol = _option(prefix, "tao_grtol", o["grtol"])
+    max_it = _option(prefix, "tao_max_it", int(o["max_it"]), int)
+    max_funcs = _option(prefix, "tao_max_funcs", int(o["max_funcs"]), int)
+    eps = np.finfo(float).eps
+    n = ev.n
+    z = z0.copy()
+    r, J = ev.residual_jacobian(z)
+    f, g = 0.5 * float(r @ r), J.T @ r
+    gnorm = projected_gradient_norm(z, g, lo, hi)
+    record(0, z, f, gnorm)
+    # Nielsen's start: lambda = tau max diag(J^T J), tau = 1e-3 (a good initial guess).
+    lam = 1e-3 * max(float(np.max(np.sum(J * J, axis=0))), eps)
+    nu = 2.0
+    it = 0
+    while True:
+        if gnorm <= gatol:
+            reason = "CONVERGED_GATOL"
+            break
+        if gnorm <= grtol * abs(f):
+            reason = "CONVERGED_GRTOL"
+            break
+        if it >= max_it:
+            reason = "DIVERGED_MAXITS"
+            break
+        if ev.count >= max_funcs:
+            reason = "DIVERGED_MAXFCN"
+            break
+        # Variables held at a bound by the gradient stay fixed; the step is over the others.
+        held = ((z <= lo) & (g > 0)) | ((z >= hi) & (g < 0))
+        free = ~held
+        A = np.vstack([J[:, free], np.sqrt(lam) * np.eye(int(free.sum()))])
+        d = np.zeros(n)
+        d[free] = np.linalg.lstsq(A, np.concatenate([-r, np.zeros(int(free.sum()))]),
+                                  rcond=None)[0]
+        zt = np.clip(z + d, lo, hi)
+        d = zt - z
+        Jd = J @ d
+        predicted = -(float(g @ d) + 0.5 * float(Jd @ Jd))
+        if predicted <= 1e3 * eps * max(f, 1e-300):
+            # No step along the (projected) model can lower f beyond its rounding error.
+            reason = "CONVERGED_ROUNDOFF" if lam < 1e10 * (1.0 + float(np.max(J * J))) else (
+                "DIVERGED_TR_REDUCTION")
+            break
+        rt = ev.residual(zt)
+        ft = 0.5 * float(rt @ rt)
+        rho = (f - ft) / predicted
+        if np.isfinite(ft) and rho > 1e-4:
+            z = zt
+            r, J = ev.residual_jacobian(z)
+            f, g = 0.5 * float(r @ r), J.T @ r
+            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            nu = 2.0
+            it += 1
+            gnorm = projected_gradient_norm(z, g, lo, hi)
+            record(it, z, f, gnorm, float(np.linalg.norm(d)))
+        else:
+            lam *= nu
+            nu *= 2.0
+    return OptimizeResult("gauss-newton", z, z, f, gnorm, it, ev.count, reason,
+                          reason.startswith("CONVERGED"), hessian="gauss-newton J^T J + lambda I")
 
 
 def _dense(nrows, ncols):
@@ -533,7 +614,7 @@ def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
     n = ev.n
     bounded = bool(np.any(np.isfinite(lo)) or np.any(np.isfinite(hi)))
     tao_type = {"newton": "bnls" if bounded else "nls", "lbfgs": "blmvm",
-                "gauss-newton": "brgn", "nelder-mead": "nm"}[method]
+                "brgn": "brgn", "nelder-mead": "nm"}[method]
     tao = PETSc.TAO().create(PETSc.COMM_SELF)
     objs = [tao]
     tao.setOptionsPrefix(prefix)
@@ -573,7 +654,7 @@ def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
                 _set_dense(H_, 0.5 * (B + B.T))
 
         tao.setHessian(hess, H, H)
-    elif method == "gauss-newton":
+    elif method == "brgn":
         r0, _ = ev.residual_jacobian(z0)
         m = r0.size
         R = PETSc.Vec().createSeq(m, comm=PETSc.COMM_SELF)
@@ -615,7 +696,7 @@ def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
 
     # brgn iterates in its subsolver (bnls on the regularized problem) and does not call the
     # outer monitor in 3.18, so monitor the subsolver; f is taken from the evaluation cache.
-    (tao.getBRGNSubsolver() if method == "gauss-newton" else tao).setMonitor(mon)
+    (tao.getBRGNSubsolver() if method == "brgn" else tao).setMonitor(mon)
     gatol, grtol = float(o["gatol"]), float(o["grtol"])
     if method == "nelder-mead" and options_gatol is None:
         # TAO nm tests the spread of f over the simplex, not a gradient: |z - z*| ~ sqrt(spread),
@@ -628,7 +709,7 @@ def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
     defaults = {}
     if nm_lambda is not None:
         defaults[f"{prefix}tao_nm_lambda"] = str(nm_lambda)
-    if method == "gauss-newton":
+    if method == "brgn":
         # brgn's default l2prox regularizer biases the answer in 3.18: on r = z - 1 it stops
         # after one step at z = 0.9999 (= 1/(1 + weight 1e-4)); "lm" (Levenberg-Marquardt
         # damping) converges to z = 1 and took 6 instead of 17 iterations on Rosenbrock.
