@@ -216,7 +216,7 @@ def test_user_errors():
     def bad(p):
         return np.array([np.nan, p[0]])
 
-    with pytest.raises(OptimizationError, match="not finite"):
+    with pytest.raises(OptimizationError, match="not finite at the start"):
         minimize(LeastSquares(bad, 1, jacobian=lambda p: np.ones((2, 1))), np.zeros(1), "lbfgs")
 
 
@@ -367,3 +367,36 @@ def test_least_squares_wrapper_with_scaling_and_progress_lines():
     lines = buf.getvalue().splitlines()
     assert len(lines) == res.iterations + 1 and "a=" in lines[-1] and "k=" in lines[-1]
     np.testing.assert_allclose(res.p, ref.truth, rtol=1e-6)
+
+
+class _BrokenAboveW3(ShiftedOscillation):
+    """The "forward model" fails (NaN) for w > 3, as a simulation may far from the data."""
+
+    def _local_residual(self, z):
+        r = super()._local_residual(z)
+        return r * np.nan if self.scaling.to_physical(z)[0] > 3.0 else r
+
+
+def test_multistart_failed_starts_are_recorded():
+    sc = ShiftedOscillation().scaling
+    w_starts = np.array([3.5, 1.9, 3.8, 1.2])
+    starts = sc.to_scaled(np.column_stack([w_starts, np.zeros(4)]))
+    ms = multistart(_BrokenAboveW3, starts, WORLD, method="lbfgs", bounds=sc.bounds(),
+                    scaling=sc)
+    failed = [s.index for s in ms.starts if s.result is None]
+    assert failed == [0, 2] and all("not finite at the start" in ms.starts[i].error
+                                    for i in failed)
+    assert ms.best.index == 1 and abs(ms.p[0] - 2.0) < 0.01
+    assert ms.starts[3].result.p[0] <= 3.0  # stepped back from the failing region
+    with pytest.raises(OptimizationError, match="every start failed.*start 0.*start 1"):
+        multistart(_BrokenAboveW3, starts[[0, 2]], WORLD, method="lbfgs", bounds=sc.bounds())
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_failed_evaluations_are_stepped_back_from(method):
+    """From w = 2.9 the first steps enter w > 3 where the model fails: no method accepts them."""
+    prob = _BrokenAboveW3(MPI.COMM_SELF)
+    sc = prob.scaling
+    res = minimize(prob, sc.to_scaled([2.9, 0.0]), method, bounds=sc.bounds(), scaling=sc)
+    assert np.isfinite(res.f) and res.p[0] <= 3.0
+    assert all(np.isfinite(rec.f) and rec.p[0] <= 3.0 for rec in res.history)

@@ -294,12 +294,9 @@ class _Evaluator:
                 self._cache.popitem(last=False)
         return entry
 
-    def _check(self, z, values):
-        bad = [not np.all(np.isfinite(v)) for v in values]
-        if any(bad):
-            raise OptimizationError(
-                f"the objective or its derivatives are not finite at z = {np.array2string(z)}; "
-                "the forward model failed there: tighten the bounds or start elsewhere")
+    @staticmethod
+    def _finite(*values) -> bool:
+        return all(bool(np.all(np.isfinite(v))) for v in values)
 
     def residual(self, z):
         e = self._entry(z)
@@ -319,7 +316,6 @@ class _Evaluator:
             r, J = self.problem.residual_jacobian(z)
             r, J = self._sync((np.asarray(r, float).reshape(-1), np.asarray(J, float)))
             e["r"], e["J"] = r, J.reshape(r.size, self.n)
-            self._check(z, (J,))
         return e["r"], e["J"]
 
     def value_gradient(self, z):
@@ -336,7 +332,11 @@ class _Evaluator:
                 raise OptimizationError(
                     "this method needs gradients, which the problem does not provide; wrap it in "
                     "petsoft.calibration.optimize.FiniteDifferenceProblem")
-            self._check(z, (f, g))
+            if not self._finite(f, g):
+                # A failed evaluation (e.g. the forward model broke at a trial point) is an
+                # infinite objective: line searches and trust regions then step back, and the
+                # point is never accepted. A failure at the start is an error (minimize()).
+                f, g = np.inf, np.zeros(self.n)
             e["f"], e["g"] = f, g
         return e["f"], e["g"]
 
@@ -347,7 +347,8 @@ class _Evaluator:
             if self.has_gradient:
                 return self.value_gradient(z)[0]
             r = self.residual(z)
-            e["f"] = 0.5 * float(r @ r)
+            f = 0.5 * float(r @ r)
+            e["f"] = f if np.isfinite(f) else np.inf
         return e["f"]
 
     def cached_value(self, z):
@@ -357,7 +358,8 @@ class _Evaluator:
         if "f" in e:
             return e["f"]
         if "r" in e and not self.has_gradient:
-            return 0.5 * float(e["r"] @ e["r"])
+            f = 0.5 * float(e["r"] @ e["r"])
+            return f if np.isfinite(f) else np.inf
         return None
 
 
@@ -448,6 +450,11 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
         if monitor is not None:
             monitor(rec)
 
+    if not np.isfinite(ev.value(z0)):
+        raise OptimizationError(
+            f"the objective is not finite at the start z = {np.array2string(z0)}"
+            + (f" (p = {np.array2string(to_p(z0))})" if scaling is not None else "")
+            + ": the forward model failed there; start elsewhere or tighten the bounds")
     if method == "gd":
         res = _gradient_descent(ev, z0, lo, hi, o, prefix, record)
     elif method == "gauss-newton":
@@ -676,6 +683,8 @@ def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
             z = X.getArray(readonly=True).copy()
             zc = np.clip(z, lo, hi)
             f = ev.value(zc)
+            if not np.isfinite(f):
+                return 1e300  # a failed evaluation: worst vertex (TAO nm rejects Inf values)
             d = z - zc
             return f + mu * (1.0 + abs(f)) * float(d @ d)
 
