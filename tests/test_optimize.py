@@ -83,6 +83,7 @@ def test_methods_exponential_decay(method):
     assert len(res.history) >= 2 and res.history[-1].evaluations <= res.evaluations
 
 
+@pytest.mark.serial_only  # rank-local: nothing to learn from a second rank
 @pytest.mark.parametrize("method", METHODS)
 def test_methods_rosenbrock(method):
     # rank-local: GD needs ~2e4 iterations here, and collectives are slow on a loaded machine
@@ -119,6 +120,7 @@ def test_newton_hessian_choice():
 
 
 # --- Armijo, bounds --------------------------------------------------------------------------
+@pytest.mark.serial_only  # rank-local: nothing to learn from a second rank
 def test_gd_armijo_condition_every_step():
     prob = Rosenbrock(MPI.COMM_SELF)
     check = Rosenbrock(MPI.COMM_SELF)  # independent evaluations of f and g
@@ -139,6 +141,7 @@ def test_gd_armijo_condition_every_step():
     np.testing.assert_allclose(res.z, [z0, 0.8], atol=1e-5)
 
 
+@pytest.mark.serial_only  # rank-local: nothing to learn from a second rank
 @pytest.mark.parametrize("method", METHODS)
 def test_bounds_respected(method):
     """Exponential fit with k <= 1 (truth 1.3): the optimum sits on the bound, a is linear LS."""
@@ -171,7 +174,7 @@ def test_bounds_respected(method):
 
 
 # --- options, monitor, finite differences -------------------------------------------------------
-@pytest.mark.parametrize("method", ["gd", "lbfgs"])
+@pytest.mark.parametrize("method", ["gd", "lbfgs", "gauss-newton"])
 def test_command_line_options_win(method):
     PETSc.Options().setValue("cal_tao_max_it", 3)
     try:
@@ -239,6 +242,7 @@ def test_covariance_matches_monte_carlo_linear_model():
     assert "c2" in unc.table()
 
 
+@pytest.mark.serial_only  # rank-local: nothing to learn from a second rank
 def test_covariance_log_scaled_monte_carlo():
     """Log-scaled exponential fit: the transformed covariance matches refits with new noise."""
     sigma, n_fits = 0.01, 150
@@ -284,10 +288,12 @@ def test_single_start_wrong_basin_multistart_finds_global(method):
     single = minimize(prob, np.zeros(2), method, bounds=sc.bounds(), scaling=sc)
     assert single.f > 100 * best.f and abs(single.p[0] - best.p[0]) > 0.5
     starts = random_starts(*sc.bounds(), 7, seed=0, include=np.zeros(2))
+    # GD crawls along the narrow global valley (~900 iterations to |g| = 1e-8): stop it earlier
+    options = {"gatol": 1e-4} if method == "gd" else None
     ms = multistart(ShiftedOscillation, starts, WORLD, method=method, bounds=sc.bounds(),
-                    scaling=sc)
+                    scaling=sc, options=options)
     np.testing.assert_allclose(ms.p, best.p, atol=1e-4 if method == "gd" else 1e-6)
-    assert ms.f == pytest.approx(best.f, rel=1e-8)
+    assert ms.f == pytest.approx(best.f, rel=1e-7)
     assert ms.starts[0].result.f == pytest.approx(single.f, rel=1e-10)  # z = 0 was start 0
     assert len(ms.starts) == 8 and ms.groups == WORLD.Get_size()
 
@@ -392,6 +398,7 @@ def test_multistart_failed_starts_are_recorded():
         multistart(_BrokenAboveW3, starts[[0, 2]], WORLD, method="lbfgs", bounds=sc.bounds())
 
 
+@pytest.mark.serial_only  # rank-local: nothing to learn from a second rank
 @pytest.mark.parametrize("method", METHODS)
 def test_failed_evaluations_are_stepped_back_from(method):
     """From w = 2.9 the first steps enter w > 3 where the model fails: no method accepts them."""
