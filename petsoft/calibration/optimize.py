@@ -48,11 +48,16 @@ collective on ``problem.comm``. To keep ranks in lock-step even if a collective 
 round differently, every evaluation result is broadcast from rank 0 of ``problem.comm``, so all
 ranks take identical decisions and make the same sequence of collective calls.
 
+A failed evaluation (non-finite residual, objective or gradient, e.g. a forward simulation
+that broke at a trial point) counts as an infinite objective: line searches, the LM damping and
+the simplex step back from it, and such a point is never accepted. Only a failure at the start
+raises :class:`OptimizationError`.
+
 Options: defaults in code, then the caller's ``options``, then the PETSc options database under
-``prefix`` (``-cal_tao_gatol 1e-10``, ``-cal_tao_max_it 50``, ``-cal_tao_nm_lamda 0.2`` ...):
-``setFromOptions()`` is called last, so the command line wins. ``"gd"`` reads the same
-``-<prefix>tao_gatol/grtol/max_it/max_funcs`` options plus ``-<prefix>gd_c1`` and
-``-<prefix>gd_alpha_max``.
+``prefix`` (``-cal_tao_gatol 1e-10``, ``-cal_tao_max_it 50``, ``-cal_tao_nm_lambda 0.2`` ...):
+``setFromOptions()`` is called last, so the command line wins. The own methods ``"gd"`` and
+``"gauss-newton"`` read the same ``-<prefix>tao_gatol/grtol/max_it/max_funcs`` options, and
+``"gd"`` also ``-<prefix>gd_c1`` and ``-<prefix>gd_alpha_max``.
 """
 
 from __future__ import annotations
@@ -426,9 +431,10 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
     ev = _Evaluator(problem)
     n = ev.n
     lo, hi = _normalize_bounds(bounds, n)
-    z0 = np.clip(np.asarray(z0, dtype=float).reshape(-1), lo, hi)
+    z0 = np.asarray(z0, dtype=float).reshape(-1)
     if z0.shape != (n,):
         raise OptimizationError(f"start has {z0.size} values for {n} parameters")
+    z0 = np.clip(z0, lo, hi)
     o = {"gatol": 1e-8, "grtol": 1e-8, "c1": 1e-4, "alpha_max": 1.0, "nm_penalty": 1e3,
          "nm_restarts": 3, "nm_restart_lambda": 0.1,
          "max_it": 20000 if method == "gd" else 1000,
@@ -450,7 +456,12 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
         if monitor is not None:
             monitor(rec)
 
-    if not np.isfinite(ev.value(z0)):
+    if method in ("gauss-newton", "brgn"):
+        r0 = ev.residual_jacobian(z0)[0]  # what these methods evaluate first (cached)
+        f0 = 0.5 * float(r0 @ r0)
+    else:
+        f0 = ev.value(z0)
+    if not np.isfinite(f0):
         raise OptimizationError(
             f"the objective is not finite at the start z = {np.array2string(z0)}"
             + (f" (p = {np.array2string(to_p(z0))})" if scaling is not None else "")
