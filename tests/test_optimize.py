@@ -407,3 +407,25 @@ def test_failed_evaluations_are_stepped_back_from(method):
     res = minimize(prob, sc.to_scaled([2.9, 0.0]), method, bounds=sc.bounds(), scaling=sc)
     assert np.isfinite(res.f) and res.p[0] <= 3.0
     assert all(np.isfinite(rec.f) and rec.p[0] <= 3.0 for rec in res.history)
+
+
+def test_ranks_get_rank_zero_evaluations():
+    """Lock-step guard: a problem whose ranks disagree (by round-off here) still yields the same
+    iterates everywhere, because every evaluation is broadcast from rank 0 of problem.comm."""
+    base = ExponentialDecay(WORLD, noise=0.01)
+
+    class Skewed:
+        n, comm = 2, WORLD
+
+        def residual(self, z):
+            return base.residual(z) * (1.0 + 1e-13 * WORLD.Get_rank())
+
+        def residual_jacobian(self, z):
+            r, J = base.residual_jacobian(z)
+            return r * (1.0 + 1e-13 * WORLD.Get_rank()), J
+
+    res = minimize(Skewed(), np.zeros(2), "lbfgs", bounds=base.scaling.bounds())
+    everywhere = WORLD.allgather((res.z, res.f, res.iterations, res.evaluations))
+    for z, f, its, evals in everywhere:
+        assert np.array_equal(z, res.z) and f == res.f
+        assert (its, evals) == (res.iterations, res.evaluations)
