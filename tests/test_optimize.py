@@ -173,6 +173,27 @@ def test_bounds_respected(method):
     np.testing.assert_allclose(res.p, [a, 1.0], rtol=1e-5)
 
 
+@pytest.mark.serial_only  # rank-local
+def test_newton_fd_hessian_stays_in_bounds():
+    """Newton without a Jacobian differentiates the gradient one-sidedly at a bound."""
+    prob = ExponentialDecay(MPI.COMM_SELF)
+    sc = ParameterScaling(["a", "k"], [1.0, 0.4], [1e-2, 1e-2], [1e2, 1.0])
+    prob.scaling = sc
+    lo, hi = sc.bounds()
+    seen = []
+
+    class Recording(_GradientOnly):
+        def value_gradient(self, z):
+            seen.append(np.array(z))
+            return super().value_gradient(z)
+
+    res = minimize(Recording(prob), np.zeros(2), "newton", bounds=(lo, hi), scaling=sc)
+    assert res.hessian.startswith("central finite") and res.converged
+    assert all(np.all(z >= lo) and np.all(z <= hi) for z in seen)
+    e = np.exp(-prob.t)
+    np.testing.assert_allclose(res.p, [e @ prob.y / (e @ e), 1.0], rtol=1e-6)
+
+
 # --- options, monitor, finite differences -------------------------------------------------------
 @pytest.mark.parametrize("method", ["gd", "lbfgs", "gauss-newton"])
 def test_command_line_options_win(method):

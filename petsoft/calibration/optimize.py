@@ -666,9 +666,12 @@ def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
                 z = X.getArray(readonly=True).copy()
                 B = np.empty((n, n))
                 for j in range(n):  # n parameters (small)
-                    e = np.zeros(n)
-                    e[j] = h
-                    B[:, j] = (ev.value_gradient(z + e)[1] - ev.value_gradient(z - e)[1]) / (2 * h)
+                    # central where possible, one-sided at a bound: never evaluate outside
+                    zp, zm = z.copy(), z.copy()
+                    zp[j] = min(z[j] + h, hi[j])
+                    zm[j] = max(z[j] - h, lo[j])
+                    B[:, j] = ((ev.value_gradient(zp)[1] - ev.value_gradient(zm)[1])
+                               / (zp[j] - zm[j]))
                 _set_dense(H_, 0.5 * (B + B.T))
 
         tao.setHessian(hess, H, H)
