@@ -1,1 +1,1 @@
-"""Calibration: fitting model parameters to recorded marker trajectories."""
+"""Calibration: observing a simulation through measured markers and fitting its parameters."""
