@@ -33,7 +33,7 @@ from petsoft.calibration.testproblems import (
     ShiftedOscillation,
 )
 from petsoft.calibration.uncertainty import UnidentifiableError, uncertainty
-from petsoft.errors import PetsoftError
+from petsoft.errors import InvertedElementError, PetsoftError
 from petsoft.options import clear_options
 
 WORLD = MPI.COMM_WORLD
@@ -420,14 +420,29 @@ def test_multistart_failed_starts_are_recorded():
 
 
 @pytest.mark.serial_only  # rank-local: nothing to learn from a second rank
+class _InvertsAboveW3(ShiftedOscillation):
+    """The "forward model" raises as petsoft's solvers do (on every rank) for w > 3."""
+
+    def _local_residual(self, z):
+        if self.scaling.to_physical(z)[0] > 3.0:
+            raise InvertedElementError(17, -0.2)
+        return super()._local_residual(z)
+
+
+@pytest.mark.parametrize("make", [_BrokenAboveW3, _InvertsAboveW3])
 @pytest.mark.parametrize("method", METHODS)
-def test_failed_evaluations_are_stepped_back_from(method):
+def test_failed_evaluations_are_stepped_back_from(method, make):
     """From w = 2.9 the first steps enter w > 3 where the model fails: no method accepts them."""
-    prob = _BrokenAboveW3(MPI.COMM_SELF)
+    prob = make(MPI.COMM_SELF)
     sc = prob.scaling
     res = minimize(prob, sc.to_scaled([2.9, 0.0]), method, bounds=sc.bounds(), scaling=sc)
     assert np.isfinite(res.f) and res.p[0] <= 3.0
     assert all(np.isfinite(rec.f) and rec.p[0] <= 3.0 for rec in res.history)
+    if make is _InvertsAboveW3 and res.failures:
+        assert "element 17 is inverted" in res.failures[0]
+    if make is _InvertsAboveW3:
+        with pytest.raises(InvertedElementError):  # at the start it is the user's error
+            minimize(prob, sc.to_scaled([3.5, 0.0]), method, bounds=sc.bounds())
 
 
 def test_ranks_get_rank_zero_evaluations():

@@ -47,10 +47,11 @@ collective on ``problem.comm``. To keep ranks in lock-step even if a collective 
 round differently, every evaluation result is broadcast from rank 0 of ``problem.comm``, so all
 ranks take identical decisions and make the same sequence of collective calls.
 
-A failed evaluation (non-finite residual, objective or gradient, e.g. a forward simulation
-that broke at a trial point) counts as an infinite objective: line searches, the LM damping and
-the simplex step back from it, and such a point is never accepted. Only a failure at the start
-raises :class:`OptimizationError`.
+A failed evaluation (non-finite residual, objective or gradient, or a forward simulation that
+raised :class:`~petsoft.errors.SolverError` / :class:`~petsoft.errors.InvertedElementError` at a
+trial point -- on every rank, as petsoft's solvers do) counts as an infinite objective: line
+searches, the LM damping and the simplex step back from it, and such a point is never accepted
+(``result.failures`` lists them). A failure at the start is an error.
 
 Options: defaults in code, then the caller's ``options``, then the PETSc options database under
 ``prefix`` (``-cal_tao_gatol 1e-10``, ``-cal_tao_max_it 50``, ``-cal_tao_nm_lambda 0.2`` ...):
@@ -70,7 +71,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from petsc4py import PETSc
 
-from petsoft.errors import SolverError
+from petsoft.errors import InvertedElementError, SolverError
 from petsoft.options import scoped_defaults
 
 METHODS = ("gd", "newton", "lbfgs", "gauss-newton", "brgn", "nelder-mead")
@@ -269,6 +270,7 @@ class OptimizeResult:
     steps: list[dict[str, Any]] = field(default_factory=list)
     hessian: str = ""
     tao_type: str = ""
+    failures: list[str] = field(default_factory=list)
 
 
 class _Evaluator:
@@ -284,6 +286,23 @@ class _Evaluator:
         self.has_gradient = callable(getattr(problem, "value_gradient", None))
         self._cache: OrderedDict[bytes, dict] = OrderedDict()
         self._size = cache_size
+        # Until the start point has been evaluated, a failing forward model is an error; later
+        # a physics failure at a trial point (SolverError, InvertedElementError, raised on every
+        # rank by the model) becomes a non-finite value the optimizers step back from.
+        self.strict = True
+        self.failures: list[str] = []
+        self._m: int | None = None
+
+    def _call(self, fn, z):
+        try:
+            return fn(z)
+        except OptimizationError:
+            raise
+        except (SolverError, InvertedElementError) as err:
+            if self.strict:
+                raise
+            self.failures.append(f"z = {np.array2string(np.asarray(z))}: {err}")
+            return None
 
     def _sync(self, value):
         return value if self.comm is None else self.comm.bcast(value, root=0)
@@ -306,7 +325,12 @@ class _Evaluator:
         e = self._entry(z)
         if "r" not in e:
             self.count += 1
-            e["r"] = self._sync(np.asarray(self.problem.residual(z), dtype=float).reshape(-1))
+            r = self._call(self.problem.residual, z)
+            if r is None:
+                e["r"] = np.full(self._m or 1, np.nan)
+            else:
+                e["r"] = self._sync(np.asarray(r, dtype=float).reshape(-1))
+                self._m = e["r"].size
         return e["r"]
 
     def residual_jacobian(self, z):
@@ -317,9 +341,15 @@ class _Evaluator:
         e = self._entry(z)
         if "J" not in e:
             self.count += 1
-            r, J = self.problem.residual_jacobian(z)
-            r, J = self._sync((np.asarray(r, float).reshape(-1), np.asarray(J, float)))
-            e["r"], e["J"] = r, J.reshape(r.size, self.n)
+            out = self._call(self.problem.residual_jacobian, z)
+            if out is None:
+                m = self._m or 1
+                e["r"], e["J"] = np.full(m, np.nan), np.full((m, self.n), np.nan)
+            else:
+                r, J = self._sync((np.asarray(out[0], float).reshape(-1),
+                                   np.asarray(out[1], float)))
+                e["r"], e["J"] = r, J.reshape(r.size, self.n)
+                self._m = r.size
         return e["r"], e["J"]
 
     def value_gradient(self, z):
@@ -327,8 +357,11 @@ class _Evaluator:
         if "g" not in e:
             if self.has_gradient:
                 self.count += 1
-                f, g = self.problem.value_gradient(z)
-                f, g = self._sync((float(f), np.asarray(g, float).reshape(self.n)))
+                out = self._call(self.problem.value_gradient, z)
+                if out is None:
+                    f, g = np.inf, np.full(self.n, np.nan)
+                else:
+                    f, g = self._sync((float(out[0]), np.asarray(out[1], float).reshape(self.n)))
             elif self.has_jacobian:
                 r, J = self.residual_jacobian(z)
                 f, g = 0.5 * float(r @ r), J.T @ r
@@ -460,6 +493,7 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
         f0 = 0.5 * float(r0 @ r0)
     else:
         f0 = ev.value(z0)
+    ev.strict = False
     if not np.isfinite(f0):
         raise OptimizationError(
             f"the objective is not finite at the start z = {np.array2string(z0)}"
@@ -492,6 +526,7 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
         res = _tao_minimize(ev, z0, lo, hi, o, prefix, method, record,
                             (options or {}).get("gatol"))
     res.history = history
+    res.failures = ev.failures
     res.p = to_p(res.z)
     return res
 
