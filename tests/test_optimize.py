@@ -419,7 +419,6 @@ def test_multistart_failed_starts_are_recorded():
         multistart(_BrokenAboveW3, starts[[0, 2]], WORLD, method="lbfgs", bounds=sc.bounds())
 
 
-@pytest.mark.serial_only  # rank-local: nothing to learn from a second rank
 class _InvertsAboveW3(ShiftedOscillation):
     """The "forward model" raises as petsoft's solvers do (on every rank) for w > 3."""
 
@@ -429,6 +428,7 @@ class _InvertsAboveW3(ShiftedOscillation):
         return super()._local_residual(z)
 
 
+@pytest.mark.serial_only  # rank-local: nothing to learn from a second rank
 @pytest.mark.parametrize("make", [_BrokenAboveW3, _InvertsAboveW3])
 @pytest.mark.parametrize("method", METHODS)
 def test_failed_evaluations_are_stepped_back_from(method, make):
