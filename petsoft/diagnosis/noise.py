@@ -1,0 +1,264 @@
+"""Noise level of a recording and whether a residual is explained by it.
+
+This module owns two questions about marker positions:
+
+* :func:`estimate_noise_std` -- how noisy is a recording that has no ``/noise`` dataset? It
+  estimates the position noise standard deviation from the data alone.
+* :func:`chi_square_test` -- is a residual (data - simulation) consistent with that noise? The
+  verdict needs both the *level* (chi-square) and the *whiteness* (runs test) to pass.
+
+Noise estimate (derivation)
+---------------------------
+Each channel (marker, axis) is ``x_k = s(t_k) + e_k`` with ``s`` smooth and ``e_k`` independent
+with standard deviation ``sigma``. Take ``p + 1`` consecutive *seen* samples of a channel at
+times ``t_0 < ... < t_p`` and the weights of the p-th divided difference,
+``w_j = 1 / prod_{i != j} (t_j - t_i)``. The combination ``d = sum_j w_j x_j / ||w||_2``
+
+* annihilates every polynomial of degree < p, so the smooth part contributes only
+  ``s^(p)(xi) / p! * sum_j w_j ... ~ O(h^p s^(p))`` (tiny when the sampling resolves the motion),
+* and its noise part has variance exactly ``sigma^2`` (``sum_j (w_j / ||w||)^2 = 1``),
+
+whatever the spacing of the times, so non-uniform times and NaN gaps (windows simply skip the
+unseen frames of that channel) are handled without resampling. On uniform times this is the
+classical p-th difference scaled by ``1 / sqrt(C(2p, p))``. The ``d`` of all windows and
+channels are pooled and the scale is taken robustly: ``sigma = 1.4826 * MAD(d)`` (1.4826 =
+1 / Phi^-1(3/4) makes the MAD consistent for a Gaussian), so a few outliers or a fast transient
+do not inflate it. Overlapping windows make the ``d`` correlated, which costs efficiency but
+not consistency. Windows spanning a long gap (more than ``max_gap`` times the channel's median
+spacing) are dropped because the smooth part is no longer negligible across them.
+
+Verdict (serial correlation)
+----------------------------
+The chi-square statistic treats every residual sample as independent. A model error that is a
+smooth function of time can hide below the chi-square threshold when it is small, yet it is
+not noise: consecutive residuals then have the same sign far more often than chance. The
+Wald-Wolfowitz runs test on the signs of each channel's residual (runs counted within the
+contiguous seen stretches, the expected number and variance summed over stretches, one-sided:
+too *few* runs) detects that. Each test is run at ``alpha / 2`` (Bonferroni), so the verdict
+``consistent`` -- both pass -- has a false-alarm rate of at most ``alpha`` on pure noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from petsoft.errors import PetsoftError
+
+__all__ = ["NoiseError", "ChiSquareResult", "estimate_noise_std", "chi_square_test", "runs_test"]
+
+MAD_TO_STD = 1.482602218505602   # 1 / Phi^-1(3/4)
+
+
+class NoiseError(PetsoftError):
+    """Arrays given to the noise analysis are unusable (shape, too few samples, bad sigma)."""
+
+
+def _channels(data: np.ndarray, times: np.ndarray, what: str) -> np.ndarray:
+    """Check ``data`` (K, ...) against ``times`` (K,) and return it as (K, C) float."""
+    data = np.asarray(data, dtype=float)
+    times = np.asarray(times, dtype=float)
+    if times.ndim != 1 or data.ndim < 1 or data.shape[0] != times.shape[0]:
+        raise NoiseError(f"{what} has shape {data.shape} but times has shape {times.shape}; "
+                         "the first dimension of both must be the number of frames K")
+    if not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
+        raise NoiseError(f"times of {what} must be finite and strictly increasing")
+    return data.reshape(len(times), -1)
+
+
+def _window_combinations(x: np.ndarray, t: np.ndarray, order: int, max_gap: float) -> np.ndarray:
+    """Normalised p-th divided differences of one channel's seen samples (see module docs)."""
+    seen = np.isfinite(x)
+    xs, ts = x[seen], t[seen]
+    n = len(xs) - order
+    if n <= 0:
+        return np.empty(0)
+    idx = np.arange(n)[:, None] + np.arange(order + 1)[None, :]     # (n, p+1) windows
+    tw, xw = ts[idx], xs[idx]
+    h = np.median(np.diff(ts)) if len(ts) > 1 else 1.0
+    keep = (tw[:, -1] - tw[:, 0]) <= max_gap * order * h
+    tw, xw = tw[keep], xw[keep]
+    # Work in units of the window's own span so the weights stay O(1) whatever the time scale.
+    tau = (tw - tw[:, :1]) / (tw[:, -1:] - tw[:, :1])
+    diff = tau[:, :, None] - tau[:, None, :]
+    diff[:, np.arange(order + 1), np.arange(order + 1)] = 1.0
+    w = 1.0 / np.prod(diff, axis=2)
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    return np.sum(w * xw, axis=1)
+
+
+def estimate_noise_std(data: np.ndarray, times: np.ndarray, *, order: int = 4,
+                       per_channel: bool = False, max_gap: float = 3.0):
+    """Estimate the position noise standard deviation from the recorded positions alone.
+
+    Parameters
+    ----------
+    data : ndarray (K, M, 3) or (K, C)
+        Recorded positions; NaN where a marker was not seen.
+    times : ndarray (K,)
+        Strictly increasing frame times (uniform or not).
+    order : int, optional
+        Order p of the divided differences (polynomials of degree < p are removed). 4 suits
+        motion sampled at >= 10 samples per period; use 2-3 for coarser sampling... of smoother
+        data the estimate is insensitive to it.
+    per_channel : bool, optional
+        Also return the estimate of each channel (NaN where a channel has too few samples).
+    max_gap : float, optional
+        Windows longer than ``max_gap * order`` median sample spacings (they straddle a long
+        dropout) are not used.
+
+    Returns
+    -------
+    float or (float, ndarray (C,))
+        The pooled estimate (m), and with ``per_channel`` the per-channel estimates in the order
+        of ``data.reshape(K, -1)``.
+
+    Raises
+    ------
+    NoiseError
+        Shapes disagree, times are not increasing, or fewer than 10 windows can be formed.
+    """
+    if int(order) < 1:
+        raise NoiseError(f"order = {order}: the difference order must be >= 1")
+    x = _channels(data, times, "data")
+    t = np.asarray(times, dtype=float)
+    combos = [_window_combinations(x[:, c], t, int(order), max_gap) for c in range(x.shape[1])]
+    pooled = np.concatenate(combos) if combos else np.empty(0)
+    if len(pooled) < 10:
+        raise NoiseError(f"only {len(pooled)} windows of {order + 1} consecutive seen samples; "
+                         "the noise cannot be estimated (need >= 10; lower `order` or provide "
+                         "the recording's /noise)")
+    sigma = MAD_TO_STD * float(np.median(np.abs(pooled - np.median(pooled))))
+    if not per_channel:
+        return sigma
+    each = np.array([MAD_TO_STD * np.median(np.abs(d - np.median(d))) if len(d) >= 10 else np.nan
+                     for d in combos])
+    return sigma, each
+
+
+def runs_test(residual: np.ndarray) -> tuple[float, float]:
+    """Wald-Wolfowitz runs test for positive serial correlation along the first axis.
+
+    Parameters
+    ----------
+    residual : ndarray (K, ...)
+        Residual per frame (first axis = time); NaN where unseen. Runs are counted within each
+        channel's contiguous seen stretches; exact zeros are ignored.
+
+    Returns
+    -------
+    z, p_value : float
+        Standardised number of runs (negative: fewer runs than chance, i.e. the residual is
+        smooth in time) and the one-sided p-value ``Phi(z)``. ``(0, 1)`` when there is nothing to
+        test.
+    """
+    r = np.asarray(residual, dtype=float)
+    r = r.reshape(r.shape[0], -1).T                      # (C, K), channel-major
+    valid = np.isfinite(r) & (r != 0)
+    # A stretch starts at every valid sample whose predecessor in the channel is not valid.
+    prev = np.zeros_like(valid)
+    prev[:, 1:] = valid[:, :-1]
+    start = valid & ~prev
+    labels = np.cumsum(start.ravel())[valid.ravel()] - 1   # stretch id of each valid sample
+    if labels.size == 0:
+        return 0.0, 1.0
+    pos = (r.ravel()[valid.ravel()] > 0).astype(float)
+    nseg = labels[-1] + 1
+    n = np.bincount(labels, minlength=nseg).astype(float)
+    n1 = np.bincount(labels, weights=pos, minlength=nseg)
+    n2 = n - n1
+    same = labels[1:] == labels[:-1]
+    changes = np.sum(same & (pos[1:] != pos[:-1]))
+    runs = nseg + changes
+    mean = np.sum(2.0 * n1 * n2 / n + 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        var_seg = 2 * n1 * n2 * (2 * n1 * n2 - n) / (n * n * (n - 1))
+    var = float(np.sum(np.where(n > 1, var_seg, 0.0)))
+    if var <= 0:
+        return 0.0, 1.0
+    z = (runs - mean) / np.sqrt(var)
+    return float(z), float(stats.norm.cdf(z))
+
+
+@dataclass
+class ChiSquareResult:
+    """Outcome of :func:`chi_square_test`.
+
+    Attributes
+    ----------
+    chi2, dof, chi2_per_dof, p_value : float
+        The statistic sum((r / sigma)^2) over seen samples, its degrees of freedom (samples
+        minus fitted parameters), their ratio, and the upper-tail p-value.
+    runs_z, runs_p_value : float
+        The whiteness check (:func:`runs_test`).
+    level_ok, white_ok, consistent : bool
+        ``p_value >= alpha / 2``, ``runs_p_value >= alpha / 2``, and both.
+    alpha : float
+        The overall significance level.
+    """
+
+    chi2: float
+    dof: int
+    chi2_per_dof: float
+    p_value: float
+    runs_z: float
+    runs_p_value: float
+    level_ok: bool
+    white_ok: bool
+    consistent: bool
+    alpha: float
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+def chi_square_test(residual: np.ndarray, sigma, num_parameters: int = 0,
+                    alpha: float = 0.01) -> ChiSquareResult:
+    """Test whether a residual is explained by white noise of standard deviation ``sigma``.
+
+    Parameters
+    ----------
+    residual : ndarray (K, M, 3) or (K, ...)
+        Data minus simulation; NaN where the marker was not seen (ignored).
+    sigma : float or array broadcastable to ``residual``
+        Noise standard deviation(s), > 0.
+    num_parameters : int, optional
+        Number of fitted parameters (subtracted from the degrees of freedom).
+    alpha : float, optional
+        Overall significance level; each of the two tests uses ``alpha / 2``.
+
+    Returns
+    -------
+    ChiSquareResult
+
+    Raises
+    ------
+    NoiseError
+        ``sigma`` is not positive and finite, ``alpha`` not in (0, 1), or there are no more seen
+        samples than parameters.
+    """
+    r = np.asarray(residual, dtype=float)
+    if not 0.0 < alpha < 1.0:
+        raise NoiseError(f"alpha = {alpha}: the significance level must be in (0, 1)")
+    try:
+        s = np.broadcast_to(np.asarray(sigma, dtype=float), r.shape)
+    except ValueError:
+        raise NoiseError(f"sigma of shape {np.shape(sigma)} does not broadcast to the residual's "
+                         f"shape {r.shape}") from None
+    seen = np.isfinite(r)
+    if not np.all(np.isfinite(s[seen]) & (s[seen] > 0)):
+        raise NoiseError("sigma must be finite and > 0 (the noise standard deviation, m)")
+    n = int(seen.sum())
+    dof = n - int(num_parameters)
+    if dof <= 0:
+        raise NoiseError(f"{n} seen residual samples and {num_parameters} parameters: no degrees "
+                         "of freedom left for a chi-square test")
+    chi2 = float(np.sum((r[seen] / s[seen]) ** 2))
+    p = float(stats.chi2.sf(chi2, dof))
+    z, p_runs = runs_test(np.where(seen, r / np.where(seen, s, 1.0), np.nan))
+    level_ok, white_ok = p >= alpha / 2, p_runs >= alpha / 2
+    return ChiSquareResult(chi2=chi2, dof=dof, chi2_per_dof=chi2 / dof, p_value=p, runs_z=z,
+                           runs_p_value=p_runs, level_ok=bool(level_ok), white_ok=bool(white_ok),
+                           consistent=bool(level_ok and white_ok), alpha=float(alpha))
