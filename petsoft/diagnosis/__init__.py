@@ -1,1 +1,1 @@
-"""Mismatch analysis on arrays: noise level, where/when/which frequencies, and the diagnosis report."""
+"""Mismatch analysis on arrays: noise level, where, when, which frequencies; the report."""

@@ -100,9 +100,9 @@ def estimate_noise_std(data: np.ndarray, times: np.ndarray, *, order: int = 4,
     times : ndarray (K,)
         Strictly increasing frame times (uniform or not).
     order : int, optional
-        Order p of the divided differences (polynomials of degree < p are removed). 4 suits
-        motion sampled at >= 10 samples per period; use 2-3 for coarser sampling... of smoother
-        data the estimate is insensitive to it.
+        Order p of the divided differences (polynomials of degree < p are removed). The
+        smooth part leaks in as ``(2 pi f h)^p``; 4 suits motion sampled at >= 10 samples per
+        period. Higher orders remove more signal but average fewer independent samples.
     per_channel : bool, optional
         Also return the estimate of each channel (NaN where a channel has too few samples).
     max_gap : float, optional

@@ -335,7 +335,7 @@ def decay_envelope(times: np.ndarray, signals: np.ndarray, *, frequency: float |
     # General law: A^(1-p) = A0^(1-p) - (1 - p) c s, i.e. dA/dt = -c A^p (p = 1 as a limit).
     def general(s, a, c, p):
         if abs(1 - p) < 1e-6:
-            return a * np.exp(-c * a ** 0 * s)
+            return a * np.exp(-c * s)
         base = np.maximum(a ** (1 - p) - (1 - p) * c * s, 0.0)
         return base ** (1 / (1 - p))
     try:
