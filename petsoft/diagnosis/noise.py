@@ -5,7 +5,7 @@ This module owns two questions about marker positions:
 * :func:`estimate_noise_std` -- how noisy is a recording that has no ``/noise`` dataset? It
   estimates the position noise standard deviation from the data alone.
 * :func:`chi_square_test` -- is a residual (data - simulation) consistent with that noise? The
-  verdict needs both the *level* (chi-square) and the *whiteness* (runs test) to pass.
+  verdict needs both the *level* (chi-square) and the *whiteness* (portmanteau) to pass.
 
 Noise estimate (derivation)
 ---------------------------
@@ -31,11 +31,16 @@ Verdict (serial correlation)
 ----------------------------
 The chi-square statistic treats every residual sample as independent. A model error that is a
 smooth function of time can hide below the chi-square threshold when it is small, yet it is
-not noise: consecutive residuals then have the same sign far more often than chance. The
-Wald-Wolfowitz runs test on the signs of each channel's residual (runs counted within the
-contiguous seen stretches, the expected number and variance summed over stretches, one-sided:
-too *few* runs) detects that. Each test is run at ``alpha / 2`` (Bonferroni), so the verdict
-``consistent`` -- both pass -- has a false-alarm rate of at most ``alpha`` on pure noise.
+not noise: consecutive residuals are correlated. The verdict therefore also needs a whiteness
+test: a pooled Ljung-Box portmanteau statistic over the first ``lags`` autocorrelations of the
+normalised residual (:func:`portmanteau_test`). Each of the two tests runs at ``alpha / 2``
+(Bonferroni), so the verdict ``consistent`` -- both pass -- has a false-alarm rate of at most
+``alpha`` on pure noise.
+
+The Wald-Wolfowitz runs test on the residual's signs (:func:`runs_test`) is reported too, as
+an easily explained number, but it does not decide: on a planted smooth residual of amplitude
+0.3 sigma (150 frames x 12 channels, test level 0.005) it detected 7% of cases, the portmanteau
+with 10 lags 72% and the chi-square level 10% (measured; see the tests).
 """
 
 from __future__ import annotations
@@ -47,7 +52,8 @@ from scipy import stats
 
 from petsoft.errors import PetsoftError
 
-__all__ = ["NoiseError", "ChiSquareResult", "estimate_noise_std", "chi_square_test", "runs_test"]
+__all__ = ["NoiseError", "ChiSquareResult", "estimate_noise_std", "chi_square_test", "runs_test",
+           "portmanteau_test"]
 
 MAD_TO_STD = 1.482602218505602   # 1 / Phi^-1(3/4)
 
@@ -182,6 +188,47 @@ def runs_test(residual: np.ndarray) -> tuple[float, float]:
     return float(z), float(stats.norm.cdf(z))
 
 
+def portmanteau_test(residual: np.ndarray, lags: int = 10) -> tuple[float, float]:
+    """Pooled Ljung-Box-type whiteness test of a normalised residual along the first axis.
+
+    For each lag ``k = 1..lags`` the autocorrelation pooled over all channels,
+    ``rho_k = sum r_t r_(t+k) / sum r_t^2`` (products only where both samples are seen, no mean
+    removed: a constant offset is not noise either), is standardised by its null standard
+    deviation ``sqrt(n_k) / N`` (``n_k`` pairs, ``N`` seen samples): ``z_k = rho_k N / sqrt(n_k)``
+    is asymptotically N(0, 1) and independent over lags for white noise, so
+    ``Q = sum_k z_k^2 ~ chi2(lags)``.
+
+    Parameters
+    ----------
+    residual : ndarray (K, ...)
+        Residual divided by the noise std; NaN where unseen.
+    lags : int
+        Number of lags (clipped to K - 1).
+
+    Returns
+    -------
+    q, p_value : float
+        The statistic and its upper-tail p-value (``(0, 1)`` when there is nothing to test).
+    """
+    r = np.asarray(residual, dtype=float)
+    r = r.reshape(r.shape[0], -1)
+    seen = np.isfinite(r)
+    x = np.where(seen, r, 0.0)
+    total = float(np.sum(x * x))
+    n = int(seen.sum())
+    lags = int(min(lags, r.shape[0] - 1))
+    if total <= 0 or lags < 1:
+        return 0.0, 1.0
+    q = 0.0
+    for k in range(1, lags + 1):         # a few lags, each vectorised over frames and channels
+        pairs = int(np.sum(seen[k:] & seen[:-k]))
+        if pairs == 0:
+            continue
+        rho = float(np.sum(x[k:] * x[:-k])) / total
+        q += (rho * n) ** 2 / pairs
+    return q, float(stats.chi2.sf(q, lags))
+
+
 @dataclass
 class ChiSquareResult:
     """Outcome of :func:`chi_square_test`.
@@ -191,10 +238,12 @@ class ChiSquareResult:
     chi2, dof, chi2_per_dof, p_value : float
         The statistic sum((r / sigma)^2) over seen samples, its degrees of freedom (samples
         minus fitted parameters), their ratio, and the upper-tail p-value.
+    whiteness_q, whiteness_p_value : float
+        The whiteness check (:func:`portmanteau_test`).
     runs_z, runs_p_value : float
-        The whiteness check (:func:`runs_test`).
+        The runs test (:func:`runs_test`), reported only.
     level_ok, white_ok, consistent : bool
-        ``p_value >= alpha / 2``, ``runs_p_value >= alpha / 2``, and both.
+        ``p_value >= alpha / 2``, ``whiteness_p_value >= alpha / 2``, and both.
     alpha : float
         The overall significance level.
     """
@@ -203,6 +252,8 @@ class ChiSquareResult:
     dof: int
     chi2_per_dof: float
     p_value: float
+    whiteness_q: float
+    whiteness_p_value: float
     runs_z: float
     runs_p_value: float
     level_ok: bool
@@ -215,7 +266,7 @@ class ChiSquareResult:
 
 
 def chi_square_test(residual: np.ndarray, sigma, num_parameters: int = 0,
-                    alpha: float = 0.01) -> ChiSquareResult:
+                    alpha: float = 0.01, lags: int = 10) -> ChiSquareResult:
     """Test whether a residual is explained by white noise of standard deviation ``sigma``.
 
     Parameters
@@ -228,6 +279,8 @@ def chi_square_test(residual: np.ndarray, sigma, num_parameters: int = 0,
         Number of fitted parameters (subtracted from the degrees of freedom).
     alpha : float, optional
         Overall significance level; each of the two tests uses ``alpha / 2``.
+    lags : int, optional
+        Autocorrelation lags of the whiteness test.
 
     Returns
     -------
@@ -257,8 +310,11 @@ def chi_square_test(residual: np.ndarray, sigma, num_parameters: int = 0,
                          "of freedom left for a chi-square test")
     chi2 = float(np.sum((r[seen] / s[seen]) ** 2))
     p = float(stats.chi2.sf(chi2, dof))
-    z, p_runs = runs_test(np.where(seen, r / np.where(seen, s, 1.0), np.nan))
-    level_ok, white_ok = p >= alpha / 2, p_runs >= alpha / 2
-    return ChiSquareResult(chi2=chi2, dof=dof, chi2_per_dof=chi2 / dof, p_value=p, runs_z=z,
+    normalised = np.where(seen, r / np.where(seen, s, 1.0), np.nan)
+    q, p_white = portmanteau_test(normalised, lags)
+    z, p_runs = runs_test(normalised)
+    level_ok, white_ok = p >= alpha / 2, p_white >= alpha / 2
+    return ChiSquareResult(chi2=chi2, dof=dof, chi2_per_dof=chi2 / dof, p_value=p,
+                           whiteness_q=q, whiteness_p_value=p_white, runs_z=z,
                            runs_p_value=p_runs, level_ok=bool(level_ok), white_ok=bool(white_ok),
                            consistent=bool(level_ok and white_ok), alpha=float(alpha))

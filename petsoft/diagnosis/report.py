@@ -382,9 +382,11 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
                   f"Noise level {_fmt(report['noise_std'])} m{f' ({src})' if src else ''}. "
                   f"Chi-square: {_fmt(t['chi2'])} on {t['dof']} degrees of freedom "
                   f"(chi2/dof {_fmt(t['chi2_per_dof'])}, p = {_fmt(t['p_value'])}): the level "
-                  f"{'passes' if t['level_ok'] else 'fails'}. Runs test on the residual's signs: "
-                  f"z = {_fmt(t['runs_z'])}, p = {_fmt(t['runs_p_value'])}: the residual "
-                  f"{'looks white' if t['white_ok'] else 'is smooth in time, not noise'}."]
+                  f"{'passes' if t['level_ok'] else 'fails'}. Whiteness (autocorrelation, "
+                  f"portmanteau): Q = {_fmt(t['whiteness_q'])}, p = "
+                  f"{_fmt(t['whiteness_p_value'])}: the residual "
+                  f"{'looks white' if t['white_ok'] else 'is correlated in time, not noise'}"
+                  f" (runs test on its signs: z = {_fmt(t['runs_z'])})."]
     lines += ["", "## Where and when", ""]
     if mm["markers"]:
         lines.append(f"Markers that stand out: {', '.join(mm['markers'])}.")
