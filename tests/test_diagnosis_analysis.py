@@ -328,3 +328,34 @@ def test_report_markdown_and_figures(tmp_path):
                                 [f.name for f in figs]).read_text()
     assert "missing physics" in md and "m07, m12" in md and "damping.mass" in md
     assert "0.8-1.4 s" in md and "![markers](markers.png)" in md and "Whiteness" in md
+
+
+def test_envelope_mixed_viscous_and_dry_law():
+    # dA/dt = -a A - c in closed form: the mixed fit recovers a and c.
+    t = np.arange(4000) * 0.005
+    a, c = 0.08, 0.01
+    amp = (1 + c / a) * np.exp(-a * t) - c / a
+    env = spectral.decay_envelope(t, amp * np.cos(2 * np.pi * 1.2 * t))
+    both = env["viscous_plus_dry"]
+    assert both["rate"] == pytest.approx(a, rel=0.03) and both["dry"] == pytest.approx(c, rel=0.05)
+    assert both["dry_share_end"] > both["dry_share_start"]
+
+
+def test_noise_scales_on_heavy_tailed_noise_and_constant_channels():
+    rng = np.random.default_rng(8)
+    t = np.linspace(0, 4, 4000)
+    smooth = 0.1 * np.sin(2 * np.pi * 0.7 * t)
+    # Contaminated normal: 10% of samples 3x noisier; std 1e-4, kurtosis 8.3.
+    scale = np.where(rng.random((len(t), 2)) < 0.1, 3.0, 1.0) * 1e-4 / np.sqrt(1.8)
+    x = np.column_stack([smooth[:, None] + scale * rng.normal(size=scale.shape),
+                         np.zeros(len(t))])                        # the 3rd never varies
+    assert noise.estimate_noise_std(x, t, scale="rms") == pytest.approx(1e-4, rel=0.05)
+    summary = noise.noise_summary(x, t)
+    assert summary["std_rms"] > summary["std_mad"] and not summary["gaussian"]
+    assert summary["kurtosis"] == pytest.approx(3 * 9 / 1.8**2, rel=0.2)   # the noise's own
+    gauss = noise.noise_summary(smooth[:, None] + rng.normal(0, 1e-4, (len(t), 2)), t)
+    assert gauss["gaussian"] and gauss["std_mad"] == pytest.approx(1e-4, rel=0.05)
+    # The constant channel is left out: otherwise a third of the pool is zeros.
+    with_zero = noise.estimate_noise_std(np.column_stack([gauss_x := smooth + rng.normal(
+        0, 1e-4, len(t)), np.zeros(len(t))]), t)
+    assert with_zero == pytest.approx(noise.estimate_noise_std(gauss_x, t), rel=1e-12)

@@ -280,7 +280,9 @@ def decay_envelope(times: np.ndarray, signals: np.ndarray, *, frequency: float |
 
     The best is the smallest residual (equal parameter counts, so rms residuals compare
     directly). Also fitted: the general law ``dA/dt = -c A^p`` whose exponent ``p`` (0 dry,
-    1 viscous, 2 quadratic) summarises a mixture.
+    1 viscous, 2 quadratic) summarises a mixture, and the three-parameter viscous + dry law
+    ``dA/dt = -a A - c`` (``viscous_plus_dry``: ``rate`` a, ``dry`` c, and the dry share of the
+    decay ``c / (a A + c)`` at the first and last amplitude).
 
     Parameters
     ----------
@@ -296,7 +298,8 @@ def decay_envelope(times: np.ndarray, signals: np.ndarray, *, frequency: float |
     dict
         ``best`` ("exponential", "linear" or "inverse"), ``friction`` (viscous / dry /
         quadratic), ``fits`` {law: {params..., rms}}, ``ratio`` (second-best rms / best rms),
-        ``exponent_p``, ``times`` and ``amplitudes`` (the envelope points).
+        ``exponent_p``, ``viscous_plus_dry`` (None if that fit failed), ``times`` and
+        ``amplitudes`` (the envelope points).
     """
     t = np.asarray(times, dtype=float)
     _uniform_step(t)
@@ -345,8 +348,23 @@ def decay_envelope(times: np.ndarray, signals: np.ndarray, *, frequency: float |
         exponent = float(pg[2])
     except (RuntimeError, ValueError):
         exponent = float("nan")
+    # Viscous + dry together, dA/dt = -a A - c: A = (A0 + c/a) exp(-a s) - c/a. Three
+    # parameters, so it is reported beside the two-parameter laws, not ranked with them.
+    def mixed(s, a0, a, c):
+        return (a0 + c / a) * np.exp(-a * s) - c / a
+    try:
+        e = fits["exponential"]
+        pm, _ = optimize.curve_fit(mixed, s, amp, p0=(e["A0"], max(e["rate"], 1e-6), 1e-9),
+                                   bounds=([0, 1e-9, 0], [np.inf, np.inf, np.inf]), maxfev=20000)
+        rms_m = float(np.sqrt(np.mean((mixed(s, *pm) - amp) ** 2)))
+        both = {"A0": float(pm[0]), "rate": float(pm[1]), "dry": float(pm[2]), "rms": rms_m,
+                "dry_share_start": float(pm[2] / (pm[1] * pm[0] + pm[2])),
+                "dry_share_end": float(pm[2] / (pm[1] * amp[-1] + pm[2]))}
+    except (RuntimeError, ValueError):
+        both = None
     friction = {"exponential": "viscous", "linear": "dry", "inverse": "quadratic"}
     return {"best": order[0], "friction": friction[order[0]], "fits": fits,
+            "viscous_plus_dry": both,
             "ratio": fits[order[1]]["rms"] / max(fits[order[0]]["rms"], 1e-300),
             "exponent_p": exponent, "frequency_hz": float(freq), "t0": float(t0),
             "times": te, "amplitudes": amp}
