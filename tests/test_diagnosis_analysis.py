@@ -359,3 +359,21 @@ def test_noise_scales_on_heavy_tailed_noise_and_constant_channels():
     with_zero = noise.estimate_noise_std(np.column_stack([gauss_x := smooth + rng.normal(
         0, 1e-4, len(t)), np.zeros(len(t))]), t)
     assert with_zero == pytest.approx(noise.estimate_noise_std(gauss_x, t), rel=1e-12)
+
+
+def test_friction_terms_separate_dry_and_quadratic():
+    # -dA/dt = c0 + c2 A^2 in closed form: A = sqrt(c0/c2) tan(atan(A0 sqrt(c2/c0)) - sqrt(c0 c2) t)
+    c0, c2 = 0.01, 0.03
+    t = np.arange(6000) * 0.005
+    r = np.sqrt(c0 / c2)
+    amp = r * np.tan(np.arctan(1.5 / r) - np.sqrt(c0 * c2) * t)
+    assert amp[-1] > 0.2
+    env = spectral.decay_envelope(t, amp * np.cos(2 * np.pi * 1.2 * t))
+    terms = spectral.friction_terms(env)
+    assert terms["best"] == "dry+quadratic"
+    coef = terms["subsets"]["dry+quadratic"]["coefficients"]
+    assert coef["dry"] == pytest.approx(c0, rel=0.05)
+    assert coef["quadratic"] == pytest.approx(c2, rel=0.05)
+    viscous = spectral.friction_terms(spectral.decay_envelope(t, damped(t, 1.2, 0.05, 0.0)))
+    assert viscous["best"] == "viscous"
+    assert viscous["coefficients"]["viscous"] == pytest.approx(0.05, rel=0.02)

@@ -38,7 +38,7 @@ from scipy import optimize, signal
 from petsoft.errors import PetsoftError
 
 __all__ = ["SpectralError", "dominant_modes", "compare_modes", "decay_envelope",
-           "fill_gaps", "principal_signal"]
+           "friction_terms", "fill_gaps", "principal_signal"]
 
 
 class SpectralError(PetsoftError):
@@ -368,3 +368,53 @@ def decay_envelope(times: np.ndarray, signals: np.ndarray, *, frequency: float |
             "ratio": fits[order[1]]["rms"] / max(fits[order[0]]["rms"], 1e-300),
             "exponent_p": exponent, "frequency_hz": float(freq), "t0": float(t0),
             "times": te, "amplitudes": amp}
+
+
+def friction_terms(envelope: dict, span: int = 4) -> dict:
+    """Which friction laws explain the decay *rate*: ``-dA/dt = c0 + c1 A + c2 A^2``.
+
+    The envelope's own slope, ``-(A[i+span] - A[i]) / (t[i+span] - t[i])`` at the mean
+    amplitude, is regressed on ``1`` (dry / Coulomb), ``A`` (viscous) and ``A^2`` (quadratic
+    drag) with non-negative coefficients (scipy ``nnls``: friction never feeds energy in), for
+    every subset of the three terms. Unlike :func:`decay_envelope`'s single-law fits this
+    separates a mixture, e.g. dry friction that dominates at small amplitude and drag at large.
+
+    Parameters
+    ----------
+    envelope : dict
+        The result of :func:`decay_envelope` (its ``times`` and ``amplitudes``).
+    span : int
+        Envelope points per slope (4 = two cycles: extrema alternate max / min, so an even span
+        cancels a residual offset between the two).
+
+    Returns
+    -------
+    dict
+        ``coefficients`` {"dry": c0, "viscous": c1, "quadratic": c2} of the full fit,
+        ``subsets`` {"+".join(terms): {"coefficients", "rms"}} for all 7 subsets, and ``best``:
+        the subset with the fewest terms whose rms is within 1.5 x the full fit's (the slopes
+        carry their own finite-difference error, so a term must cut the rms by a third to
+        count).
+    """
+    from itertools import combinations
+
+    te = np.asarray(envelope["times"], dtype=float)
+    amp = np.asarray(envelope["amplitudes"], dtype=float)
+    if len(te) < span + 3:
+        raise SpectralError(f"only {len(te)} envelope points; need > {span + 2}")
+    rate = -(amp[span:] - amp[:-span]) / (te[span:] - te[:-span])
+    a = 0.5 * (amp[span:] + amp[:-span])
+    basis = {"dry": np.ones_like(a), "viscous": a, "quadratic": a * a}
+    names = list(basis)
+    subsets = {}
+    for n in (1, 2, 3):
+        for combo in combinations(names, n):
+            x = np.column_stack([basis[c] for c in combo])
+            coef, _ = optimize.nnls(x, rate)
+            rms = float(np.sqrt(np.mean((x @ coef - rate) ** 2)))
+            subsets["+".join(combo)] = {"coefficients": dict(zip(combo, map(float, coef),
+                                                                 strict=True)), "rms": rms}
+    full = subsets["+".join(names)]
+    best = min((k for k in subsets if subsets[k]["rms"] <= 1.5 * full["rms"]),
+               key=lambda k: (k.count("+"), subsets[k]["rms"]))
+    return {"coefficients": full["coefficients"], "subsets": subsets, "best": best}
