@@ -50,6 +50,13 @@ def test_modes_of_damped_sinusoids_with_noise_and_dropouts(seed):
     assert found[0]["frequency_hz"] == pytest.approx(3.7, rel=0.005)   # largest first
 
 
+def test_no_modes_in_pure_noise():
+    rng = np.random.default_rng(0)
+    t = np.arange(300) * 0.01
+    assert spectral.dominant_modes(t, rng.normal(size=(300, 4, 3))) == []
+    assert spectral.dominant_modes(t, rng.normal(size=(300, 1))) == []
+
+
 def test_modes_need_uniform_times():
     t = np.sort(np.random.default_rng(0).uniform(0, 1, 100))
     with pytest.raises(spectral.SpectralError, match="uniformly sampled"):
@@ -377,3 +384,43 @@ def test_friction_terms_separate_dry_and_quadratic():
     viscous = spectral.friction_terms(spectral.decay_envelope(t, damped(t, 1.2, 0.05, 0.0)))
     assert viscous["best"] == "viscous"
     assert viscous["coefficients"]["viscous"] == pytest.approx(0.05, rel=0.02)
+
+
+# ----------------------------------------------------------------------------------- evidence
+
+def test_collect_evidence_planted_point_to_valid_report(tmp_path):
+    from petsoft.diagnosis import evidence
+
+    ref, names, t, data, sim, point, sigma, _ = planted_point()
+    g = np.linspace(-0.01, 0.11, 5)
+    pts = np.array(np.meshgrid(g, g, [-0.01, 0.01], indexing="ij")).reshape(3, -1).T
+    ev = evidence.collect_evidence(data, sim, t, ref, names, points=pts,
+                                   tets=Delaunay(pts).simplices, out=tmp_path)
+    assert ev["noise_std"] == pytest.approx(sigma, rel=0.1)        # estimated: no sigma given
+    assert ev["verdict"] == "missing-physics"
+    assert ev["mismatch"]["markers"][0] == names[np.argmin(np.linalg.norm(ref - point, axis=1))]
+    assert np.linalg.norm(np.array(ev["region"]["center"]) - point) < 0.02
+    assert any(abs(f - 3.0) < 0.03 for f in ev["frequencies_hz"])  # the planted 3 Hz
+    assert ev["field"].exists()
+    figs = evidence.write_figures(tmp_path, ev, t, data, sim)
+    assert all(f.exists() for f in figs)
+    rep = report.build_report(verdict=ev["verdict"], noise_std=ev["noise_std"], base=ev["fit"],
+                              final=ev["fit"], parameters={}, **ev["mismatch"])
+    report.write_report(tmp_path / "report.json", rep)
+    md = report.write_report_md(tmp_path / "report.md", rep, ev, [f.name for f in figs])
+    assert "Markers that stand out" in md.read_text()
+
+
+def test_collect_evidence_on_pure_noise_is_consistent():
+    from petsoft.diagnosis import evidence
+
+    rng = np.random.default_rng(9)
+    ref, names = grid_markers(4)
+    t = np.linspace(0, 2, 200)
+    sim = ref[None] + 0.01 * np.sin(2 * np.pi * t)[:, None, None]
+    data = sim + rng.normal(0, 1e-4, sim.shape)
+    ev = evidence.collect_evidence(data, sim, t, ref, names, sigma=1e-4)
+    assert ev["verdict"] == "consistent" and ev["noise_source"] == "given by the recording"
+    assert ev["mismatch"] == {"markers": [], "time_windows": [], "frequencies_hz": [],
+                              "region": None}
+    assert ev["fit"]["chi2_per_dof"] == pytest.approx(1.0, abs=0.05)

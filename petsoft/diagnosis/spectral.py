@@ -18,10 +18,13 @@ poles ``z_i = exp((-d_i + 2 pi i f_i) dt)`` in all channels. The Hankel matrices
 ``H_c[i, j] = x_c(i + j)`` (``L + 1`` rows) are put side by side; the leading ``r`` left
 singular vectors ``U`` span the signal's column space, which is shift invariant:
 ``U[1:] = U[:-1] Phi`` with the eigenvalues of ``Phi`` the poles (ESPRIT). ``r`` is the number
-of singular values above ``rank_factor`` times the median one (the noise floor), capped at
-``2 * max_modes``. Amplitudes are then the least-squares fit of ``z_i^k`` to every channel; a
-conjugate pair is reported once (positive frequency) with amplitude ``2 |a|`` (rms over
-channels of the per-channel cosine amplitude, times sqrt(C): the norm over channels).
+of singular values above ``rank_factor`` times the white-noise edge ``median (1 + sqrt(gamma))``
+(``gamma`` = rows / columns of the stacked Hankel matrix, Marchenko-Pastur), capped at
+``2 * max_modes``: with many channels a mode present in a few of them still clears it (a
+factor on the median alone would not: the noise edge is close to the median when there are
+many columns). Amplitudes are then the least-squares fit of ``z_i^k`` to every channel; a
+conjugate pair is reported once (positive frequency) with amplitude the norm over channels of
+the per-channel cosine amplitudes ``2 |a_ci|``.
 
 The method needs uniform sampling: the times must be uniform to 1e-6 relative (else
 :class:`SpectralError`). Unseen samples (NaN): channels seen in fewer than half the frames are
@@ -83,7 +86,7 @@ def fill_gaps(times: np.ndarray, signals: np.ndarray, min_seen: float = 0.5) -> 
 
 def dominant_modes(times: np.ndarray, signals: np.ndarray, *, max_modes: int = 6,
                    num_modes: int | None = None, pencil: int | None = None,
-                   rank_factor: float = 10.0, min_seen: float = 0.5) -> list[dict]:
+                   rank_factor: float = 2.0, min_seen: float = 0.5) -> list[dict]:
     """Dominant damped oscillations shared by all channels (module docstring).
 
     Parameters
@@ -99,7 +102,8 @@ def dominant_modes(times: np.ndarray, signals: np.ndarray, *, max_modes: int = 6
     pencil : int, optional
         Pencil parameter L (rows of each Hankel block); default ``min(K // 3, 400)``.
     rank_factor : float
-        Singular values above ``rank_factor * median`` count as signal.
+        Singular values above ``rank_factor`` times the noise edge ``median * (1 + sqrt(gamma))``
+        count as signal.
     min_seen : float
         See :func:`fill_gaps`.
 
@@ -108,8 +112,9 @@ def dominant_modes(times: np.ndarray, signals: np.ndarray, *, max_modes: int = 6
     list of dict
         ``frequency_hz``, ``decay_rate`` (1/s, > 0 decays), ``damping_ratio``, ``amplitude``
         (norm over channels) and ``shape`` (complex amplitude per kept channel), sorted by
-        decreasing amplitude; modes with frequency below half a cycle over the record are
-        reported with ``frequency_hz`` 0 (trend / drift).
+        decreasing amplitude; empty when no singular value clears the noise edge; modes with
+        frequency below half a cycle over the record are reported with ``frequency_hz`` 0
+        (trend / drift).
     """
     dt = _uniform_step(times)
     x = fill_gaps(times, signals, min_seen)
@@ -131,9 +136,14 @@ def dominant_modes(times: np.ndarray, signals: np.ndarray, *, max_modes: int = 6
     if num_modes is not None:
         r = 2 * int(num_modes)
     else:
-        floor = np.median(sv)
+        # White noise alone gives singular values within (1 +- sqrt(gamma)) of their median,
+        # gamma = rows / columns of the stacked Hankel matrix (Marchenko-Pastur edge).
+        gamma = (L + 1) / (cols * x.shape[1])
+        floor = np.median(sv) * (1.0 + np.sqrt(gamma))
         r = int(np.sum(sv > rank_factor * floor)) if floor > 0 else int(np.sum(sv > 1e-12 * sv[0]))
-        r = min(max(r, 1), 2 * int(max_modes))
+        r = min(r, 2 * int(max_modes))
+        if r == 0:          # nothing stands above the noise: no mode to report
+            return []
     r = min(r, L)
     u = evecs[:, :r]
     phi = np.linalg.lstsq(u[:-1], u[1:], rcond=None)[0]
@@ -141,7 +151,7 @@ def dominant_modes(times: np.ndarray, signals: np.ndarray, *, max_modes: int = 6
     # Amplitudes: least squares of the Vandermonde basis z^k against every channel at once.
     vander = z[None, :] ** np.arange(k)[:, None]
     amps = np.linalg.lstsq(vander, x.astype(complex), rcond=None)[0]   # (r, C)
-    s = np.log(z) / dt
+    s = np.log(z.astype(complex)) / dt       # a negative real pole is a Nyquist oscillation
     freq = s.imag / (2 * np.pi)
     duration = dt * (k - 1)
     modes = []
