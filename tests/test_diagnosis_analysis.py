@@ -424,3 +424,28 @@ def test_collect_evidence_on_pure_noise_is_consistent():
     assert ev["mismatch"] == {"markers": [], "time_windows": [], "frequencies_hz": [],
                               "region": None}
     assert ev["fit"]["chi2_per_dof"] == pytest.approx(1.0, abs=0.05)
+
+
+# --------------------------------------------------------------------------- the real pendulum
+
+@pytest.mark.serial_only      # runs two scripts in subprocesses
+def test_pendulum_envelope_script(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    run = subprocess.run([sys.executable, str(root / "scripts" / "pendulum_envelope.py"),
+                          "--dir", str(tmp_path / "rec"), "--out", str(tmp_path / "env")],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    res = json.loads((tmp_path / "env" / "envelope.json").read_text())
+    assert (tmp_path / "env" / "envelope.png").exists()
+    # The control is the published viscous model: the analysis must call it viscous.
+    control = res["published viscous model (control)"]
+    assert control["envelope_angle"]["best"] == "exponential"
+    coef = control["friction_terms_angle"]["coefficients"]
+    assert coef["viscous"] > 5 * coef["dry"]
+    # The data: the small-amplitude half decays linearly (the finding the report states).
+    assert res["validation"]["envelope_angle"]["best"] == "linear"
+    assert res["whole swing"]["friction_terms_angle"]["coefficients"]["dry"] > 5 * coef["dry"]
