@@ -36,18 +36,23 @@ def test_modes_of_damped_sinusoids_with_noise_and_dropouts(seed):
     modes = [(3.7, 0.8, 0.01), (11.3, 2.5, 0.004)]     # (Hz, 1/s, amplitude)
     m = 5
     x = np.zeros((len(t), m, 3))
-    for f, d, a in modes:
-        x += damped(t[:, None, None], f, d, rng.uniform(0, 2 * np.pi, (m, 3)),
-                    a * rng.uniform(0.5, 1.0, (m, 3)))
+    amps = [a * rng.uniform(0.5, 1.0, (m, 3)) for _, _, a in modes]
+    amp37 = amps[0]
+    for (f, d, _), a in zip(modes, amps, strict=True):
+        x += damped(t[:, None, None], f, d, rng.uniform(0, 2 * np.pi, (m, 3)), a)
     x += rng.normal(0, 1e-4, x.shape)
     x[rng.random((len(t), m)) < 0.05] = np.nan
     found = [q for q in spectral.dominant_modes(t, x) if q["frequency_hz"] > 0]
     assert len(found) >= 2
+    freqs = sorted(q["frequency_hz"] for q in found)
+    assert np.all(np.diff(freqs) > 1e-6)                   # each conjugate pair reported once
     for f, d, _ in modes:
         best = min(found, key=lambda q: abs(q["frequency_hz"] - f))
         assert abs(best["frequency_hz"] / f - 1) < 0.005
         assert abs(best["decay_rate"] / d - 1) < 0.02
     assert found[0]["frequency_hz"] == pytest.approx(3.7, rel=0.005)   # largest first
+    # The amplitude is the norm over channels of the cosine amplitudes at t = 0.
+    assert found[0]["amplitude"] == pytest.approx(np.linalg.norm(amp37), rel=0.02)
 
 
 def test_no_modes_in_pure_noise():

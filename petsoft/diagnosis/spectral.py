@@ -160,27 +160,25 @@ def dominant_modes(times: np.ndarray, signals: np.ndarray, *, max_modes: int = 6
         if used[i]:
             continue
         used[i] = True
-        f = abs(freq[i])
-        if f < 0.5 / duration:
-            shape = amps[i].real
-            amp = float(np.linalg.norm(amps[i]))
-            f = 0.0
+        if abs(freq[i]) < 0.5 / duration:          # real pole or drift slower than half a cycle
+            j, shape, f = i, amps[i].real, 0.0
         else:
-            if freq[i] < 0:      # report the positive-frequency member of the pair
-                j = np.argmin(np.abs(z - np.conj(z[i])) + used * 1e9)
+            # Phi is real, so complex poles come in exact conjugate pairs: report the pair once,
+            # through its positive-frequency member; 2 |a| is the cosine amplitude.
+            free = np.flatnonzero(~used)
+            k = free[np.argmin(np.abs(z[free] - np.conj(z[i])))] if free.size else i
+            if k != i and abs(z[k] - np.conj(z[i])) <= 1e-8 * max(1.0, abs(z[i])):
+                used[k] = True
             else:
-                j = i
-            partner = np.argmin(np.abs(z - np.conj(z[j])) + used * 1e9) if not used.all() else j
-            if np.abs(z[partner] - np.conj(z[j])) < 1e-6 * max(1.0, abs(z[j])):
-                used[partner] = True
-            shape = 2 * amps[j]
-            amp = float(np.linalg.norm(shape))
-            i = j
-        d = float(-s[i].real)
-        wn = float(np.hypot(s[i].real, s[i].imag))
+                k = i
+            j = i if freq[i] > 0 or k == i else k
+            shape = 2 * amps[j] if freq[j] > 0 else 2 * np.conj(amps[j])
+            f = abs(freq[j])
+        d = float(-s[j].real)
+        wn = float(abs(s[j]))
         modes.append({"frequency_hz": float(f), "decay_rate": d,
-                      "damping_ratio": d / wn if wn > 0 else 0.0, "amplitude": amp,
-                      "shape": shape})
+                      "damping_ratio": d / wn if wn > 0 else 0.0,
+                      "amplitude": float(np.linalg.norm(shape)), "shape": shape})
     modes.sort(key=lambda m: -m["amplitude"])
     return modes
 
