@@ -81,6 +81,25 @@ def test_compare_modes_reports_damping_and_stiffness_hints():
     assert "missing damping" in text and "stiffness or mass" in text
 
 
+@pytest.mark.parametrize("alpha,beta,expected", [(0.6, 0.0, "damping.mass"),
+                                                 (0.0, 2e-4, "damping.stiffness")])
+def test_rayleigh_split_of_decay_shifts(alpha, beta, expected):
+    # Two-mode free vibration; the data has Rayleigh damping, the simulation none.
+    rng = np.random.default_rng(6)
+    t = np.arange(4000) * 0.002
+    fs = np.array([3.0, 9.0])
+    d = (alpha + beta * (2 * np.pi * fs) ** 2) / 2
+    phases = rng.uniform(0, 2 * np.pi, (2, 4))
+    data = sum(damped(t[:, None], f, dd, phases[i]) for i, (f, dd) in enumerate(zip(fs, d,
+                                                                                strict=True)))
+    sim = sum(damped(t[:, None], f, 0.0, phases[i]) for i, f in enumerate(fs))
+    cmp = spectral.compare_modes(spectral.dominant_modes(t, data), spectral.dominant_modes(t, sim))
+    split = spectral.rayleigh_from_decays(cmp["matched"])
+    assert split["dominant"] == expected
+    assert split["alpha"] == pytest.approx(alpha, abs=0.01)
+    assert split["beta"] == pytest.approx(beta, abs=2e-6)
+
+
 @pytest.mark.parametrize("law,expected", [("exp", "exponential"), ("lin", "linear"),
                                           ("inv", "inverse")])
 def test_envelope_classification(law, expected):
@@ -454,3 +473,43 @@ def test_pendulum_envelope_script(tmp_path):
     # The data: the small-amplitude half decays linearly (the finding the report states).
     assert res["validation"]["envelope_angle"]["best"] == "linear"
     assert res["whole swing"]["friction_terms_angle"]["coefficients"]["dry"] > 5 * coef["dry"]
+
+
+
+def free_decay_markers(amp, t, rng, sigma=1e-5):
+    """Three markers swinging in x with the given amplitude envelope, plus noise."""
+    ref = np.array([[0.0, 0, 0], [0.05, 0, 0], [0.1, 0, 0]])
+    x = np.zeros((len(t), 3, 3)) + ref
+    x[:, :, 0] += 0.01 * np.outer(amp * np.cos(2 * np.pi * 1.5 * t), [0.5, 1.0, 1.5])
+    return x + rng.normal(0, sigma, x.shape), ref
+
+
+@pytest.mark.parametrize("law,first", [("dry", "friction.dry"), ("viscous", "damping.mass"),
+                                       ("quadratic", "drag.quadratic")])
+def test_suggest_physics_from_a_missing_friction(law, first):
+    from petsoft.diagnosis import evidence
+
+    rng = np.random.default_rng(12)
+    t = np.arange(3000) * 0.005
+    amp = {"dry": 1 - 0.05 * t, "viscous": np.exp(-0.12 * t),
+           "quadratic": 1 / (1 + 0.35 * t)}[law]
+    data, ref = free_decay_markers(amp, t, rng)
+    sim, _ = free_decay_markers(np.ones_like(t), t, rng, 0.0)      # the undamped model
+    ev = evidence.collect_evidence(data, sim, t, ref, ["a", "b", "c"], sigma=1e-5)
+    names = [c["physics"] for c in evidence.suggest_physics(ev)]
+    assert names[0] == first
+
+
+def test_suggest_physics_gravity_offset_and_nothing_for_noise():
+    from petsoft.diagnosis import evidence
+
+    rng = np.random.default_rng(13)
+    t = np.arange(400) * 0.005
+    sim, ref = free_decay_markers(np.exp(-0.1 * t), t, rng, 0.0)
+    data = sim + rng.normal(0, 1e-5, sim.shape)
+    ev = evidence.collect_evidence(data, sim, t, ref, ["a", "b", "c"], sigma=1e-5)
+    assert evidence.suggest_physics(ev) == []
+    data[:, :, 2] -= 5e-5                                          # sags: stronger gravity
+    ev = evidence.collect_evidence(data, sim, t, ref, ["a", "b", "c"], sigma=1e-5)
+    top = evidence.suggest_physics(ev)[0]
+    assert top["physics"] == "gravity" and "along z" in top["reason"]

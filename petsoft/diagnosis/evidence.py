@@ -14,7 +14,7 @@ import numpy as np
 
 from petsoft.diagnosis import locate, noise, report, spectral
 
-__all__ = ["collect_evidence", "write_figures"]
+__all__ = ["collect_evidence", "suggest_physics", "write_figures"]
 
 
 def _safe(fn, *args, **kwargs):
@@ -66,8 +66,11 @@ def collect_evidence(data: np.ndarray, sim: np.ndarray, times: np.ndarray,
         (:class:`~petsoft.diagnosis.noise.ChiSquareResult`), ``verdict``, ``fit``
         ({rms, chi2_per_dof}), ``markers`` (:class:`~petsoft.diagnosis.locate.MarkerResiduals`),
         ``region``, ``windows``, ``data_modes``, ``sim_modes``, ``modes`` (comparison),
-        ``residual_modes``, ``frequencies_hz``, ``envelope``, ``friction_terms``, ``notes``,
-        ``field`` (path or None) and ``mismatch`` (the report's ``mismatch`` entries).
+        ``residual_modes``, ``frequencies_hz``, ``envelope``, ``friction_terms`` (data),
+        ``sim_friction_terms`` (the simulation's, same peaks spacing), ``notes``,
+        ``field`` (path or None), ``mismatch`` (the report's ``mismatch`` entries), ``offset``
+        (mean residual per axis, m), ``offset_z`` (it over its white-noise standard error),
+        ``axis_rms`` (residual rms per axis), ``duration``.
     """
     data = np.asarray(data, dtype=float)
     sim = np.asarray(sim, dtype=float)
@@ -102,10 +105,13 @@ def collect_evidence(data: np.ndarray, sim: np.ndarray, times: np.ndarray,
     env, n4 = _safe(spectral.decay_envelope, t, data)
     notes += [n for n in (n1, n2, n3, n4) if n]
     modes = spectral.compare_modes(data_modes, sim_modes) if data_modes and sim_modes else None
-    terms = None
+    terms = sim_terms = None
     if env is not None:
         terms, n5 = _safe(spectral.friction_terms, env)
         notes += [n5] if n5 else []
+        sim_env, _ = _safe(spectral.decay_envelope, t, sim, frequency=env["frequency_hz"])
+        if sim_env is not None:
+            sim_terms, _ = _safe(spectral.friction_terms, sim_env)
     freqs = []
     if residual_modes and not test.consistent:
         osc = [m for m in residual_modes if m["frequency_hz"] > 0]
@@ -116,6 +122,13 @@ def collect_evidence(data: np.ndarray, sim: np.ndarray, times: np.ndarray,
     if points is not None and tets is not None and out is not None:
         field = locate.write_residual_field(Path(out) / "residual_field.xdmf", points, tets,
                                             reference, res)
+    # Mean residual over all seen frames and markers, per axis, in units of its standard error:
+    # a significant common offset is what a wrong body force leaves after calibration.
+    seen = np.isfinite(residual)
+    n_axis = seen.sum(axis=(0, 1))
+    offset = np.where(n_axis > 0, np.nansum(residual, axis=(0, 1)) / np.maximum(n_axis, 1), 0.0)
+    offset_z = offset / (sigma / np.sqrt(np.maximum(n_axis, 1)))
+    axis_rms = np.sqrt(np.nansum(residual**2, axis=(0, 1)) / np.maximum(n_axis, 1))
     verdict = "consistent" if test.consistent else "missing-physics"
     mismatch = {"markers": res.flagged_names, "time_windows": windows["intervals"],
                 "frequencies_hz": freqs, "region": region}
@@ -126,7 +139,118 @@ def collect_evidence(data: np.ndarray, sim: np.ndarray, times: np.ndarray,
             "region": region, "windows": windows, "data_modes": data_modes,
             "sim_modes": sim_modes, "modes": modes, "residual_modes": residual_modes,
             "frequencies_hz": freqs, "envelope": env, "friction_terms": terms,
-            "notes": notes, "field": field, "mismatch": mismatch}
+            "sim_friction_terms": sim_terms,
+            "notes": notes, "field": field, "mismatch": mismatch,
+            "offset": offset, "offset_z": offset_z, "axis_rms": axis_rms,
+            "duration": float(t[-1] - t[0])}
+
+
+def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
+    """A first ordering of candidate physics from the evidence, each with its reason.
+
+    This is a prior for the candidate search, not its result: ``petsoft diagnose`` adds each
+    candidate, re-calibrates and scores the improvement. The rules read the evidence the
+    way the notes of formats.md section 3 describe each physics:
+
+    * data modes decaying faster than the simulation's: Rayleigh damping, split into mass and
+      stiffness parts by :func:`~petsoft.diagnosis.spectral.rayleigh_from_decays`;
+    * the decay-rate regression (:func:`~petsoft.diagnosis.spectral.friction_terms`) of the data
+      minus that of the simulation, each term's excess as a share of the data's decay rate at
+      its mean amplitude (> 10% counts): dry -> ``friction.dry``, quadratic ->
+      ``drag.quadratic``, viscous -> ``damping.mass`` (and ``drag.linear``);
+    * a frequency ratio left after calibration: lower data frequencies -> ``boundary.compliance``
+      and ``mass.added``, higher -> ``material.nonlinear``; with a ``mismatch.region``,
+      ``material.heterogeneous`` / ``mass.added`` there;
+    * a common offset of the residual (``offset_z`` standard errors and a fifth of the
+      residual's rms along that axis) -> ``gravity``;
+    * mismatch windows covering less than half the record -> ``contact.plane``.
+
+    Returns
+    -------
+    list of dict
+        ``{"physics", "reason", "strength"}``, strongest first, each physics once; empty when
+        the verdict is ``consistent``.
+    """
+    if evidence["verdict"] == "consistent":
+        return []
+    out: dict[str, dict] = {}
+
+    def add(name: str, strength: float, reason: str) -> None:
+        if name not in out or out[name]["strength"] < strength:
+            out[name] = {"physics": name, "reason": reason, "strength": float(strength)}
+
+    modes = evidence.get("modes")
+    if modes and modes["matched"]:
+        faster = [m for m in modes["matched"]
+                  if m["decay_shift"] > 0.1 * max(abs(m["sim_decay"]), 0.01 * 2 * np.pi
+                                                  * m["sim_hz"])]
+        if faster:
+            split = spectral.rayleigh_from_decays(faster)
+            first = split["dominant"] or "damping.mass"
+            second = "damping.stiffness" if first == "damping.mass" else "damping.mass"
+            rel = max(m["decay_shift"] / max(m["data_decay"], 1e-12) for m in faster)
+            # The modal decays are exponential fits whatever the law, so they point at damping
+            # less strongly than the envelope's own law does (strengths below 3).
+            add(first, 2.0 + min(rel, 1.0), f"{len(faster)} mode(s) decay faster in the data "
+                f"than in the model (e.g. {faster[0]['data_decay']:.3g} vs "
+                f"{faster[0]['sim_decay']:.3g} 1/s)")
+            add(second, 1.0 + min(rel, 1.0) / 2, "the extra decay could also be partly "
+                f"{'stiffness' if second == 'damping.stiffness' else 'mass'}-proportional")
+        ratio = modes["frequency_ratio"]
+        if np.isfinite(ratio) and abs(ratio - 1) > 0.005:
+            shift = f"data frequencies {ratio:.4f} x the model's after calibration"
+            if evidence.get("region") is not None:
+                add("material.heterogeneous", 2.5, shift + ", with a localised residual")
+                add("mass.added", 2.4 if ratio < 1 else 1.2, shift + ", localised")
+            if ratio < 1:
+                add("boundary.compliance", 2.0, shift + ": a softer support lowers them")
+                add("mass.added", 1.8, shift + ": extra mass lowers them")
+            else:
+                add("material.nonlinear", 1.8, shift + ": stiffening at the observed strains")
+    terms = evidence.get("friction_terms")
+    if terms is not None:
+        # Only what the data's decay has beyond the simulation's: each term's share of the
+        # data's decay rate at its mean amplitude.
+        coef = terms["coefficients"]
+        sim_coef = (evidence.get("sim_friction_terms") or {}).get("coefficients",
+                                                                   dict.fromkeys(coef, 0.0))
+        amp = float(np.mean(evidence["envelope"]["amplitudes"]))
+        powers = {"dry": 1.0, "viscous": amp, "quadratic": amp * amp}
+        rate = sum(coef[k] * p for k, p in powers.items())
+        share = {k: (coef[k] - sim_coef[k]) * p / rate if rate > 0 else 0.0
+                 for k, p in powers.items()}
+        law = evidence["envelope"]["best"]
+        if share["dry"] > 0.1:
+            add("friction.dry", 3.0 + share["dry"] + (law == "linear"), "the oscillation "
+                "amplitude decays at a rate that stays finite as it shrinks (a constant term, "
+                f"{share['dry']:.0%} of its decay rate, beyond the model's; envelope law: {law})")
+        if share["quadratic"] > 0.1:
+            add("drag.quadratic", 3.0 + share["quadratic"] + (law == "inverse"), "the "
+                "amplitude's decay rate grows with the amplitude squared (velocity-squared "
+                f"drag; {share['quadratic']:.0%} of it beyond the model's)")
+        if share["viscous"] > 0.1:
+            add("damping.mass", 3.0 + share["viscous"] + (law == "exponential"),
+                f"exponential amplitude decay (viscous; {share['viscous']:.0%} of the decay "
+                "rate beyond the model's)")
+            add("drag.linear", 1.5 + share["viscous"] / 2,
+                "exponential amplitude decay (linear drag on the body)")
+    # A common offset: significant against white noise (offset_z) and a fifth of the
+    # residual's rms along that axis (a correlated residual's mean alone is no offset).
+    oz = np.asarray(evidence.get("offset_z", np.zeros(3)), dtype=float)
+    big = np.abs(np.asarray(evidence.get("offset", np.zeros(3)))) > 0.2 * np.asarray(
+        evidence.get("axis_rms", np.full(3, np.inf)))
+    oz = np.where(big, oz, 0.0)
+    if np.max(np.abs(oz)) > offset_z:
+        axis = "xyz"[int(np.argmax(np.abs(oz)))]
+        add("gravity", 2.0 + min(np.max(np.abs(oz)) / 100.0, 2.0),
+            f"the residual has a common offset along {axis} "
+            f"({evidence['offset'][int(np.argmax(np.abs(oz)))]:.3g} m)")
+    windows = evidence.get("windows", {}).get("intervals", [])
+    covered = sum(b - a for a, b in windows)
+    if windows and covered < 0.5 * evidence.get("duration", np.inf):
+        add("contact.plane", 1.0, f"the mismatch is intermittent ({len(windows)} window(s), "
+            f"{covered:.3g} s of {evidence['duration']:.3g} s)")
+    return sorted(out.values(), key=lambda c: -c["strength"])
 
 
 def write_figures(out: str | Path, evidence: dict, times: np.ndarray, data: np.ndarray,

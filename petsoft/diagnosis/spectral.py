@@ -35,13 +35,15 @@ take the nearest seen value). Interpolation is a low-pass filter over a gap, so 
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy import optimize, signal
 
 from petsoft.errors import PetsoftError
 
 __all__ = ["SpectralError", "dominant_modes", "compare_modes", "decay_envelope",
-           "friction_terms", "fill_gaps", "principal_signal"]
+           "friction_terms", "rayleigh_from_decays", "fill_gaps", "principal_signal"]
 
 
 class SpectralError(PetsoftError):
@@ -274,6 +276,14 @@ def _envelope_points(t: np.ndarray, y: np.ndarray, frequency: float | None):
     return te, 0.5 * (upper - lower), frequency
 
 
+def _curve_fit(*args, **kwargs):
+    """scipy curve_fit without its covariance warning (a constant envelope has no curvature;
+    only the parameters are used here)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optimize.OptimizeWarning)
+        return optimize.curve_fit(*args, **kwargs)
+
+
 def decay_envelope(times: np.ndarray, signals: np.ndarray, *, frequency: float | None = None,
                    min_seen: float = 0.5) -> dict:
     """Classify the decay of a free oscillation: exponential, linear or 1/t envelope.
@@ -336,7 +346,7 @@ def decay_envelope(times: np.ndarray, signals: np.ndarray, *, frequency: float |
         else:
             p0 = (1 / icpt, slope / icpt) if icpt > 0 else (a0, 0.0)
         try:
-            p, _ = optimize.curve_fit(law, s, amp, p0=p0, maxfev=5000)
+            p, _ = _curve_fit(law, s, amp, p0=p0, maxfev=5000)
         except RuntimeError:
             p = np.asarray(p0, dtype=float)
         rms = float(np.sqrt(np.mean((law(s, *p) - amp) ** 2)))
@@ -351,7 +361,7 @@ def decay_envelope(times: np.ndarray, signals: np.ndarray, *, frequency: float |
         return base ** (1 / (1 - p))
     try:
         e = fits["exponential"]
-        pg, _ = optimize.curve_fit(general, s, amp, p0=(e["A0"], e["rate"], 1.01),
+        pg, _ = _curve_fit(general, s, amp, p0=(e["A0"], e["rate"], 1.01),
                                    bounds=([0, 0, -1.0], [np.inf, np.inf, 4.0]), maxfev=20000)
         exponent = float(pg[2])
     except (RuntimeError, ValueError):
@@ -362,7 +372,7 @@ def decay_envelope(times: np.ndarray, signals: np.ndarray, *, frequency: float |
         return (a0 + c / a) * np.exp(-a * s) - c / a
     try:
         e = fits["exponential"]
-        pm, _ = optimize.curve_fit(mixed, s, amp, p0=(e["A0"], max(e["rate"], 1e-6), 1e-9),
+        pm, _ = _curve_fit(mixed, s, amp, p0=(e["A0"], max(e["rate"], 1e-6), 1e-9),
                                    bounds=([0, 1e-9, 0], [np.inf, np.inf, np.inf]), maxfev=20000)
         rms_m = float(np.sqrt(np.mean((mixed(s, *pm) - amp) ** 2)))
         both = {"A0": float(pm[0]), "rate": float(pm[1]), "dry": float(pm[2]), "rms": rms_m,
@@ -426,3 +436,42 @@ def friction_terms(envelope: dict, span: int = 4) -> dict:
     best = min((k for k in subsets if subsets[k]["rms"] <= 1.5 * full["rms"]),
                key=lambda k: (k.count("+"), subsets[k]["rms"]))
     return {"coefficients": full["coefficients"], "subsets": subsets, "best": best}
+
+
+def rayleigh_from_decays(matched: list[dict]) -> dict:
+    """Split the extra modal decay of the data into Rayleigh mass and stiffness damping.
+
+    With damping ``C = alpha M + beta K`` a mode of angular frequency ``w`` decays at
+    ``d = (alpha + beta w^2) / 2``. The decay shifts ``data - sim`` of the matched modes
+    (:func:`compare_modes`) are fitted by non-negative least squares in ``(alpha, beta)``:
+    a shift that is the same for all modes points at ``damping.mass``, one growing as ``w^2``
+    at ``damping.stiffness``. With a single mode the split is undetermined and both one-term
+    fits are returned.
+
+    Returns
+    -------
+    dict
+        ``alpha`` and ``beta`` (the two-term fit; None with fewer than 2 modes), ``mass_only``
+        (alpha alone) and ``stiffness_only`` (beta alone) with their rms misfit (1/s), and
+        ``dominant``: "damping.mass", "damping.stiffness" or None (undetermined).
+    """
+    if not matched:
+        raise SpectralError("no matched modes to split the damping between mass and stiffness")
+    w2 = np.array([(2 * np.pi * m["data_hz"]) ** 2 for m in matched])
+    shift = np.array([m["decay_shift"] for m in matched])
+    ones = np.ones_like(w2)
+    a_only = max(float(np.mean(2 * shift)), 0.0)
+    b_only = max(float(np.sum(2 * shift * w2) / np.sum(w2 * w2)), 0.0)
+    rms_a = float(np.sqrt(np.mean((a_only / 2 * ones - shift) ** 2)))
+    rms_b = float(np.sqrt(np.mean((b_only / 2 * w2 - shift) ** 2)))
+    out = {"mass_only": {"alpha": a_only, "rms": rms_a},
+           "stiffness_only": {"beta": b_only, "rms": rms_b}, "alpha": None, "beta": None,
+           "dominant": None}
+    if len(matched) >= 2:
+        coef, _ = optimize.nnls(np.column_stack([ones, w2]) / 2, shift)
+        out["alpha"], out["beta"] = float(coef[0]), float(coef[1])
+        # Compare the two contributions at the matched modes' mean squared frequency.
+        mass, stiff = coef[0], coef[1] * float(np.mean(w2))
+        if max(mass, stiff) > 0:
+            out["dominant"] = "damping.mass" if mass >= stiff else "damping.stiffness"
+    return out
