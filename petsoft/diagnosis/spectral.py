@@ -22,9 +22,11 @@ of singular values above ``rank_factor`` times the white-noise edge ``median (1 
 (``gamma`` = rows / columns of the stacked Hankel matrix, Marchenko-Pastur), capped at
 ``2 * max_modes``: with many channels a mode present in a few of them still clears it (a
 factor on the median alone would not: the noise edge is close to the median when there are
-many columns). Amplitudes are then the least-squares fit of ``z_i^k`` to every channel; a
-conjugate pair is reported once (positive frequency) with amplitude the norm over channels of
-the per-channel cosine amplitudes ``2 |a_ci|``.
+many columns). With more than ``4 * max_modes`` channels the Hankel step uses their leading
+principal components only (cost), the amplitude fit all channels. Amplitudes are then the
+least-squares fit of ``z_i^k`` to every channel; a conjugate pair is reported once (positive
+frequency) with amplitude the norm over channels of the per-channel cosine amplitudes
+``2 |a_ci|``.
 
 The method needs uniform sampling: the times must be uniform to 1e-6 relative (else
 :class:`SpectralError`). Unseen samples (NaN): channels seen in fewer than half the frames are
@@ -126,12 +128,17 @@ def dominant_modes(times: np.ndarray, signals: np.ndarray, *, max_modes: int = 6
     if not 2 <= L <= k - 2:
         raise SpectralError(f"pencil parameter {L} must be in [2, {k - 2}] for {k} frames")
     cols = k - L
+    # Many channels: keep the leading principal components for the Hankel step (the shared
+    # poles live there; cost ~ q L^2 cols instead of C L^2 cols). Amplitudes use all channels.
+    q = 4 * int(max_modes if num_modes is None else max(num_modes, max_modes))
+    xr = x
+    if x.shape[1] > q:
+        u, sv_c, _ = np.linalg.svd(x, full_matrices=False)
+        xr = u[:, :q] * sv_c[:q]
     # Gram matrix of the side-by-side Hankel blocks: sum_c H_c H_c^T, (L+1) x (L+1).
     idx = np.arange(L + 1)[:, None] + np.arange(cols)[None, :]
-    gram = np.zeros((L + 1, L + 1))
-    for c in range(x.shape[1]):                      # channels, each block vectorised
-        h = x[idx, c]
-        gram += h @ h.T
+    h = xr[idx, :].reshape(L + 1, -1)               # (L+1, cols * channels), one BLAS product
+    gram = h @ h.T
     evals, evecs = np.linalg.eigh(gram)
     evals, evecs = evals[::-1], evecs[:, ::-1]
     sv = np.sqrt(np.maximum(evals, 0.0))
@@ -140,7 +147,7 @@ def dominant_modes(times: np.ndarray, signals: np.ndarray, *, max_modes: int = 6
     else:
         # White noise alone gives singular values within (1 +- sqrt(gamma)) of their median,
         # gamma = rows / columns of the stacked Hankel matrix (Marchenko-Pastur edge).
-        gamma = (L + 1) / (cols * x.shape[1])
+        gamma = (L + 1) / (cols * xr.shape[1])
         floor = np.median(sv) * (1.0 + np.sqrt(gamma))
         r = int(np.sum(sv > rank_factor * floor)) if floor > 0 else int(np.sum(sv > 1e-12 * sv[0]))
         r = min(r, 2 * int(max_modes))
