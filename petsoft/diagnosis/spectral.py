@@ -137,8 +137,10 @@ def dominant_modes(times: np.ndarray, signals: np.ndarray, *, max_modes: int = 6
         xr = u[:, :q] * sv_c[:q]
     # Gram matrix of the side-by-side Hankel blocks: sum_c H_c H_c^T, (L+1) x (L+1).
     idx = np.arange(L + 1)[:, None] + np.arange(cols)[None, :]
-    h = xr[idx, :].reshape(L + 1, -1)               # (L+1, cols * channels), one BLAS product
-    gram = h @ h.T
+    gram = np.zeros((L + 1, L + 1))
+    for c in range(xr.shape[1]):     # <= 4 max_modes channels; one (L+1, cols) block at a time
+        h = xr[idx, c]
+        gram += h @ h.T
     evals, evecs = np.linalg.eigh(gram)
     evals, evecs = evals[::-1], evecs[:, ::-1]
     sv = np.sqrt(np.maximum(evals, 0.0))
