@@ -473,6 +473,11 @@ def test_pendulum_envelope_script(tmp_path):
     # The data: the small-amplitude half decays linearly (the finding the report states).
     assert res["validation"]["envelope_angle"]["best"] == "linear"
     assert res["whole swing"]["friction_terms_angle"]["coefficients"]["dry"] > 5 * coef["dry"]
+    # The evidence chain against the published (viscous) model: dry friction first, and no
+    # gravity from the amplitude-driven drift of the vertical coordinate's mean.
+    chain = res["evidence vs published model"]["validation"]
+    names = [c["physics"] for c in chain["suggestions"]]
+    assert names[0] == "friction.dry" and "gravity" not in names
 
 
 

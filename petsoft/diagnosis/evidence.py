@@ -70,7 +70,8 @@ def collect_evidence(data: np.ndarray, sim: np.ndarray, times: np.ndarray,
         ``sim_friction_terms`` (the simulation's, same peaks spacing), ``notes``,
         ``field`` (path or None), ``mismatch`` (the report's ``mismatch`` entries), ``offset``
         (mean residual per axis, m), ``offset_z`` (it over its white-noise standard error),
-        ``axis_rms`` (residual rms per axis), ``duration``.
+        ``axis_rms`` (residual rms per axis), ``offset_halves`` (2, 3) (the mean residual of each
+        half of the record), ``duration``.
     """
     data = np.asarray(data, dtype=float)
     sim = np.asarray(sim, dtype=float)
@@ -128,6 +129,8 @@ def collect_evidence(data: np.ndarray, sim: np.ndarray, times: np.ndarray,
     n_axis = seen.sum(axis=(0, 1))
     offset = np.where(n_axis > 0, np.nansum(residual, axis=(0, 1)) / np.maximum(n_axis, 1), 0.0)
     offset_z = offset / (sigma / np.sqrt(np.maximum(n_axis, 1)))
+    halves = [np.nanmean(residual[part], axis=(0, 1)) if np.isfinite(residual[part]).any()
+              else np.zeros(3) for part in (slice(0, len(t) // 2), slice(len(t) // 2, None))]
     axis_rms = np.sqrt(np.nansum(residual**2, axis=(0, 1)) / np.maximum(n_axis, 1))
     verdict = "consistent" if test.consistent else "missing-physics"
     mismatch = {"markers": res.flagged_names, "time_windows": windows["intervals"],
@@ -142,6 +145,7 @@ def collect_evidence(data: np.ndarray, sim: np.ndarray, times: np.ndarray,
             "sim_friction_terms": sim_terms,
             "notes": notes, "field": field, "mismatch": mismatch,
             "offset": offset, "offset_z": offset_z, "axis_rms": axis_rms,
+            "offset_halves": np.array(halves),
             "duration": float(t[-1] - t[0])}
 
 
@@ -161,8 +165,9 @@ def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
     * a frequency ratio left after calibration: lower data frequencies -> ``boundary.compliance``
       and ``mass.added``, higher -> ``material.nonlinear``; with a ``mismatch.region``,
       ``material.heterogeneous`` / ``mass.added`` there;
-    * a common offset of the residual (``offset_z`` standard errors and a fifth of the
-      residual's rms along that axis) -> ``gravity``;
+    * a common, steady offset of the residual (``offset_z`` standard errors, a fifth of the
+      residual's rms along that axis, within 50% between the two halves of the record) ->
+      ``gravity``;
     * mismatch windows covering less than half the record -> ``contact.plane``.
 
     Returns
@@ -239,7 +244,13 @@ def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
     oz = np.asarray(evidence.get("offset_z", np.zeros(3)), dtype=float)
     big = np.abs(np.asarray(evidence.get("offset", np.zeros(3)))) > 0.2 * np.asarray(
         evidence.get("axis_rms", np.full(3, np.inf)))
-    oz = np.where(big, oz, 0.0)
+    # ... and the same in both halves of the record: a wrong body force shifts the equilibrium
+    # for good, while an amplitude error of a rotating body shifts the mean of its vertical
+    # coordinate by an amount that changes as the amplitudes drift apart.
+    halves = np.asarray(evidence.get("offset_halves", np.zeros((2, 3))))
+    steady = np.abs(halves[0] - halves[1]) < 0.5 * np.abs(np.asarray(
+        evidence.get("offset", np.zeros(3))))
+    oz = np.where(big & steady, oz, 0.0)
     if np.max(np.abs(oz)) > offset_z:
         axis = "xyz"[int(np.argmax(np.abs(oz)))]
         add("gravity", 2.0 + min(np.max(np.abs(oz)) / 100.0, 2.0),
