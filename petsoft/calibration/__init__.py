@@ -1,0 +1,1 @@
+"""Calibration: observing a simulation through measured markers and fitting its parameters."""
