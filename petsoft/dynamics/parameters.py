@@ -254,7 +254,7 @@ class ParameterDerivatives:
         g = np.asarray([pm.values[f"gravity.acceleration.{c}"] for c in "xyz"])
         Em -= (vol / 4.0)[:, None, None] * g[None, None, :]
         self.E_rho = Em.reshape(n, 12)
-        self.v = v
+        self.v = v.copy()   # the caller may destroy its state vectors
 
     def _global_vector(self, name: str, out: PETSc.Vec) -> None:
         s = self.system
