@@ -68,7 +68,7 @@ def _direction(p, seed=3):
     return rng.uniform(-1.0, 1.0, len(p)) * np.where(p != 0.0, np.abs(p), 1.0)
 
 
-# -- 1. residual derivatives -----------------------------------------------------------------------
+# -- 1. residual derivatives ----------------------------------------------------------------------
 def test_reference_stiffness_of_every_law_is_the_linear_one():
     """H_e(u = 0) v_e == grad W_e^linear(v_e) for every law and unit (mu, lambda): the
     damping-stiffness derivative uses the linear law's gradient for K0 v."""
@@ -162,7 +162,7 @@ def test_residual_parameter_derivatives_taylor_and_central_differences():
     assert tip.norm() > 0 and both.norm() > 0
 
 
-# -- 2. forward model ---------------------------------------------------------------------------------
+# -- 2. forward model -----------------------------------------------------------------------------
 def _forward(method, model, comm=None):
     exp = _bar(model, method)
     return ForwardModel(exp, NAMES, lambda s: MarkerObserver(s, MARKERS), FRAMES, comm=comm)
@@ -221,7 +221,34 @@ def test_taylor_adjoint_and_forward_sensitivities(method, model):
     fm2.destroy()
 
 
-# -- 3. serial == parallel ---------------------------------------------------------------------------
+def test_si_third_derivative_term_is_needed_and_where_taylor_flattens():
+    """SI on the corotated bar: with the central-difference third-derivative term T_w the
+    adjoint Taylor remainder falls as eps^2 over eps = 2e-2 .. 4e-5 (and flattens near the
+    round-off of the misfit, ~1e-19 at eps ~ 1e-7: printed); without it the remainder falls only
+    as eps (order < 1.3 below eps = 3e-4), so the test above would catch a missing term."""
+    fm = _forward("si", "corotated")
+    p = fm.p0.copy()
+    sim0 = fm.simulate(p)
+    dphi = _misfit(sim0 + 1e-3 * np.random.default_rng(5).standard_normal(sim0.shape))
+    d = _direction(p)
+    eps = 2e-2 * 8.0 ** -np.arange(9)
+    table = {}
+    for with_t in (True, False):
+        fm.linear_material = not with_t      # True skips T_w
+        value, grad = fm.gradient(p, dphi)
+        table[with_t] = np.array([abs(dphi(fm.simulate(p + e * d))[0] - value - e * grad @ d)
+                                  for e in eps])
+    _print("eps         remainder with T_w   without")
+    for e, a, b in zip(eps, table[True], table[False], strict=True):
+        _print(f"{e:.3e}   {a:.3e}            {b:.3e}")
+    with_orders = np.log(table[True][:-1] / table[True][1:]) / np.log(8.0)
+    without = np.log(table[False][:-1] / table[False][1:]) / np.log(8.0)
+    assert np.all((with_orders[:4] > 1.8) & (with_orders[:4] < 2.2)), with_orders
+    assert np.all(without[2:] < 1.3), without
+    fm.destroy()
+
+
+# -- 3. serial == parallel ------------------------------------------------------------------------
 @pytest.mark.parametrize("method", ["be", "si", "alpha"])
 def test_gradient_same_on_one_and_all_ranks(method):
     """The gradient on COMM_WORLD equals the one on COMM_SELF (every rank alone) to 1e-10."""
@@ -239,7 +266,7 @@ def test_gradient_same_on_one_and_all_ranks(method):
     assert err <= 1e-10, (g_all, g_one)
 
 
-# -- 4. errors ------------------------------------------------------------------------------------------
+# -- 4. errors ------------------------------------------------------------------------------------
 def test_user_errors():
     obs = lambda s: MarkerObserver(s, MARKERS)  # noqa: E731
     with pytest.raises(ExperimentError, match="static"):

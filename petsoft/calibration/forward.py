@@ -161,7 +161,7 @@ class ForwardModel:
                                    if g is not None) and hasattr(s, "elastic")
         self.stats = {}
 
-    # -- parameters and the forward run ------------------------------------------------------------
+    # -- parameters and the forward run -----------------------------------------------------------
     def _set(self, p) -> None:
         p = np.asarray(p, dtype=float).reshape(-1)
         if len(p) != len(self.names):
@@ -353,7 +353,7 @@ class ForwardModel:
         M.destroy()
         return ksp
 
-    # -- forward sensitivities ------------------------------------------------------------------------
+    # -- forward sensitivities --------------------------------------------------------------------
     def jacobian(self, p):
         """(sim (K, M, 3), dsim/dp (K, M, 3, P)) by forward sensitivities (one run)."""
         s, h, P = self.system, self.h, len(self.names)
@@ -470,7 +470,7 @@ class ForwardModel:
         for x in (da1, dv1, dvf, dam, dqf):
             x.destroy()
 
-    # -- discrete adjoint ----------------------------------------------------------------------------
+    # -- discrete adjoint -------------------------------------------------------------------------
     def gradient(self, p, dphi):
         """(value, d value/d p (P,)) of value = phi(simulate(p)) by the discrete adjoint.
 
@@ -582,7 +582,7 @@ class ForwardModel:
             x.destroy()
         return gq0, gv0, ga0
 
-    # -- finite differences ---------------------------------------------------------------------------
+    # -- finite differences -----------------------------------------------------------------------
     def fd_jacobian(self, p, rel_step: float = 1e-6) -> np.ndarray:
         """dsim/dp (K, M, 3, P) by central differences, step rel_step * max(|p_j|, 1)."""
         p = np.asarray(p, dtype=float)
