@@ -36,7 +36,9 @@ Memory: the adjoint keeps every step's state, (N + 1) x (2 vectors, 3 for alpha)
 (e.g. 1000 steps of a 30 000-dof mesh: 0.7 GB for alpha); checkpointing is future work.
 
 Initial states: expression initial conditions do not depend on parameters; ``[initial]
-from = "static"`` does, and is refused (not supported yet).
+from = "static"`` does: the equilibrium grad W(q0) = f_g + f_t(0) is solved tightly (SNES rtol
+1e-13, prefix ``fm_static_``) and differentiated, K(q0) dq0/dp = -d r_static/dp (and for alpha
+the consistent acceleration's derivative gains -K(q0) dq0).
 """
 
 from __future__ import annotations
@@ -104,10 +106,7 @@ class ForwardModel:
             raise ExperimentError(
                 f"{exp.source}: time.integrator = {self.method!r}: gradients are implemented for "
                 f"{', '.join(INTEGRATORS)} only")
-        if exp.initial.from_ == "static":
-            raise ExperimentError(
-                f'{exp.source}: initial.from = "static": the static initial state depends on the '
-                "parameters and its derivative is not supported yet; give initial expressions")
+        self.static = exp.initial.from_ == "static"
         self.h = float(h if h is not None else exp.time.step)
         if system is None:
             self.model = build_model(exp, comm)
@@ -175,7 +174,36 @@ class ForwardModel:
         s = self.system
         if self.model is None:
             return s.initial_state()
-        return initial_state(self.model, s, self.experiment)
+        if not self.static:
+            return initial_state(self.model, s, self.experiment)
+        from ..static import StaticSolver
+
+        # the static equilibrium under the current parameters, solved tightly: its derivative
+        # K(q0) dq0/dp = -d r_static/dp holds at the exact solution
+        with scoped_defaults(**{PREFIX + "static_snes_rtol": "1e-13"}):
+            solver = StaticSolver(self.model, prefix=PREFIX + "static_")
+        try:
+            q0 = solver.solve().displacement.copy()
+        finally:
+            solver.destroy()
+        pts = s.dmesh.mesh.points
+        v0 = s.dmesh.from_file_field(
+            np.column_stack([e.evaluate_at(pts) for e in self.experiment.initial.velocity]))
+        s.apply_prescribed(q0, 0.0)
+        return q0, v0
+
+    def _static_setup(self, q0):
+        """(K(q0) in self.J, a solver on it, d r_static/dp at q0) for the static initial state.
+
+        r_static = grad W(q0) - f_g - f_t(0): the residual at v = a = 0.
+        """
+        s = self.system
+        zero = q0.duplicate()
+        zero.zeroEntries()
+        s.assemble_combination(q0, 0.0, 1.0, 0.0, self.J)
+        deriv = s.parameter_derivatives(q0, zero, zero)
+        zero.destroy()
+        return self._solver(), deriv
 
     def _run(self, p, store: bool, on_step=None):
         """Forward run; returns the states [(q, v, a or None)] if ``store`` and the frames."""
@@ -375,12 +403,25 @@ class ForwardModel:
                                              - self.observer.reference)
 
         def start(states0):
+            q0, v0, a0 = states0
+            if self.static:
+                # K(q0) dq0 = -P d r_static/dp
+                sksp, sderiv = self._static_setup(q0)
+                for j, r in enumerate(sderiv.vectors(self.names)):
+                    r.scale(-1.0)
+                    s.zero_prescribed(r)
+                    self._solve(sksp, r, tangents["q"][j])
+                    r.destroy()
+                sksp.destroy()
             if self.method == "alpha":
-                q0, v0, a0 = states0
+                # M da0 = -P (R_p + K(q0) dq0)   (self.J holds K(q0) when static)
                 deriv = s.parameter_derivatives(q0, v0, a0)
                 mksp = self._mass_solver()
                 for j, r in enumerate(deriv.vectors(self.names)):
+                    if self.static:
+                        r.axpy(1.0, self.J * tangents["q"][j])
                     r.scale(-1.0)
+                    s.zero_prescribed(r)
                     mksp.solve(r, tangents["a"][j])
                     r.destroy()
                 mksp.destroy()
@@ -526,14 +567,26 @@ class ForwardModel:
                 gq0.destroy()
             if n in loads:
                 gq.axpy(1.0, loads.pop(n))
+        q0, v0, a0 = states[0]
+        if self.static:
+            sksp, sderiv = self._static_setup(q0)       # self.J = K(q0)
         if self.method == "alpha":
-            # M da0 = -R_p(t0): grad -= R_p(t0) . M^-1 P ga0
-            q0, v0, a0 = states[0]
+            # M da0 = -P (R_p(t0) + K(q0) dq0): grad -= R_p(t0) . nu, gq0 -= K(q0) nu,
+            # nu = M^-1 P ga0
             mksp = self._mass_solver()
             s.zero_prescribed(ga)
             mksp.solve(ga, mu)
             mksp.destroy()
             grad -= s.parameter_derivatives(q0, v0, a0).contract(self.names, mu)
+            if self.static:
+                self.J.mult(mu, tmp)
+                gq.axpy(-1.0, tmp)
+        if self.static:
+            # K(q0) dq0 = -P d r_static/dp: grad -= d r_static/dp . K^-1 P gq0
+            s.zero_prescribed(gq)
+            self._solve(sksp, gq, mu)
+            grad -= sderiv.contract(self.names, mu)
+            sksp.destroy()
         for x in (gq, gv, ga, mu, rhs, tmp):
             if x is not None:
                 x.destroy()

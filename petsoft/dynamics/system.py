@@ -253,6 +253,9 @@ class DynamicSystem:
                          self.lumped)
         self.gravity.zeroEntries()
         dm.add_to_global(gravity_forces(dm, model.density, acc), self.gravity)
+        # the static solver's load (gravity + tractions at t = 0) follows
+        self.gravity.copy(model.external)
+        model.external.axpy(1.0, self.tractions(0.0, self._work))
 
     def K0_matrix(self) -> PETSc.Mat:
         """K0 (the reference stiffness) as an assembled matrix."""
