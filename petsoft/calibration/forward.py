@@ -124,8 +124,12 @@ class ForwardModel:
         if bad:
             raise ExperimentError(f'{exp.source}: "{bad[0]}" is not a differentiable parameter; '
                                   f"valid: {', '.join(pnames)} (and material.youngs_modulus#k)")
-        self.p0 = np.array([s.parameters.values[n] for n in self.names]) \
-            if hasattr(s, "parameters") else None
+        if hasattr(s, "parameters"):
+            self.p0 = np.array([s.parameters.values[n] for n in self.names])
+        else:
+            from ..experiment import get_parameter
+
+            self.p0 = np.array([get_parameter(exp, n) for n in self.names])
         self.observer = observer if hasattr(observer, "observe") else observer(s)
         self.frame_times = np.asarray(frame_times, dtype=float)
         self.nsteps = max(1, math.ceil(self.frame_times.max() / self.h - 1e-9))
@@ -201,7 +205,7 @@ class ForwardModel:
         zero = q0.duplicate()
         zero.zeroEntries()
         s.assemble_combination(q0, 0.0, 1.0, 0.0, self.J)
-        deriv = s.parameter_derivatives(q0, zero, zero)
+        deriv = self._derivatives(q0, zero, zero)
         zero.destroy()
         return self._solver(), deriv
 
@@ -305,7 +309,7 @@ class ForwardModel:
             acc.axpy(-1.0, v0)
             acc.scale(1.0 / h)
             s.assemble_combination(q1, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h, self.J)
-            deriv = s.parameter_derivatives(q1, v1, acc)
+            deriv = self._derivatives(q1, v1, acc)
             acc.destroy()
         elif self.method == "si":
             qp = self._predictor(n, q0, v0)
@@ -315,7 +319,7 @@ class ForwardModel:
             acc.axpy(-1.0, v0)
             acc.scale(1.0 / h)
             s.assemble_combination(qp, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h, self.J)
-            deriv = s.parameter_derivatives(qp, v1, acc, w)
+            deriv = self._derivatives(qp, v1, acc, w)
             data["T"] = self._third(qp, w)
             for x in (acc, qp, w):
                 x.destroy()
@@ -331,10 +335,16 @@ class ForwardModel:
             c = af * g / (b * h)
             data["aJ"], data["cD"] = am / (b * h * h), c
             s.assemble_combination(qf, data["aJ"] + s.alpha * c, af, s.beta * c, self.J)
-            deriv = s.parameter_derivatives(qf, vf, amv)
+            deriv = self._derivatives(qf, vf, amv)
             for x in (qf, vf, amv):
                 x.destroy()
         return deriv, data
+
+    def _derivatives(self, q, v, a, w=None):
+        """d r/d p of the system at (q, v, a) (+ d/dp [K(q) w]): ``.vectors``, ``.contract``."""
+        if hasattr(self.system, "parameter_derivatives"):
+            return self.system.parameter_derivatives(q, v, a, w)
+        return _GenericDerivatives(self.system, q, v, a, w, self.cell_size)
 
     def _third(self, qp, w):
         """T_w = d/deps K(qp + eps w) as a matrix (None when zero: linear material, w = 0)."""
@@ -415,7 +425,7 @@ class ForwardModel:
                 sksp.destroy()
             if self.method == "alpha":
                 # M da0 = -P (R_p + K(q0) dq0)   (self.J holds K(q0) when static)
-                deriv = s.parameter_derivatives(q0, v0, a0)
+                deriv = self._derivatives(q0, v0, a0)
                 mksp = self._mass_solver()
                 for j, r in enumerate(deriv.vectors(self.names)):
                     if self.static:
@@ -577,7 +587,7 @@ class ForwardModel:
             s.zero_prescribed(ga)
             mksp.solve(ga, mu)
             mksp.destroy()
-            grad -= s.parameter_derivatives(q0, v0, a0).contract(self.names, mu)
+            grad -= self._derivatives(q0, v0, a0).contract(self.names, mu)
             if self.static:
                 self.J.mult(mu, tmp)
                 gq.axpy(-1.0, tmp)
@@ -652,3 +662,40 @@ class ForwardModel:
     def destroy(self) -> None:
         self.integrator.destroy()
         self.J.destroy()
+
+
+class _GenericDerivatives:
+    """d r/d p of a system offering only ``residual_parameter_derivatives`` (e.g. mass-spring):
+    the w term d/dp [K(q) w] by a central difference of the derivatives in q along w."""
+
+    def __init__(self, system, q, v, a, w, size):
+        self.system = system
+        self.q, self.v, self.a = q.copy(), v.copy(), a.copy()
+        self.w = w.copy() if w is not None else None
+        self.size = size
+
+    def vectors(self, names) -> list:
+        s = self.system
+        out = s.residual_parameter_derivatives(names, self.q, self.v, self.a)
+        wmax = self.w.norm(PETSc.NormType.INFINITY) if self.w is not None else 0.0
+        if wmax > 0.0:
+            eps = SI_EPS * self.size / wmax
+            x = self.q.copy()
+            x.axpy(eps, self.w)
+            plus = s.residual_parameter_derivatives(names, x, self.v, self.a)
+            x.axpy(-2.0 * eps, self.w)
+            minus = s.residual_parameter_derivatives(names, x, self.v, self.a)
+            for o, hi, lo in zip(out, plus, minus, strict=True):
+                hi.axpy(-1.0, lo)
+                o.axpy(0.5 / eps, hi)
+                hi.destroy()
+                lo.destroy()
+            x.destroy()
+        return out
+
+    def contract(self, names, mu) -> np.ndarray:
+        vecs = self.vectors(names)
+        result = np.array([vec.dot(mu) for vec in vecs])
+        for vec in vecs:
+            vec.destroy()
+        return result

@@ -159,6 +159,26 @@ class ParameterMap:
                     + (" and material.youngs_modulus#k (stiffness field)" if not self.ngroups
                        else ""))
 
+    def validate(self, values) -> None:
+        """Raise for invalid values (on every rank: the values are the same everywhere, and a
+        rank-local error in the Lame conversion would deadlock the others)."""
+        for name, value in values.items():
+            v = float(value)
+            key = name.rsplit(".", 1)[-1]
+            if GROUP_PATTERN.match(name):
+                ok, valid = v > 0.0, "> 0 (a multiplier of Young's modulus)"
+            elif key == "poisson_ratio":
+                ok, valid = -1.0 < v < 0.5, "in (-1, 0.5)"
+            elif key in ("youngs_modulus", "density"):
+                ok, valid = v > 0.0, "> 0"
+            elif name.startswith("damping."):
+                ok, valid = v >= 0.0, ">= 0"
+            else:
+                ok, valid = np.isfinite(v), "finite"
+            if not (ok and np.isfinite(v)):
+                raise ExperimentError(f'parameter "{name}" = {v!r} is invalid: it must be '
+                                      f"{valid}")
+
     # -- per-cell coefficients -----------------------------------------------------------------
     def E(self) -> np.ndarray:
         return self.E_base * self.E_mult
@@ -200,6 +220,7 @@ class ParameterMap:
     def update(self, values: dict) -> None:
         """Set parameter values (material ones per cell; the caller rebuilds matrices)."""
         self.check(values)
+        self.validate(values)
         # defaults before regions: a region set together with the default keeps its own value
         for name, value in sorted(values.items(), key=lambda kv: kv[0].count(".")):
             value = float(value)
