@@ -291,6 +291,27 @@ def test_interface_only_system_gives_the_same_gradient(method):
     generic.destroy()
 
 
+@pytest.mark.parametrize("method", ["be", "si", "alpha"])
+def test_cell_sensitivity_map_sums_to_the_gradients(method):
+    """d phi / d E_cell from the adjoint sweep: its sum is d phi / d material.youngs_modulus and
+    its sums over the Morton groups times E are the stiffness-field gradients (1e-10)."""
+    fm = _forward(method, "corotated")
+    dphi = _misfit(MARKERS[None] + 0.01)
+    value, grad, cells = fm.cell_gradient(fm.p0, dphi)
+    assert value == pytest.approx(fm.gradient(fm.p0, dphi)[0], rel=1e-14)
+    assert cells.shape == (len(fm.system.dmesh.mesh.tets),)
+    E = NAMES.index("material.youngs_modulus")
+    assert cells.sum() == pytest.approx(grad[E], rel=1e-10)
+    from petsoft.dynamics.parameters import morton_groups
+
+    mesh = fm.system.dmesh.mesh
+    group = morton_groups(mesh.points, mesh.tets, fm.system.parameters.ngroups)
+    for k in (0, 2):
+        j = NAMES.index(f"material.youngs_modulus#{k}")
+        assert 1e5 * cells[group == k].sum() == pytest.approx(grad[j], rel=1e-10)
+    fm.destroy()
+
+
 # -- 3. serial == parallel ------------------------------------------------------------------------
 @pytest.mark.parametrize("method", ["be", "si", "alpha"])
 def test_gradient_same_on_one_and_all_ranks(method):
