@@ -312,6 +312,42 @@ def test_cell_sensitivity_map_sums_to_the_gradients(method):
     fm.destroy()
 
 
+@pytest.mark.parametrize("method", ["be", "si", "alpha"])
+def test_observed_accelerations(method):
+    """observe = "acceleration" (frames at t = 0, between steps and at the end): the accelerations
+    are those of the scheme (alpha's a_n; (v_n - v_n-1)/h for be/si; the consistent a0 at t = 0,
+    which equals alpha's), adjoint == forward sensitivities, Taylor orders 2."""
+    exp = _bar("corotated", method)
+    frames = [0.0, 0.0031, 0.01]
+    fm = ForwardModel(exp, NAMES, lambda s: MarkerObserver(s, MARKERS), frames,
+                      observe="acceleration")
+    p = fm.p0.copy()
+    acc0 = fm.simulate(p)
+    ref = ForwardModel(_bar("corotated", "alpha"), NAMES, lambda s: MarkerObserver(s, MARKERS),
+                       [0.0], observe="acceleration").simulate(p)
+    np.testing.assert_allclose(acc0[0], ref[0], rtol=1e-12, atol=1e-12 * abs(ref).max())
+    assert abs(acc0).max() > 1.0          # released from a bend: m/s^2, not a position
+    dphi = _misfit(acc0 + 0.1 * np.random.default_rng(9).standard_normal(acc0.shape))
+    value, grad = fm.gradient(p, dphi)
+    _, jac = fm.jacobian(p)
+    g_fwd = np.einsum("kmc,kmcp->p", dphi(acc0)[1], jac)
+    scale = np.where(p != 0, np.abs(p), 1.0)
+    err = np.abs((grad - g_fwd) * scale).max() / np.abs(grad * scale).max()
+    d = _direction(p)
+    rem_phi, rem_sim = [], []
+    for k in range(4):
+        eps = 2e-2 * 2.0**-k
+        sim = fm.simulate(p + eps * d)
+        rem_phi.append(abs(dphi(sim)[0] - value - eps * grad @ d))
+        rem_sim.append(np.linalg.norm(sim - acc0 - eps * jac @ d))
+    o_phi, o_sim = _orders(rem_phi), _orders(rem_sim)
+    _print(f"accelerations/{method}: adjoint vs forward {err:.2e}; orders {o_phi} {o_sim}")
+    assert err < 1e-8
+    assert np.all((o_phi > 1.8) & (o_phi < 2.2)), o_phi
+    assert np.all((o_sim > 1.8) & (o_sim < 2.2)), o_sim
+    fm.destroy()
+
+
 # -- 3. serial == parallel ------------------------------------------------------------------------
 @pytest.mark.parametrize("method", ["be", "si", "alpha"])
 def test_gradient_same_on_one_and_all_ranks(method):

@@ -93,11 +93,18 @@ class ForwardModel:
     system : optional
         A prebuilt system offering the same interface (e.g. a mass-spring system); then
         ``initial_state`` is taken from ``system.initial_state()``.
+    observe : {"position", "acceleration"}
+        What the markers report: positions X + B q, or accelerations B a (``/frames/acceleration``
+        of a recording): alpha's own a_n, (v_n - v_{n-1})/h for be and si, and the consistent
+        acceleration M^-1 (f - grad W - D v) at t = 0 for all three.
     """
 
     def __init__(self, experiment, names, observer, frame_times, comm=None, integrator=None,
-                 h=None, system=None):
+                 h=None, system=None, observe: str = "position"):
         exp = self.experiment = experiment
+        if observe not in ("position", "acceleration"):
+            raise ExperimentError(f"observe = {observe!r}: valid are position, acceleration")
+        self.accel = observe == "acceleration"
         if exp.time is None and (h is None or integrator is None):
             raise ExperimentError(f"{exp.source}: [time] is missing: the forward model needs "
                                   "its step and integrator")
@@ -106,6 +113,9 @@ class ForwardModel:
             raise ExperimentError(
                 f"{exp.source}: time.integrator = {self.method!r}: gradients are implemented for "
                 f"{', '.join(INTEGRATORS)} only")
+        # accelerations are part of the state (alpha) or observed (a_n = (v_n - v_n-1)/h for
+        # be/si, the consistent acceleration at t = 0)
+        self.has_a = self.method == "alpha" or self.accel
         self.static = exp.initial.from_ == "static"
         self.h = float(h if h is not None else exp.time.step)
         if system is None:
@@ -216,13 +226,15 @@ class ForwardModel:
         self._set(p)
         q, v = self._initial()
         a = None
-        if self.method == "alpha":
-            self.integrator._forget()
+        if self.has_a:
             a = s.create_vec()
-            self.integrator.consistent_acceleration(0.0, q, v, a)
+            if self.method == "alpha":
+                self.integrator._forget()
+            # the integrator's own formula (alpha recomputes the same a0 on its first step)
+            GeneralizedAlpha.consistent_acceleration(self._a0_helper(), 0.0, q, v, a)
         states = [(q.copy(), v.copy(), a.copy() if a is not None else None)]
         obs = {}
-        self._observe(0, q, obs)
+        self._observe(0, a if self.accel else q, obs)
         q1, v1 = q.duplicate(), v.duplicate()
         with scoped_defaults(**FORWARD_OPTIONS):
             for n in range(self.nsteps):
@@ -235,7 +247,13 @@ class ForwardModel:
                         f"{dict(zip(self.names, np.asarray(p).tolist(), strict=True))}. No retry "
                         "with a smaller step in calibration runs: use a smaller [time] step or "
                         "tighter parameter bounds")
-                a1 = self.integrator.a0.copy() if self.method == "alpha" else None
+                a1 = None
+                if self.method == "alpha":
+                    a1 = self.integrator.a0.copy()
+                elif self.accel:
+                    a1 = v1.copy()
+                    a1.axpy(-1.0, v)
+                    a1.scale(1.0 / h)
                 if on_step is not None:
                     on_step(n, states[-1], (q1, v1, a1))
                 if store:
@@ -247,7 +265,7 @@ class ForwardModel:
                     states[-1] = (q1.copy(), v1.copy(), a1)
                 q1.copy(q)
                 v1.copy(v)
-                self._observe(n + 1, q, obs)
+                self._observe(n + 1, states[-1][2] if self.accel else q, obs)
         for x in (q, v, q1, v1, a):
             if x is not None:
                 x.destroy()
@@ -257,10 +275,22 @@ class ForwardModel:
         if n in self.uses:
             obs[n] = self.observer.observe(q) - self.observer.reference
 
+    def _a0_helper(self):
+        """What GeneralizedAlpha.consistent_acceleration needs of its instance."""
+        if self.method == "alpha":
+            return self.integrator
+        if getattr(self, "_helper", None) is None:
+            from types import SimpleNamespace
+
+            self._helper = SimpleNamespace(system=self.system, work=self.system.create_vec())
+        return self._helper
+
     def _frames(self, obs) -> np.ndarray:
-        """(K, M, 3) positions from the observed displacements of steps."""
+        """(K, M, 3) positions (or accelerations) from the observed steps."""
         ref = self.observer.reference
         out = np.repeat(ref[None], len(self.frame_times), axis=0)
+        if self.accel:
+            out[:] = 0.0
         for n, uses in self.uses.items():
             for k, w in uses:
                 out[k] += w * obs[n]
@@ -402,7 +432,7 @@ class ForwardModel:
         dsim = np.zeros((K_frames, nm, 3, P))
         tangents = {"q": [s.create_vec() for _ in range(P)],
                     "v": [s.create_vec() for _ in range(P)],
-                    "a": [s.create_vec() for _ in range(P)] if self.method == "alpha" else None}
+                    "a": [s.create_vec() for _ in range(P)] if self.has_a else None}
         for x in tangents["q"] + tangents["v"]:
             x.zeroEntries()
         ksp = self._solver()
@@ -410,8 +440,8 @@ class ForwardModel:
         def observe_tangents(n):
             for k, w in self.uses.get(n, []):
                 for j in range(P):
-                    dsim[k, :, :, j] += w * (self.observer.observe(tangents["q"][j])
-                                             - self.observer.reference)
+                    x = tangents["a" if self.accel else "q"][j]
+                    dsim[k, :, :, j] += w * (self.observer.observe(x) - self.observer.reference)
 
         def start(states0):
             q0, v0, a0 = states0
@@ -424,7 +454,7 @@ class ForwardModel:
                     self._solve(sksp, r, tangents["q"][j])
                     r.destroy()
                 sksp.destroy()
-            if self.method == "alpha":
+            if self.has_a:
                 # M da0 = -P (R_p + K(q0) dq0)   (self.J holds K(q0) when static)
                 deriv = self._derivatives(q0, v0, a0)
                 mksp = self._mass_solver()
@@ -468,10 +498,16 @@ class ForwardModel:
                 s.zero_prescribed(rhs)
                 dq1 = tmp
                 self._solve(ksp, rhs, dq1)
+                if self.accel:
+                    dv0.copy(tangents["a"][j])
                 # dv1 = (dq1 - dq0)/h
                 dv0.waxpy(-1.0, dq0, dq1)
                 dv0.scale(1.0 / h)
                 dq1.copy(dq0)
+                if self.accel:
+                    # da1 = (dv1 - dv0)/h
+                    tangents["a"][j].aypx(-1.0, dv0)
+                    tangents["a"][j].scale(1.0 / h)
             for x in Rp + [rhs, tmp]:
                 x.destroy()
             if data.get("T") is not None:
@@ -565,15 +601,15 @@ class ForwardModel:
             w = sum(wt * wsim[k] for k, wt in uses)
             loads[n] = self.observer.adjoint(w)
         N = self.nsteps
-        gq = loads.pop(N) if N in loads else s.create_vec()
-        if N not in self.uses:
-            gq.zeroEntries()
-        gv = s.create_vec()
+        gq, gv = s.create_vec(), s.create_vec()
+        gq.zeroEntries()
         gv.zeroEntries()
         ga = None
-        if self.method == "alpha":
+        if self.has_a:
             ga = s.create_vec()
             ga.zeroEntries()
+        if N in loads:
+            (ga if self.accel else gq).axpy(1.0, loads.pop(N))
         ksp = self._solver()
         mu, rhs, tmp = s.create_vec(), s.create_vec(), s.create_vec()
         for n in range(N - 1, -1, -1):
@@ -583,6 +619,9 @@ class ForwardModel:
                 gq, gv, ga = self._alpha_adjoint(data, deriv, gq, gv, ga, ksp, mu, rhs, tmp,
                                                  contract)
             else:
+                if self.accel:
+                    # a1 = (v1 - v0)/h: its adjoint joins v1's (and v0's below)
+                    gv.axpy(1.0 / h, ga)
                 # g = gq1 + gv1/h; mu = J^-1 P g
                 rhs.waxpy(1.0 / h, gv, gq)
                 s.zero_prescribed(rhs)
@@ -603,12 +642,15 @@ class ForwardModel:
                     data["T"].destroy()
                 gq0.copy(gq)
                 gq0.destroy()
+                if self.accel:
+                    gv.axpy(-1.0 / h, ga)
+                    ga.zeroEntries()
             if n in loads:
-                gq.axpy(1.0, loads.pop(n))
+                (ga if self.accel else gq).axpy(1.0, loads.pop(n))
         q0, v0, a0 = states[0]
         if self.static:
             sksp, sderiv = self._static_setup(q0)       # self.J = K(q0)
-        if self.method == "alpha":
+        if self.has_a:
             # M da0 = -P (R_p(t0) + K(q0) dq0): grad -= R_p(t0) . nu, gq0 -= K(q0) nu,
             # nu = M^-1 P ga0
             mksp = self._mass_solver()
