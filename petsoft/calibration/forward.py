@@ -140,7 +140,13 @@ class ForwardModel:
             from ..experiment import get_parameter
 
             self.p0 = np.array([get_parameter(exp, n) for n in self.names])
-        self.observer = observer if hasattr(observer, "observe") else observer(s)
+        self._own_observer = not hasattr(observer, "observe")
+        self.observer = observer(s) if self._own_observer else observer
+        # the marker reference positions: observe(0) (the contract is observe(q) = X + B q)
+        zero = s.create_vec()
+        zero.zeroEntries()
+        self.reference = np.array(self.observer.observe(zero), dtype=float).reshape(-1, 3)
+        zero.destroy()
         self.frame_times = np.asarray(frame_times, dtype=float)
         self.nsteps = max(1, math.ceil(self.frame_times.max() / self.h - 1e-9))
         steps = self.h * np.arange(self.nsteps + 1)
@@ -273,7 +279,20 @@ class ForwardModel:
 
     def _observe(self, n, q, obs) -> None:
         if n in self.uses:
-            obs[n] = self.observer.observe(q) - self.observer.reference
+            obs[n] = self._apply_B(q)
+
+    def _apply_B(self, x) -> np.ndarray:
+        """B x (M, 3) through the observer's observe(x) = X + B x, scaled so that subtracting X
+        loses no digits when x is tiny (a tangent dq/dE ~ 1e-8 next to X ~ 0.3 would keep only
+        ~8 digits)."""
+        size = x.norm(PETSc.NormType.INFINITY)
+        if size == 0.0:
+            return np.zeros_like(self.reference)
+        y = x.copy()
+        y.scale(1.0 / size)
+        out = (self.observer.observe(y) - self.reference) * size
+        y.destroy()
+        return out
 
     def _a0_helper(self):
         """What GeneralizedAlpha.consistent_acceleration needs of its instance."""
@@ -287,7 +306,7 @@ class ForwardModel:
 
     def _frames(self, obs) -> np.ndarray:
         """(K, M, 3) positions (or accelerations) from the observed steps."""
-        ref = self.observer.reference
+        ref = self.reference
         out = np.repeat(ref[None], len(self.frame_times), axis=0)
         if self.accel:
             out[:] = 0.0
@@ -427,8 +446,7 @@ class ForwardModel:
         """(sim (K, M, 3), dsim/dp (K, M, 3, P)) by forward sensitivities (one run)."""
         s, h, P = self.system, self.h, len(self.names)
         K_frames = len(self.frame_times)
-        nm = self.observer.num_markers if hasattr(self.observer, "num_markers") else \
-            len(self.observer.reference)
+        nm = len(self.reference)
         dsim = np.zeros((K_frames, nm, 3, P))
         tangents = {"q": [s.create_vec() for _ in range(P)],
                     "v": [s.create_vec() for _ in range(P)],
@@ -441,7 +459,7 @@ class ForwardModel:
             for k, w in self.uses.get(n, []):
                 for j in range(P):
                     x = tangents["a" if self.accel else "q"][j]
-                    dsim[k, :, :, j] += w * (self.observer.observe(x) - self.observer.reference)
+                    dsim[k, :, :, j] += w * self._apply_B(x)
 
         def start(states0):
             q0, v0, a0 = states0
@@ -732,6 +750,10 @@ class ForwardModel:
     def destroy(self) -> None:
         self.integrator.destroy()
         self.J.destroy()
+        if self._own_observer and hasattr(self.observer, "destroy"):
+            self.observer.destroy()
+        if getattr(self, "_helper", None) is not None:
+            self._helper.work.destroy()
 
 
 class _GenericDerivatives:
