@@ -7,7 +7,7 @@
    a nonlinear (corotated) and the linear material: Taylor tests of the adjoint gradient of a
    least-squares misfit and of the forward-sensitivity directional derivative of the marker
    positions (observed order of the first-order remainder in [1.8, 2.2]); adjoint gradient ==
-   forward-sensitivity gradient to 1e-8; forward sensitivities == central differences.
+   forward-sensitivity gradient to 1e-10; forward sensitivities == central differences.
 3. Serial == parallel: under ``mpiexec -n 2`` the gradient on COMM_WORLD equals the gradient each
    rank computes alone on COMM_SELF to 1e-10 (serially the two runs are on one rank each).
 4. A static initial state (its derivative K dq0/dp = -dr/dp): Taylor and adjoint == forward.
