@@ -26,7 +26,7 @@ from petsc4py import PETSc
 from petsoft.calibration.forward import ForwardModel
 from petsoft.calibration.observation import MarkerObserver
 from petsoft.dynamics.system import DynamicSystem
-from petsoft.errors import ExperimentError
+from petsoft.errors import ExperimentError, SolverError
 from petsoft.experiment import experiment_from_dict
 from petsoft.kernels import elastic as kernels
 from petsoft.kernels.tet import shape_gradients
@@ -429,6 +429,12 @@ def test_user_errors():
     bad[7] = -1.0          # a stiffness multiplier whose cells may live on one rank only
     with pytest.raises(ExperimentError, match=r"youngs_modulus#2.*> 0"):
         fm.gradient(bad, _misfit(MARKERS[None]))
+    fm.destroy()
+    # a step that inverts elements: a clear error naming the step, no retry with halved steps
+    crash = _bar("neohookean", initial={"velocity": ["0", "0", "3000*x"]})
+    fm = ForwardModel(crash, NAMES[:1], obs, FRAMES)
+    with pytest.raises(SolverError, match=r"forward model \(be\) step 1 at t = 0 s.*No retry"):
+        fm.simulate(fm.p0)
     fm.destroy()
     from petsoft.calibration.observation import ObservationError
 
