@@ -33,3 +33,19 @@ def test_bench_step_quick():
     assert "1 MPI rank(s)" in proc.stdout
     # The DOLFINx peer either ran (and its q1 was compared with petsoft's) or says why not.
     assert "DOLFINx: skipped" in proc.stdout or "correctness (gamg" in proc.stdout, proc.stdout
+
+
+@pytest.mark.serial_only
+def test_bench_gradient_quick():
+    """``bench_gradient.py --quick`` exits 0 and prints a row per integrator and parameter count,
+    each with the adjoint and forward-sensitivity gradients agreeing."""
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "bench_gradient.py"), "--quick"],
+        cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "sens/fwd  adj/fwd" in proc.stdout, proc.stdout
+    rows = [line.split() for line in proc.stdout.splitlines()
+            if line.split()[:1] in (["be"], ["si"], ["alpha"])]
+    assert [(r[0], int(r[1])) for r in rows] == [
+        (m, P) for m in ("be", "si", "alpha") for P in (2, 10, 100)], proc.stdout
+    assert all(float(r[-1]) < 1e-7 for r in rows), proc.stdout

@@ -110,9 +110,7 @@ class DynamicSystem:
         self.M.mult(v, out)
         out.scale(self.alpha)
         if self.beta != 0.0:
-            if not hasattr(self, "K0"):
-                self.K0 = self._matrix_from(self.k0_values)
-            self.K0.mult(v, self._work)
+            self.K0_matrix().mult(v, self._work)
             out.axpy(self.beta, self._work)
         return out
 
@@ -197,6 +195,83 @@ class DynamicSystem:
         """Whether some prescribed displacement depends on time."""
         return any(disp is not None and any("t" in e.variables for e in disp)
                    for _, _, disp in self.dirichlet.conditions)
+
+    # -- parameters (calibration gradients; see petsoft.dynamics.parameters) ---------------------
+    @property
+    def parameters(self):
+        """The :class:`~petsoft.dynamics.parameters.ParameterMap` (built on first use)."""
+        if getattr(self, "_parameters", None) is None:
+            from .parameters import ParameterMap
+
+            n = len(self.dmesh.cells)
+            self.elastic_dN = np.empty((n, 4, 3))
+            self.cell_models = np.empty(n, dtype=object)
+            for group in self.elastic.groups:
+                self.elastic_dN[group.cells] = group.dN
+                self.cell_models[group.cells] = group.model
+            self._parameters = ParameterMap(self)
+        return self._parameters
+
+    def parameter_names(self) -> list[str]:
+        """Names :meth:`set_parameters` and :meth:`residual_parameter_derivatives` accept."""
+        return self.parameters.names()
+
+    def define_stiffness_groups(self, count: int) -> list[str]:
+        """Define a stiffness field of ``count`` Morton-chunk cell groups; returns its names
+        ``material.youngs_modulus#k`` (multipliers of E, 1 at the start)."""
+        return self.parameters.define_groups(count)
+
+    def set_parameters(self, values: dict) -> None:
+        """Change named parameters in place (no mesh rebuild): per-cell Lame parameters and
+        density, then M, K0, the lumped masses and gravity; Rayleigh coefficients."""
+        from ..kernels.materials import lame_parameters
+
+        pm = self.parameters
+        pm.update(values)
+        self.alpha = pm.values["damping.mass"]
+        self.beta = pm.values["damping.stiffness"]
+        mu, lam = lame_parameters(pm.E(), pm.nu)
+        for group in self.elastic.groups:
+            group.mu[:] = mu[group.cells]
+            group.lam[:] = lam[group.cells]
+        dm, model = self.dmesh, self.model
+        model.density[:] = pm.rho
+        acc = [pm.values[f"gravity.acceleration.{c}"] for c in "xyz"]
+        self.assembler.begin()
+        mass_e = consistent_mass_matrices(dm, model.density)
+        for group in self.elastic.groups:
+            self.assembler.add(group.name, np.ascontiguousarray(mass_e[group.cells]))
+        self.mass_values = self.assembler.values.copy()
+        self.assembler.finish(self.M)
+        self.assembler.begin()
+        self.elastic.add_hessian(np.zeros((dm.nvertices, 3)), self.assembler)
+        self.k0_values = self.assembler.values.copy()
+        if hasattr(self, "K0"):
+            self.assembler.finish(self.K0)
+        self.lumped.zeroEntries()
+        dm.add_to_global(np.repeat(lumped_masses(dm, model.density)[:, None], 3, axis=1),
+                         self.lumped)
+        self.gravity.zeroEntries()
+        dm.add_to_global(gravity_forces(dm, model.density, acc), self.gravity)
+
+    def K0_matrix(self) -> PETSc.Mat:
+        """K0 (the reference stiffness) as an assembled matrix."""
+        if not hasattr(self, "K0"):
+            self.K0 = self._matrix_from(self.k0_values)
+        return self.K0
+
+    def parameter_derivatives(self, q, v, a, w=None):
+        """Element-level d r/d p at (q, v, a) (+ d/dp [K(q) w]) for many names at once:
+        ``.vectors(names)`` gives the vectors, ``.contract(names, mu)`` their dots with mu."""
+        from .parameters import ParameterDerivatives
+
+        return ParameterDerivatives(self, q, v, a, w)
+
+    def residual_parameter_derivatives(self, names, q, v, a, t: float = 0.0) -> list:
+        """d/dp of r(q, v, a; p) = M a + grad W(q) + D v - f_g - f_t(t), prescribed rows zeroed
+        (tractions do not depend on parameters, so t is unused)."""
+        self.parameters.check(names)
+        return self.parameter_derivatives(q, v, a).vectors(list(names))
 
     def destroy(self) -> None:
         for name in ("M", "K0", "lumped", "gravity", "_work"):

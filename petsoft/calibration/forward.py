@@ -1,0 +1,601 @@
+"""The forward model of a calibration: parameters -> simulated marker positions, and gradients.
+
+:class:`ForwardModel` runs one of the implicit integrators ``be``, ``si`` or ``alpha`` (petsoft's
+own generalized-alpha step, started from the consistent acceleration) on a system whose
+parameters are changed in place, and observes the markers at the frame times (linear
+interpolation between the two neighbouring steps). It differentiates the *discrete* time
+stepping exactly (to the solver tolerances), in two ways:
+
+* forward sensitivities (:meth:`ForwardModel.jacobian`): the tangent of every parameter is
+  carried along the run, one linear solve per parameter and step; cheap for few parameters;
+* a discrete adjoint (:meth:`ForwardModel.gradient`): one forward run that stores the
+  trajectory, then one backward sweep with one linear solve per step, whatever the number of
+  parameters (P dot products per step).
+
+Both solve with the step's Jacobian, reassembled at the state the step's equation is linearised
+at (BE: q1; SI: the predictor q0 + h v0, the very matrix of the SI step; alpha: q_f); it is
+symmetric, so the adjoint solves with the same operator. A fresh CG + GAMG solve per step
+(prefix ``fm_grad_``, rtol 1e-12) is used rather than the integrator's KSP: Newton assembles its
+last Jacobian at the previous iterate, and the derivative needs it at the converged state.
+
+Per step with h, Jacobian J and parameter derivative R_p = d r/d p of the step equation
+(:meth:`DynamicSystem.parameter_derivatives`):
+
+* BE: J dq1 = -R_p + M (dq0/h^2 + dv0/h) + D dq0/h, dv1 = (dq1 - dq0)/h.
+* SI, q1 = qp - J(qp)^-1 R(qp): J(qp) dq1 = -S_p - T_w (dq0 + h dv0) + M (dq0/h^2 + dv0/h)
+  + D dq0/h, with w = q1 - qp, S_p = R_p + d/dp [K(qp) w] and T_w = d/deps K(qp + eps w), a
+  third derivative of W. T_w is zero for the linear material, and is computed as the central
+  difference (K(qp + eps w) - K(qp - eps w)) / (2 eps) with eps |w|_inf = 1e-4 x the mean cell
+  size: exact to round-off for StVK (K quadratic in q), O(1e-8) relative for corotated and
+  neo-Hookean, where the Taylor test of the SI gradient flattens at that level.
+* alpha: the tangents of a1, v1, q_f, v_f, a_m from (dq0, dv0, da0, dq1) (see
+  :meth:`ForwardModel._alpha_tangent`) and J dq1 = -R_p - (M da_m' + K(q_f) dq_f' + D dv_f');
+  the consistent initial acceleration M a0 = f - grad W(q0) - D v0 gives M da0 = -R_p(t0).
+
+Memory: the adjoint keeps every step's state, (N + 1) x (2 vectors, 3 for alpha) x ndof x 8 bytes
+(e.g. 1000 steps of a 30 000-dof mesh: 0.7 GB for alpha); checkpointing is future work.
+
+Initial states: expression initial conditions do not depend on parameters; ``[initial]
+from = "static"`` does, and is refused (not supported yet).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+from petsc4py import PETSc
+
+from ..dynamics.alpha import GeneralizedAlpha, alpha_parameters
+from ..dynamics.implicit import ImplicitIntegrator
+from ..dynamics.simulate import initial_state
+from ..dynamics.system import DynamicSystem
+from ..errors import ExperimentError, SolverError
+from ..linear import linear_defaults
+from ..model import build_model
+from ..options import scoped_defaults
+from .observation import time_interpolation
+
+INTEGRATORS = ("be", "si", "alpha")
+PREFIX = "fm_"
+GRAD_PREFIX = "fm_grad_"
+#: Newton of the forward run: gradients are only as accurate as the solves (user options win).
+FORWARD_OPTIONS = {PREFIX + "snes_rtol": "1e-12", PREFIX + "ksp_rtol": "1e-13"}
+#: Relative size of the SI third-derivative difference: eps |w|_inf = this x mean cell size.
+SI_EPS = 1e-4
+_GROUP = re.compile(r"#(\d+)$")
+
+
+class ForwardModel:
+    """Parameters -> marker positions at frame times, with forward and adjoint gradients.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        Needs ``[time]`` (step, and the integrator unless given).
+    names : sequence of str
+        Parameter names (:meth:`DynamicSystem.parameter_names`; ``material.youngs_modulus#k``
+        defines a stiffness field of 1 + max k Morton-chunk cell groups).
+    observer : MarkerObserver or callable(system) -> MarkerObserver
+        ``observe(q) -> (M, 3)`` = reference + B q (same on every rank), ``adjoint(w) -> Vec``
+        = B^T w. A callable is called with this model's system (the observer must be built on
+        the system whose vectors it observes).
+    frame_times : (K,) array
+        Times of the observed frames, within [0, N h]; the run lasts ceil(max / h) steps.
+    comm : PETSc.Comm, optional
+    integrator : {"be", "si", "alpha"}, optional
+        Default: ``[time] integrator``.
+    h : float, optional
+        Step (default ``[time] step``).
+    system : optional
+        A prebuilt system offering the same interface (e.g. a mass-spring system); then
+        ``initial_state`` is taken from ``system.initial_state()``.
+    """
+
+    def __init__(self, experiment, names, observer, frame_times, comm=None, integrator=None,
+                 h=None, system=None):
+        exp = self.experiment = experiment
+        if exp.time is None and (h is None or integrator is None):
+            raise ExperimentError(f"{exp.source}: [time] is missing: the forward model needs "
+                                  "its step and integrator")
+        self.method = integrator or exp.time.integrator
+        if self.method not in INTEGRATORS:
+            raise ExperimentError(
+                f"{exp.source}: time.integrator = {self.method!r}: gradients are implemented for "
+                f"{', '.join(INTEGRATORS)} only")
+        if exp.initial.from_ == "static":
+            raise ExperimentError(
+                f'{exp.source}: initial.from = "static": the static initial state depends on the '
+                "parameters and its derivative is not supported yet; give initial expressions")
+        self.h = float(h if h is not None else exp.time.step)
+        if system is None:
+            self.model = build_model(exp, comm)
+            system = DynamicSystem(self.model, exp.damping.mass, exp.damping.stiffness)
+        else:
+            self.model = None
+        self.system = s = system
+        self.comm = s.comm
+        self.names = list(names)
+        groups = [int(m.group(1)) for n in self.names if (m := _GROUP.search(n))]
+        if groups:
+            s.define_stiffness_groups(max(groups) + 1)
+        pnames = s.parameter_names()
+        bad = [n for n in self.names if n not in pnames]
+        if bad:
+            raise ExperimentError(f'{exp.source}: "{bad[0]}" is not a differentiable parameter; '
+                                  f"valid: {', '.join(pnames)} (and material.youngs_modulus#k)")
+        self.p0 = np.array([s.parameters.values[n] for n in self.names]) \
+            if hasattr(s, "parameters") else None
+        self.observer = observer if hasattr(observer, "observe") else observer(s)
+        self.frame_times = np.asarray(frame_times, dtype=float)
+        self.nsteps = max(1, math.ceil(self.frame_times.max() / self.h - 1e-9))
+        steps = self.h * np.arange(self.nsteps + 1)
+        self.frame_index, self.frame_weight = time_interpolation(
+            self.frame_times, steps, source=f"{exp.source}: frame_times")
+        # which frames each step contributes to, with its weight
+        self.uses: dict[int, list[tuple[int, float]]] = {}
+        for k in range(len(self.frame_times)):
+            for i, w in zip(self.frame_index[k], self.frame_weight[k], strict=True):
+                if w != 0.0:
+                    self.uses.setdefault(int(i), []).append((k, float(w)))
+        if self.method == "alpha":
+            self.integrator = GeneralizedAlpha(s, exp.time.alpha_radius if exp.time else 0.5,
+                                               prefix=PREFIX)
+            self.am, self.af, self.gamma, self.nbeta = alpha_parameters(self.integrator.radius)
+        else:
+            self.integrator = ImplicitIntegrator(s, self.method, prefix=PREFIX)
+        self.J = s.create_matrix()
+        modes = s.near_nullspace()
+        if modes is not None:
+            self.J.setNearNullSpace(modes)
+        self._K = None
+        vol = getattr(getattr(s, "dmesh", None), "cell_volumes", None)
+        if vol is not None:
+            self.cell_size = float(np.cbrt(s.dmesh.allreduce_sum(vol.sum())
+                                           / s.dmesh.comm.tompi4py().allreduce(len(vol))))
+        else:
+            self.cell_size = 1.0
+        self.linear_material = all(g.model == "linear" for g in
+                                   getattr(getattr(s, "elastic", None), "groups", [None])
+                                   if g is not None) and hasattr(s, "elastic")
+        self.stats = {}
+
+    # -- parameters and the forward run -----------------------------------------------------------
+    def _set(self, p) -> None:
+        p = np.asarray(p, dtype=float).reshape(-1)
+        if len(p) != len(self.names):
+            raise ValueError(f"{len(p)} parameter values for {len(self.names)} names")
+        if not np.isfinite(p).all():
+            raise ExperimentError(f"{self.experiment.source}: non-finite parameter values "
+                                  f"{dict(zip(self.names, p.tolist(), strict=True))}")
+        self.system.set_parameters(dict(zip(self.names, p.tolist(), strict=True)))
+
+    def _initial(self):
+        s = self.system
+        if self.model is None:
+            return s.initial_state()
+        return initial_state(self.model, s, self.experiment)
+
+    def _run(self, p, store: bool, on_step=None):
+        """Forward run; returns the states [(q, v, a or None)] if ``store`` and the frames."""
+        s, h = self.system, self.h
+        self._set(p)
+        q, v = self._initial()
+        a = None
+        if self.method == "alpha":
+            self.integrator._forget()
+            a = s.create_vec()
+            self.integrator.consistent_acceleration(0.0, q, v, a)
+        states = [(q.copy(), v.copy(), a.copy() if a is not None else None)]
+        obs = {}
+        self._observe(0, q, obs)
+        q1, v1 = q.duplicate(), v.duplicate()
+        with scoped_defaults(**FORWARD_OPTIONS):
+            for n in range(self.nsteps):
+                t0 = n * h
+                report = self.integrator.step(t0, q, v, h, q1, v1)
+                if not report.converged:
+                    raise SolverError(
+                        f"{self.experiment.source}: forward model ({self.method}) step {n + 1} at "
+                        f"t = {t0:.6g} s (h = {h:.3g} s) failed: {report.reason}; parameters "
+                        f"{dict(zip(self.names, np.asarray(p).tolist(), strict=True))}. No retry "
+                        "with a smaller step in calibration runs: use a smaller [time] step or "
+                        "tighter parameter bounds")
+                a1 = self.integrator.a0.copy() if self.method == "alpha" else None
+                if on_step is not None:
+                    on_step(n, states[-1], (q1, v1, a1))
+                if store:
+                    states.append((q1.copy(), v1.copy(), a1))
+                else:
+                    for x in states[-1]:
+                        if x is not None:
+                            x.destroy()
+                    states[-1] = (q1.copy(), v1.copy(), a1)
+                q1.copy(q)
+                v1.copy(v)
+                self._observe(n + 1, q, obs)
+        for x in (q, v, q1, v1, a):
+            if x is not None:
+                x.destroy()
+        return states, self._frames(obs)
+
+    def _observe(self, n, q, obs) -> None:
+        if n in self.uses:
+            obs[n] = self.observer.observe(q) - self.observer.reference
+
+    def _frames(self, obs) -> np.ndarray:
+        """(K, M, 3) positions from the observed displacements of steps."""
+        ref = self.observer.reference
+        out = np.repeat(ref[None], len(self.frame_times), axis=0)
+        for n, uses in self.uses.items():
+            for k, w in uses:
+                out[k] += w * obs[n]
+        return out
+
+    def simulate(self, p) -> np.ndarray:
+        """Marker positions (K, M, 3) at the frame times (identical on every rank)."""
+        states, sim = self._run(p, store=False)
+        self._free(states)
+        return sim
+
+    # -- shared pieces of the derivative ----------------------------------------------------------
+    def _free(self, states) -> None:
+        for st in states:
+            for x in st:
+                if x is not None:
+                    x.destroy()
+
+    def _solver(self):
+        ksp = PETSc.KSP().create(comm=self.comm)
+        ksp.setOptionsPrefix(GRAD_PREFIX)
+        (getattr(self.system, "linear_defaults", None) or linear_defaults)(ksp)
+        ksp.setFromOptions()
+        ksp.setOperators(self.J)
+        return ksp
+
+    def _solve(self, ksp, rhs, out) -> None:
+        ksp.solve(rhs, out)
+        if ksp.getConvergedReason() < 0:
+            raise SolverError(f"{self.experiment.source}: a sensitivity/adjoint linear solve "
+                              f"diverged (KSP reason {ksp.getConvergedReason()}); try "
+                              f"-{GRAD_PREFIX}pc_type lu")
+
+    def _predictor(self, n, q0, v0):
+        qp = q0.copy()
+        qp.axpy(self.h, v0)
+        self.system.apply_prescribed(qp, (n + 1) * self.h)
+        return qp
+
+    def _step_setup(self, n, st0, st1):
+        """Jacobian (into self.J), parameter derivatives and scheme data of step n -> n+1."""
+        s, h = self.system, self.h
+        (q0, v0, a0), (q1, v1, a1) = st0, st1
+        data = {}
+        if self.method == "be":
+            acc = v1.copy()
+            acc.axpy(-1.0, v0)
+            acc.scale(1.0 / h)
+            s.assemble_combination(q1, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h, self.J)
+            deriv = s.parameter_derivatives(q1, v1, acc)
+            acc.destroy()
+        elif self.method == "si":
+            qp = self._predictor(n, q0, v0)
+            w = q1.copy()
+            w.axpy(-1.0, qp)
+            acc = v1.copy()
+            acc.axpy(-1.0, v0)
+            acc.scale(1.0 / h)
+            s.assemble_combination(qp, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h, self.J)
+            deriv = s.parameter_derivatives(qp, v1, acc, w)
+            data["T"] = self._third(qp, w)
+            for x in (acc, qp, w):
+                x.destroy()
+        else:
+            am, af, g, b = self.am, self.af, self.gamma, self.nbeta
+            qf, vf, amv = q0.copy(), v0.copy(), a0.copy()
+            qf.scale(1.0 - af)
+            qf.axpy(af, q1)
+            vf.scale(1.0 - af)
+            vf.axpy(af, v1)
+            amv.scale(1.0 - am)
+            amv.axpy(am, a1)
+            c = af * g / (b * h)
+            data["aJ"], data["cD"] = am / (b * h * h), c
+            s.assemble_combination(qf, data["aJ"] + s.alpha * c, af, s.beta * c, self.J)
+            deriv = s.parameter_derivatives(qf, vf, amv)
+            for x in (qf, vf, amv):
+                x.destroy()
+        return deriv, data
+
+    def _third(self, qp, w):
+        """T_w = d/deps K(qp + eps w) as a matrix (None when zero: linear material, w = 0)."""
+        s = self.system
+        wmax = w.norm(PETSc.NormType.INFINITY)
+        if self.linear_material or wmax == 0.0:
+            return None
+        eps = SI_EPS * self.cell_size / wmax
+        T, Km = s.create_matrix(), s.create_matrix()
+        x = qp.copy()
+        x.axpy(eps, w)
+        s.assemble_combination(x, 0.0, 1.0, 0.0, T, eliminate=False)
+        x.axpy(-2.0 * eps, w)
+        s.assemble_combination(x, 0.0, 1.0, 0.0, Km, eliminate=False)
+        T.axpy(-1.0, Km)
+        T.scale(0.5 / eps)
+        x.destroy()
+        Km.destroy()
+        return T
+
+    def _K_apply(self, data, x, out) -> None:
+        """out = K(q_f) x (free rows; x zero on supports) from the eliminated alpha Jacobian."""
+        s = self.system
+        self.J.mult(x, out)
+        tmp = x.duplicate()
+        s.M.mult(x, tmp)
+        out.axpy(-data["aJ"], tmp)
+        s.damping_apply(x, tmp)
+        out.axpy(-data["cD"], tmp)
+        out.scale(1.0 / self.af)
+        tmp.destroy()
+
+    def _mass_solver(self):
+        """CG on the eliminated consistent mass (initial acceleration of alpha)."""
+        s = self.system
+        M = s.M.copy()
+        if hasattr(s, "dirichlet"):
+            s.dirichlet.eliminate(M)
+        ksp = PETSc.KSP().create(comm=self.comm)
+        ksp.setOperators(M)
+        ksp.setType(PETSc.KSP.Type.CG)
+        ksp.getPC().setType(PETSc.PC.Type.JACOBI)
+        ksp.setTolerances(rtol=1e-14, atol=1e-50, max_it=10000)
+        M.destroy()
+        return ksp
+
+    # -- forward sensitivities --------------------------------------------------------------------
+    def jacobian(self, p):
+        """(sim (K, M, 3), dsim/dp (K, M, 3, P)) by forward sensitivities (one run)."""
+        s, h, P = self.system, self.h, len(self.names)
+        K_frames = len(self.frame_times)
+        nm = self.observer.num_markers if hasattr(self.observer, "num_markers") else \
+            len(self.observer.reference)
+        dsim = np.zeros((K_frames, nm, 3, P))
+        tangents = {"q": [s.create_vec() for _ in range(P)],
+                    "v": [s.create_vec() for _ in range(P)],
+                    "a": [s.create_vec() for _ in range(P)] if self.method == "alpha" else None}
+        for x in tangents["q"] + tangents["v"]:
+            x.zeroEntries()
+        ksp = self._solver()
+
+        def observe_tangents(n):
+            for k, w in self.uses.get(n, []):
+                for j in range(P):
+                    dsim[k, :, :, j] += w * (self.observer.observe(tangents["q"][j])
+                                             - self.observer.reference)
+
+        def start(states0):
+            if self.method == "alpha":
+                q0, v0, a0 = states0
+                deriv = s.parameter_derivatives(q0, v0, a0)
+                mksp = self._mass_solver()
+                for j, r in enumerate(deriv.vectors(self.names)):
+                    r.scale(-1.0)
+                    mksp.solve(r, tangents["a"][j])
+                    r.destroy()
+                mksp.destroy()
+            observe_tangents(0)
+
+        started = []
+
+        def on_step(n, st0, st1):
+            if not started:
+                start(st0)
+                started.append(True)
+            deriv, data = self._step_setup(n, st0, st1)
+            ksp.setOperators(self.J)
+            Rp = deriv.vectors(self.names)
+            rhs, tmp = s.create_vec(), s.create_vec()
+            for j in range(P):
+                dq0, dv0 = tangents["q"][j], tangents["v"][j]
+                if self.method == "alpha":
+                    self._alpha_tangent(data, Rp[j], dq0, dv0, tangents["a"][j], ksp, rhs, tmp)
+                    continue
+                # rhs = -R_p + M (dq0/h^2 + dv0/h) + D dq0/h (- T_w (dq0 + h dv0) for SI)
+                tmp.waxpy(h, dv0, dq0)
+                s.M.mult(tmp, rhs)
+                rhs.scale(1.0 / h**2)
+                rhs.axpy(-1.0, Rp[j])
+                rhs.axpy(1.0 / h, s.damping_apply(dq0, tmp))
+                if data.get("T") is not None:
+                    tmp.waxpy(h, dv0, dq0)
+                    dqp = tmp.copy()
+                    data["T"].mult(dqp, tmp)
+                    rhs.axpy(-1.0, tmp)
+                    dqp.destroy()
+                s.zero_prescribed(rhs)
+                dq1 = tmp
+                self._solve(ksp, rhs, dq1)
+                # dv1 = (dq1 - dq0)/h
+                dv0.waxpy(-1.0, dq0, dq1)
+                dv0.scale(1.0 / h)
+                dq1.copy(dq0)
+            for x in Rp + [rhs, tmp]:
+                x.destroy()
+            if data.get("T") is not None:
+                data["T"].destroy()
+            observe_tangents(n + 1)
+
+        states, sim = self._run(p, store=False, on_step=on_step)
+        self._free(states)
+        ksp.destroy()
+        for x in tangents["q"] + tangents["v"] + (tangents["a"] or []):
+            x.destroy()
+        return sim, dsim
+
+    def _alpha_tangent(self, data, Rp, dq0, dv0, da0, ksp, rhs, tmp) -> None:
+        """One generalized-alpha tangent step, in place: (dq0, dv0, da0) -> (dq1, dv1, da1)."""
+        s, h = self.system, self.h
+        am, af, g, b = self.am, self.af, self.gamma, self.nbeta
+        ca = 1.0 / (b * h * h)
+        # primed: the tangents with dq1 = 0
+        da1 = dq0.copy()
+        da1.axpy(h, dv0)
+        da1.axpy(h * h * (0.5 - b), da0)
+        da1.scale(-ca)
+        dv1 = dv0.copy()
+        dv1.axpy(h * (1.0 - g), da0)
+        dv1.axpy(h * g, da1)
+        dvf = dv0.copy()
+        dvf.scale(1.0 - af)
+        dvf.axpy(af, dv1)
+        dam = da0.copy()
+        dam.scale(1.0 - am)
+        dam.axpy(am, da1)
+        dqf = dq0.copy()
+        dqf.scale(1.0 - af)
+        s.M.mult(dam, rhs)
+        self._K_apply(data, dqf, tmp)
+        rhs.axpy(1.0, tmp)
+        rhs.axpy(1.0, s.damping_apply(dvf, tmp))
+        rhs.axpy(1.0, Rp)
+        rhs.scale(-1.0)
+        s.zero_prescribed(rhs)
+        self._solve(ksp, rhs, tmp)          # tmp = dq1
+        tmp.copy(dq0)
+        da1.axpy(ca, tmp)
+        dv1.axpy(h * g * ca, tmp)
+        da1.copy(da0)
+        dv1.copy(dv0)
+        for x in (da1, dv1, dvf, dam, dqf):
+            x.destroy()
+
+    # -- discrete adjoint -------------------------------------------------------------------------
+    def gradient(self, p, dphi):
+        """(value, d value/d p (P,)) of value = phi(simulate(p)) by the discrete adjoint.
+
+        ``dphi(sim) -> (value, d value/d sim (K, M, 3))`` is called once, identically on every
+        rank. One forward run (trajectory kept in memory) and one backward sweep.
+        """
+        s, h, P = self.system, self.h, len(self.names)
+        states, sim = self._run(p, store=True)
+        value, wsim = dphi(sim)
+        wsim = np.asarray(wsim, dtype=float).reshape(sim.shape)
+        grad = np.zeros(P)
+        loads = {}
+        for n, uses in self.uses.items():
+            w = sum(wt * wsim[k] for k, wt in uses)
+            loads[n] = self.observer.adjoint(w)
+        N = self.nsteps
+        gq = loads.pop(N) if N in loads else s.create_vec()
+        if N not in self.uses:
+            gq.zeroEntries()
+        gv = s.create_vec()
+        gv.zeroEntries()
+        ga = None
+        if self.method == "alpha":
+            ga = s.create_vec()
+            ga.zeroEntries()
+        ksp = self._solver()
+        mu, rhs, tmp = s.create_vec(), s.create_vec(), s.create_vec()
+        for n in range(N - 1, -1, -1):
+            deriv, data = self._step_setup(n, states[n], states[n + 1])
+            ksp.setOperators(self.J)
+            if self.method == "alpha":
+                gq, gv, ga = self._alpha_adjoint(data, deriv, gq, gv, ga, ksp, mu, rhs, tmp, grad)
+            else:
+                # g = gq1 + gv1/h; mu = J^-1 P g
+                rhs.waxpy(1.0 / h, gv, gq)
+                s.zero_prescribed(rhs)
+                self._solve(ksp, rhs, mu)
+                grad -= deriv.contract(self.names, mu)
+                # gq0 = -gv1/h + M mu/h^2 + D mu/h (- T_w mu), gv0 = M mu/h (- h T_w mu)
+                s.M.mult(mu, tmp)
+                gq0 = tmp.copy()
+                gq0.scale(1.0 / h**2)
+                gq0.axpy(-1.0 / h, gv)
+                tmp.copy(gv)
+                gv.scale(1.0 / h)
+                gq0.axpy(1.0 / h, s.damping_apply(mu, tmp))
+                if data.get("T") is not None:
+                    data["T"].mult(mu, tmp)
+                    gq0.axpy(-1.0, tmp)
+                    gv.axpy(-h, tmp)
+                    data["T"].destroy()
+                gq0.copy(gq)
+                gq0.destroy()
+            if n in loads:
+                gq.axpy(1.0, loads.pop(n))
+        if self.method == "alpha":
+            # M da0 = -R_p(t0): grad -= R_p(t0) . M^-1 P ga0
+            q0, v0, a0 = states[0]
+            mksp = self._mass_solver()
+            s.zero_prescribed(ga)
+            mksp.solve(ga, mu)
+            mksp.destroy()
+            grad -= s.parameter_derivatives(q0, v0, a0).contract(self.names, mu)
+        for x in (gq, gv, ga, mu, rhs, tmp):
+            if x is not None:
+                x.destroy()
+        ksp.destroy()
+        self._free(states)
+        return float(value), grad
+
+    def _alpha_adjoint(self, data, deriv, gq1, gv1, ga1, ksp, mu, rhs, tmp, grad):
+        """Transpose of :meth:`_alpha_tangent`: adjoints of (q1, v1, a1) -> of (q0, v0, a0)."""
+        s, h = self.system, self.h
+        am, af, g, b = self.am, self.af, self.gamma, self.nbeta
+        ca = 1.0 / (b * h * h)
+        # dv1 = dv0 + h(1-g) da0 + h g da1 ; da1 = ca (dq1 - dq0 - h dv0 - h^2 (1/2-b) da0)
+        gda1 = ga1.copy()
+        gda1.axpy(h * g, gv1)
+        gv0 = gv1.copy()
+        ga0 = gv1.copy()
+        ga0.scale(h * (1.0 - g))
+        rhs.waxpy(ca, gda1, gq1)                      # adjoint of dq1
+        gq0 = gda1.copy()
+        gq0.scale(-ca)
+        gv0.axpy(-ca * h, gda1)
+        ga0.axpy(-ca * h * h * (0.5 - b), gda1)
+        s.zero_prescribed(rhs)
+        self._solve(ksp, rhs, mu)
+        grad -= deriv.contract(self.names, mu)
+        # minus the transpose of L(dq0, dv0, da0) = M dam' + K dqf' + D dvf' applied to mu
+        ym, yk, yd = s.create_vec(), s.create_vec(), s.create_vec()
+        s.M.mult(mu, ym)
+        self._K_apply(data, mu, yk)
+        s.damping_apply(mu, yd)
+        b_dv1 = yd.copy()
+        b_dv1.scale(af)
+        b_da1 = ym.copy()
+        b_da1.scale(am)
+        b_da1.axpy(h * g, b_dv1)
+        gq0.axpy(-(1.0 - af), yk)
+        gq0.axpy(ca, b_da1)
+        gv0.axpy(-(1.0 - af), yd)
+        gv0.axpy(-1.0, b_dv1)
+        gv0.axpy(ca * h, b_da1)
+        ga0.axpy(-(1.0 - am), ym)
+        ga0.axpy(-h * (1.0 - g), b_dv1)
+        ga0.axpy(ca * h * h * (0.5 - b), b_da1)
+        for x in (ym, yk, yd, b_dv1, b_da1, gda1, gq1, gv1, ga1):
+            x.destroy()
+        return gq0, gv0, ga0
+
+    # -- finite differences -----------------------------------------------------------------------
+    def fd_jacobian(self, p, rel_step: float = 1e-6) -> np.ndarray:
+        """dsim/dp (K, M, 3, P) by central differences, step rel_step * max(|p_j|, 1)."""
+        p = np.asarray(p, dtype=float)
+        cols = []
+        for j in range(len(p)):
+            e = rel_step * max(abs(p[j]), 1.0)
+            hi, lo = p.copy(), p.copy()
+            hi[j] += e
+            lo[j] -= e
+            cols.append((self.simulate(hi) - self.simulate(lo)) / (2.0 * e))
+        self._set(p)
+        return np.stack(cols, axis=-1)
+
+    def destroy(self) -> None:
+        self.integrator.destroy()
+        self.J.destroy()

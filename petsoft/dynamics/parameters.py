@@ -1,0 +1,331 @@
+"""Differentiable parameters of a :class:`~petsoft.dynamics.system.DynamicSystem`.
+
+The residual of the semi-discrete equations is
+
+    r(q, v, a; p) = M a + grad W(q) + D v - f_g - f_t(t),   D = alpha M + beta K0,
+
+with prescribed rows zeroed. Every material law of petsoft is linear in its Lame parameters
+(mu, lambda) (linear, StVK, corotated, log-neo-Hookean), the mass and gravity are linear in the
+density, so a parameter derivative of r is the residual itself evaluated with derivative
+coefficients: per cell, dmu, dlambda, drho, each multiplying one of three *unit element vectors*
+
+* ``E_mu = grad W_e(q; mu=1, lambda=0) + beta K0_e(1, 0) v_e (+ K_e(q; 1, 0) w_e)``,
+* ``E_lambda`` likewise with (mu, lambda) = (0, 1),
+* ``E_rho = M_e(rho=1)(a + alpha v)_e - V_e/4 g``,
+
+(K0_e v_e is computed as the gradient of the *linear* law at v: the Hessian at the reference of
+every law equals the linear one, checked by tests/test_sensitivity.py). The optional ``w`` term
+is d/dp [K(q) w], needed by the semi-implicit step's derivative.
+
+Parameter names (see :meth:`ParameterMap.names`):
+
+* ``material.youngs_modulus``, ``material.poisson_ratio``, ``material.density`` and the same per
+  region ``material.<region>.<key>``, with the meaning of :func:`petsoft.experiment.with_parameters`
+  (a region material that does not override a key follows the default);
+* ``damping.mass``, ``damping.stiffness``, ``gravity.acceleration.x|y|z``;
+* ``material.youngs_modulus#k``, k = 0..P-1: a *stiffness field*, a multiplier (1 at the start)
+  of Young's modulus on the k-th of P cell groups. The groups are **Morton chunks**: the cells of
+  the whole mesh sorted along the Morton (Z-order) curve of their centroids and cut into P
+  contiguous runs of nearly equal cell counts (``np.array_split``), so each group is spatially
+  compact and the grouping does not depend on the number of MPI ranks. P is fixed by
+  :meth:`ParameterMap.define_groups` (the forward model uses 1 + the largest k it is asked for).
+"""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+from petsc4py import PETSc
+
+from ..errors import ExperimentError
+from ..kernels import elastic as kernels
+from ..kernels.scatter import scatter_add_vector
+from ..ordering import morton_order
+
+MATERIAL_KEYS = ("youngs_modulus", "poisson_ratio", "density")
+_KIND = {"youngs_modulus": "E", "poisson_ratio": "nu", "density": "rho"}
+GROUP_PATTERN = re.compile(r"^material\.youngs_modulus#(\d+)$")
+
+
+def morton_groups(points: np.ndarray, tets: np.ndarray, count: int) -> np.ndarray:
+    """Group index (0..count-1) of every cell of a mesh (file numbering): Morton chunks."""
+    order = morton_order(points[tets].mean(axis=1))
+    group = np.empty(len(tets), dtype=np.int64)
+    for k, chunk in enumerate(np.array_split(order, count)):
+        group[chunk] = k
+    return group
+
+
+class ParameterMap:
+    """Current parameter values of a dynamic system and which cells each material name governs.
+
+    Parameters
+    ----------
+    system : DynamicSystem
+    """
+
+    def __init__(self, system):
+        from ..experiment import _key_part
+        from ..model import cell_materials
+
+        self.system = system
+        model = system.model
+        exp = model.experiment
+        dm = system.dmesh
+        local = dm.cell_ids
+        _, E, nu, rho = cell_materials(exp, model.resolver)
+        self.E_base, self.nu, self.rho = E[local].copy(), nu[local].copy(), rho[local].copy()
+        self.E_mult = np.ones(len(local))
+        self.group = None
+        self.ngroups = 0
+        # Which name governs each cell's value of each key: the logic of cell_materials, with a
+        # region that does not override a key following the default (as with_parameters does).
+        ncell = len(model.resolver.mesh.tets)
+        last = np.full(ncell, -1)
+        regions = [n for n in exp.material if n != "default"]
+        masks = {}
+        for i, name in enumerate(regions):
+            masks[name] = model.resolver.cell_mask(name, key=f"material.{name}")
+            last[masks[name]] = i
+        self.cells: dict[str, np.ndarray] = {}
+        for key in MATERIAL_KEYS:
+            default = last < 0
+            for i, name in enumerate(regions):
+                mine = last == i
+                if key in exp.material[name].overrides:
+                    self.cells[f"material.{_key_part(name)}.{key}"] = mine[local]
+                else:
+                    default |= mine
+                    self.cells[f"material.{_key_part(name)}.{key}"] = mine[local]
+            self.cells[f"material.{key}"] = default[local]
+            # a [region.<name>] without a material table: setting it appends an override
+            for name in exp.regions:
+                if name not in exp.material:
+                    mask = model.resolver.cell_mask(name, key=f"region.{name}")
+                    self.cells[f"material.{_key_part(name)}.{key}"] = mask[local]
+        self.values = {n: float(self._current(n)) for n in self.cells}
+        self.values["damping.mass"] = system.alpha
+        self.values["damping.stiffness"] = system.beta
+        for i, c in enumerate("xyz"):
+            self.values[f"gravity.acceleration.{c}"] = float(exp.gravity.acceleration[i])
+
+    def _current(self, name: str) -> float:
+        key = name.rsplit(".", 1)[1]
+        arr = {"youngs_modulus": self.E_base, "poisson_ratio": self.nu, "density": self.rho}[key]
+        mask = self.cells[name]
+        local = arr[mask]
+        value = local[0] if len(local) else np.nan
+        # the value is uniform on the cells a name governs; ranks without such cells ask others
+        vals = self.system.comm.tompi4py().allgather(value)
+        good = [v for v in vals if np.isfinite(v)]
+        return good[0] if good else get_default(self.system, name)
+
+    # -- groups -----------------------------------------------------------------------------------
+    def define_groups(self, count: int) -> list[str]:
+        """Define the P = ``count`` Morton-chunk cell groups; returns their parameter names."""
+        count = int(count)
+        if count < 1:
+            raise ExperimentError(f"a stiffness field needs at least 1 cell group, got {count}")
+        mesh = self.system.dmesh.mesh
+        if count > len(mesh.tets):
+            raise ExperimentError(f"a stiffness field of {count} cell groups needs at least as "
+                                  f"many cells; the mesh has {len(mesh.tets)}")
+        if count != self.ngroups:
+            self.group = morton_groups(mesh.points, mesh.tets, count)[self.system.dmesh.cell_ids]
+            self.ngroups = count
+            self.E_mult = np.ones(len(self.group))
+            for k in range(count):
+                self.values[f"material.youngs_modulus#{k}"] = 1.0
+            for k in [n for n in self.values if GROUP_PATTERN.match(n)]:
+                if int(GROUP_PATTERN.match(k).group(1)) >= count:
+                    del self.values[k]
+        return [f"material.youngs_modulus#{k}" for k in range(count)]
+
+    def names(self) -> list[str]:
+        return list(self.values)
+
+    def check(self, names) -> None:
+        """Raise (on every rank: the check is deterministic) for a name not differentiable."""
+        valid = self.names()
+        for n in names:
+            if n not in valid:
+                m = GROUP_PATTERN.match(n)
+                extra = (f" (stiffness field: call define_groups with more than {m.group(1)} "
+                         "groups)") if m else ""
+                raise ExperimentError(
+                    f'"{n}" is not a differentiable parameter of this system{extra}; valid: '
+                    + ", ".join(valid[:12]) + (", ..." if len(valid) > 12 else "")
+                    + (" and material.youngs_modulus#k (stiffness field)" if not self.ngroups
+                       else ""))
+
+    # -- per-cell coefficients -----------------------------------------------------------------
+    def E(self) -> np.ndarray:
+        return self.E_base * self.E_mult
+
+    def governed(self, name: str, names=()) -> np.ndarray:
+        """Local cells whose value of a material name's key follows that name.
+
+        A default name (``material.<key>``) does not govern the cells of a region whose own
+        name for the same key is among ``names`` (set together, the region's value wins).
+        """
+        mask = self.cells[name]
+        parts = name.split(".")
+        if len(parts) == 2:
+            key = parts[1]
+            for other in names:
+                if other != name and other.startswith("material.") and \
+                        other.endswith("." + key) and other in self.cells:
+                    mask = mask & ~self.cells[other]
+        return mask
+
+    def coefficients(self, name: str, names=()):
+        """(dmu, dlam, drho) per local cell (arrays or None) of a material or group name."""
+        E, nu = self.E(), self.nu
+        m = GROUP_PATTERN.match(name)
+        if m:
+            dE = np.where(self.group == int(m.group(1)), self.E_base, 0.0)
+        elif name.endswith("youngs_modulus"):
+            dE = np.where(self.governed(name, names), self.E_mult, 0.0)
+        elif name.endswith("poisson_ratio"):
+            mask = self.governed(name, names)
+            dmu = np.where(mask, -E / (2.0 * (1.0 + nu) ** 2), 0.0)
+            dlam = np.where(mask, E * (1.0 + 2.0 * nu**2) / ((1.0 + nu) * (1.0 - 2.0 * nu)) ** 2,
+                            0.0)
+            return dmu, dlam, None
+        else:
+            return None, None, np.where(self.governed(name, names), 1.0, 0.0)
+        return dE / (2.0 * (1.0 + nu)), dE * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)), None
+
+    def update(self, values: dict) -> None:
+        """Set parameter values (material ones per cell; the caller rebuilds matrices)."""
+        self.check(values)
+        # defaults before regions: a region set together with the default keeps its own value
+        for name, value in sorted(values.items(), key=lambda kv: kv[0].count(".")):
+            value = float(value)
+            self.values[name] = value
+            m = GROUP_PATTERN.match(name)
+            if m:
+                self.E_mult[self.group == int(m.group(1))] = value
+            elif name.startswith("material."):
+                key = name.rsplit(".", 1)[1]
+                arr = {"youngs_modulus": self.E_base, "poisson_ratio": self.nu,
+                       "density": self.rho}[key]
+                arr[self.governed(name, values)] = value
+
+
+def get_default(system, name: str) -> float:
+    from ..experiment import get_parameter
+
+    return float(get_parameter(system.model.experiment, name))
+
+
+class ParameterDerivatives:
+    """Element-level evaluation of d r / d p (see the module docstring) for one state."""
+
+    def __init__(self, system, q, v, a, w=None):
+        self.system = system
+        s, dm = system, system.dmesh
+        pm = s.parameters
+        u, vl, al = dm.to_local(q), dm.to_local(v), dm.to_local(a)
+        wl = dm.to_local(w) if w is not None else None
+        n = len(dm.cells)
+        self.E_mu, self.E_lam = np.zeros((n, 12)), np.zeros((n, 12))
+        ones, zeros = np.ones(n), np.zeros(n)
+        dN, vol = s.elastic_dN, dm.cell_volumes
+        model_of = s.cell_models
+        for model in np.unique(model_of):
+            c = np.flatnonzero(model_of == model)
+            ue, ve = u[dm.cells[c]].reshape(-1, 12), vl[dm.cells[c]].reshape(-1, 12)
+            for unit, out in (((ones, zeros), self.E_mu), ((zeros, ones), self.E_lam)):
+                mu_, lam_ = unit[0][c], unit[1][c]
+                g, H = kernels.element_gradient_hessian(model, dN[c], vol[c], ue, mu_, lam_,
+                                                        hessian=wl is not None)
+                out[c] = g
+                if s.beta != 0.0:
+                    k0v, _ = kernels.element_gradient_hessian("linear", dN[c], vol[c], ve, mu_,
+                                                              lam_, hessian=False)
+                    out[c] += s.beta * k0v
+                if wl is not None:
+                    out[c] += np.einsum("nij,nj->ni", H, wl[dm.cells[c]].reshape(-1, 12))
+        # mass (consistent: rho V/20 (sum_b y_b + y_a)) and gravity (rho V/4 g) per unit density
+        y = (al + s.alpha * vl)[dm.cells]                       # (n, 4, 3)
+        Em = (vol / 20.0)[:, None, None] * (y + y.sum(axis=1, keepdims=True))
+        g = np.asarray([pm.values[f"gravity.acceleration.{c}"] for c in "xyz"])
+        Em -= (vol / 4.0)[:, None, None] * g[None, None, :]
+        self.E_rho = Em.reshape(n, 12)
+        self.v = v.copy()   # the caller may destroy its state vectors
+
+    def _global_vector(self, name: str, out: PETSc.Vec) -> None:
+        s = self.system
+        out.zeroEntries()
+        if name == "damping.mass":
+            s.M.mult(self.v, out)
+        elif name == "damping.stiffness":
+            s.K0_matrix().mult(self.v, out)
+        else:
+            c = "xyz".index(name[-1])
+            arr = out.getArray()
+            arr.reshape(-1, 3)[:, c] = -s.lumped.getArray(readonly=True).reshape(-1, 3)[:, c]
+
+    def vectors(self, names) -> list[PETSc.Vec]:
+        s, dm = self.system, self.system.dmesh
+        out = []
+        local = np.zeros(3 * dm.nvertices)
+        for name in names:
+            vec = s.create_vec()
+            if name.startswith("material."):
+                dmu, dlam, drho = s.parameters.coefficients(name, names)
+                ev = np.zeros_like(self.E_mu)
+                for coef, unit in ((dmu, self.E_mu), (dlam, self.E_lam), (drho, self.E_rho)):
+                    if coef is not None:
+                        ev += coef[:, None] * unit
+                sel = np.flatnonzero(np.any(ev != 0.0, axis=1))
+                local[:] = 0.0
+                scatter_add_vector(np.ascontiguousarray(dm.cells[sel]),
+                                   np.ascontiguousarray(ev[sel]), local)
+                vec.zeroEntries()
+                dm.add_to_global(local.reshape(-1, 3), vec)
+            else:
+                self._global_vector(name, vec)
+            s.zero_prescribed(vec)
+            out.append(vec)
+        return out
+
+    def contract(self, names, mu: PETSc.Vec) -> np.ndarray:
+        """[d r / d p_j . mu for j], mu with zero prescribed entries (collective)."""
+        s, dm = self.system, self.system.dmesh
+        mul = dm.to_local(mu)[dm.cells].reshape(-1, 12)
+        per_cell = {k: np.einsum("ni,ni->n", e, mul)
+                    for k, e in (("mu", self.E_mu), ("lam", self.E_lam), ("rho", self.E_rho))}
+        result = np.zeros(len(names))
+        globals_ = []
+        for j, name in enumerate(names):
+            if name.startswith("material."):
+                dmu, dlam, drho = s.parameters.coefficients(name, names)
+                total = 0.0
+                for coef, key in ((dmu, "mu"), (dlam, "lam"), (drho, "rho")):
+                    if coef is not None:
+                        total += float(coef @ per_cell[key])
+                result[j] = total
+            else:
+                globals_.append(j)
+        result = np.asarray(dm.comm.tompi4py().allreduce(result))
+        if globals_:
+            vec = s.create_vec()
+            for j in globals_:
+                self._global_vector(names[j], vec)
+                s.zero_prescribed(vec)
+                result[j] = vec.dot(mu)
+            vec.destroy()
+        return result
+
+    def cell_sensitivity(self, mu: PETSc.Vec) -> np.ndarray:
+        """(local cells,) d r / d E_cell . mu: one term of a per-cell sensitivity map."""
+        s, dm = self.system, self.system.dmesh
+        pm = s.parameters
+        mul = dm.to_local(mu)[dm.cells].reshape(-1, 12)
+        nu = pm.nu
+        dmu, dlam = 1.0 / (2.0 * (1.0 + nu)), nu / ((1 + nu) * (1 - 2 * nu))
+        return (dmu * np.einsum("ni,ni->n", self.E_mu, mul)
+                + dlam * np.einsum("ni,ni->n", self.E_lam, mul))
