@@ -58,6 +58,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_simulate_parser(sub)
     _add_modes_parser(sub)
     _add_damping_parser(sub)
+    _add_calibrate_parser(sub)
     _add_recording_parsers(sub)
     d = sub.add_parser("demo", help="run the embedded example (no input needed)",
                        description="Solve an embedded neo-Hookean cantilever under gravity and an "
@@ -185,6 +186,36 @@ def _add_recording_parsers(sub) -> None:
                    help="simulate on a K-times refined mesh with step/K (default 1)")
     y.add_argument("--integrator", help="override [time] integrator for the simulation")
     y.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+
+
+def _add_calibrate_parser(sub) -> None:
+    c = sub.add_parser(
+        "calibrate", help="fit the [calibrate] parameters of an experiment to a recording",
+        description="Minimise the misfit between simulated and recorded marker positions over "
+                    "the parameters of the experiment's [calibrate] table (bounds there, start "
+                    "values from the experiment). Prints progress per iteration and a result "
+                    "table with Gauss-Newton standard deviations; writes calibrated.toml, "
+                    "summary.json, trajectories.png and residuals.png. TAO options take the "
+                    "prefix cal_ (e.g. -cal_tao_gatol 1e-10), the forward Newton fm_ and the "
+                    "gradient solves fm_grad_.")
+    c.add_argument("experiment", help="experiment file (TOML) with [time] and [calibrate]")
+    c.add_argument("recording", help="recording (HDF5, formats spec section 2)")
+    c.add_argument("--method", default="gauss-newton",
+                   choices=("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead"),
+                   help="optimizer (default %(default)s)")
+    c.add_argument("--gradient", default="adjoint", choices=("adjoint", "sensitivity", "fd"),
+                   help="gradients by discrete adjoint, forward sensitivities or finite "
+                        "differences (Jacobians always by sensitivities unless fd)")
+    c.add_argument("--integrator", choices=("be", "si", "alpha"),
+                   help="override [time] integrator for the forward model")
+    c.add_argument("--multistart", type=int, default=0, metavar="K",
+                   help="also K random starts in the bounds, run on groups of ranks")
+    c.add_argument("--seed", type=int, default=0, help="seed of the random starts")
+    c.add_argument("--noise", type=float, help="position noise std (m) when the recording "
+                                                "has no /noise")
+    c.add_argument("--regularization", type=float, default=0.0, metavar="LAMBDA",
+                   help="Tikhonov weight on the scaled parameters' distance from the start")
+    c.add_argument("--out", help="output directory (default: [output] directory)")
 
 
 def _static_options(s) -> None:

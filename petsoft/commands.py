@@ -59,6 +59,17 @@ def run(args) -> int:
         from .synth import run_synth
 
         return run_synth(args)
+    if args.command == "calibrate":
+        from .calibration.calibrate import run_calibration
+
+        experiment = load_experiment(args.experiment)
+        apply_experiment_options(experiment.petsc)
+        out = Path(args.out) if args.out else experiment.output.directory
+        run_calibration(experiment, args.recording, method=args.method, gradient=args.gradient,
+                        integrator=args.integrator, starts=args.multistart, seed=args.seed,
+                        regularization=args.regularization, noise=args.noise, out=out,
+                        say=_print)
+        return 0
     if args.command == "demo":
         experiment = experiment_from_dict(DEMO_EXPERIMENT, source="<embedded demo>")
         out = Path(args.out)
