@@ -124,6 +124,7 @@ class LocalGlobalReport:
     local_time: float = 0.0          # seconds in local steps (projections, scatters)
     global_time: float = 0.0         # seconds in back-substitutions
     setup_time: float = 0.0          # seconds assembling and factoring
+    potential_history: list = field(default_factory=list)   # incremental potential per iterate
     anderson_rejections: int = 0    # accelerated iterates replaced by plain ones
     residual_history: list = field(default_factory=list)
 
@@ -532,8 +533,13 @@ class LocalGlobalSolver:
         try:
             rhs, norm, phi = evaluate(q1)
             ref = rep.initial_residual = norm
+            # size of the potential's terms: the round-off scale of its differences
+            phi_scale = abs(phi) + float(mpi.allreduce(np.sum(np.abs(fa * y))))
             for it in range(self.max_it + 1):
-                if window and plain_prev is not None and phi > phi_prev:
+                # (a rise below round-off of the potential is noise: rejecting on it would make
+                # the iteration count depend on the number of ranks)
+                if (window and plain_prev is not None
+                        and phi > phi_prev + 1e-12 * (abs(phi_prev) + phi_scale)):
                     # the accelerated iterate raised the potential: take the plain one
                     q1.getArray()[:] = plain_prev
                     dG.clear()
@@ -542,6 +548,7 @@ class LocalGlobalSolver:
                     rep.anderson_rejections += 1
                     rhs, norm, phi = evaluate(q1)
                 rep.residual_history.append(norm)
+                rep.potential_history.append(phi)
                 rep.residual = norm
                 rep.iterations = it
                 if norm <= max(self.atol, self.rtol * ref):
