@@ -87,6 +87,9 @@ def _add_simulate_parser(sub) -> None:
     s.add_argument("--alpha-backend", choices=("petsoft", "ts"), default="petsoft",
                    help="generalized-alpha: petsoft's step (second order) or PETSc TS alpha2 "
                         "(first order for r < 1 in PETSc 3.18, see README)")
+    s.add_argument("--spd", action="store_true",
+                   help="mass-spring models: clamped (positive semi-definite) spring and contact "
+                        "Hessians in the Jacobians")
 
 
 def _positive_int(text: str) -> int:

@@ -135,10 +135,15 @@ def run_simulation(experiment, out: Path, args) -> None:
     from .dynamics.simulate import Simulation
 
     apply_experiment_options(experiment.petsc)
-    model = build_model(experiment, PETSc.COMM_WORLD, recording=args.recording)
+    if experiment.is_mass_spring:
+        from .dynamics.mass_spring import build_mass_spring_model
+
+        model = build_mass_spring_model(experiment, PETSc.COMM_WORLD, recording=args.recording)
+    else:
+        model = build_model(experiment, PETSc.COMM_WORLD, recording=args.recording)
     sim = Simulation(model, experiment, integrator=args.integrator, solver=args.solver,
                      out=out, monitor=_print, explicit_scheme=args.explicit_scheme,
-                     alpha_backend=args.alpha_backend)
+                     alpha_backend=args.alpha_backend, spd=getattr(args, "spd", False))
     result = sim.run(restart=args.restart)
     _print(f"t = {result.time:g} s after {result.steps} steps ({result.retries} retried), "
            f"{result.newton_iterations} Newton / {result.linear_iterations} linear iterations, "
