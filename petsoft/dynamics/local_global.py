@@ -55,6 +55,7 @@ from petsc4py import PETSc
 
 from ..errors import PetsoftError, SolverError
 from ..options import scoped_defaults
+from .implicit import ImplicitIntegrator, StepReport
 
 KSP_REASONS = {v: k for k, v in PETSc.KSP.ConvergedReason.__dict__.items() if k.isupper()}
 
@@ -618,3 +619,97 @@ def _max_op():
     from mpi4py import MPI
 
     return MPI.MAX
+
+
+# ---------------------------------------------------------------------------------------------
+# The backward-Euler integrator of a mass-spring system by local/global iteration
+
+
+def check_supported(system) -> None:
+    """Raise on every rank if ``system`` has terms the local/global step does not handle.
+
+    Raises
+    ------
+    petsoft.errors.ExperimentError
+        Not a mass-spring system, stiffness-proportional damping, spring dashpots, friction.
+    """
+    from ..errors import ExperimentError
+
+    hint = "; use the Newton step (--solver snes) instead"
+    if not hasattr(system, "rest_lengths"):
+        raise ExperimentError("--solver local-global solves mass-spring models ([springs]) "
+                              "only; a continuum ([material]) needs Newton (--solver snes)")
+    if getattr(system, "damping_stiffness", 0.0) != 0.0:
+        raise ExperimentError(f"[damping] stiffness = {system.damping_stiffness}: the "
+                              "local/global step handles mass damping only (its matrix must "
+                              "be the isotropic spring Laplacian)" + hint)
+    if np.any(np.asarray(system.damping_coefficients) != 0.0):
+        raise ExperimentError("[springs] damping (dashpots) is not handled by the local/global "
+                              "step (set it to 0 and use [damping] mass)" + hint)
+    for k, c in enumerate(system.colliders):
+        if c.friction > 0.0:
+            raise ExperimentError(f"collider[{k}] friction = {c.friction}: friction is not "
+                                  "handled by the local/global step" + hint)
+
+
+def colliders_of(system) -> list:
+    """The system's colliders as projections (the same quadratic penalty)."""
+    out = []
+    for c in system.colliders:
+        if c.kind == "sphere":
+            out.append(SphereCollider(tuple(c.center), float(c.radius), float(c.stiffness)))
+        else:
+            out.append(PlaneCollider(tuple(c.point), tuple(c.normal), float(c.stiffness)))
+    return out
+
+
+class LocalGlobalIntegrator(ImplicitIntegrator):
+    """Backward Euler on a mass-spring system, each step by :class:`LocalGlobalSolver`.
+
+    The step equation, velocity update, energy terms and report are those of
+    :class:`~petsoft.dynamics.implicit.ImplicitIntegrator` (``be``): only the solver differs. The
+    report's ``newton_iterations`` counts local/global iterations and ``linear_iterations`` the
+    back-substitutions (3 per iteration). A step that does not converge is reported as failed
+    (the simulation then halves it).
+
+    Parameters
+    ----------
+    system : petsoft.dynamics.mass_spring.MassSpringSystem
+    prefix : str
+        Options prefix of the solver (``-lg_ksp_type``, ``-lg_rtol``, ``-lg_anderson``...).
+    """
+
+    def __init__(self, system, prefix: str = "lg_", **solver_args):
+        check_supported(system)
+        super().__init__(system, "be", solver="snes", prefix=prefix)
+        self.lg = LocalGlobalSolver(
+            system.edges, system.rest_lengths, system.stiffness, system.masses,
+            system.points, fixed=system.fixed, damping_mass=system.alpha,
+            colliders=colliders_of(system), comm=system.comm, layout=self.q0,
+            prefix=prefix, **solver_args)
+        self._prescribed = system.create_vec()
+        self.last = None
+
+    def _new_solver(self) -> None:
+        """No SNES: the local/global solver is built once (its matrix depends on h only)."""
+        self.snes = self.tao = None
+
+    def step(self, t0, q0, v0, h, q1, v1):
+        s = self.system
+        self.prepare(t0, q0, v0, h)
+        s.apply_prescribed(self._prescribed, t0 + h)
+        rep = self.last = self.lg.solve(q0, v0, h, self.f1, q1, prescribed=self._prescribed)
+        report = StepReport(newton_iterations=rep.iterations,
+                            linear_iterations=3 * rep.iterations,
+                            converged=rep.converged, reason=rep.reason)
+        if not rep.converged:
+            return report
+        s.apply_prescribed(q1, t0 + h)
+        self._velocity(q1, v1)
+        self._work_terms(q1, report)
+        return report
+
+    def destroy(self) -> None:
+        self.lg.destroy()
+        self._prescribed.destroy()
+        super().destroy()
