@@ -212,7 +212,7 @@ def test_sphere_contact_converges_to_newton_with_penalty():
     qv.destroy()
     s.destroy()
     assert rep.converged, rep.reason
-    assert rep.factorizations >= 2    # refactored when the contact set appeared
+    assert 1 <= rep.factorizations <= 3    # the contact set grows rarely within a step
     assert np.abs(q1 - ref).max() < 1e-8 * np.abs(ref).max()
     ref_depth = np.maximum(0, radius - np.linalg.norm(X + ref - center, axis=1)).max()
     assert depth == pytest.approx(ref_depth, rel=1e-6)

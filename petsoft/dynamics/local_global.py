@@ -260,6 +260,12 @@ class LocalGlobalSolver:
         ends = self.edges[self.my_springs]
         self.needed, inverse = np.unique(ends.ravel(), return_inverse=True)
         self.my_ends = inverse.reshape(-1, 2)
+        # signed incidence (needed nodes x own springs): sums +-k d onto the nodes in one product
+        ns = len(self.my_springs)
+        self._incidence = sp.csr_matrix(
+            (np.concatenate([np.ones(ns), -np.ones(ns)]),
+             (self.my_ends.T.ravel(), np.concatenate([np.arange(ns), np.arange(ns)]))),
+            shape=(len(self.needed), ns))
         self._seq = PETSc.Vec().createSeq(3 * len(self.needed), bsize=3, comm=PETSc.COMM_SELF)
         self._template = self.create_vec()
         self._is = PETSc.IS().createBlock(3, self.needed.astype(PETSc.IntType),
@@ -275,7 +281,8 @@ class LocalGlobalSolver:
         self._lap.sum_duplicates()
         self._lapX = self._lap @ self.X   # replicated (n, 3): constant part of grad E
         self.h = None
-        self._active = None
+        self._sets = None          # contact sets of the factored matrix
+        self._last_active = None   # nodes in contact at the end of the last step
         self._ksps: list[PETSc.KSP] = []
         self._mats: list[PETSc.Mat] = []
         self._K = None
@@ -357,12 +364,16 @@ class LocalGlobalSolver:
             ksp.setOptionsPrefix(self.prefix)
             ksp.setOperators(A)
             pc = ksp.getPC()
+            # one rank: PETSc's own Cholesky (nested-dissection ordering); MUMPS costs ~1 ms of
+            # overhead per back-substitution, more than the whole solve of a small cloth
             has_mumps = PETSc.Sys.hasExternalPackage("mumps")
             if has_mumps or self.comm.size == 1:
                 ksp.setType(PETSc.KSP.Type.PREONLY)
                 pc.setType(PETSc.PC.Type.CHOLESKY)
-                if has_mumps:
+                if self.comm.size > 1:
                     pc.setFactorSolverType("mumps")
+                else:
+                    pc.setFactorOrdering("nd")
             else:
                 ksp.setType(PETSc.KSP.Type.CG)
                 pc.setType(PETSc.PC.Type.BJACOBI)
@@ -375,7 +386,6 @@ class LocalGlobalSolver:
             patterns[key] = len(self._ksps) - 1
             self._solver_of[c] = patterns[key]
         self.h = h
-        self._active = active_weight
         self.factorizations += len(self._ksps)
         return time.perf_counter() - t
 
@@ -399,28 +409,36 @@ class LocalGlobalSolver:
         unit = np.where((length > 0)[:, None], e / np.where(length > 0, length, 1)[:, None],
                         fallback)
         kd = (self.k[s] * self.rest[s])[:, None] * unit
-        acc = np.zeros((len(self.needed), 3))
-        np.add.at(acc, self.my_ends[:, 0], kd)
-        np.add.at(acc, self.my_ends[:, 1], -kd)
+        acc = self._incidence @ kd
         out.zeroEntries()
         self._seq.getArray()[:] = acc.ravel()
         self._scatter.scatter(self._seq, out, addv=PETSc.InsertMode.ADD,
                               mode=PETSc.ScatterMode.REVERSE)
         return 0.5 * float(np.sum(self.k[s] * (length - self.rest[s]) ** 2))
 
-    def _contact(self, q_local: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """Penalty weights, k_c (p - X) (owned nodes) and this rank's contact energy."""
+    def _contact(self, q_local: np.ndarray, sets: np.ndarray):
+        """Matrix weights, k_c (p - X) and contact energy on this rank's nodes, and the
+        penetrating nodes (per collider).
+
+        ``sets`` (colliders, owned nodes) says which nodes carry k_c in the matrix: a superset
+        of the penetrating ones. For a node in the set that does not penetrate, p = x (its
+        closest feasible point is itself), so its term adds k_c (x_now - x_iterate): a proximal
+        term that vanishes at the fixed point. The set may therefore stay the same over many
+        iterations (no refactorization) without changing the solution.
+        """
         nloc = self.n1 - self.n0
         weight = np.zeros(nloc)
         pull = np.zeros((nloc, 3))
         energy = 0.0
-        x = self.X[self.n0:self.n1] + q_local
-        for c in self.colliders:
-            active, p = c.project(x)
-            weight += c.stiffness * active
-            pull += c.stiffness * active[:, None] * (p - self.X[self.n0:self.n1])
-            energy += 0.5 * c.stiffness * float(np.sum((x - p)[active] ** 2))
-        return weight, pull, energy
+        X = self.X[self.n0:self.n1]
+        x = X + q_local
+        active = np.zeros((len(self.colliders), nloc), bool)
+        for i, c in enumerate(self.colliders):
+            active[i], p = c.project(x)
+            weight += c.stiffness * sets[i]
+            pull += c.stiffness * sets[i][:, None] * (p - X)
+            energy += 0.5 * c.stiffness * float(np.sum((x - p)[active[i]] ** 2))
+        return weight, pull, energy, active
 
     def solve(self, q0: PETSc.Vec, v0: PETSc.Vec, h: float, force: PETSc.Vec, q1: PETSc.Vec,
               prescribed: PETSc.Vec | None = None, guess: PETSc.Vec | None = None
@@ -479,20 +497,37 @@ class LocalGlobalSolver:
         for c in range(3):
             zc[c].getArray()[:] = np.where(fx[:, c], z[:, c], 0.0)
 
+        # contact sets of the matrix: the nodes in contact at the end of the last step, grown
+        # whenever another node penetrates (see _contact)
+        sets = (self._last_active.copy() if self._last_active is not None
+                else np.zeros((len(self.colliders), nloc), bool))
+        state = {"active": sets.copy(), "refactored": False}
+
         def evaluate(qvec):
             """rhs(d(q)), |R(q)| and the incremental potential at q (collective)."""
             t = time.perf_counter()
             qa = qvec.getArray(readonly=True).reshape(-1, 3)
             e_loc = self._local(qvec, jd)
+            refactor = self.h != h or self._K is None
             if self.colliders:
-                weight, pull, e_c = self._contact(qa)
-                full_weight = np.concatenate(mpi.allgather(weight))
+                weight, pull, e_c, active = self._contact(qa, sets)
+                if mpi.allreduce(int(np.any(active & ~sets)), op=_max_op()):
+                    # a node penetrates outside the matrix's contact set: grow the set
+                    sets[...] |= active
+                    weight, pull, e_c, active = self._contact(qa, sets)
+                state["active"] = active
+                refactor |= bool(mpi.allreduce(int(not np.array_equal(sets, self._sets)),
+                                               op=_max_op()))
             else:
-                pull, e_c, full_weight = 0.0, 0.0, np.zeros(self.nnodes)
+                pull, e_c, weight = 0.0, 0.0, None
             rhs = b0 + jd.getArray(readonly=True).reshape(-1, 3) + pull
-            if self.h != h or self._K is None or not np.array_equal(full_weight, self._active):
+            state["refactored"] = refactor
+            if refactor:
+                full_weight = (np.concatenate(mpi.allgather(weight)) if weight is not None
+                               else np.zeros(self.nnodes))
                 rep.setup_time += self._setup(h, full_weight)
                 rep.factorizations += len(self._ksps)
+                self._sets = sets.copy()
             res = np.empty((nloc, 3))
             for c in range(3):
                 work[0].getArray()[:] = qa[:, c]
@@ -539,6 +574,11 @@ class LocalGlobalSolver:
             for it in range(self.max_it + 1):
                 # (a rise below round-off of the potential is noise: rejecting on it would make
                 # the iteration count depend on the number of ranks)
+                if state["refactored"]:
+                    # a new matrix is a new fixed-point map: the history no longer applies
+                    dG.clear()
+                    dF.clear()
+                    prev_g = prev_f = plain_prev = None
                 if (window and plain_prev is not None
                         and phi > phi_prev + 1e-12 * (abs(phi_prev) + phi_scale)):
                     # the accelerated iterate raised the potential: take the plain one
@@ -586,6 +626,7 @@ class LocalGlobalSolver:
                         g = g - gamma @ np.array(dG)
                 q1.getArray()[:] = g
                 rhs, norm, phi = evaluate(q1)
+            self._last_active = state["active"]
         finally:
             for v in [jd] + work + zc:
                 v.destroy()
