@@ -67,11 +67,33 @@ def cloth_experiment(mesh: Path, *, stiffness: float, bending: float, mass: floa
     }, source="<cloth demo>")
 
 
-def run_method(method: str, exp, out: Path, stiffness_scale=None):
+def add_arguments(p, out: str) -> None:
+    """The command-line arguments both cloth demos take."""
+    p.add_argument("--out", default=out)
+    p.add_argument("--methods", nargs="+", default=["be", "be-lg", "si", "midpoint", "ere"],
+                   help=f"any of {', '.join(METHODS)}")
+    p.add_argument("--nodes", type=int, default=15, help="nodes per side of the cloth")
+    p.add_argument("--step", type=float, default=0.0025)
+    p.add_argument("--end", type=float, default=1.0)
+    p.add_argument("--stiffness", type=float, default=200.0, help="spring stiffness (N/m)")
+    p.add_argument("--bending", type=float, default=2.0, help="bending springs (N/m)")
+    p.add_argument("--contact-frequency", type=float, default=750.0,
+                   help="sqrt(k_c / m) of a node on the sphere (rad/s): the penalty stiffness "
+                        "k_c per node scales with the node mass, so the penetration does not "
+                        "depend on --nodes")
+    p.add_argument("--tolerance", type=float, default=5e-3,
+                   help="largest penetration allowed (m)")
+    p.add_argument("--spd", action="store_true",
+                   help="clamped (PSD) spring and contact Hessians in Newton's Jacobians")
+    p.add_argument("--quick", action="store_true", help="a small cloth, a few steps")
+
+
+def run_method(method: str, exp, out: Path, stiffness_scale=None, spd: bool = False):
     """Run one method; returns (result, seconds spent in integrator steps, steps, model).
 
     ``stiffness_scale(model) -> (S,) factors`` multiplies the springs' stiffness before the
-    system is built (mixed stiffness).
+    system is built (mixed stiffness). ``spd``: clamped (PSD) spring and contact Hessians in
+    the Newton Jacobians (``petsoft simulate --spd``).
     """
     from petsoft.dynamics.mass_spring import build_mass_spring_model
     from petsoft.dynamics.simulate import Simulation
@@ -80,7 +102,7 @@ def run_method(method: str, exp, out: Path, stiffness_scale=None):
     model = build_mass_spring_model(exp)
     if stiffness_scale is not None:
         model.stiffness = model.stiffness * stiffness_scale(model)
-    sim = Simulation(model, exp, integrator=integrator, solver=solver, out=out)
+    sim = Simulation(model, exp, integrator=integrator, solver=solver, out=out, spd=spd)
     spent = [0.0, 0]
     step = sim.integrator.step
 
@@ -183,3 +205,91 @@ def plot_frames(points, tris, times, displacements, radius: float, path: Path, t
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def compare(args, title: str, stiffness_scale=None, colour=None) -> int:
+    """Run ``args.methods`` on the cloth of ``args``; print the table, write the figures.
+
+    Returns the exit status: 1 if a penetration or energy check failed (rank 0).
+    """
+    import numpy as np
+    from petsc4py import PETSc
+
+    from petsoft.errors import PetsoftError
+    from petsoft.options import set_default_option
+
+    if args.quick:
+        args.nodes, args.end = 7, 0.3
+    # Newton's linear solves: a direct Cholesky factorization like the local/global solver's,
+    # so that the cost comparison is between the iterations, not between linear solvers
+    for key, value in (("ksp_type", "preonly"), ("pc_type", "cholesky"),
+                       ("pc_factor_mat_solver_type", "mumps")):
+        set_default_option(key, value)
+    comm = PETSc.COMM_WORLD
+    rank0 = comm.rank == 0
+    out = Path(args.out)
+    size, height, radius, mass = 1.0, 0.45, 0.3, 0.2
+    mesh = write_cloth(out, args.nodes, size, height, comm)
+    points, tris = cloth_mesh(args.nodes, size, height)
+    node_mass = mass / len(points)
+    curves, rows, finals, ok = {}, [], {}, True
+    for method in args.methods:
+        if method not in METHODS:
+            if rank0:
+                print(f"{method}: unknown (valid: {', '.join(METHODS)})")
+            continue
+        exp = cloth_experiment(mesh, stiffness=args.stiffness, bending=args.bending,
+                               mass=node_mass, radius=radius,
+                               contact=args.contact_frequency**2 * node_mass,
+                               step=args.step, end=args.end, integrator=METHODS[method][0],
+                               out=out / method)
+        try:
+            result, spent, steps, _ = run_method(method, exp, out / method,
+                                                 stiffness_scale=stiffness_scale, spd=args.spd)
+        except PetsoftError as exc:     # report it and go on with the other methods
+            rows.append((method, None))
+            if rank0:
+                print(f"{method}: failed: {exc}")
+            continue
+        curves[method] = result.energies
+        finals[method] = result.q.getArray(readonly=True).copy()
+        rows.append((method, (result, spent, steps)))
+    if not rank0:
+        return 0
+    print(f"\n{title}: {args.nodes}x{args.nodes} nodes, step {args.step:g} s, "
+          f"{comm.size} rank(s)")
+    print(f"{'method':<10}{'max pen. (m)':>14}{'max dE/E':>11}{'its/step':>10}"
+          f"{'retries':>8}{'ms/step':>9}  checks")
+    cost = {}
+    for method, data in rows:
+        if data is None:
+            print(f"{method:<10}{'failed':>14}")
+            continue
+        result, spent, steps = data
+        times, disp = frames(out / method)
+        pen = max_penetration(points, disp, radius)
+        growth = energy_growth(result.energies)
+        n_steps = len(result.energies) - 1
+        cost[method] = 1e3 * spent / steps
+        checks = [f"penetration {'ok' if pen <= args.tolerance else 'FAIL'}"]
+        if method in ("be", "si", "be-lg"):
+            # energy may only fall; a rise above round-off (1e-9 of the energy scale) fails
+            checks.append(f"energy {'never grows' if growth <= 1e-9 else 'GROWS: FAIL'}")
+        ok &= all("FAIL" not in c for c in checks)
+        print(f"{method:<10}{pen:>14.3e}{growth:>11.1e}{result.newton_iterations / n_steps:>10.1f}"
+              f"{result.retries:>8d}{cost[method]:>9.2f}  {', '.join(checks)}")
+        plot_frames(points, tris, times, disp, radius, out / f"frames-{method}.png",
+                    f"{method}: {title}", colour=colour)
+    if "be" in cost and "be-lg" in cost:
+        diff = float(np.abs(finals["be"] - finals["be-lg"]).max())
+        print(f"\nbackward Euler cost per step: Newton {cost['be']:.2f} ms, local/global "
+              f"{cost['be-lg']:.2f} ms (Newton / local-global = "
+              f"{cost['be'] / cost['be-lg']:.2f}); final states differ by {diff:.2e} m (rank "
+              "0's nodes; step halvings on failure make the two step sequences differ)")
+    plot_energies(curves, out / "energy.png",
+                  f"{title}: energy profile per method (step {args.step:g} s)")
+    print(f"wrote {out / 'energy.png'}, {out}/frames-<method>.png and "
+          f"{out}/<method>/trajectory.xdmf")
+    return 0 if ok else 1
+
+
