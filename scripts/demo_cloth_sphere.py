@@ -4,8 +4,8 @@ local/global iteration from the same start, with an energy profile per method.
 A 1 m square cloth (a triangulated grid of n x n nodes, 15 x 15 by default; structural, shear and
 bending springs; 0.2 kg) is released flat, 0.15 m above a sphere of radius 0.3 m, and falls on it
 under gravity. Contact is the quadratic penalty of :mod:`petsoft.physics.colliders`, its
-stiffness per node k_c = w_c^2 m_node (w_c = 750 rad/s: 500 N/m on the 15 x 15 cloth). Every method runs the same
-experiment at the same step (1/400 s).
+stiffness per node k_c = w_c^2 m_node (w_c = 750 rad/s: 500 N/m on the 15 x 15 cloth). Every
+method runs the same experiment at the same step (1/400 s).
 
 For each method the script prints the largest penetration of a node into the sphere over the
 run (checked against the stated tolerance, 5 mm by default, ``--tolerance``), the largest
