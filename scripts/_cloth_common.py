@@ -81,7 +81,7 @@ def add_arguments(p, out: str) -> None:
                    help="sqrt(k_c / m) of a node on the sphere (rad/s): the penalty stiffness "
                         "k_c per node scales with the node mass, so the penetration does not "
                         "depend on --nodes")
-    p.add_argument("--tolerance", type=float, default=1e-2,
+    p.add_argument("--tolerance", type=float, default=2e-2,
                    help="largest penetration allowed (m)")
     p.add_argument("--spd", action="store_true",
                    help="clamped (PSD) spring and contact Hessians in Newton's Jacobians")

@@ -8,7 +8,7 @@ stiffness per node k_c = w_c^2 m_node (w_c = 750 rad/s: 500 N/m on the 15 x 15 c
 method runs the same experiment at the same step (1/400 s).
 
 For each method the script prints the largest penetration of a node into the sphere over the
-run (checked against the stated tolerance, 1 cm = 1/30 of the radius, ``--tolerance``), the largest
+run (checked against the stated tolerance, 2 cm = 1/15 of the radius, ``--tolerance``), the largest
 step-to-step rise of the total energy (kinetic + springs + contact + gravity) relative to the
 energy scale (backward Euler and semi-implicit must never gain energy: checked), the iterations
 per step, steps retried with half the step, and the cost per step of backward Euler by Newton

@@ -39,7 +39,7 @@ def test_cloth_sphere_demo_quick(tmp_path):
     for method in ("be", "be-lg", "si"):
         assert (tmp_path / method / "trajectory.xdmf").exists()
         row = table[method]
-        assert 0.0 < float(row[1]) <= 1e-2            # contact happened, within tolerance
+        assert 0.0 < float(row[1]) <= 2e-2            # contact happened, within tolerance
         assert float(row[2]) <= 1e-9                  # energy never grows
         assert "FAIL" not in " ".join(row)
     cost = re.search(r"Newton ([\d.]+) ms, local/global ([\d.]+) ms.*differ by ([\d.e+-]+) m",

@@ -6,6 +6,8 @@ petsoft. Every test runs on every rank; under ``mpiexec -n 2`` the solver is dis
 also compared with the same solver on one rank (COMM_SELF).
 """
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from petsc4py import PETSc
@@ -317,3 +319,86 @@ def test_bad_input_is_a_clear_error(change, message):
         edges[4] = change["edge"]
     with pytest.raises(LocalGlobalError, match=message):
         LocalGlobalSolver(edges, rest, k, m, X, fixed=fixed)
+
+
+# -- the product's backward Euler on a MassSpringSystem ----------------------------------------
+
+
+def _cloth_system(tmp_path, damping=0.5, springs_extra=None, collider_extra=None,
+                  damping_stiffness=0.0):
+    from mpi4py import MPI
+
+    from petsoft.dynamics.mass_spring import (
+        MassSpringSystem,
+        build_mass_spring_model,
+        write_spring_mesh,
+    )
+    from petsoft.experiment import experiment_from_dict
+
+    comm = MPI.COMM_WORLD
+    base = Path(comm.bcast(str(tmp_path) if comm.rank == 0 else None))
+    n = 6
+    xs = np.linspace(-0.5, 0.5, n)
+    pts = np.array([(x, y, 0.3) for y in xs for x in xs])
+    idx = np.arange(n * n).reshape(n, n)
+    tris = np.concatenate([np.stack([idx[:-1, :-1], idx[:-1, 1:], idx[1:, 1:]], -1).reshape(-1, 3),
+                           np.stack([idx[:-1, :-1], idx[1:, 1:], idx[1:, :-1]], -1).reshape(-1, 3)])
+    if comm.rank == 0:
+        write_spring_mesh(base / "cloth.msh", pts, triangles=tris)
+    comm.barrier()
+    springs = {"stiffness": 60.0, "bending": 1.0, "node_mass": 0.01, **(springs_extra or {})}
+    collider = {"kind": "sphere", "center": [0.0, 0.0, 0.0], "radius": 0.28,
+                "stiffness": 300.0, **(collider_extra or {})}
+    exp = experiment_from_dict({
+        "mesh": {"file": str(base / "cloth.msh")}, "springs": springs, "collider": [collider],
+        "gravity": {"acceleration": [0.0, 0.0, -9.81]},
+        "damping": {"mass": damping, "stiffness": damping_stiffness},
+        "boundary": [{"kind": "fixed", "where": "y > 0.49"}],
+        "time": {"end": 0.1, "step": 0.01}}, source="<test>")
+    model = build_mass_spring_model(exp)
+    return MassSpringSystem(model, exp.damping.mass, exp.damping.stiffness), pts
+
+
+def test_integrator_step_equals_newton_be_on_a_mass_spring_system(tmp_path):
+    """One step from a state where the predictor penetrates the sphere: the local/global step
+    and petsoft's Newton backward Euler (SNES) give the same state and energy terms."""
+    from petsoft.dynamics.implicit import ImplicitIntegrator
+    from petsoft.dynamics.local_global import LocalGlobalIntegrator
+
+    system, pts = _cloth_system(tmp_path)
+    rng = np.random.default_rng(7)
+    q0 = system.dmesh.from_file_field(0.01 * rng.standard_normal(pts.shape) * (pts[:, 1:2] < 0.49))
+    v0 = system.dmesh.from_file_field(np.tile([0.2, 0.0, -3.0], (len(pts), 1))
+                                      * (pts[:, 1:2] < 0.49))
+    newton = ImplicitIntegrator(system, "be")
+    lg = LocalGlobalIntegrator(system, rtol=1e-12, atol=1e-12)
+    out = {}
+    for name, integ in (("newton", newton), ("lg", lg)):
+        q1, v1 = system.create_vec(), system.create_vec()
+        rep = integ.step(0.0, q0, v0, 0.02, q1, v1)
+        assert rep.converged, rep.reason
+        out[name] = (system.dmesh.to_all(q1), system.dmesh.to_all(v1), rep)
+    x1 = pts + out["newton"][0]
+    assert (np.linalg.norm(x1, axis=1) < 0.28).any()          # the step is in contact
+    assert np.abs(out["lg"][0] - out["newton"][0]).max() < 1e-9
+    assert np.abs(out["lg"][1] - out["newton"][1]).max() < 1e-7
+    assert out["lg"][2].dissipated == pytest.approx(out["newton"][2].dissipated, rel=1e-7)
+    assert out["lg"][2].dissipated > 0
+    newton.destroy()
+    lg.destroy()
+    system.destroy()
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(springs_extra={"damping": 0.1}), "dashpots"),
+    (dict(collider_extra={"friction": 0.3}), "friction"),
+    (dict(damping_stiffness=1e-3), "stiffness"),
+])
+def test_integrator_refuses_terms_it_does_not_handle(tmp_path, change, message):
+    from petsoft.dynamics.local_global import LocalGlobalIntegrator
+    from petsoft.errors import ExperimentError
+
+    system, _ = _cloth_system(tmp_path, **change)
+    with pytest.raises(ExperimentError, match=message):
+        LocalGlobalIntegrator(system)
+    system.destroy()
