@@ -287,6 +287,22 @@ def test_max_iterations_reported_not_converged():
     assert not rep.converged and "DIVERGED_MAX_IT" in rep.reason and rep.iterations == 3
 
 
+def test_accept_takes_the_iterate_after_max_it():
+    """Liu et al.'s fixed iteration count: the step is accepted, approximate, and the residual
+    left is reported."""
+    X, edges, rest, k, m, fixed, q0, v0 = setup_case()
+    f = m[:, None] * G
+    s = LocalGlobalSolver(edges, rest, k, m, X, fixed=fixed, max_it=10, accept=True,
+                          comm=PETSc.COMM_SELF)
+    q1, rep = run(s, q0, v0, 0.02, f)
+    s.destroy()
+    ref = newton_reference(X, edges, rest, k, m, fixed, q0, v0, 0.02, f, q0)
+    assert rep.converged and rep.reason == "ACCEPTED_AT_MAX_IT" and rep.iterations == 10
+    assert rep.residual < 0.1 * rep.initial_residual
+    err = np.abs(q1 - ref).max() / np.abs(ref - q0).max()
+    assert 1e-12 < err < 0.1      # approximate, but close
+
+
 def test_options_override_the_defaults():
     X, edges, rest, k, m, fixed, q0, v0 = setup_case()
     opts = PETSc.Options()
