@@ -27,9 +27,11 @@ Writes ``energy.png`` (energy profile per method), ``frames-<method>.png`` (four
 Things to try:
 
 * ``--methods be be-lg`` for the solver comparison only; ``--nodes 31`` for a finer cloth;
+* ``--methods be be-lg -lg_max_it 10 -lg_accept``: Liu et al.'s fixed 10 iterations per step
+  (faster, approximate: compare the final-state difference printed);
 * ``--step 0.01``: 4x larger steps: more numerical damping by BE, many more local/global
   iterations, and semi-implicit (one Newton step) then gains energy at the impact;
-  ``--contact-frequency 1500`` for a harder sphere (less penetration, harder Newton solves);
+  ``--contact-frequency 1500``: a harder sphere (BE penetrates less; SI gains energy);
 * local/global options: ``-lg_rtol 1e-6`` (looser), ``-lg_anderson 0`` (the plain iteration of
   Liu et al.: many more iterations), ``-lg_ksp_type cg -lg_pc_type gamg`` (iterative global
   solves instead of the Cholesky factorization);
