@@ -8,6 +8,13 @@ half's vibrations much more than the soft half's, the midpoint rule keeps both (
 energy), and ERE resolves the stiff linear part exactly. Same table and checks as the sphere demo
 (penetration tolerance, BE/SI energy never growing, cost per step Newton vs local/global).
 
+Measured (defaults, 1 rank): largest penetration BE 2.8 mm, SI 3.1 mm, midpoint 8.7 mm, ERE
+13 cm (it fails: it gains 140% of the energy scale once the stiff half hits the sphere); BE by
+Newton 3.0 iterations and 79 ms per step, by local/global 246 iterations and 1.3 s per step
+with 3 steps halved after 500 iterations (the stiff half makes the constant matrix a poor
+model of the Hessian); the retried steps change the step sequence, and the two final states
+then differ by 15 cm (the draping is sensitive).
+
 Run::
 
     .venv/bin/python scripts/demo_cloth_mixed.py --out cloth-mixed

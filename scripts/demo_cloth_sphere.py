@@ -15,6 +15,12 @@ per step, steps retried with half the step, and the cost per step of backward Eu
 (SNES, direct Cholesky solves) and by the local/global iteration of Liu et al. 2013
 (:mod:`petsoft.dynamics.local_global`) measured in the same run.
 
+Measured (defaults, 1 rank, shared 2-core machine): largest penetration BE 1.6 mm, SI 1.6 mm,
+midpoint 10 mm, ERE 16 mm (tolerance 2 cm); BE and SI never gain energy, midpoint conserves it
+(2e-10), ERE gains 13% of the energy scale; BE by Newton 2.7 iterations and 28 ms per step,
+by local/global 41 iterations and 218 ms per step (Newton / local-global = 0.13), final states
+within 7e-6 m. At h = 1/100 s semi-implicit gains energy at the impact (the check fails).
+
 Run::
 
     .venv/bin/python scripts/demo_cloth_sphere.py --out cloth-sphere
