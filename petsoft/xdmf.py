@@ -159,7 +159,8 @@ def _mesh_xml(h5name: str, points: np.ndarray, tets: np.ndarray) -> str:
     """Topology and Geometry elements referencing ``/mesh/topology`` and ``/mesh/geometry``."""
     return (
         f'<Topology TopologyType="{TOPOLOGIES[tets.shape[1]]}" NumberOfElements="{len(tets)}" '
-        f'NodesPerElement="{tets.shape[1]}">{_data_item(h5name, "/mesh/topology", tets.shape, tets.dtype)}'
+        f'NodesPerElement="{tets.shape[1]}">'
+        f'{_data_item(h5name, "/mesh/topology", tets.shape, tets.dtype)}'
         "</Topology>\n"
         f'<Geometry GeometryType="XYZ">'
         f"{_data_item(h5name, '/mesh/geometry', points.shape, points.dtype)}</Geometry>\n"

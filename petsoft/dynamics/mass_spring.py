@@ -39,7 +39,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from ..errors import ExperimentError, MeshError
-from ..physics.colliders import DEFAULT_STIFFNESS_FACTOR, Collider
+from ..physics.colliders import Collider, default_stiffness
 from ..physics.springs import (
     KINDS,
     SpringNetwork,
@@ -404,7 +404,8 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
         warnings.warn(f"{src}: node(s) {_listing(lonely)} belong to no spring (they move as free "
                       "particles)", MassSpringWarning, stacklevel=2)
 
-    default_k = DEFAULT_STIFFNESS_FACTOR * spec.stiffness
+    default_k = default_stiffness(masses[free], experiment.time.step if experiment.time else None,
+                                  spec.stiffness)
     colliders = [Collider.from_spec(c, default_k) for c in experiment.colliders]
     held = dirichlet.mask.any(axis=1)
     for k, c in enumerate(colliders):
@@ -442,10 +443,22 @@ class MassSpringSystem:
 
     Attributes
     ----------
-    edges, rest_lengths, stiffness, damping_coefficients : ndarray
-        The springs (S, 2), their rest lengths, stiffnesses and dashpot coefficients.
+    points : ndarray (N, 3)
+        Reference node coordinates (file numbering; the state q is the displacement from them).
+    edges, kind, rest_lengths, stiffness, damping_coefficients : ndarray
+        The springs (S, 2) (node pairs), their kind (index into
+        :data:`petsoft.physics.springs.KINDS`), rest lengths, stiffnesses and dashpot coefficients
+        (per spring, all springs, on every rank).
     masses : ndarray (N,)
-        Lumped node masses; ``fixed`` (N, 3) bool: prescribed components.
+        Lumped node masses (``lumped`` is the same as a global Vec, 3 entries per node).
+    fixed : ndarray (N, 3) bool
+        Prescribed components (fixed or prescribed ``[[boundary]]``); values: :meth:`prescribed`.
+    node_range : (int, int)
+        The nodes this rank owns (dofs 3 lo .. 3 hi of every global vector).
+    colliders : list of Collider
+    alpha, damping_stiffness : float
+        Rayleigh coefficients; ``beta`` is 1 and ``K0`` = damping_stiffness K_ref + dashpots
+        (see the module docstring).
     """
 
     def __init__(self, model: MassSpringModel, damping_mass: float = 0.0,
@@ -483,6 +496,7 @@ class MassSpringSystem:
         self.gravity = lay.create_global_vec()
         self._work = lay.create_global_vec()
         self._x_last = self.points.copy()
+        self._v_last = np.zeros((hi - lo, 3))
         self.M = self.create_matrix()
         self.K0 = self.create_matrix()
         self._update_mass()
@@ -553,13 +567,6 @@ class MassSpringSystem:
         self.mass_values = self._values(None, m[:, None, None] * np.eye(3)[None])
         self._set(self.M, self.mass_values)
 
-    def _unit_blocks(self, select: np.ndarray | None = None) -> np.ndarray:
-        """(St, 6, 6) reference spring matrices with unit stiffness (of the selected springs)."""
-        t = self.touch
-        k = np.ones(len(t)) if select is None else select[t].astype(float)
-        return expand_blocks(spring_hessian_blocks(self.points, self.edges[t],
-                                                   self.rest_lengths[t], k))
-
     def _update_reference(self) -> None:
         """K0 = beta_user K_ref + dashpots (K_ref: the spring Hessian at rest)."""
         t = self.touch
@@ -592,6 +599,14 @@ class MassSpringSystem:
             values += a_mass * self.mass_values
         if c_reference != 0.0:
             values += c_reference * self.k0_values
+            friction = [c for c in self.colliders if c.friction > 0.0]
+            if friction:
+                # c is the velocity coefficient of the scheme (beta = 1): the friction's velocity
+                # Jacobian at the latest velocity joins the damping term
+                lo, hi = self.node_range
+                x, v = self._x_last[lo:hi], self._v_last
+                values += c_reference * self._values(
+                    None, sum(c.friction_damping(x, v) for c in friction))
         self._set(out, values)
         if eliminate:
             self.dirichlet.eliminate(out)
@@ -692,6 +707,7 @@ class MassSpringSystem:
             lo, hi = self.node_range
             x = self._x_last[lo:hi]
             vl = v.getArray(readonly=True).reshape(-1, 3)
+            self._v_last = vl.copy()
             f = sum(c.friction_force(x, vl) for c in friction)
             arr = out.getArray()
             arr -= f.ravel()
@@ -721,7 +737,7 @@ class MassSpringSystem:
         return 3 * ids[:, None] + np.arange(3)
 
     def parameter_names(self) -> list[str]:
-        """Names (as :func:`petsoft.experiment.parameter_names`) of the differentiable parameters."""
+        """The differentiable parameters, named as :func:`petsoft.experiment.parameter_names`."""
         names = ["springs.stiffness", "springs.damping"]
         if np.any(self.kind == KINDS.index("bending")):
             names.append("springs.bending")
@@ -800,28 +816,20 @@ class MassSpringSystem:
             if name in ("springs.stiffness", "springs.bending"):
                 sel = bend if name == "springs.bending" else ~bend
                 arr[:] = self._spring_node_gradient(x, sel.astype(float))
-                # D v contains beta_user K_ref(k) v
+                # D v contains beta_user K_ref(k) v, linear in k
                 if self.damping_stiffness != 0.0:
-                    kv = self._matvec(self._values(self._unit_blocks(sel), None), v)
-                    arr += self.damping_stiffness * kv.getArray(readonly=True).reshape(-1, 3)
-                    kv.destroy()
+                    arr += self.damping_stiffness * self._unit_product(
+                        "bending" if name == "springs.bending" else "stiffness", v)
             elif name == "springs.damping":
-                t_ = self.touch
-                dash = expand_blocks(dashpot_blocks(self.points, self.edges[t_],
-                                                    (~bend[t_]).astype(float)))
-                dv = self._matvec(self._values(dash, None), v)
-                arr[:] = dv.getArray(readonly=True).reshape(-1, 3)
-                dv.destroy()
+                arr[:] = self._unit_product("damping", v)
             elif name == "springs.node_mass":
                 arr[:] = al + self.alpha * vl - self.acceleration
             elif name == "damping.mass":
                 arr[:] = self.masses[lo:hi, None] * vl
             elif name == "damping.stiffness":
-                kv = self._matvec(self._values(expand_blocks(spring_hessian_blocks(
-                    self.points, self.edges[self.touch], self.rest_lengths[self.touch],
-                    self.stiffness[self.touch])), None), v)
-                arr[:] = kv.getArray(readonly=True).reshape(-1, 3)
-                kv.destroy()
+                p = self.get_parameters()
+                arr[:] = (p["springs.stiffness"] * self._unit_product("stiffness", v)
+                          + p["springs.bending"] * self._unit_product("bending", v))
             else:
                 arr[:] = 0.0
                 arr[:, "xyz".index(name[-1])] = -self.masses[lo:hi]
@@ -829,18 +837,32 @@ class MassSpringSystem:
             out.append(d)
         return out
 
-    def _matvec(self, values: np.ndarray, v: PETSc.Vec) -> PETSc.Vec:
-        A = self._set(self.create_matrix(), values)
-        y = self.create_vec()
-        A.mult(v, y)
-        A.destroy()
-        return y
+    def _unit_product(self, which: str, v: PETSc.Vec) -> np.ndarray:
+        """(nloc, 3) product of v with a unit-coefficient matrix, built once: the rest stiffness
+        of the non-bending ("stiffness") or bending springs, or the dashpots ("damping")."""
+        mats = self.__dict__.setdefault("_unit_matrices", {})
+        if which not in mats:
+            bend = self.kind == KINDS.index("bending")
+            t = self.touch
+            if which == "damping":
+                blocks = dashpot_blocks(self.points, self.edges[t], (~bend[t]).astype(float))
+            else:
+                blocks = spring_hessian_blocks(self.points, self.edges[t], self.rest_lengths[t],
+                                               (bend if which == "bending" else ~bend)[t]
+                                               .astype(float))
+            mats[which] = self._set(self.create_matrix(),
+                                    self._values(expand_blocks(blocks), None))
+        y = self._work
+        mats[which].mult(v, y)
+        return y.getArray(readonly=True).reshape(-1, 3).copy()
 
     def destroy(self) -> None:
         for name in ("M", "K0", "lumped", "gravity", "_work"):
             obj = getattr(self, name, None)
             if obj is not None:
                 obj.destroy()
+        for A in self.__dict__.get("_unit_matrices", {}).values():
+            A.destroy()
 
 
 def locate_nodes(points: np.ndarray, probes, *, source: str = "probes") -> np.ndarray:
@@ -863,3 +885,26 @@ def locate_nodes(points: np.ndarray, probes, *, source: str = "probes") -> np.nd
                                   f"({dist[node]:.3g} m away)")
         out[i] = node
     return out
+
+
+def rope_mesh(nodes: int, length: float, start=(0.0, 0.0, 0.0),
+              direction=(1.0, 0.0, 0.0)) -> SpringMesh:
+    """A straight rope of ``nodes`` nodes (``nodes - 1`` line cells) of total ``length``."""
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    s = np.linspace(0.0, length, nodes)
+    pts = np.asarray(start, float) + s[:, None] * d
+    lines = np.stack([np.arange(nodes - 1), np.arange(1, nodes)], axis=1)
+    return SpringMesh(pts, lines, np.zeros((0, 3), np.int64), source="<rope>")
+
+
+def cloth_mesh(nx: int, ny: int, width: float, height: float, z: float = 0.0,
+               origin=(0.0, 0.0)) -> SpringMesh:
+    """A flat nx x ny node grid in the plane z = const, each quad split into two triangles."""
+    xs, ys = np.meshgrid(np.linspace(0.0, width, nx) + origin[0],
+                         np.linspace(0.0, height, ny) + origin[1], indexing="ij")
+    pts = np.column_stack([xs.ravel(), ys.ravel(), np.full(nx * ny, float(z))])
+    idx = np.arange(nx * ny).reshape(nx, ny)
+    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    tris = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int64)
+    return SpringMesh(pts, np.zeros((0, 2), np.int64), tris, source="<cloth>")

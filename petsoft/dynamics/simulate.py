@@ -131,6 +131,12 @@ class Simulation:
         if experiment.is_mass_spring:
             from .mass_spring import MassSpringSystem
 
+            if self.name == "imex":
+                raise ExperimentError(
+                    f"{experiment.source}: integrator imex splits the modes of a continuum's "
+                    "reference stiffness and does not apply to [springs] models; use be, si, "
+                    "midpoint, trapezoidal, alpha, explicit or ere")
+
             self.system = MassSpringSystem(model, experiment.damping.mass,
                                            experiment.damping.stiffness, clamp=spd)
         else:

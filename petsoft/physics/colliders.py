@@ -13,9 +13,18 @@ Hess phi = 0; for a sphere Hess phi = (I - n n^T) / |x - c|, whose contribution 
 is negative (tangential sliding over a convex obstacle lowers the penetration): ``clamp`` drops
 it so that the contact Hessian stays PSD, as the clamped spring Hessian does.
 
-Default stiffness: when ``[[collider]] stiffness`` is not given, ``DEFAULT_STIFFNESS_FACTOR`` (1000)
-times the ``[springs] stiffness`` (N/m per node): a node hanging from one spring then penetrates
-1/1000 of the spring's stretch under the same load.
+The C2-smooth variant (``margin`` delta > 0, set programmatically) starts the contact delta before
+the surface: E = k/(6 delta) (delta - phi)^3 for 0 <= phi < delta, continued inside by the
+quadratic k/2 p^2 + k delta/2 p + k delta^2/6 with the same value, slope and curvature k at phi = 0,
+so the Hessian is continuous too.
+
+Default stiffness (:func:`default_stiffness`), when ``[[collider]] stiffness`` is not given:
+k = 4 m_max / h^2 with m_max the largest node mass and h the ``[time] step``. The contact's own
+frequency sqrt(k/m) <= 2/h is then resolved by one step, which keeps the single Newton step of the
+semi-implicit method from overshooting into an energy gain (stiffer penalties do gain energy with
+``si``: measured in tests/test_mass_spring.py), and a node hitting the collider at speed v
+penetrates at most v sqrt(m/k) >= v h / 2 (its kinetic energy turned into penalty energy);
+under its own weight a node sinks g h^2 / 4. Without ``[time]``: 1000 x ``[springs] stiffness``.
 
 Friction (``friction`` = mu > 0)
 -------------------------------
@@ -23,9 +32,10 @@ Coulomb friction -mu |f_n| v_t / |v_t|, smoothed as -mu |f_n| v_t / sqrt(|v_t|^2
 (eps_v = :data:`FRICTION_VELOCITY`), *lagged*: the normal force magnitude |f_n| = k p and the
 normal n are those of the last configuration the contact forces were evaluated at (the current
 Newton iterate), and the force enters as a velocity-dependent damping force, so its work is
-booked as dissipation (it is never negative: f . v_t <= 0). Its derivative with respect to the
-velocity is not in the Jacobian (the lag makes it a fixed-point term; Newton converges linearly
-while sliding).
+booked as dissipation (it is never negative: f . v_t <= 0). Its velocity derivative at the latest
+velocity, -df/dv (:meth:`Collider.friction_damping`, PSD), joins the Jacobians' damping term, so
+Newton also converges when a sliding node comes to rest (the viscous regime is stiff: mu |f_n| /
+eps_v); the normal force's dependence on the position is the lagged part.
 """
 
 from __future__ import annotations
@@ -34,7 +44,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-DEFAULT_STIFFNESS_FACTOR = 1000.0
+DEFAULT_STIFFNESS_FACTOR = 1000.0   # x [springs] stiffness, without a time step
+DEFAULT_STEP_FACTOR = 4.0           # x m_max / h^2 with a time step
+
+
+def default_stiffness(masses: np.ndarray, step: float | None, spring_stiffness: float) -> float:
+    """The penalty stiffness of a collider without ``stiffness`` (see the module docstring)."""
+    m = float(np.max(masses)) if len(masses) else 0.0
+    if step is not None and m > 0.0:
+        return DEFAULT_STEP_FACTOR * m / step ** 2
+    return DEFAULT_STIFFNESS_FACTOR * spring_stiffness
 FRICTION_VELOCITY = 1.0e-3  # m/s: below this tangential speed friction is viscous
 
 
@@ -49,6 +68,7 @@ class Collider:
     radius: float | None = None
     point: np.ndarray | None = None
     normal: np.ndarray | None = None
+    margin: float = 0.0
 
     @classmethod
     def from_spec(cls, spec, default_stiffness: float) -> Collider:
@@ -79,35 +99,59 @@ class Collider:
         return rho - self.radius, n, safe
 
     # -- penalty terms -------------------------------------------------------------------------
+    def _profile(self, phi: np.ndarray):
+        """e(phi), e'(phi), e''(phi) of the penalty as a function of the signed distance."""
+        k, delta = self.stiffness, self.margin
+        if delta <= 0.0:
+            p = np.maximum(-phi, 0.0)
+            return 0.5 * k * p * p, -k * p, np.where(phi < 0.0, k, 0.0)
+        # C2 with a margin delta: cubic k/(6 delta) (delta - phi)^3 on [0, delta), continued by the
+        # quadratic with the same value, slope and curvature k at phi = 0 inside
+        s = np.clip(delta - phi, 0.0, delta)                    # depth into the margin
+        p = np.maximum(-phi, 0.0)                               # penetration
+        e = k / (6 * delta) * s ** 3 + 0.5 * k * p * p + 0.5 * k * delta * p
+        inside = phi < 0.0
+        de = np.where(inside, -k * p - 0.5 * k * delta, -k / (2 * delta) * s ** 2)
+        dde = np.where(inside, k, k / delta * s)
+        return e, de, dde
+
     def energy(self, x: np.ndarray) -> np.ndarray:
         """(P,) penalty energies."""
-        phi, _, _ = self.distance(x)
-        p = np.maximum(-phi, 0.0)
-        return 0.5 * self.stiffness * p * p
+        return self._profile(self.distance(x)[0])[0]
 
     def gradient(self, x: np.ndarray) -> np.ndarray:
         """(P, 3) gradients of the penalty energy (minus the contact forces)."""
         phi, n, _ = self.distance(x)
-        p = np.maximum(-phi, 0.0)
-        return -(self.stiffness * p)[:, None] * n
+        return self._profile(phi)[1][:, None] * n
 
     def hessian(self, x: np.ndarray, clamp: bool = False) -> np.ndarray:
         """(P, 3, 3) Hessians of the penalty energy (zero out of contact)."""
         phi, n, rho = self.distance(x)
-        p = np.maximum(-phi, 0.0)
-        active = (p > 0.0)[:, None, None]
+        _, de, dde = self._profile(phi)
         nn = n[:, :, None] * n[:, None, :]
-        H = self.stiffness * nn
+        H = dde[:, None, None] * nn
         if self.kind == "sphere" and not clamp:
-            H = H - (self.stiffness * p / rho)[:, None, None] * (np.eye(3)[None] - nn)
-        return np.where(active, H, 0.0)
+            H = H + (de / rho)[:, None, None] * (np.eye(3)[None] - nn)
+        return H
 
     def friction_force(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
         """(P, 3) smoothed Coulomb friction forces at positions x (lagged normal) and velocity v."""
         if self.friction <= 0.0:
             return np.zeros_like(v)
         phi, n, _ = self.distance(x)
-        fn = self.stiffness * np.maximum(-phi, 0.0)
+        fn = -self._profile(phi)[1]
         vt = v - np.einsum("pi,pi->p", v, n)[:, None] * n
         speed = np.sqrt(np.einsum("pi,pi->p", vt, vt) + FRICTION_VELOCITY ** 2)
         return -(self.friction * fn / speed)[:, None] * vt
+
+    def friction_damping(self, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(P, 3, 3) -d(friction force)/dv at (x, v), normal force held (lagged): PSD,
+        mu |f_n| (P / s - v_t v_t^T / s^3) with P = I - n n^T, s = sqrt(|v_t|^2 + eps_v^2)."""
+        phi, n, _ = self.distance(x)
+        fn = -self._profile(phi)[1]
+        vt = v - np.einsum("pi,pi->p", v, n)[:, None] * n
+        s = np.sqrt(np.einsum("pi,pi->p", vt, vt) + FRICTION_VELOCITY ** 2)
+        P = np.eye(3)[None] - n[:, :, None] * n[:, None, :]
+        outer = vt[:, :, None] * vt[:, None, :]
+        c = self.friction * fn
+        return (c / s)[:, None, None] * P - (c / s ** 3)[:, None, None] * outer
