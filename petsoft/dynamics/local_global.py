@@ -693,7 +693,8 @@ def check_supported(system) -> None:
     Raises
     ------
     petsoft.errors.ExperimentError
-        Not a mass-spring system, stiffness-proportional damping, spring dashpots, friction.
+        Not a mass-spring system, stiffness-proportional damping, spring dashpots, friction,
+        the C2 contact margin.
     """
     from ..errors import ExperimentError
 
@@ -709,6 +710,10 @@ def check_supported(system) -> None:
         raise ExperimentError("[springs] damping (dashpots) is not handled by the local/global "
                               "step (set it to 0 and use [damping] mass)" + hint)
     for k, c in enumerate(system.colliders):
+        if getattr(c, "margin", 0.0) > 0.0:
+            raise ExperimentError(f"collider[{k}] has a contact margin ({c.margin}): the "
+                                  "local/global step projects onto the surface, i.e. handles "
+                                  "the quadratic penalty (margin 0) only" + hint)
         if c.friction > 0.0:
             raise ExperimentError(f"collider[{k}] friction = {c.friction}: friction is not "
                                   "handled by the local/global step" + hint)
