@@ -423,3 +423,36 @@ def test_integrator_refuses_terms_it_does_not_handle(tmp_path, change, message):
     with pytest.raises(ExperimentError, match=message):
         LocalGlobalIntegrator(system)
     system.destroy()
+
+
+@pytest.mark.serial_only
+@pytest.mark.skipif(PETSc.COMM_WORLD.size > 1, reason="spawns processes")
+def test_cli_simulate_solver_local_global(tmp_path):
+    """`petsoft simulate --solver local-global` on the stiff-spring pendulum: the probe trajectory
+    of Newton's backward Euler, and a clear error for another integrator."""
+    import os
+    import subprocess
+    import sys
+
+    import h5py
+
+    root = Path(__file__).resolve().parents[1]
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess"))}
+    toml = str(root / "scripts" / "stiff_spring_pendulum.toml")
+    cli = [sys.executable, "-m", "petsoft.cli", "simulate", toml]
+    runs = {}
+    for solver in ("snes", "local-global"):
+        r = subprocess.run(cli + ["--out", str(tmp_path / solver), "--solver", solver,
+                                  "-lg_rtol", "1e-11"],
+                           capture_output=True, text=True, env=env, timeout=120)
+        assert r.returncode == 0, r.stdout + r.stderr
+        with h5py.File(tmp_path / solver / "probes.h5") as f:
+            runs[solver] = f["frames/position"][...]
+    assert runs["snes"].shape == runs["local-global"].shape
+    assert np.ptp(runs["snes"][:, 0, 2]) > 0.1                     # it swings
+    assert np.abs(runs["snes"] - runs["local-global"]).max() < 1e-8
+    r = subprocess.run(cli + ["--out", str(tmp_path / "x"), "--solver", "local-global",
+                              "--integrator", "midpoint"],
+                       capture_output=True, text=True, env=env, timeout=120)
+    assert r.returncode == 2 and "backward-Euler steps only" in r.stdout + r.stderr

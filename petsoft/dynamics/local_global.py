@@ -69,6 +69,9 @@ from ..errors import PetsoftError, SolverError
 from ..options import scoped_defaults
 from .implicit import ImplicitIntegrator, StepReport
 
+#: |R| below this many ulps of |rhs| is round-off: the step is converged (a tolerance below
+#: that level would otherwise fail after max_it iterations and halve the step)
+ROUNDOFF_FACTOR = 1.0e3
 KSP_REASONS = {v: k for k, v in PETSc.KSP.ConvergedReason.__dict__.items() if k.isupper()}
 
 
@@ -519,7 +522,7 @@ class LocalGlobalSolver:
         # whenever another node penetrates (see _contact)
         sets = (self._last_active.copy() if self._last_active is not None
                 else np.zeros((len(self.colliders), nloc), bool))
-        state = {"active": sets.copy(), "refactored": False}
+        state = {"active": sets.copy(), "refactored": False, "floor": 0.0}
 
         def evaluate(qvec):
             """rhs(d(q)), |R(q)| and the incremental potential at q (collective)."""
@@ -555,7 +558,10 @@ class LocalGlobalSolver:
             phi = (0.5 / h**2 * np.sum(m * (qa - y) ** 2)
                    + 0.5 * self.alpha / h * np.sum(m * (qa - q0a) ** 2)
                    - np.sum(fa * qa) + e_loc + e_c)
-            sq, phi = mpi.allreduce(np.array([float(np.sum(res * res)), float(phi)]))
+            sq, phi, rhs_sq = mpi.allreduce(np.array([float(np.sum(res * res)), float(phi),
+                                                      float(np.sum(rhs[~fx] ** 2))]))
+            # the residual cannot fall below the round-off of K q - rhs
+            state["floor"] = ROUNDOFF_FACTOR * np.finfo(float).eps * float(np.sqrt(rhs_sq))
             rep.local_time += time.perf_counter() - t
             return rhs, float(np.sqrt(sq)), float(phi)
 
@@ -613,6 +619,9 @@ class LocalGlobalSolver:
                 if norm <= max(self.atol, self.rtol * ref):
                     rep.converged, rep.reason = True, "CONVERGED_RESIDUAL"
                     break
+                if norm <= state["floor"]:
+                    rep.converged, rep.reason = True, "CONVERGED_ROUNDOFF"
+                    break
                 if not np.isfinite(norm):
                     rep.reason = "DIVERGED_NAN"
                     break
@@ -642,9 +651,13 @@ class LocalGlobalSolver:
                         proj = mpi.allreduce(F @ f)
                         # regularised least squares: the differences become nearly dependent
                         # close to convergence
-                        lam = 1e-10 * np.trace(gram) / len(dF)
-                        gamma = np.linalg.solve(gram + lam * np.eye(len(dF)), proj)
-                        g = g - gamma @ np.array(dG)
+                        # (at round-off all differences may vanish: then no mixing)
+                        scale = float(np.trace(gram))
+                        if scale > 0.0 and np.isfinite(scale):
+                            lam = 1e-10 * scale / len(dF)
+                            gamma = np.linalg.lstsq(gram + lam * np.eye(len(dF)), proj,
+                                                    rcond=None)[0]
+                            g = g - gamma @ np.array(dG)
                 q1.getArray()[:] = g
                 rhs, norm, phi = evaluate(q1)
             self._last_active = state["active"]
