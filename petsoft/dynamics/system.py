@@ -203,12 +203,6 @@ class DynamicSystem:
         if getattr(self, "_parameters", None) is None:
             from .parameters import ParameterMap
 
-            n = len(self.dmesh.cells)
-            self.elastic_dN = np.empty((n, 4, 3))
-            self.cell_models = np.empty(n, dtype=object)
-            for group in self.elastic.groups:
-                self.elastic_dN[group.cells] = group.dN
-                self.cell_models[group.cells] = group.model
             self._parameters = ParameterMap(self)
         return self._parameters
 
