@@ -13,6 +13,11 @@
 
 All matrices share one block-CSR pattern, so an integrator's Jacobian a M + b K(q) + c K0 is a
 combination of value arrays handed to PETSc once.
+
+For calibration the system's parameters (materials, damping, gravity, a stiffness field) can be
+changed in place and differentiated: :meth:`DynamicSystem.parameter_names`,
+:meth:`~DynamicSystem.set_parameters`, :meth:`~DynamicSystem.residual_parameter_derivatives`
+(see :mod:`petsoft.dynamics.parameters`).
 """
 
 from __future__ import annotations
