@@ -58,6 +58,8 @@ def _parser() -> argparse.ArgumentParser:
     _add_simulate_parser(sub)
     _add_modes_parser(sub)
     _add_damping_parser(sub)
+    _add_calibrate_parser(sub)
+    _add_recording_parsers(sub)
     d = sub.add_parser("demo", help="run the embedded example (no input needed)",
                        description="Solve an embedded neo-Hookean cantilever under gravity and an "
                                    "end load; writes results and a plot to --out.")
@@ -87,6 +89,9 @@ def _add_simulate_parser(sub) -> None:
     s.add_argument("--alpha-backend", choices=("petsoft", "ts"), default="petsoft",
                    help="generalized-alpha: petsoft's step (second order) or PETSc TS alpha2 "
                         "(first order for r < 1 in PETSc 3.18, see README)")
+    s.add_argument("--spd", action="store_true",
+                   help="mass-spring models: clamped (positive semi-definite) spring and contact "
+                        "Hessians in the Jacobians")
 
 
 def _positive_int(text: str) -> int:
@@ -143,6 +148,74 @@ def _add_damping_parser(sub) -> None:
                    help="initial max displacement / body size of each mode run (default "
                         "%(default)s; smaller for nonlinear materials approaches the linear "
                         "values, but stalls the midpoint rule's Newton on round-off)")
+
+
+def _add_recording_parsers(sub) -> None:
+    i = sub.add_parser(
+        "import", help="convert a CSV or C3D marker file into a recording (HDF5)",
+        description="Read marker trajectories from CSV (time, <name>_x, <name>_y, <name>_z, ...; "
+                    "empty or NaN cells = not seen) or C3D (POINT data; residual < 0 = not seen) "
+                    "and write a petsoft recording. Reference positions: the first frame in "
+                    "which every marker is seen, or --rest-frame.")
+    i.add_argument("file", help="the file to import (.csv or .c3d)")
+    i.add_argument("--out", required=True, help="recording to write (HDF5)")
+    i.add_argument("--format", choices=("csv", "c3d"), help="default: from the extension")
+    i.add_argument("--units", choices=("m", "cm", "mm"),
+                   help="length unit of the file (CSV default m; C3D default POINT:UNITS)")
+    i.add_argument("--scale", type=float, help="factor to metres instead of --units")
+    i.add_argument("--rest-frame", type=int, help="frame giving the reference positions")
+    i.add_argument("--position-std", type=float,
+                   help="measurement noise (m) to write into /noise, when known")
+    y = sub.add_parser(
+        "synth", help="a synthetic recording from a simulation (with truth.json beside it)",
+        description="Simulate EXPERIMENT.toml on a K-times refined mesh with step/K (no inverse "
+                    "crime), observe N markers on surface nodes of the original mesh at the "
+                    "original step's times, add Gaussian noise and drop a fraction of samples; "
+                    "writes the recording, truth.json beside it and summary.json.")
+    y.add_argument("experiment", help="experiment file (TOML) with a [time] section")
+    y.add_argument("--out", required=True, help="recording to write (HDF5)")
+    y.add_argument("--noise", type=float, default=0.0, metavar="STD",
+                   help="Gaussian position noise, m (default 0)")
+    y.add_argument("--markers", type=_positive_int, default=8, metavar="N",
+                   help="number of random surface-node markers (default %(default)s)")
+    y.add_argument("--markers-file", help="marker reference positions instead: CSV or text "
+                                          "with x y z per line (m)")
+    y.add_argument("--dropout", type=float, default=0.0, metavar="P",
+                   help="fraction of samples dropped (NaN), 0 <= P < 1")
+    y.add_argument("--refine", type=_positive_int, default=1, metavar="K",
+                   help="simulate on a K-times refined mesh with step/K (default 1)")
+    y.add_argument("--integrator", help="override [time] integrator for the simulation")
+    y.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+
+
+def _add_calibrate_parser(sub) -> None:
+    c = sub.add_parser(
+        "calibrate", help="fit the [calibrate] parameters of an experiment to a recording",
+        description="Minimise the misfit between simulated and recorded marker positions over "
+                    "the parameters of the experiment's [calibrate] table (bounds there, start "
+                    "values from the experiment). Prints progress per iteration and a result "
+                    "table with Gauss-Newton standard deviations; writes calibrated.toml, "
+                    "summary.json, trajectories.png and residuals.png. TAO options take the "
+                    "prefix cal_ (e.g. -cal_tao_gatol 1e-10), the forward Newton fm_ and the "
+                    "gradient solves fm_grad_.")
+    c.add_argument("experiment", help="experiment file (TOML) with [time] and [calibrate]")
+    c.add_argument("recording", help="recording (HDF5, formats spec section 2)")
+    c.add_argument("--method", default="gauss-newton",
+                   choices=("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead"),
+                   help="optimizer (default %(default)s)")
+    c.add_argument("--gradient", default="adjoint", choices=("adjoint", "sensitivity", "fd"),
+                   help="gradients by discrete adjoint, forward sensitivities or finite "
+                        "differences (Jacobians always by sensitivities unless fd)")
+    c.add_argument("--integrator", choices=("be", "si", "alpha"),
+                   help="override [time] integrator for the forward model")
+    c.add_argument("--multistart", type=int, default=0, metavar="K",
+                   help="also K random starts in the bounds, run on groups of ranks")
+    c.add_argument("--seed", type=int, default=0, help="seed of the random starts")
+    c.add_argument("--noise", type=float, help="position noise std (m) when the recording "
+                                                "has no /noise")
+    c.add_argument("--regularization", type=float, default=0.0, metavar="LAMBDA",
+                   help="Tikhonov weight on the scaled parameters' distance from the start")
+    c.add_argument("--out", help="output directory (default: [output] directory)")
 
 
 def _static_options(s) -> None:

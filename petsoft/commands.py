@@ -51,6 +51,25 @@ def run(args) -> int:
         return run_modes(args)
     if args.command == "damping":
         return run_damping(args)
+    if args.command == "import":
+        from .importers import run_import
+
+        return run_import(args)
+    if args.command == "synth":
+        from .synth import run_synth
+
+        return run_synth(args)
+    if args.command == "calibrate":
+        from .calibration.calibrate import run_calibration
+
+        experiment = load_experiment(args.experiment)
+        apply_experiment_options(experiment.petsc)
+        out = Path(args.out) if args.out else experiment.output.directory
+        run_calibration(experiment, args.recording, method=args.method, gradient=args.gradient,
+                        integrator=args.integrator, starts=args.multistart, seed=args.seed,
+                        regularization=args.regularization, noise=args.noise, out=out,
+                        say=_print)
+        return 0
     if args.command == "demo":
         experiment = experiment_from_dict(DEMO_EXPERIMENT, source="<embedded demo>")
         out = Path(args.out)
@@ -135,10 +154,15 @@ def run_simulation(experiment, out: Path, args) -> None:
     from .dynamics.simulate import Simulation
 
     apply_experiment_options(experiment.petsc)
-    model = build_model(experiment, PETSc.COMM_WORLD, recording=args.recording)
+    if experiment.is_mass_spring:
+        from .dynamics.mass_spring import build_mass_spring_model
+
+        model = build_mass_spring_model(experiment, PETSc.COMM_WORLD, recording=args.recording)
+    else:
+        model = build_model(experiment, PETSc.COMM_WORLD, recording=args.recording)
     sim = Simulation(model, experiment, integrator=args.integrator, solver=args.solver,
                      out=out, monitor=_print, explicit_scheme=args.explicit_scheme,
-                     alpha_backend=args.alpha_backend)
+                     alpha_backend=args.alpha_backend, spd=getattr(args, "spd", False))
     result = sim.run(restart=args.restart)
     _print(f"t = {result.time:g} s after {result.steps} steps ({result.retries} retried), "
            f"{result.newton_iterations} Newton / {result.linear_iterations} linear iterations, "

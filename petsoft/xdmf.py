@@ -112,13 +112,19 @@ def _check_path(path: Path, h5_path: Path) -> None:
         raise ValueError(f"XDMF output name {path.name!r} must not contain ':'")
 
 
+#: XDMF topology of cells by nodes per cell: tetrahedra, and the vertices, lines and triangles of
+#: mass-spring models.
+TOPOLOGIES = {4: "Tetrahedron", 3: "Triangle", 2: "Polyline", 1: "Polyvertex"}
+
+
 def _check_mesh(points: object, tets: object) -> tuple[np.ndarray, np.ndarray]:
     pts = np.asarray(points, dtype=np.float64)
     cells = np.asarray(tets)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must be an (N, 3) array, got shape {pts.shape}")
-    if cells.ndim != 2 or cells.shape[1] != 4 or cells.dtype.kind not in "iu":
-        raise ValueError(f"tets must be an (E, 4) integer array, got {cells.shape} {cells.dtype}")
+    if cells.ndim != 2 or cells.shape[1] not in TOPOLOGIES or cells.dtype.kind not in "iu":
+        raise ValueError(f"tets must be an (E, 4) integer array (or (E, 1|2|3) vertices, lines, "
+                         f"triangles of a mass-spring model), got {cells.shape} {cells.dtype}")
     cells = cells.astype(np.int64)
     if cells.size and (cells.min() < 0 or cells.max() >= len(pts)):
         raise ValueError(f"tets refer to nodes outside 0..{len(pts) - 1}")
@@ -152,8 +158,9 @@ def _attribute(name: str, center: str, h5name: str, h5path: str, arr: np.ndarray
 def _mesh_xml(h5name: str, points: np.ndarray, tets: np.ndarray) -> str:
     """Topology and Geometry elements referencing ``/mesh/topology`` and ``/mesh/geometry``."""
     return (
-        f'<Topology TopologyType="Tetrahedron" NumberOfElements="{len(tets)}" '
-        f'NodesPerElement="4">{_data_item(h5name, "/mesh/topology", tets.shape, tets.dtype)}'
+        f'<Topology TopologyType="{TOPOLOGIES[tets.shape[1]]}" NumberOfElements="{len(tets)}" '
+        f'NodesPerElement="{tets.shape[1]}">'
+        f'{_data_item(h5name, "/mesh/topology", tets.shape, tets.dtype)}'
         "</Topology>\n"
         f'<Geometry GeometryType="XYZ">'
         f"{_data_item(h5name, '/mesh/geometry', points.shape, points.dtype)}</Geometry>\n"

@@ -11,6 +11,7 @@ from petsoft.dynamics.system import DynamicSystem
 from petsoft.experiment import experiment_from_dict
 from petsoft.model import build_model
 from petsoft.probes import interpolate, locate
+from petsoft.recording import Recording
 
 SIZE = [0.3, 0.04, 0.04]
 
@@ -58,7 +59,10 @@ def test_observe_interpolates_the_displacement(system):
 
 def test_adjoint_is_consistent(system):
     """<B q, w> == <q, B^T w> for random q and w (on any number of ranks)."""
-    obs = MarkerObserver(system, MARKERS)
+    rec = Recording(MARKERS, [f"k{i}" for i in range(len(MARKERS))], np.zeros(1),
+                    MARKERS[None].copy(), source="mem.h5")
+    obs = MarkerObserver.from_recording(system, rec)
+    assert obs.names[0] == "k0" and obs.source == "mem.h5"
     q, _ = _random_q(system, 5)
     w = np.random.default_rng(6).standard_normal((len(MARKERS), 3))
     lhs = float(np.sum((obs.observe(q) - MARKERS) * w))

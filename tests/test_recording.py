@@ -6,7 +6,6 @@ from pathlib import Path
 import h5py
 import numpy as np
 import pytest
-from mpi4py import MPI
 
 from petsoft.recording import (Recording, RecordingError, RecordingWarning, read_recording,
                                write_recording)
@@ -167,4 +166,3 @@ def test_dataclass_defaults():
     rec = Recording(ref, ["a", "b", "c"], t, pos)
     assert rec.num_markers == 3 and rec.num_frames == 5 and rec.noise == {}
     assert Path(rec.source).name == "<memory>"
-    assert MPI.COMM_WORLD.size >= 1

@@ -145,6 +145,11 @@ class MarkerObserver:
         self._y = self.B.createVecLeft()
         self._scatter, self._all = PETSc.Scatter.toAll(self._y)
 
+    @classmethod
+    def from_recording(cls, system, recording, **kw) -> MarkerObserver:
+        """The observer of a :class:`~petsoft.recording.Recording`'s markers."""
+        return cls(system, recording.reference, recording.names, source=recording.source, **kw)
+
     # -- embedding -----------------------------------------------------------------------------
     def _fem_entries(self, dm):
         mesh = dm.mesh

@@ -111,7 +111,8 @@ class Simulation:
 
     def __init__(self, model, experiment, *, integrator: str | None = None, solver: str = "snes",
                  out: Path | None = None, monitor=None, explicit_scheme: str = "verlet",
-                 alpha_backend: str = "petsoft", progress_every: float = 1.0):
+                 alpha_backend: str = "petsoft", progress_every: float = 1.0,
+                 spd: bool = False):
         if experiment.time is None:
             raise ExperimentError(f"{experiment.source}: [time] is missing: `simulate` needs "
                                   "end and step (and optionally integrator)")
@@ -120,7 +121,20 @@ class Simulation:
         if self.name not in INTEGRATORS:
             raise ExperimentError(f"integrator {self.name!r} is unknown; valid: "
                                   f"{', '.join(INTEGRATORS)}")
-        self.system = DynamicSystem(model, experiment.damping.mass, experiment.damping.stiffness)
+        if experiment.is_mass_spring:
+            from .mass_spring import MassSpringSystem
+
+            if self.name == "imex":
+                raise ExperimentError(
+                    f"{experiment.source}: integrator imex splits the modes of a continuum's "
+                    "reference stiffness and does not apply to [springs] models; use be, si, "
+                    "midpoint, trapezoidal, alpha, explicit or ere")
+
+            self.system = MassSpringSystem(model, experiment.damping.mass,
+                                           experiment.damping.stiffness, clamp=spd)
+        else:
+            self.system = DynamicSystem(model, experiment.damping.mass,
+                                        experiment.damping.stiffness)
         self.integrator = make_integrator(self.system, self.name, solver, explicit_scheme,
                                           experiment.time.alpha_radius, alpha_backend,
                                           experiment.time.imex_slow_modes)
@@ -130,7 +144,16 @@ class Simulation:
         mesh = model.dmesh.mesh
         self.probes = experiment.output.probes
         self.probe_cells = self.probe_weights = None
-        if self.probes:
+        self.probe_connectivity = mesh.tets
+        if self.probes and experiment.is_mass_spring:
+            # mass-spring probes sit on nodes: "cells" of one node each, weight 1
+            from .mass_spring import locate_nodes
+
+            self.probe_connectivity = np.arange(len(mesh.points))[:, None]
+            self.probe_cells = locate_nodes(mesh.points, self.probes,
+                                            source=f"{experiment.source}: output.probes")
+            self.probe_weights = np.ones((len(self.probe_cells), 1))
+        elif self.probes:
             self.probe_cells, self.probe_weights = locate(
                 mesh.points, mesh.tets, self.probes, source=f"{experiment.source}: output.probes")
 
@@ -325,7 +348,7 @@ class Simulation:
         if self.probe_cells is not None:
             result.probe_times.append(t)
             result.probe_displacements.append(
-                interpolate(u, dm.mesh.tets, self.probe_cells, self.probe_weights))
+                interpolate(u, self.probe_connectivity, self.probe_cells, self.probe_weights))
 
     def _write_outputs(self, result: SimulationResult) -> None:
         from ..recording import write_recording

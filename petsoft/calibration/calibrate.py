@@ -1,0 +1,305 @@
+"""`petsoft calibrate`: fit an experiment's ``[calibrate]`` parameters to a recording.
+
+The pipeline: read and validate the recording, embed its markers in the experiment's body,
+build the forward model (simulation + marker observation + gradients), minimise the marker
+misfit in scaled parameters with the chosen method (optionally from several starts on
+sub-communicators), estimate the parameters' uncertainty from the Gauss-Newton approximation,
+and write the results (see :func:`write_outputs`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from petsc4py import PETSc
+
+from ..errors import ExperimentError
+from ..experiment import get_parameter, with_parameters
+
+METHODS = ("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead")
+GRADIENTS = ("adjoint", "sensitivity", "fd")
+
+
+@dataclass
+class CalibrationResult:
+    """What a calibration found (identical on every rank)."""
+
+    names: list[str]
+    start: np.ndarray
+    values: np.ndarray
+    std: np.ndarray
+    bounds: list[tuple[float, float]]
+    rms_before: float
+    rms_after: float
+    objective_before: float
+    objective_after: float
+    iterations: int
+    evaluations: int
+    reason: str
+    sigma: float
+    sigma_source: str
+    noise_estimate: float
+    history: list[dict] = field(default_factory=list)
+    starts: list[dict] = field(default_factory=list)
+    correlation: np.ndarray | None = None
+    simulated_before: np.ndarray | None = None
+    simulated_after: np.ndarray | None = None
+
+
+def calibration_parameters(experiment) -> tuple[list[str], np.ndarray, list[tuple[float, float]]]:
+    """Names, start values and bounds of the experiment's ``[calibrate]`` table."""
+    if not experiment.calibrate:
+        raise ExperimentError(
+            f"{experiment.source}: there is nothing to calibrate: add a [calibrate] table with "
+            'the unknowns, e.g. "material.youngs_modulus" = [1e4, 1e8]')
+    names = list(experiment.calibrate)
+    start = np.array([get_parameter(experiment, n) for n in names], dtype=float)
+    bounds = [tuple(map(float, experiment.calibrate[n])) for n in names]
+    return names, start, bounds
+
+
+def frames_in_window(experiment, times: np.ndarray, source: str) -> np.ndarray:
+    """Boolean mask of the recording frames the simulation covers: 0 <= t <= [time] end.
+
+    Raises
+    ------
+    ExperimentError
+        When frames start before t = 0 (the experiment's initial state is at t = 0) or no frame
+        lies in the simulated window.
+    """
+    if experiment.time is None:
+        raise ExperimentError(f"{experiment.source}: [time] (end, step) is needed to calibrate "
+                              "against a recording")
+    end = experiment.time.end
+    if times[0] < -1e-12:
+        raise ExperimentError(
+            f"{source}: the first frame is at t = {times[0]:g} s, before the experiment's initial "
+            "state at t = 0: shift the recording's times so that t = 0 is the initial state")
+    keep = times <= end * (1 + 1e-12)
+    if not keep.any():
+        raise ExperimentError(
+            f"{source}: no frame lies in the simulated window [0, {end:g}] s ([time] end of "
+            f"{experiment.source}); the recording starts at t = {times[0]:g} s")
+    return keep
+
+
+def noise_from_residual(residual_m: np.ndarray, num_parameters: int) -> float:
+    """Noise std estimated from the fit's residual (m): |r|^2 / (m - n)."""
+    dof = max(residual_m.size - num_parameters, 1)
+    return float(np.sqrt(np.sum(residual_m ** 2) / dof))
+
+
+def _print_table(say, result: CalibrationResult) -> None:
+    say(f"{'parameter':<34} {'start':>12} {'calibrated':>12} {'std':>10} {'rel.std':>8} "
+        f"{'bounds':>24}")
+    for name, s, v, sd, (lo, hi) in zip(result.names, result.start, result.values, result.std,
+                                       result.bounds, strict=True):
+        rel = f"{sd / abs(v):.2%}" if v != 0 and np.isfinite(sd) else "-"
+        at = " (at bound)" if np.isclose(v, lo, rtol=1e-6) or np.isclose(v, hi, rtol=1e-6) else ""
+        say(f"{name:<34} {s:>12.6g} {v:>12.6g} {sd:>10.3g} {rel:>8} "
+            f"{f'[{lo:.3g}, {hi:.3g}]':>24}{at}")
+    say(f"rms position error {result.rms_before:.4g} m -> {result.rms_after:.4g} m "
+        f"(noise {result.sigma:.3g} m, {result.sigma_source}; estimated from the fit "
+        f"{result.noise_estimate:.3g} m); {result.iterations} iterations, "
+        f"{result.evaluations} simulations; {result.reason}")
+
+
+def write_outputs(out: Path, experiment, recording_path, result: CalibrationResult,
+                  times: np.ndarray, data: np.ndarray, marker_names: list[str],
+                  method: str, gradient: str, wall_time: float, comm) -> None:
+    """calibrated.toml, summary.json, trajectories.png, residuals.png (rank 0 writes)."""
+    from ..experiment import write_toml
+    from ..summary import write_summary
+    from .plots import plot_residuals, plot_trajectories
+
+    if comm.rank != 0:
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    calibrated = with_parameters(experiment, dict(zip(result.names, result.values, strict=True)))
+    write_toml(calibrated, out / "calibrated.toml")
+    plot_trajectories(out / "trajectories.png", times, data, result.simulated_before,
+                      result.simulated_after, marker_names)
+    plot_residuals(out / "residuals.png", times, data, result.simulated_before,
+                   result.simulated_after, marker_names, result.sigma)
+    results = {
+        "recording": str(recording_path),
+        "method": method,
+        "gradient": gradient,
+        "parameters": {n: float(v) for n, v in zip(result.names, result.values, strict=True)},
+        "std": {n: float(s) for n, s in zip(result.names, result.std, strict=True)},
+        "start": {n: float(v) for n, v in zip(result.names, result.start, strict=True)},
+        "bounds": {n: list(b) for n, b in zip(result.names, result.bounds, strict=True)},
+        "correlation": None if result.correlation is None else result.correlation.tolist(),
+        "rms_before": result.rms_before,
+        "rms_after": result.rms_after,
+        "objective_before": result.objective_before,
+        "objective_after": result.objective_after,
+        "noise_std": result.sigma,
+        "noise_source": result.sigma_source,
+        "noise_estimate_from_fit": result.noise_estimate,
+        "starts": result.starts,
+        "history": result.history,
+        "files": {"experiment": "calibrated.toml", "trajectories": "trajectories.png",
+                  "residuals": "residuals.png"},
+    }
+    solver = {"iterations": result.iterations, "simulations": result.evaluations,
+              "converged_reason": result.reason}
+    write_summary(out, "calibrate", results, solver, wall_time, comm)
+
+
+def _petsc_comm(comm):
+    """A PETSc communicator from a PETSc or mpi4py one."""
+    return comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm)
+
+
+def build_forward(experiment, names, recording, frame_times, comm, integrator=None):
+    """The forward model of ``experiment`` observing the recording's markers on ``comm``."""
+    from .forward import ForwardModel
+    from .observation import MarkerObserver
+
+    def observer(system):
+        return MarkerObserver(system, recording.reference, recording.names,
+                              source=str(recording.source))
+
+    return ForwardModel(experiment, names, observer, frame_times, comm=_petsc_comm(comm),
+                        integrator=integrator)
+
+
+def run_calibration(experiment, recording_path, *, method: str = "gauss-newton",
+                    gradient: str = "adjoint", integrator: str | None = None, starts: int = 0,
+                    seed: int = 0, regularization: float = 0.0, noise: float | None = None,
+                    out: Path | None = None, comm=None, say=None) -> CalibrationResult:
+    """Calibrate the ``[calibrate]`` parameters of ``experiment`` against a recording.
+
+    Parameters
+    ----------
+    method : one of :data:`METHODS`
+    gradient : one of :data:`GRADIENTS`
+    integrator : {"be", "si", "alpha"}, optional
+        Overrides ``[time] integrator`` for the forward model.
+    starts : int
+        0: one start from the experiment's values; k > 0: that start plus k random starts in
+        the bounds, spread over sub-communicators (one group per rank).
+    noise : float, optional
+        Position noise std (m) to use when the recording has no ``/noise``; otherwise it is
+        estimated from the calibrated residual.
+    out : Path, optional
+        Where to write the results (:func:`write_outputs`); None writes nothing.
+    say : callable(str), optional
+        Progress lines (called on rank 0 only).
+    """
+    from ..model import on_root
+    from ..recording import read_recording
+    from .multistart import multistart, random_starts
+    from .objective import MarkerMisfit
+    from .optimize import minimize
+    from .scaling import ParameterScaling
+    from .uncertainty import UnidentifiableError, uncertainty
+
+    t_start = time.perf_counter()
+    comm = _petsc_comm(comm if comm is not None else PETSc.COMM_WORLD)
+    mpi = comm.tompi4py()
+    rank0 = mpi.rank == 0
+
+    def tell(line):
+        if say is not None and rank0:
+            say(line)
+
+    if method not in METHODS:
+        raise ExperimentError(f"unknown calibration method {method!r}; valid: {', '.join(METHODS)}")
+    if gradient not in GRADIENTS:
+        raise ExperimentError(f"unknown gradient method {gradient!r}; valid: "
+                              f"{', '.join(GRADIENTS)}")
+    recording = on_root(comm, read_recording, Path(recording_path))
+    names, start, bounds = calibration_parameters(experiment)
+    if recording.positions is None:
+        raise ExperimentError(f"{recording_path}: the recording has no /frames/position; "
+                              "calibrating against accelerations only is not supported yet")
+    keep = frames_in_window(experiment, recording.times, str(recording_path))
+    times, data = recording.times[keep], recording.positions[keep]
+    noise_std = recording.noise.get("position_std") if recording.noise else None
+    if noise_std:
+        sigma, sigma_source = float(noise_std), "the recording's /noise"
+    elif noise:
+        sigma, sigma_source = float(noise), "--noise"
+    else:
+        sigma, sigma_source = 1.0, "unknown (estimated from the fit)"
+    lower = np.array([b[0] for b in bounds])
+    upper = np.array([b[1] for b in bounds])
+    scaling = ParameterScaling(names, start, lower, upper)
+    zlo, zhi = scaling.bounds()
+    tell(f"petsoft calibrate: {len(names)} parameter(s) {', '.join(names)}; "
+         f"{len(times)} frames x {recording.num_markers} markers "
+         f"({int(np.isfinite(data).all(axis=2).sum())} seen samples); method {method}, "
+         f"gradient {gradient}; {mpi.size} rank(s)")
+
+    def make_problem(subcomm):
+        fm = build_forward(experiment, names, recording, times, subcomm, integrator)
+        return MarkerMisfit(fm, data, scaling, sigma=sigma, gradient=gradient,
+                            regularization=regularization)
+
+    def monitor_for(index):
+        def monitor(rec):
+            label = f"start {index}: " if starts else ""
+            params = ", ".join(f"{n}={v:.6g}" for n, v in zip(names, rec.p, strict=True))
+            tell(f"  {label}it {rec.iteration:3d}  f {rec.f:.6e}  |g| {rec.gnorm:.3e}  "
+                 f"sims {rec.evaluations:3d}  {params}")
+        return monitor
+
+    z0 = scaling.to_scaled(start)
+    all_starts: list[dict] = []
+    if starts > 0:
+        zs = random_starts(zlo, zhi, starts, seed=seed, include=z0)
+        ms = multistart(make_problem, zs, comm=mpi, method=method, bounds=(zlo, zhi),
+                        scaling=scaling, monitor_factory=lambda i, sub: monitor_for(i))
+        for s in ms.starts:
+            all_starts.append({"index": s.index, "group": s.group,
+                               "start": scaling.to_physical(s.start).tolist(),
+                               "objective": None if s.result is None else float(s.result.f),
+                               "parameters": None if s.result is None else s.result.p.tolist(),
+                               "error": s.error})
+        opt = ms.best.result
+        tell(f"multistart: best of {len(zs)} starts is start {ms.best.index} "
+             f"(f = {opt.f:.6e})")
+    problem = make_problem(comm)
+    before = problem.simulate(z0)
+    f_before = 0.5 * float(np.sum(problem._data_residual(before) ** 2))
+    if starts == 0:
+        opt = minimize(problem, z0, method=method, bounds=(zlo, zhi), scaling=scaling,
+                       monitor=monitor_for(0))
+    z = opt.z
+    r, J = problem.residual_jacobian(z)
+    after = problem.last_simulation
+    residual_m = (after - data)[np.isfinite(data)]
+    noise_estimate = noise_from_residual(residual_m, len(names))
+    try:
+        unc = uncertainty(J, r, scaling=scaling, z=z,
+                          noise_std=1.0 if sigma_source != "unknown (estimated from the fit)"
+                          else None)
+        std, corr = unc.std, unc.correlation
+    except UnidentifiableError as exc:
+        tell(f"warning: {exc}")
+        std, corr = np.full(len(names), np.inf), None
+    if sigma_source.startswith("unknown"):
+        sigma = noise_estimate
+    result = CalibrationResult(
+        names=names, start=start, values=scaling.to_physical(z), std=np.asarray(std),
+        bounds=bounds, rms_before=problem.rms(before), rms_after=problem.rms(after),
+        objective_before=f_before, objective_after=float(opt.f), iterations=opt.iterations,
+        evaluations=opt.evaluations, reason=opt.reason, sigma=sigma, sigma_source=sigma_source,
+        noise_estimate=noise_estimate,
+        history=[{"iteration": h.iteration, "objective": float(h.f), "gradient_norm":
+                  float(h.gnorm), "parameters": h.p.tolist()} for h in opt.history],
+        starts=all_starts, correlation=None if corr is None else np.asarray(corr),
+        simulated_before=before, simulated_after=after)
+    if say is not None and rank0:
+        _print_table(say, result)
+    if out is not None:
+        write_outputs(Path(out), experiment, recording_path, result, times, data,
+                      recording.names, method, gradient, time.perf_counter() - t_start, comm)
+        tell(f"wrote {out}/ (calibrated.toml, summary.json, trajectories.png, residuals.png)")
+    problem.forward.destroy()
+    return result

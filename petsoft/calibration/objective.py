@@ -1,0 +1,142 @@
+"""The marker misfit: weighted least squares between simulated and recorded marker positions.
+
+For recorded positions d_kmc (frame k, marker m, component c; NaN where the marker was not
+seen) and simulated positions s_kmc(p), the residual vector holds, for every seen entry,
+
+    r_i = (s_kmc(p) - d_kmc) / sigma
+
+and the objective is 1/2 |r|^2 (+ a Tikhonov term 1/2 lambda |z - z_start|^2 in scaled
+parameters). Entries that were not seen are left out, never compared with zero. sigma is the
+recording's noise level (``/noise position_std``) when it has one, otherwise 1 m, so that
+residuals are in metres and the noise is estimated from the fit.
+
+The optimizer works on scaled parameters z (see :mod:`petsoft.calibration.scaling`); this module
+is where the chain rule dp/dz meets the forward model's derivatives d s / d p.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class MarkerMisfit:
+    """The least-squares problem of a calibration, in scaled parameters.
+
+    Parameters
+    ----------
+    forward : petsoft.calibration.forward.ForwardModel
+        Simulates marker positions for physical parameters p.
+    data : ndarray (K, M, 3)
+        Recorded positions; NaN where not seen.
+    scaling : petsoft.calibration.scaling.ParameterScaling
+    sigma : float
+        Position noise level (m); residuals are divided by it.
+    gradient : {"adjoint", "sensitivity", "fd"}
+        How gradients and Jacobians are computed: the discrete adjoint (gradient only; the
+        Jacobian then comes from forward sensitivities), forward sensitivities, or central
+        finite differences.
+    regularization : float
+        lambda of the Tikhonov term in scaled parameters (0: none).
+    """
+
+    def __init__(self, forward, data: np.ndarray, scaling, sigma: float = 1.0,
+                 gradient: str = "adjoint", regularization: float = 0.0):
+        if gradient not in ("adjoint", "sensitivity", "fd"):
+            raise ValueError(f"unknown gradient method {gradient!r}")
+        self.forward, self.scaling = forward, scaling
+        self.data = np.asarray(data, dtype=float)
+        self.seen = np.isfinite(self.data)
+        self.sigma = float(sigma)
+        self.gradient_method = gradient
+        self.regularization = float(regularization)
+        self.z_start = np.asarray(scaling.to_scaled(scaling.start), dtype=float)
+        self.n = len(scaling.names)
+        self.evaluations = 0
+        self.last_simulation = None
+        comm = getattr(forward, "comm", None)
+        # the optimizer keeps the ranks in lock-step through this (mpi4py) communicator
+        self.comm = comm.tompi4py() if hasattr(comm, "tompi4py") else comm
+
+    @property
+    def num_residuals(self) -> int:
+        """Seen data entries (plus one per parameter with regularisation)."""
+        return int(self.seen.sum()) + (self.n if self.regularization > 0.0 else 0)
+
+    # -- pieces -------------------------------------------------------------------------------
+    def _data_residual(self, sim: np.ndarray) -> np.ndarray:
+        return (sim[self.seen] - self.data[self.seen]) / self.sigma
+
+    def _regularization_residual(self, z: np.ndarray) -> np.ndarray:
+        return np.sqrt(self.regularization) * (np.asarray(z) - self.z_start)
+
+    def simulate(self, z: np.ndarray) -> np.ndarray:
+        """Simulated marker positions (K, M, 3) at scaled parameters z."""
+        self.evaluations += 1
+        sim = self.forward.simulate(self.scaling.to_physical(z))
+        self.last_simulation = sim
+        return sim
+
+    # -- the LeastSquaresProblem protocol ---------------------------------------------------
+    def residual(self, z: np.ndarray) -> np.ndarray:
+        """r(z): seen data residuals over sigma (then the regularisation rows)."""
+        r = self._data_residual(self.simulate(z))
+        if self.regularization > 0.0:
+            r = np.concatenate([r, self._regularization_residual(z)])
+        return r
+
+    def residual_jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(r, dr/dz) by forward sensitivities (or finite differences with ``gradient="fd"``)."""
+        p = self.scaling.to_physical(z)
+        self.evaluations += 1
+        if self.gradient_method == "fd":
+            sim = self.forward.simulate(p)
+            dsim = self.forward.fd_jacobian(p)
+        else:
+            sim, dsim = self.forward.jacobian(p)
+        self.last_simulation = sim
+        r = self._data_residual(sim)
+        J = dsim[self.seen] / self.sigma                           # (m, P) in physical p
+        J = J * self.scaling.dp_dz(z)[None, :]                  # chain rule dp/dz (diagonal)
+        if self.regularization > 0.0:
+            r = np.concatenate([r, self._regularization_residual(z)])
+            J = np.vstack([J, np.sqrt(self.regularization) * np.eye(self.n)])
+        return r, J
+
+    def value_gradient(self, z: np.ndarray) -> tuple[float, np.ndarray]:
+        """f = 1/2 |r|^2 and df/dz (adjoint by default)."""
+        if self.gradient_method != "adjoint":
+            r, J = self.residual_jacobian(z)
+            return 0.5 * float(r @ r), J.T @ r
+        p = self.scaling.to_physical(z)
+        seen, data, sigma = self.seen, self.data, self.sigma
+
+        def dphi(sim):
+            self.last_simulation = sim
+            diff = np.where(seen, sim - np.where(seen, data, 0.0), 0.0) / sigma
+            return 0.5 * float(np.sum(diff * diff)), diff / sigma
+
+        self.evaluations += 1
+        value, grad_p = self.forward.gradient(p, dphi)
+        grad = np.asarray(grad_p) * self.scaling.dp_dz(z)
+        if self.regularization > 0.0:
+            rr = self._regularization_residual(z)
+            value += 0.5 * float(rr @ rr)
+            grad = grad + np.sqrt(self.regularization) * rr
+        return value, grad
+
+    def value(self, z: np.ndarray) -> float:
+        r = self.residual(z)
+        return 0.5 * float(r @ r)
+
+    # -- reporting ----------------------------------------------------------------------------
+    def rms(self, sim: np.ndarray) -> float:
+        """Root-mean-square position error over seen entries (m)."""
+        d = sim[self.seen] - self.data[self.seen]
+        return float(np.sqrt(np.mean(d * d))) if d.size else 0.0
+
+    def rms_per_marker(self, sim: np.ndarray) -> np.ndarray:
+        """(M,) rms position error of each marker over its seen entries (NaN: never seen)."""
+        d = np.where(self.seen, sim - np.where(self.seen, self.data, 0.0), 0.0)
+        count = self.seen.sum(axis=(0, 2))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.sqrt((d * d).sum(axis=(0, 2)) / count)

@@ -1,0 +1,77 @@
+"""Figures of a calibration: marker trajectories and residuals before and after the fit."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _most_moving(data: np.ndarray, count: int) -> list[tuple[int, int]]:
+    """(marker, component) pairs with the largest recorded motion (NaN-aware)."""
+    span = np.nanmax(data, axis=0) - np.nanmin(data, axis=0)          # (M, 3)
+    span = np.where(np.isfinite(span), span, -1.0)
+    order = np.argsort(span.ravel())[::-1][:count]
+    return [divmod(int(i), 3) for i in order]
+
+
+def plot_trajectories(path: Path, times, data, before, after, names, count: int = 4) -> Path:
+    """The recorded positions of the most-moving markers with the simulation before/after."""
+    plt = _pyplot()
+    picks = _most_moving(data, min(count, data.shape[1] * 3))
+    fig, axes = plt.subplots(len(picks), 1, figsize=(9, 2.2 * len(picks)), sharex=True,
+                             squeeze=False)
+    for ax, (m, c) in zip(axes[:, 0], picks, strict=True):
+        ax.plot(times, data[:, m, c], ".", ms=2, color="k", label="recorded")
+        if before is not None:
+            ax.plot(times, before[:, m, c], "-", lw=1, color="tab:red", label="before")
+        if after is not None:
+            ax.plot(times, after[:, m, c], "-", lw=1, color="tab:blue", label="calibrated")
+        ax.set_ylabel(f"{names[m]} {'xyz'[c]} (m)")
+    axes[0, 0].legend(loc="upper right", fontsize=8)
+    axes[-1, 0].set_xlabel("t (s)")
+    fig.suptitle("marker trajectories: recording and simulation before/after calibration")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_residuals(path: Path, times, data, before, after, names, sigma: float) -> Path:
+    """Residual norm over time, and rms per marker, before and after calibration."""
+    plt = _pyplot()
+    seen = np.isfinite(data)
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6.5))
+    for sim, label, color in ((before, "before", "tab:red"), (after, "calibrated", "tab:blue")):
+        if sim is None:
+            continue
+        d = np.where(seen, sim - np.where(seen, data, 0.0), 0.0)
+        per_time = np.sqrt((d * d).sum(axis=(1, 2)) / np.maximum(seen.sum(axis=(1, 2)), 1))
+        per_marker = np.sqrt((d * d).sum(axis=(0, 2)) / np.maximum(seen.sum(axis=(0, 2)), 1))
+        ax1.semilogy(times, np.maximum(per_time, 1e-300), color=color, lw=1, label=label)
+        x = np.arange(len(names))
+        offset = -0.2 if label == "before" else 0.2
+        ax2.bar(x + offset, per_marker, width=0.4, color=color, label=label)
+    if sigma and sigma != 1.0:
+        ax1.axhline(sigma, color="0.4", ls="--", lw=1, label="noise level")
+        ax2.axhline(sigma, color="0.4", ls="--", lw=1)
+    ax1.set_xlabel("t (s)")
+    ax1.set_ylabel("rms residual (m)")
+    ax1.legend(fontsize=8)
+    ax2.set_xticks(np.arange(len(names)))
+    ax2.set_xticklabels(names, rotation=90, fontsize=7)
+    ax2.set_ylabel("rms residual per marker (m)")
+    ax2.set_yscale("log")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)

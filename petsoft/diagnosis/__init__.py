@@ -1,0 +1,1 @@
+"""Mismatch analysis on arrays: noise level, where, when, which frequencies; the report."""

@@ -1,0 +1,910 @@
+"""Mass-spring models: building them from an experiment, and their dynamic system.
+
+:class:`MassSpringSystem` has the interface of :class:`petsoft.dynamics.system.DynamicSystem`, so
+every integrator (be, si, midpoint, trapezoidal, alpha, explicit, ere) runs on it unchanged:
+
+    M q'' = -grad W(q) - D v + f_g,   W = springs + collider penalties,
+    D = alpha M + beta K_ref + D_dashpots (constant, PSD)
+
+* M is diagonal: ``[springs] node_mass`` at every node plus the ``[[mass]]`` point masses (each must
+  sit on a node).
+* W: springs k/2 (|x_i - x_j| - L)^2 (:mod:`petsoft.physics.springs`), exact or clamped (PSD)
+  Hessian (``clamp``, the ``--spd`` idea of the FEM materials), and the penalty energies of the
+  colliders (:mod:`petsoft.physics.colliders`), booked as elastic energy.
+* D: Rayleigh damping (``[damping] mass`` alpha, ``stiffness`` beta with K_ref the spring
+  stiffness at rest) plus the spring dashpots ``[springs] damping`` along the rest directions
+  (:func:`petsoft.physics.springs.dashpot_blocks` says why constant), plus lagged Coulomb friction
+  of the colliders (a velocity-dependent force applied by :meth:`damping_apply`).
+
+The integrators fold damping into their Jacobians as ``a M + b K(q) + c K0`` with ``c = beta x``
+(the velocity coefficient of their scheme). To pass the dashpots through that interface unchanged,
+this system reports ``beta = 1`` and ``K0 = beta_user K_ref + D_dashpots``, so that
+``alpha M + beta K0`` is exactly its D. The user's beta is :attr:`damping_stiffness`.
+
+Parallel layout: node i has the dofs 3i, 3i+1, 3i+2 (file numbering); PETSc splits the nodes in
+contiguous ranges over the ranks. Every rank keeps the replicated node and spring arrays (like
+:class:`~petsoft.distributed.DistributedMesh` keeps the serial mesh), gathers the whole state
+vector (one ``VecScatter`` to all) and computes the springs touching its nodes, so forces and the
+rows of the matrix it owns need no further communication. The matrix pattern is preallocated once.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from ..errors import ExperimentError, MeshError
+from ..physics.colliders import Collider, default_stiffness
+from ..physics.springs import (
+    KINDS,
+    SpringNetwork,
+    dashpot_blocks,
+    expand_blocks,
+    network_from_cells,
+    network_from_pairs,
+    spring_energy,
+    spring_gradient,
+    spring_hessian_blocks,
+)
+
+#: A ``[[mass]] at`` point closer than this (relative to the mesh's size) to a node sits on it.
+NODE_TOLERANCE = 1e-9
+
+
+class MassSpringWarning(UserWarning):
+    """Something in a mass-spring model is suspicious but usable (a node in no spring)."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Meshes of nodes, lines and triangles
+
+
+@dataclass
+class SpringMesh:
+    """Nodes with line and triangle cells (what a mass-spring model is built from).
+
+    ``tets`` is the cell array written to output (triangles if any, else lines, else one vertex
+    cell per node): the name is the one :class:`~petsoft.dynamics.simulate.Simulation` and the
+    XDMF writer read from a mesh.
+    """
+
+    points: np.ndarray
+    lines: np.ndarray
+    triangles: np.ndarray
+    source: str = "<mesh>"
+    regions: dict = field(default_factory=dict)
+    facet_groups: dict = field(default_factory=dict)
+
+    @property
+    def tets(self) -> np.ndarray:
+        if len(self.triangles):
+            return self.triangles
+        if len(self.lines):
+            return self.lines
+        return np.arange(len(self.points), dtype=np.int64)[:, None]
+
+    @property
+    def cell_tags(self) -> np.ndarray:
+        return np.zeros(len(self.tets), dtype=np.int64)
+
+
+def read_spring_mesh(path: str | Path, scale: float = 1.0) -> SpringMesh:
+    """Nodes, lines and triangles of any mesh file meshio reads (vertex cells are ignored).
+
+    Raises
+    ------
+    MeshError
+        Unreadable file, volume cells, cell node numbers out of range.
+    """
+    import meshio
+
+    path = Path(path)
+    try:
+        raw = meshio.read(path)
+    except Exception as exc:  # meshio raises many types for a bad file
+        raise MeshError(f"{path}: cannot read the mesh ({exc})") from exc
+    points = np.asarray(raw.points, dtype=float)
+    if points.shape[1] == 2:
+        points = np.column_stack([points, np.zeros(len(points))])
+    lines, tris = [], []
+    for block in raw.cells:
+        if block.type == "line":
+            lines.append(block.data)
+        elif block.type == "triangle":
+            tris.append(block.data)
+        elif block.type != "vertex":
+            raise MeshError(f"{path}: cells of type {block.type!r}: a mass-spring model is built "
+                            "from nodes, lines (ropes) and triangles (cloth); use [material] for "
+                            "a volume mesh")
+    lines = np.concatenate(lines).astype(np.int64) if lines else np.zeros((0, 2), np.int64)
+    tris = np.concatenate(tris).astype(np.int64) if tris else np.zeros((0, 3), np.int64)
+    for what, cells in (("line", lines), ("triangle", tris)):
+        bad = np.flatnonzero((cells < 0).any(axis=1) | (cells >= len(points)).any(axis=1))
+        if len(bad):
+            raise MeshError(f"{path}: {what} {int(bad[0])} refers to a node outside "
+                            f"0..{len(points) - 1}: {cells[bad[0]].tolist()}")
+    return SpringMesh(points * scale, lines, tris, source=str(path))
+
+
+def write_spring_mesh(path: str | Path, points, lines=None, triangles=None) -> None:
+    """Write nodes and line/triangle cells with meshio (gmsh 2.2 for ``.msh``)."""
+    import meshio
+
+    cells = []
+    if lines is not None and len(lines):
+        cells.append(("line", np.asarray(lines)))
+    if triangles is not None and len(triangles):
+        cells.append(("triangle", np.asarray(triangles)))
+    fmt = "gmsh22" if str(path).endswith(".msh") else None
+    meshio.write(path, meshio.Mesh(np.asarray(points, float), cells), file_format=fmt,
+                 **({"binary": False} if fmt else {}))
+
+
+# ---------------------------------------------------------------------------------------------
+# Node layout over ranks (the "dmesh" of a mass-spring model)
+
+
+class NodeLayout:
+    """Nodes split in contiguous ranges over the ranks, 3 dofs each (block size 3).
+
+    Offers what :class:`~petsoft.dynamics.simulate.Simulation` uses of a
+    :class:`~petsoft.distributed.DistributedMesh`: ``mesh``, ``comm``, ``create_global_vec``,
+    ``gather_global``, ``from_file_field``, ``allreduce_sum``.
+    """
+
+    def __init__(self, mesh: SpringMesh, comm: PETSc.Comm):
+        self.comm, self.mesh = comm, mesh
+        self.nglobal_vertices = self.nvertices = n = len(mesh.points)
+        v = PETSc.Vec().createMPI((PETSc.DECIDE, 3 * n), bsize=3, comm=comm)
+        lo, hi = v.getOwnershipRange()
+        self.node_range = (lo // 3, hi // 3)
+        self.owned = np.zeros(n, dtype=bool)
+        self.owned[lo // 3:hi // 3] = True
+        self.scatter, self._all = PETSc.Scatter.toAll(v)
+        self._template = v
+
+    def create_global_vec(self) -> PETSc.Vec:
+        v = self._template.duplicate()
+        v.zeroEntries()
+        return v
+
+    def to_all(self, vec: PETSc.Vec) -> np.ndarray:
+        """The whole vector on every rank as (N, 3) (collective)."""
+        self.scatter.scatter(vec, self._all, addv=PETSc.InsertMode.INSERT_VALUES,
+                             mode=PETSc.Scatter.Mode.FORWARD)
+        return self._all.getArray(readonly=True).reshape(-1, 3).copy()
+
+    def gather_global(self, vec: PETSc.Vec, root: int = 0) -> np.ndarray | None:
+        """(N, 3) on ``root``, None elsewhere (collective)."""
+        full = self.to_all(vec)
+        return full if self.comm.rank == root else None
+
+    def from_file_field(self, fld: np.ndarray, gvec: PETSc.Vec | None = None) -> PETSc.Vec:
+        gvec = gvec if gvec is not None else self.create_global_vec()
+        lo, hi = self.node_range
+        gvec.getArray()[:] = np.asarray(fld, dtype=float)[lo:hi].ravel()
+        return gvec
+
+    def allreduce_sum(self, value: float) -> float:
+        return self.comm.tompi4py().allreduce(float(value), op=MPI.SUM)
+
+    def destroy(self) -> None:
+        for obj in (self.scatter, self._all, self._template):
+            obj.destroy()
+
+
+# ---------------------------------------------------------------------------------------------
+# The model
+
+
+class NodeConditions:
+    """Fixed and prescribed node components of a mass-spring model (``[[boundary]]``).
+
+    Provides what integrators use of :class:`~petsoft.boundary.DirichletConditions`
+    (``eliminate``, ``conditions``, ``count``).
+    """
+
+    def __init__(self, layout: NodeLayout, conditions):
+        self.layout = layout
+        n = layout.nvertices
+        owner = np.full((n, 3), -1, dtype=np.int64)
+        self.conditions = list(conditions)
+        for k, (mask, components, _) in enumerate(self.conditions):
+            for c in components:
+                owner[np.asarray(mask), c] = k
+        self.owner = owner
+        self.mask = owner >= 0                           # (N, 3) prescribed components
+        lo, hi = layout.node_range
+        self.owned_dofs = np.flatnonzero(self.mask[lo:hi].ravel())   # offsets in a local array
+        self.global_rows = (3 * lo + self.owned_dofs).astype(PETSc.IntType)
+        self.count = int(self.mask.sum())
+
+    def values(self, t: float = 0.0) -> np.ndarray:
+        """(N, 3) prescribed displacements at t (zero elsewhere); the same on every rank."""
+        out = np.zeros(self.mask.shape)
+        pts = self.layout.mesh.points
+        for k, (_, components, displacement) in enumerate(self.conditions):
+            if displacement is None:
+                continue
+            for c in components:
+                rows = np.flatnonzero(self.owner[:, c] == k)
+                out[rows, c] = displacement[c].evaluate_at(pts[rows], t=t)
+        return out
+
+    def eliminate(self, A: PETSc.Mat, diagonal: float = 1.0) -> None:
+        A.zeroRowsColumns(self.global_rows, diag=diagonal)
+
+
+@dataclass
+class MassSpringModel:
+    """A mass-spring model built from an experiment (every rank holds all of it).
+
+    Attributes
+    ----------
+    experiment : Experiment
+    dmesh : NodeLayout
+    resolver : RegionResolver
+    network : SpringNetwork
+        ``edges`` (S, 2) and ``kind`` (S,) of the springs (file node numbers).
+    rest_lengths : ndarray (S,)
+    stiffness : ndarray (S,)
+        Per spring: ``[springs] stiffness``, ``bending`` for bending springs.
+    damping : ndarray (S,)
+        Dashpot coefficient per spring (``[springs] damping``; 0 for bending springs).
+    point_masses : ndarray (N,)
+        The ``[[mass]]`` masses summed per node.
+    node_mass : float
+    dirichlet : NodeConditions
+    colliders : list of Collider
+    """
+
+    experiment: object
+    dmesh: NodeLayout
+    resolver: object
+    network: SpringNetwork
+    rest_lengths: np.ndarray
+    stiffness: np.ndarray
+    damping: np.ndarray
+    point_masses: np.ndarray
+    node_mass: float
+    dirichlet: NodeConditions
+    colliders: list
+
+    @property
+    def masses(self) -> np.ndarray:
+        """(N,) lumped node masses (kg)."""
+        return self.node_mass + self.point_masses
+
+    @property
+    def edges(self) -> np.ndarray:
+        return self.network.edges
+
+
+def load_spring_mesh(experiment) -> SpringMesh:
+    """The experiment's mesh for a mass-spring model (call on rank 0)."""
+    spec = experiment.mesh
+    if spec.file is None:
+        raise ExperimentError(f"{experiment.source}: mesh: a mass-spring model needs a mesh file "
+                              "of nodes, lines or triangles ([mesh] file); box meshes are "
+                              "tetrahedral")
+    return read_spring_mesh(spec.file, scale=spec.scale)
+
+
+def _listing(ids, limit: int = 5) -> str:
+    ids = [int(i) for i in ids]
+    text = ", ".join(map(str, ids[:limit]))
+    return text + (f" and {len(ids) - limit} more" if len(ids) > limit else "")
+
+
+def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=None,
+                            recording=None) -> MassSpringModel:
+    """Read, validate and lay out a ``[springs]`` experiment (all ranks call).
+
+    Every check runs on every rank on the same replicated data, so an error is raised on all
+    ranks alike (no rank is left waiting in a collective call).
+
+    Raises
+    ------
+    ExperimentError
+        Pairs naming missing nodes, springs of zero rest length, ``[[mass]]`` off the nodes, free
+        nodes without mass, tractions, fixed nodes inside a collider, a static initial state.
+    """
+    from ..model import on_root
+    from ..regions import RegionResolver
+
+    comm = comm if comm is not None else PETSc.COMM_WORLD
+    src = experiment.source
+    if mesh is None:
+        mesh = on_root(comm, load_spring_mesh, experiment)
+    mesh = comm.tompi4py().bcast(mesh, root=0)
+    pts = mesh.points
+    n = len(pts)
+    spec = experiment.springs
+    if spec.pairs is not None:
+        pairs = np.asarray(spec.pairs, dtype=np.int64)
+        bad = np.flatnonzero((pairs >= n).any(axis=1))
+        if len(bad):
+            raise ExperimentError(f"{src}: springs.pairs[{int(bad[0])}] = "
+                                  f"{pairs[bad[0]].tolist()}: the mesh has nodes 0..{n - 1}")
+        network = network_from_pairs(pairs)
+    else:
+        network = network_from_cells(pts, mesh.lines, mesh.triangles,
+                                     bending=bool(spec.bending))
+    if len(network.edges) == 0:
+        raise ExperimentError(f"{src}: [springs]: the mesh {mesh.source} has no line or triangle "
+                              "cell and no springs.pairs are given: there are no springs")
+    edges = network.edges
+    rest = np.linalg.norm(pts[edges[:, 0]] - pts[edges[:, 1]], axis=1)
+    size = float(np.ptp(pts, axis=0).max()) or 1.0
+    zero = np.flatnonzero(rest <= NODE_TOLERANCE * size)
+    if len(zero):
+        s = int(zero[0])
+        where = f"springs.pairs[{s}]" if spec.pairs is not None else f"spring {s}"
+        raise ExperimentError(
+            f"{src}: {where} joins nodes {edges[s].tolist()} at the same reference position "
+            f"{pts[edges[s, 0]].tolist()}: a spring needs a rest length > 0 (its direction is "
+            f"undefined); {len(zero)} such spring(s): merge duplicate nodes or drop the pair")
+    bending_kind = network.kind == KINDS.index("bending")
+    stiffness = np.where(bending_kind, spec.bending or 0.0, spec.stiffness)
+    damping = np.where(bending_kind, 0.0, spec.damping)
+
+    point_masses = np.zeros(n)
+    for k, m in enumerate(experiment.masses):
+        dist = np.linalg.norm(pts - np.asarray(m.at), axis=1)
+        node = int(np.argmin(dist))
+        if dist[node] > NODE_TOLERANCE * size:
+            raise ExperimentError(
+                f"{src}: mass[{k}].at = {list(m.at)} is not a node of the mesh: the nearest node "
+                f"is {node} at {pts[node].tolist()} ({dist[node]:.3g} m away); a point mass must "
+                "sit on a node")
+        point_masses[node] += m.value
+
+    resolver = RegionResolver(mesh, experiment.regions, src)
+    conditions = []
+    for i, b in enumerate(experiment.boundaries):
+        key = f"boundary[{i}]"
+        if b.kind == "traction":
+            raise ExperimentError(f"{src}: {key}: tractions act on surfaces of a continuum; a "
+                                  "mass-spring model takes point masses ([[mass]]) and gravity")
+        displacement = b.displacement if b.kind == "prescribed" else None
+        if b.kind == "prescribed" and b.series is not None:
+            if recording is None:
+                raise ExperimentError(
+                    f"{src}: {key}.series = {b.series!r}: a measured input needs its recording "
+                    "(petsoft simulate ... --recording RECORDING.h5)")
+            from ..recording import read_input_series
+
+            displacement = read_input_series(recording, b.series)
+        mask = resolver.vertex_mask(b.where, f"{key}.where")
+        if not mask.any():
+            raise ExperimentError(f"{src}: {key}.where: selects no node of the mesh")
+        conditions.append((mask, b.component_indices, displacement))
+    if experiment.initial.from_ == "static":
+        raise ExperimentError(f"{src}: initial.from = \"static\" is not available for mass-spring "
+                              "models; give initial displacement/velocity expressions")
+
+    layout = NodeLayout(mesh, comm)
+    dirichlet = NodeConditions(layout, conditions)
+    masses = spec.node_mass + point_masses
+    in_spring = np.zeros(n, dtype=bool)
+    in_spring[edges.ravel()] = True
+    free = ~dirichlet.mask.all(axis=1)
+    massless = np.flatnonzero(free & (masses <= 0.0))
+    if len(massless):
+        raise ExperimentError(
+            f"{src}: node(s) {_listing(massless)} are free but have no mass: give [springs] "
+            "node_mass > 0, a [[mass]] at them, or fix them with a [[boundary]]")
+    lonely = np.flatnonzero(~in_spring)
+    if len(lonely):
+        warnings.warn(f"{src}: node(s) {_listing(lonely)} belong to no spring (they move as free "
+                      "particles)", MassSpringWarning, stacklevel=2)
+
+    default_k = default_stiffness(masses[free], experiment.time.step if experiment.time else None,
+                                  spec.stiffness)
+    colliders = [Collider.from_spec(c, default_k) for c in experiment.colliders]
+    held = dirichlet.mask.any(axis=1)
+    for k, c in enumerate(colliders):
+        phi = c.distance(pts)[0]
+        inside = np.flatnonzero(held & (phi < 0.0))
+        if len(inside):
+            raise ExperimentError(
+                f"{src}: collider[{k}] ({c.describe()}) contains the supported node(s) "
+                f"{_listing(inside)} (e.g. node {int(inside[0])} at {pts[inside[0]].tolist()}): "
+                "a support inside a collider fights the contact force forever; move the collider "
+                "or the support")
+        inside = np.flatnonzero(~held & (phi < 0.0))
+        if len(inside):
+            warnings.warn(f"{src}: collider[{k}] ({c.describe()}) starts with node(s) "
+                          f"{_listing(inside)} inside it: they will be pushed out",
+                          MassSpringWarning, stacklevel=2)
+    return MassSpringModel(experiment, layout, resolver, network, rest, stiffness, damping,
+                           point_masses, float(spec.node_mass), dirichlet, colliders)
+
+
+# ---------------------------------------------------------------------------------------------
+# The dynamic system
+
+
+class MassSpringSystem:
+    """The semi-discrete system of a :class:`MassSpringModel` (DynamicSystem's interface).
+
+    Parameters
+    ----------
+    model : MassSpringModel
+    damping_mass, damping_stiffness : float
+        Rayleigh alpha (1/s) and beta (s); beta multiplies the spring stiffness at rest.
+    clamp : bool
+        Use the clamped (PSD) spring and contact Hessians in Jacobians (default: exact).
+
+    Attributes
+    ----------
+    points : ndarray (N, 3)
+        Reference node coordinates (file numbering; the state q is the displacement from them).
+    edges, kind, rest_lengths, stiffness, damping_coefficients : ndarray
+        The springs (S, 2) (node pairs), their kind (index into
+        :data:`petsoft.physics.springs.KINDS`), rest lengths, stiffnesses and dashpot coefficients
+        (per spring, all springs, on every rank).
+    masses : ndarray (N,)
+        Lumped node masses (``lumped`` is the same as a global Vec, 3 entries per node).
+    fixed : ndarray (N, 3) bool
+        Prescribed components (fixed or prescribed ``[[boundary]]``); values: :meth:`prescribed`.
+    node_range : (int, int)
+        The nodes this rank owns (dofs 3 lo .. 3 hi of every global vector).
+    colliders : list of Collider
+    alpha, damping_stiffness : float
+        Rayleigh coefficients; ``beta`` is 1 and ``K0`` = damping_stiffness K_ref + dashpots
+        (see the module docstring).
+    """
+
+    def __init__(self, model: MassSpringModel, damping_mass: float = 0.0,
+                 damping_stiffness: float = 0.0, clamp: bool = False):
+        self.model = model
+        self.dmesh = lay = model.dmesh
+        self.comm = lay.comm
+        self.dirichlet = model.dirichlet
+        self.fixed = model.dirichlet.mask
+        self.clamp = bool(clamp)
+        self.points = lay.mesh.points
+        self.edges = model.network.edges
+        self.kind = model.network.kind
+        self.rest_lengths = model.rest_lengths
+        self.stiffness = model.stiffness.astype(float).copy()
+        self.damping_coefficients = model.damping.astype(float).copy()
+        self.point_masses = model.point_masses
+        self.node_mass = model.node_mass
+        self.colliders = model.colliders
+        self.alpha = float(damping_mass)
+        self.damping_stiffness = float(damping_stiffness)
+        self.beta = 1.0  # D = alpha M + 1 * K0 with K0 = beta_user K_ref + dashpots (see module)
+        self.acceleration = np.asarray(model.experiment.gravity.acceleration, float)
+        self.lumped_kinetic = False
+        lo, hi = self.node_range = lay.node_range
+        e = self.edges
+        # springs touching an owned node (their forces land in owned rows) and springs whose
+        # first node is owned (each spring's energy counted once over the ranks)
+        self.touch = np.flatnonzero(lay.owned[e[:, 0]] | lay.owned[e[:, 1]])
+        self.count_once = lay.owned[e[self.touch, 0]]
+        self._ref_dirs = ((self.points[e[:, 0]] - self.points[e[:, 1]])
+                          / self.rest_lengths[:, None])
+        self._build_pattern()
+        self.lumped = lay.create_global_vec()
+        self.gravity = lay.create_global_vec()
+        self._work = lay.create_global_vec()
+        self._x_last = self.points.copy()
+        self._v_last = np.zeros((hi - lo, 3))
+        self.M = self.create_matrix()
+        self.K0 = self.create_matrix()
+        self._update_mass()
+        self._update_reference()
+
+    # -- pattern and matrices ---------------------------------------------------------------
+    def _build_pattern(self) -> None:
+        lay = self.dmesh
+        lo, hi = self.node_range
+        nloc = hi - lo
+        e = self.edges[self.touch]
+        # dofs of each touching spring's two nodes: (St, 6)
+        dofs = (3 * e[:, :, None] + np.arange(3)).reshape(-1, 6)
+        rows = np.repeat(dofs[:, :, None], 6, axis=2)            # (St, 6, 6)
+        cols = np.repeat(dofs[:, None, :], 6, axis=1)
+        own = np.arange(lo, hi)
+        ddofs = (3 * own[:, None] + np.arange(3))                 # (nloc, 3)
+        drows = np.repeat(ddofs[:, :, None], 3, axis=2)
+        dcols = np.repeat(ddofs[:, None, :], 3, axis=1)
+        r = np.concatenate([rows.ravel(), drows.ravel()])
+        c = np.concatenate([cols.ravel(), dcols.ravel()])
+        ncol = 3 * lay.nvertices
+        keep = (r >= 3 * lo) & (r < 3 * hi)
+        key = r * ncol + c
+        ukeys, inverse = np.unique(key[keep], return_inverse=True)
+        pos = np.full(len(key), len(ukeys), dtype=np.int64)       # dropped entries: a dump slot
+        pos[keep] = inverse
+        self._spring_pos = pos[:rows.size]
+        self._diag_pos = pos[rows.size:]
+        urows = ukeys // ncol - 3 * lo
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(urows, minlength=3 * nloc))]
+                                     ).astype(PETSc.IntType)
+        self.indices = (ukeys % ncol).astype(PETSc.IntType)
+        self.nnz = len(ukeys)
+
+    def _values(self, spring_blocks: np.ndarray | None, diag_blocks: np.ndarray | None):
+        """Pattern values from (St, 6, 6) spring matrices and (nloc, 3, 3) node blocks."""
+        out = np.zeros(self.nnz + 1)
+        if spring_blocks is not None:
+            out += np.bincount(self._spring_pos, spring_blocks.ravel(), minlength=self.nnz + 1)
+        if diag_blocks is not None:
+            out += np.bincount(self._diag_pos, diag_blocks.ravel(), minlength=self.nnz + 1)
+        return out[:-1]
+
+    def create_matrix(self) -> PETSc.Mat:
+        """A new matrix preallocated with the system's pattern (block size 3)."""
+        n3 = 3 * self.dmesh.nvertices
+        nloc = 3 * (self.node_range[1] - self.node_range[0])
+        A = PETSc.Mat().createAIJ(((nloc, n3), (nloc, n3)), bsize=3, comm=self.comm)
+        A.setPreallocationCSR((self.indptr, self.indices))
+        A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        A.setOption(PETSc.Mat.Option.KEEP_NONZERO_PATTERN, True)
+        A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        self._set(A, np.zeros(self.nnz))
+        return A
+
+    def _set(self, A: PETSc.Mat, values: np.ndarray) -> PETSc.Mat:
+        A.setValuesCSR(self.indptr, self.indices, values, addv=PETSc.InsertMode.INSERT_VALUES)
+        A.assemble()
+        return A
+
+    def _update_mass(self) -> None:
+        lo, hi = self.node_range
+        self.masses = self.node_mass + self.point_masses
+        m = self.masses[lo:hi]
+        self.lumped.getArray()[:] = np.repeat(m, 3)
+        self.gravity.getArray()[:] = (m[:, None] * self.acceleration).ravel()
+        self.mass_values = self._values(None, m[:, None, None] * np.eye(3)[None])
+        self._set(self.M, self.mass_values)
+
+    def _update_reference(self) -> None:
+        """K0 = beta_user K_ref + dashpots (K_ref: the spring Hessian at rest)."""
+        t = self.touch
+        kref = expand_blocks(spring_hessian_blocks(self.points, self.edges[t],
+                                                   self.rest_lengths[t], self.stiffness[t]))
+        dash = expand_blocks(dashpot_blocks(self.points, self.edges[t],
+                                            self.damping_coefficients[t]))
+        self.k0_values = self._values(self.damping_stiffness * kref + dash, None)
+        self._set(self.K0, self.k0_values)
+        self._k0_zero = not np.any(self.k0_values)
+
+    def _tangent_values(self, x: np.ndarray) -> np.ndarray:
+        t = self.touch
+        blocks = spring_hessian_blocks(x, self.edges[t], self.rest_lengths[t], self.stiffness[t],
+                                       clamp=self.clamp, fallback=self._ref_dirs[t])
+        diag = None
+        if self.colliders:
+            lo, hi = self.node_range
+            diag = sum(c.hessian(x[lo:hi], clamp=self.clamp) for c in self.colliders)
+        return self._values(expand_blocks(blocks), diag)
+
+    def assemble_combination(self, q: PETSc.Vec | None, a_mass: float, b_tangent: float,
+                             c_reference: float, out: PETSc.Mat,
+                             eliminate: bool = True) -> PETSc.Mat:
+        """out = a M + b K(q) + c K0; with ``eliminate`` prescribed rows/columns -> identity."""
+        values = np.zeros(self.nnz)
+        if b_tangent != 0.0:
+            values += b_tangent * self._tangent_values(self.positions(q))
+        if a_mass != 0.0:
+            values += a_mass * self.mass_values
+        if c_reference != 0.0:
+            values += c_reference * self.k0_values
+            friction = [c for c in self.colliders if c.friction > 0.0]
+            if friction:
+                # c is the velocity coefficient of the scheme (beta = 1): the friction's velocity
+                # Jacobian at the latest velocity joins the damping term
+                lo, hi = self.node_range
+                x, v = self._x_last[lo:hi], self._v_last
+                values += c_reference * self._values(
+                    None, sum(c.friction_damping(x, v) for c in friction))
+        self._set(out, values)
+        if eliminate:
+            self.dirichlet.eliminate(out)
+        return out
+
+    @staticmethod
+    def linear_defaults(ksp: PETSc.KSP) -> None:
+        """A direct solve (LU; MUMPS on several ranks): spring networks are small, their
+        stiffness contrasts large, and the exact Hessian of compressed springs is indefinite.
+        ``-ksp_type``/``-pc_type`` replace it (set before ``setFromOptions``)."""
+        ksp.setType(PETSc.KSP.Type.PREONLY)
+        pc = ksp.getPC()
+        pc.setType(PETSc.PC.Type.LU)
+        if ksp.getComm().getSize() > 1:
+            pc.setFactorSolverType("mumps")
+
+    # -- state --------------------------------------------------------------------------------
+    def positions(self, q: PETSc.Vec) -> np.ndarray:
+        """Current positions X + q of all nodes (N, 3) on every rank (collective)."""
+        x = self.points + self.dmesh.to_all(q)
+        self._x_last = x
+        return x
+
+    def create_vec(self) -> PETSc.Vec:
+        return self.dmesh.create_global_vec()
+
+    def near_nullspace(self):
+        return None
+
+    def apply_prescribed(self, vec: PETSc.Vec, t: float) -> None:
+        lo, hi = self.node_range
+        vec.getArray()[self.dirichlet.owned_dofs] = \
+            self.prescribed(t)[lo:hi].ravel()[self.dirichlet.owned_dofs]
+
+    def zero_prescribed(self, vec: PETSc.Vec) -> None:
+        vec.getArray()[self.dirichlet.owned_dofs] = 0.0
+
+    def prescribed_offsets(self, vec: PETSc.Vec) -> np.ndarray:
+        return self.dirichlet.owned_dofs
+
+    def prescribed(self, t: float) -> np.ndarray:
+        """(N, 3) prescribed displacements at t (zero where not prescribed)."""
+        return self.dirichlet.values(t)
+
+    @property
+    def moving_boundary(self) -> bool:
+        return any(disp is not None and any("t" in e.variables for e in disp)
+                   for _, _, disp in self.dirichlet.conditions)
+
+    time_dependent_loads = False
+
+    # -- forces and energies ----------------------------------------------------------------
+    def _spring_node_gradient(self, x: np.ndarray, stiffness: np.ndarray) -> np.ndarray:
+        """(nloc, 3) gradient of the spring energy at the owned nodes."""
+        t = self.touch
+        e = self.edges[t]
+        g = spring_gradient(x, e, self.rest_lengths[t], stiffness[t])
+        n = self.dmesh.nvertices
+        lo, hi = self.node_range
+        out = np.empty((hi - lo, 3))
+        for k in range(3):
+            acc = (np.bincount(e[:, 0], g[:, k], minlength=n)
+                   - np.bincount(e[:, 1], g[:, k], minlength=n))
+            out[:, k] = acc[lo:hi]
+        return out
+
+    def internal_gradient(self, q: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = grad W(q): springs and collider penalties (all rows)."""
+        x = self.positions(q)
+        g = self._spring_node_gradient(x, self.stiffness)
+        lo, hi = self.node_range
+        for c in self.colliders:
+            g += c.gradient(x[lo:hi])
+        out.getArray()[:] = g.ravel()
+        return out
+
+    def elastic_energy(self, q: PETSc.Vec) -> float:
+        """Spring plus collider penalty energy (collective)."""
+        x = self.positions(q)
+        t = self.touch[self.count_once]
+        w = spring_energy(x, self.edges[t], self.rest_lengths[t], self.stiffness[t]).sum()
+        lo, hi = self.node_range
+        for c in self.colliders:
+            w += c.energy(x[lo:hi]).sum()
+        return self.dmesh.allreduce_sum(w)
+
+    def damping_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = D v (alpha M v + K0 v) minus the lagged friction forces."""
+        out.zeroEntries()
+        if self.alpha != 0.0:
+            out.pointwiseMult(self.lumped, v)
+            out.scale(self.alpha)
+        if not self._k0_zero:
+            self.K0.mult(v, self._work)
+            out.axpy(1.0, self._work)
+        friction = [c for c in self.colliders if c.friction > 0.0]
+        if friction:
+            lo, hi = self.node_range
+            x = self._x_last[lo:hi]
+            vl = v.getArray(readonly=True).reshape(-1, 3)
+            self._v_last = vl.copy()
+            f = sum(c.friction_force(x, vl) for c in friction)
+            arr = out.getArray()
+            arr -= f.ravel()
+        return out
+
+    def kinetic_energy(self, v: PETSc.Vec) -> float:
+        self._work.pointwiseMult(v, self.lumped)
+        return 0.5 * v.dot(self._work)
+
+    def gravitational_energy(self, q: PETSc.Vec) -> float:
+        return -self.gravity.dot(q)
+
+    def tractions(self, t: float, out: PETSc.Vec) -> PETSc.Vec:
+        """No surface tractions in a mass-spring model: zero."""
+        out.zeroEntries()
+        return out
+
+    # -- calibration interface ----------------------------------------------------------------
+    @property
+    def vertex_points(self) -> np.ndarray:
+        """(N, 3) reference node coordinates (every rank)."""
+        return self.points
+
+    def vertex_global_dofs(self, ids) -> np.ndarray:
+        """(len(ids), 3) global dof numbers of nodes ``ids``."""
+        ids = np.asarray(ids, dtype=np.int64)
+        return 3 * ids[:, None] + np.arange(3)
+
+    def parameter_names(self) -> list[str]:
+        """The differentiable parameters, named as :func:`petsoft.experiment.parameter_names`."""
+        names = ["springs.stiffness", "springs.damping"]
+        if np.any(self.kind == KINDS.index("bending")):
+            names.append("springs.bending")
+        names += ["springs.node_mass", "damping.mass", "damping.stiffness",
+                  "gravity.acceleration.x", "gravity.acceleration.y", "gravity.acceleration.z"]
+        return names
+
+    def _check_names(self, names) -> None:
+        valid = self.parameter_names()
+        bad = [n for n in names if n not in valid]
+        if bad:
+            raise ExperimentError(f"mass-spring parameters {bad} are unknown; valid: "
+                                  f"{', '.join(valid)}")
+
+    def get_parameters(self) -> dict:
+        bend = self.kind == KINDS.index("bending")
+        first = lambda mask, arr: float(arr[mask][0]) if mask.any() else 0.0  # noqa: E731
+        return {"springs.stiffness": first(~bend, self.stiffness),
+                "springs.damping": first(~bend, self.damping_coefficients),
+                "springs.bending": first(bend, self.stiffness),
+                "springs.node_mass": self.node_mass, "damping.mass": self.alpha,
+                "damping.stiffness": self.damping_stiffness,
+                **{f"gravity.acceleration.{c}": float(self.acceleration[i])
+                   for i, c in enumerate("xyz")}}
+
+    def set_parameters(self, values: dict) -> None:
+        """Change named parameters in place (no rebuild: value arrays and vectors only).
+
+        The colliders' default stiffness keeps the value it got when the model was built.
+        """
+        self._check_names(values)
+        bend = self.kind == KINDS.index("bending")
+        mass_changed = ref_changed = False
+        for name, value in values.items():
+            value = float(value)
+            if name == "springs.stiffness":
+                self.stiffness[~bend] = value
+                ref_changed = True
+            elif name == "springs.bending":
+                self.stiffness[bend] = value
+                ref_changed = True
+            elif name == "springs.damping":
+                self.damping_coefficients[~bend] = value
+                ref_changed = True
+            elif name == "springs.node_mass":
+                self.node_mass = value
+                mass_changed = True
+            elif name == "damping.mass":
+                self.alpha = value
+            elif name == "damping.stiffness":
+                self.damping_stiffness = value
+                ref_changed = True
+            else:
+                self.acceleration["xyz".index(name[-1])] = value
+                mass_changed = True
+        if mass_changed:
+            self._update_mass()
+        if ref_changed:
+            self._update_reference()
+
+    def residual_parameter_derivatives(self, names, q: PETSc.Vec, v: PETSc.Vec, a: PETSc.Vec,
+                                       t: float = 0.0) -> list[PETSc.Vec]:
+        """d r / d p of r = M a + grad W(q) + D v - f_g - f_t(t) for each name (prescribed rows
+        zero). r is affine in every parameter, so these are exact (friction, lagged, and the
+        colliders' fixed stiffness do not depend on the parameters)."""
+        self._check_names(names)
+        lo, hi = self.node_range
+        bend = self.kind == KINDS.index("bending")
+        x = self.positions(q)
+        vl = v.getArray(readonly=True).reshape(-1, 3)
+        al = a.getArray(readonly=True).reshape(-1, 3)
+        out = []
+        for name in names:
+            d = self.create_vec()
+            arr = d.getArray().reshape(-1, 3)
+            if name in ("springs.stiffness", "springs.bending"):
+                sel = bend if name == "springs.bending" else ~bend
+                arr[:] = self._spring_node_gradient(x, sel.astype(float))
+                # D v contains beta_user K_ref(k) v, linear in k
+                if self.damping_stiffness != 0.0:
+                    arr += self.damping_stiffness * self._unit_product(
+                        "bending" if name == "springs.bending" else "stiffness", v)
+            elif name == "springs.damping":
+                arr[:] = self._unit_product("damping", v)
+            elif name == "springs.node_mass":
+                arr[:] = al + self.alpha * vl - self.acceleration
+            elif name == "damping.mass":
+                arr[:] = self.masses[lo:hi, None] * vl
+            elif name == "damping.stiffness":
+                p = self.get_parameters()
+                arr[:] = (p["springs.stiffness"] * self._unit_product("stiffness", v)
+                          + p["springs.bending"] * self._unit_product("bending", v))
+            else:
+                arr[:] = 0.0
+                arr[:, "xyz".index(name[-1])] = -self.masses[lo:hi]
+            self.zero_prescribed(d)
+            out.append(d)
+        return out
+
+    def _unit_product(self, which: str, v: PETSc.Vec) -> np.ndarray:
+        """(nloc, 3) product of v with a unit-coefficient matrix, built once: the rest stiffness
+        of the non-bending ("stiffness") or bending springs, or the dashpots ("damping")."""
+        mats = self.__dict__.setdefault("_unit_matrices", {})
+        if which not in mats:
+            bend = self.kind == KINDS.index("bending")
+            t = self.touch
+            if which == "damping":
+                blocks = dashpot_blocks(self.points, self.edges[t], (~bend[t]).astype(float))
+            else:
+                blocks = spring_hessian_blocks(self.points, self.edges[t], self.rest_lengths[t],
+                                               (bend if which == "bending" else ~bend)[t]
+                                               .astype(float))
+            mats[which] = self._set(self.create_matrix(),
+                                    self._values(expand_blocks(blocks), None))
+        y = self._work
+        mats[which].mult(v, y)
+        return y.getArray(readonly=True).reshape(-1, 3).copy()
+
+    def destroy(self) -> None:
+        for name in ("M", "K0", "lumped", "gravity", "_work"):
+            obj = getattr(self, name, None)
+            if obj is not None:
+                obj.destroy()
+        for A in self.__dict__.get("_unit_matrices", {}).values():
+            A.destroy()
+
+
+def locate_nodes(points: np.ndarray, probes, *, source: str = "probes") -> np.ndarray:
+    """The node at each probe point (mass-spring probes must sit on nodes).
+
+    Raises
+    ------
+    ExperimentError
+        Naming the probe that is not at a node, and the nearest node.
+    """
+    probes = np.asarray(probes, dtype=float).reshape(-1, 3)
+    size = float(np.ptp(points, axis=0).max()) or 1.0
+    out = np.empty(len(probes), dtype=np.int64)
+    for i, p in enumerate(probes):  # few probes; each vectorised over the nodes
+        dist = np.linalg.norm(points - p, axis=1)
+        node = int(np.argmin(dist))
+        if dist[node] > NODE_TOLERANCE * size:
+            raise ExperimentError(f"{source}[{i}] = {p.tolist()} is not a node of the mass-spring "
+                                  f"mesh: the nearest node is {node} at {points[node].tolist()} "
+                                  f"({dist[node]:.3g} m away)")
+        out[i] = node
+    return out
+
+
+def rope_mesh(nodes: int, length: float, start=(0.0, 0.0, 0.0),
+              direction=(1.0, 0.0, 0.0)) -> SpringMesh:
+    """A straight rope of ``nodes`` nodes (``nodes - 1`` line cells) of total ``length``."""
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    s = np.linspace(0.0, length, nodes)
+    pts = np.asarray(start, float) + s[:, None] * d
+    lines = np.stack([np.arange(nodes - 1), np.arange(1, nodes)], axis=1)
+    return SpringMesh(pts, lines, np.zeros((0, 3), np.int64), source="<rope>")
+
+
+def cloth_mesh(nx: int, ny: int, width: float, height: float, z: float = 0.0,
+               origin=(0.0, 0.0)) -> SpringMesh:
+    """A flat nx x ny node grid in the plane z = const, each quad split into two triangles."""
+    xs, ys = np.meshgrid(np.linspace(0.0, width, nx) + origin[0],
+                         np.linspace(0.0, height, ny) + origin[1], indexing="ij")
+    pts = np.column_stack([xs.ravel(), ys.ravel(), np.full(nx * ny, float(z))])
+    idx = np.arange(nx * ny).reshape(nx, ny)
+    a, b = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+    c, d = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    tris = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)]).astype(np.int64)
+    return SpringMesh(pts, np.zeros((0, 2), np.int64), tris, source="<cloth>")
