@@ -125,11 +125,18 @@ class ForwardModel:
         self.has_a = self.method == "alpha" or self.accel
         self.static = exp.initial.from_ == "static"
         self.h = float(h if h is not None else exp.time.step)
-        if system is None:
+        if system is not None:
+            self.model = None
+        elif exp.is_mass_spring:
+            # the mass-spring system offers the same interface (parameter names, in-place
+            # set_parameters, residual_parameter_derivatives): the generic derivative path
+            from ..dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
+
+            self.model = build_mass_spring_model(exp, comm)
+            system = MassSpringSystem(self.model, exp.damping.mass, exp.damping.stiffness)
+        else:
             self.model = build_model(exp, comm)
             system = DynamicSystem(self.model, exp.damping.mass, exp.damping.stiffness)
-        else:
-            self.model = None
         self.system = s = system
         self.comm = s.comm
         self.names = list(names)
@@ -176,10 +183,13 @@ class ForwardModel:
         if modes is not None:
             self.J.setNearNullSpace(modes)
         self._K = None
+        # a length scale for the SI third-derivative difference: mean cell size or spring length
         vol = getattr(getattr(s, "dmesh", None), "cell_volumes", None)
         if vol is not None:
             self.cell_size = float(np.cbrt(s.dmesh.allreduce_sum(vol.sum())
                                            / s.dmesh.comm.tompi4py().allreduce(len(vol))))
+        elif getattr(s, "rest_lengths", None) is not None and len(s.rest_lengths):
+            self.cell_size = float(np.mean(s.rest_lengths))   # replicated on every rank
         else:
             self.cell_size = 1.0
         # the SI third-derivative term vanishes for the linear law (K constant)
