@@ -305,8 +305,19 @@ class ParameterDerivatives:
                     for k, e in (("mu", self.E_mu), ("lam", self.E_lam), ("rho", self.E_rho))}
         result = np.zeros(len(names))
         globals_ = []
+        pm = s.parameters
+        group_sums = None
         for j, name in enumerate(names):
-            if name.startswith("material."):
+            m = GROUP_PATTERN.match(name)
+            if m:
+                # a stiffness field: one bincount over the cells serves all its P names
+                if group_sums is None:
+                    nu = pm.nu
+                    dE = pm.E_base * (per_cell["mu"] / (2.0 * (1.0 + nu)) + per_cell["lam"]
+                                      * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)))
+                    group_sums = np.bincount(pm.group, weights=dE, minlength=pm.ngroups)
+                result[j] = group_sums[int(m.group(1))]
+            elif name.startswith("material."):
                 dmu, dlam, drho = s.parameters.coefficients(name, names)
                 total = 0.0
                 for coef, key in ((dmu, "mu"), (dlam, "lam"), (drho, "rho")):
