@@ -28,8 +28,10 @@ solve and one assembly per step relative to a Newton step); SI is cheapest forwa
 solve per step) so its ratios are the largest. ``agree`` is max_j |g_adj - g_sens|_j / max |g|
 (scaled by the parameter values): the two gradients are the same number.
 
-Timing: each entry is the best of ``--repeat`` calls (barrier before, max over ranks); the machine
-is shared, so ratios are more meaningful than absolute times.
+Timing: each entry is the best of ``--repeat`` calls (barrier before, max over ranks) of wall time
+or, with ``--clock cpu``, of the process's CPU time (much less noisy for a serial run on a shared,
+overloaded machine; with MPI it includes busy-waiting); ratios are more meaningful than absolute
+times.
 
 Run
 ---
@@ -71,6 +73,9 @@ _parser.add_argument("--params", type=int, nargs="+", default=[2, 10, 100],
 _parser.add_argument("--integrators", nargs="+", default=["be", "si", "alpha"],
                      choices=["be", "si", "alpha"])
 _parser.add_argument("--repeat", type=int, default=2, help="timed calls per entry (default 2)")
+_parser.add_argument("--clock", choices=["wall", "cpu"], default="wall",
+                     help="wall time (default) or CPU time of the process (max over ranks): on a "
+                          "shared, overloaded machine CPU time of a serial run is far less noisy")
 _parser.add_argument("--quick", action="store_true",
                      help="smoke run: 10 x 2 x 2 cells, 4 steps, 1 repeat")
 ARGS, _petsc_args = _parser.parse_known_args()
@@ -79,7 +84,9 @@ import petsc4py  # noqa: E402
 
 petsc4py.init([sys.argv[0]] + _petsc_args)
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from _bench_common import NRANKS, progress, say, wall  # noqa: E402
+import time  # noqa: E402
+
+from _bench_common import COMM, NRANKS, progress, say, wall  # noqa: E402
 
 from petsoft.calibration.forward import ForwardModel  # noqa: E402
 from petsoft.calibration.observation import MarkerObserver  # noqa: E402
@@ -112,8 +119,19 @@ def names_for(P: int) -> list[str]:
     return [f"material.youngs_modulus#{k}" for k in range(P)]
 
 
+def cpu(fn) -> float:
+    """CPU time of one collective call (barrier before, max over ranks)."""
+    from mpi4py import MPI
+
+    COMM.Barrier()
+    t0 = time.process_time()
+    fn()
+    return COMM.allreduce(time.process_time() - t0, op=MPI.MAX)
+
+
 def best(fn) -> float:
-    return min(wall(fn) for _ in range(ARGS.repeat))
+    clock = cpu if ARGS.clock == "cpu" else wall
+    return min(clock(fn) for _ in range(ARGS.repeat))
 
 
 def main() -> None:
@@ -125,7 +143,7 @@ def main() -> None:
     say(f"bench_gradient: neo-Hookean bar, {ntets} tets, "
         f"{3 * int(np.prod(np.array(ARGS.cells) + 1))} dofs, {ARGS.steps} steps of "
         f"{ARGS.step:g} s, {len(MARKERS)} markers x {len(frames)} frames; {NRANKS} MPI rank(s); "
-        f"best of {ARGS.repeat}")
+        f"best of {ARGS.repeat}, {ARGS.clock} time")
     say(f"{'integrator':>10} {'P':>4} {'forward s':>10} {'sens s':>9} {'adjoint s':>10} "
         f"{'sens/fwd':>9} {'adj/fwd':>8} {'agree':>9}")
     rng = np.random.default_rng(0)

@@ -362,6 +362,51 @@ def test_observed_accelerations(method, light_forward_solver):
     fm.destroy()
 
 
+@pytest.mark.parametrize("method", ["be", "si", "alpha"])
+def test_mass_spring_forward_model(tmp_path, method):
+    """A [springs] experiment (a 6-node rope, pivot fixed, swinging under gravity) through the
+    generic path (the mass-spring system's residual_parameter_derivatives; SI's w term by a
+    central difference): adjoint == forward sensitivities, Taylor orders 2."""
+    from pathlib import Path
+
+    from petsoft.dynamics.mass_spring import rope_mesh, write_spring_mesh
+
+    mpi = PETSc.COMM_WORLD.tompi4py()
+    path = Path(mpi.bcast(str(tmp_path), root=0)) / "rope.vtu"
+    mesh = rope_mesh(6, 1.0)
+    if mpi.rank == 0:
+        write_spring_mesh(path, mesh.points, mesh.lines, mesh.triangles)
+    mpi.barrier()
+    exp = experiment_from_dict({
+        "mesh": {"file": str(path)},
+        "springs": {"stiffness": 50.0, "node_mass": 0.02, "damping": 0.01},
+        "damping": {"mass": 0.1},
+        "gravity": {"acceleration": [0.0, 0.0, -9.81]},
+        "boundary": [{"kind": "fixed", "where": "x < 1e-6"}],
+        "initial": {"velocity": ["0", "0.5*x", "0"]},
+        "time": {"end": 0.1, "step": 0.01, "integrator": method}}, source="<rope>")
+    names = ["springs.stiffness", "springs.damping", "springs.node_mass", "damping.mass",
+             "gravity.acceleration.z"]
+    markers = mesh.points[[2, 5]]
+    fm = ForwardModel(exp, names, lambda s: MarkerObserver(s, markers), [0.035, 0.1])
+    p = fm.p0.copy()
+    np.testing.assert_array_equal(p, [50.0, 0.01, 0.02, 0.1, -9.81])
+    sim0 = fm.simulate(p)
+    dphi = _misfit(sim0 + 1e-3 * np.random.default_rng(11).standard_normal(sim0.shape))
+    value, grad = fm.gradient(p, dphi)
+    _, jac = fm.jacobian(p)
+    g_fwd = np.einsum("kmc,kmcp->p", dphi(sim0)[1], jac)
+    err = np.abs((grad - g_fwd) * p).max() / np.abs(grad * p).max()
+    d = _direction(p)
+    rem = [abs(dphi(fm.simulate(p + e * d))[0] - value - e * grad @ d)
+           for e in 2e-2 * 2.0 ** -np.arange(4)]
+    orders = _orders(rem)
+    _print(f"springs/{method}: adjoint vs forward {err:.2e}; orders {orders}")
+    assert err < 1e-8
+    assert np.all((orders > 1.8) & (orders < 2.2)), orders
+    fm.destroy()
+
+
 # -- 3. serial == parallel ------------------------------------------------------------------------
 @pytest.mark.parametrize("method", ["be", "si", "alpha"])
 def test_gradient_same_on_one_and_all_ranks(method):

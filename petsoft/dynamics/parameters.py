@@ -39,7 +39,6 @@ import numpy as np
 from petsc4py import PETSc
 
 from ..errors import ExperimentError
-from ..kernels import elastic as kernels
 from ..kernels.scatter import scatter_add_vector
 from ..ordering import morton_order
 
@@ -248,27 +247,12 @@ class ParameterDerivatives:
         self.system = system
         s, dm = system, system.dmesh
         pm = s.parameters
-        u, vl, al = dm.to_local(q), dm.to_local(v), dm.to_local(a)
+        u, vl, al = dm.to_local(q), dm.to_local(v), dm.to_local(a)  # (nv, 3)
         wl = dm.to_local(w) if w is not None else None
         n = len(dm.cells)
-        self.E_mu, self.E_lam = np.zeros((n, 12)), np.zeros((n, 12))
-        ones, zeros = np.ones(n), np.zeros(n)
-        dN, vol = s.elastic_dN, dm.cell_volumes
-        model_of = s.cell_models
-        for model in np.unique(model_of):
-            c = np.flatnonzero(model_of == model)
-            ue, ve = u[dm.cells[c]].reshape(-1, 12), vl[dm.cells[c]].reshape(-1, 12)
-            for unit, out in (((ones, zeros), self.E_mu), ((zeros, ones), self.E_lam)):
-                mu_, lam_ = unit[0][c], unit[1][c]
-                g, H = kernels.element_gradient_hessian(model, dN[c], vol[c], ue, mu_, lam_,
-                                                        hessian=wl is not None)
-                out[c] = g
-                if s.beta != 0.0:
-                    k0v, _ = kernels.element_gradient_hessian("linear", dN[c], vol[c], ve, mu_,
-                                                              lam_, hessian=False)
-                    out[c] += s.beta * k0v
-                if wl is not None:
-                    out[c] += np.einsum("nij,nj->ni", H, wl[dm.cells[c]].reshape(-1, 12))
+        vol = dm.cell_volumes
+        # the elastic term's own parameter derivatives (+ K w, + beta K0 v)
+        self.E_mu, self.E_lam = s.elastic.lame_derivatives(u, wl, vl, s.beta)
         # mass (consistent: rho V/20 (sum_b y_b + y_a)) and gravity (rho V/4 g) per unit density
         y = (al + s.alpha * vl)[dm.cells]                       # (n, 4, 3)
         Em = (vol / 20.0)[:, None, None] * (y + y.sum(axis=1, keepdims=True))
@@ -321,8 +305,19 @@ class ParameterDerivatives:
                     for k, e in (("mu", self.E_mu), ("lam", self.E_lam), ("rho", self.E_rho))}
         result = np.zeros(len(names))
         globals_ = []
+        pm = s.parameters
+        group_sums = None
         for j, name in enumerate(names):
-            if name.startswith("material."):
+            m = GROUP_PATTERN.match(name)
+            if m:
+                # a stiffness field: one bincount over the cells serves all its P names
+                if group_sums is None:
+                    nu = pm.nu
+                    dE = pm.E_base * (per_cell["mu"] / (2.0 * (1.0 + nu)) + per_cell["lam"]
+                                      * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)))
+                    group_sums = np.bincount(pm.group, weights=dE, minlength=pm.ngroups)
+                result[j] = group_sums[int(m.group(1))]
+            elif name.startswith("material."):
                 dmu, dlam, drho = s.parameters.coefficients(name, names)
                 total = 0.0
                 for coef, key in ((dmu, "mu"), (dlam, "lam"), (drho, "rho")):

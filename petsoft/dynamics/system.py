@@ -13,6 +13,11 @@
 
 All matrices share one block-CSR pattern, so an integrator's Jacobian a M + b K(q) + c K0 is a
 combination of value arrays handed to PETSc once.
+
+For calibration the system's parameters (materials, damping, gravity, a stiffness field) can be
+changed in place and differentiated: :meth:`DynamicSystem.parameter_names`,
+:meth:`~DynamicSystem.set_parameters`, :meth:`~DynamicSystem.residual_parameter_derivatives`
+(see :mod:`petsoft.dynamics.parameters`).
 """
 
 from __future__ import annotations
@@ -203,12 +208,6 @@ class DynamicSystem:
         if getattr(self, "_parameters", None) is None:
             from .parameters import ParameterMap
 
-            n = len(self.dmesh.cells)
-            self.elastic_dN = np.empty((n, 4, 3))
-            self.cell_models = np.empty(n, dtype=object)
-            for group in self.elastic.groups:
-                self.elastic_dN[group.cells] = group.dN
-                self.cell_models[group.cells] = group.model
             self._parameters = ParameterMap(self)
         return self._parameters
 

@@ -107,3 +107,40 @@ class ElasticTerm:
     def add_hessian(self, u_local: np.ndarray, assembler: MatrixAssembler) -> None:
         """Add d2W/du2 into the assembler."""
         self.add_gradient(u_local, None, assembler)
+
+    def lame_derivatives(self, u_local: np.ndarray, w_local: np.ndarray | None = None,
+                         v_local: np.ndarray | None = None, beta: float = 0.0):
+        """Derivatives of this term's element forces with respect to its own parameters.
+
+        Every law is linear in (mu, lambda), so d g_e / d mu_e is g_e evaluated with
+        (mu, lambda) = (1, 0), and likewise for lambda. Returns two (ncells, 12) arrays in local
+        cell order (``dmesh.cells``): d/dmu and d/dlambda of
+
+            g_e(u) [+ H_e(u) w_e] [+ beta K0_e v_e],
+
+        the second term (``w_local``) for the semi-implicit step's derivative, the third for
+        stiffness-proportional damping (K0_e v_e is the linear law's gradient at v: the Hessian
+        of every law at the reference is the linear one).
+        """
+        n = len(self.dmesh.cells)
+        d_mu, d_lam = np.zeros((n, 12)), np.zeros((n, 12))
+        for g in self.groups:
+            for start, stop, ue in self._chunks(g, u_local):
+                cells = g.cells[start:stop]
+                dN, vol = g.dN[start:stop], g.volume[start:stop]
+                conn = g.conn[start:stop]
+                one, zero = np.ones(stop - start), np.zeros(stop - start)
+                for mu, lam, out in ((one, zero, d_mu), (zero, one, d_lam)):
+                    try:
+                        grad, H = kernels.element_gradient_hessian(
+                            g.model, dN, vol, ue, mu, lam, hessian=w_local is not None)
+                    except InvertedElementError as err:
+                        raise self._file_error(g, start, err) from None
+                    if w_local is not None:
+                        grad += np.einsum("nij,nj->ni", H, w_local[conn].reshape(-1, 12))
+                    if v_local is not None and beta != 0.0:
+                        k0v, _ = kernels.element_gradient_hessian(
+                            "linear", dN, vol, v_local[conn], mu, lam, hessian=False)
+                        grad += beta * k0v
+                    out[cells] = grad
+        return d_mu, d_lam
