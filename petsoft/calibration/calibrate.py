@@ -155,37 +155,18 @@ def _petsc_comm(comm):
     return comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm)
 
 
-def forward_solver_defaults(experiment) -> None:
-    """The experiment's ``[petsc]`` solver options also for the forward model's solvers.
-
-    The forward run's Newton (prefix ``fm_``) and its gradient solves (``fm_grad_``) have their
-    own prefixes; an experiment that chose, say, a direct solver wants it there too. Options the
-    user gave with those prefixes win.
-    """
-    from ..options import set_default_option
-    from .forward import GRAD_PREFIX, PREFIX
-
-    for key, value in experiment.petsc.items():
-        if key.startswith(("ksp_", "pc_", "mat_")):
-            set_default_option(f"{PREFIX}{key}", value)
-            set_default_option(f"{GRAD_PREFIX}{key}", value)
-        elif key.startswith("snes_"):
-            set_default_option(f"{PREFIX}{key}", value)
-
-
 def build_forward(experiment, names, recording, frame_times, comm, integrator=None):
     """The forward model of ``experiment`` observing the recording's markers on ``comm``."""
     from .forward import ForwardModel
     from .observation import MarkerObserver
 
-    forward_solver_defaults(experiment)
-
     def observer(system):
         return MarkerObserver(system, recording.reference, recording.names,
                               source=str(recording.source))
 
+    # the experiment's [petsc] solver choice also for the forward model's own solvers
     return ForwardModel(experiment, names, observer, frame_times, comm=_petsc_comm(comm),
-                        integrator=integrator)
+                        integrator=integrator, solver_options=experiment.petsc)
 
 
 def run_calibration(experiment, recording_path, *, method: str = "gauss-newton",

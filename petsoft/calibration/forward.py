@@ -97,6 +97,11 @@ class ForwardModel:
         Default: ``[time] integrator``.
     h : float, optional
         Step (default ``[time] step``).
+    solver_options : dict, optional
+        Linear/nonlinear solver defaults without prefix (e.g. an experiment's ``[petsc]``
+        ``ksp_type``/``pc_type``), applied under the forward run's prefix ``fm_`` and the gradient
+        solves' ``fm_grad_`` only while this model runs (never left in the options database);
+        options given with those prefixes win.
     system : optional
         A prebuilt system offering the same interface (e.g. a mass-spring system); then
         ``initial_state`` is taken from ``system.initial_state()``.
@@ -107,7 +112,8 @@ class ForwardModel:
     """
 
     def __init__(self, experiment, names, observer, frame_times, comm=None, integrator=None,
-                 h=None, system=None, observe: str = "position"):
+                 h=None, system=None, observe: str = "position",
+                 solver_options: dict | None = None):
         exp = self.experiment = experiment
         if observe not in ("position", "acceleration"):
             raise ExperimentError(f"observe = {observe!r}: valid are position, acceleration")
@@ -125,6 +131,12 @@ class ForwardModel:
         self.has_a = self.method == "alpha" or self.accel
         self.static = exp.initial.from_ == "static"
         self.h = float(h if h is not None else exp.time.step)
+        opts = {k.lstrip("-"): str(v) for k, v in (solver_options or {}).items()}
+        self._forward_defaults = {**{PREFIX + k: v for k, v in opts.items()
+                                     if k.startswith(("ksp_", "pc_", "mat_", "snes_"))},
+                                  **FORWARD_OPTIONS}
+        self._grad_defaults = {GRAD_PREFIX + k: v for k, v in opts.items()
+                               if k.startswith(("ksp_", "pc_", "mat_"))}
         if system is not None:
             self.model = None
         elif exp.is_mass_spring:
@@ -259,7 +271,7 @@ class ForwardModel:
         obs = {}
         self._observe(0, a if self.accel else q, obs)
         q1, v1 = q.duplicate(), v.duplicate()
-        with scoped_defaults(**FORWARD_OPTIONS):
+        with scoped_defaults(**self._forward_defaults):
             for n in range(self.nsteps):
                 t0 = n * h
                 report = self.integrator.step(t0, q, v, h, q1, v1)
@@ -349,7 +361,8 @@ class ForwardModel:
         ksp = PETSc.KSP().create(comm=self.comm)
         ksp.setOptionsPrefix(GRAD_PREFIX)
         (getattr(self.system, "linear_defaults", None) or linear_defaults)(ksp)
-        ksp.setFromOptions()
+        with scoped_defaults(**self._grad_defaults):
+            ksp.setFromOptions()
         ksp.setOperators(self.J)
         return ksp
 
