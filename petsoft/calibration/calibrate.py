@@ -164,8 +164,26 @@ def build_forward(experiment, names, recording, frame_times, comm, integrator=No
         return MarkerObserver(system, recording.reference, recording.names,
                               source=str(recording.source))
 
-    return ForwardModel(experiment, names, observer, frame_times, comm=_petsc_comm(comm),
-                        integrator=integrator)
+    comm = _petsc_comm(comm)
+    system = mass_spring_system(experiment, comm) if experiment.is_mass_spring else None
+    return ForwardModel(experiment, names, observer, frame_times, comm=comm,
+                        integrator=integrator, system=system)
+
+
+def mass_spring_system(experiment, comm):
+    """The MassSpringSystem of a ``[springs]`` experiment, as :class:`ForwardModel` takes it.
+
+    ForwardModel's generic path takes the initial state from ``system.initial_state()``: here
+    ``[initial]`` displacement and velocity expressions, which do not depend on the calibrated
+    parameters (a static initial state is rejected by the mass-spring model builder).
+    """
+    from ..dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
+    from ..dynamics.simulate import initial_state
+
+    model = build_mass_spring_model(experiment, comm)
+    system = MassSpringSystem(model, experiment.damping.mass, experiment.damping.stiffness)
+    system.initial_state = lambda: initial_state(model, system, experiment)
+    return system
 
 
 def run_calibration(experiment, recording_path, *, method: str = "gauss-newton",

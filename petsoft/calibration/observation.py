@@ -112,12 +112,13 @@ class MarkerObserver:
         self.comm = system.comm if hasattr(system, "comm") else PETSc.COMM_WORLD
         mpi = self.comm.tompi4py()
         self._template = system.create_vec()
-        if hasattr(system, "dmesh"):
-            rows, cols, vals = self._fem_entries(system.dmesh)
-            self.kind = "fem"
-        elif hasattr(system, "vertex_points"):
+        # nodes first: a mass-spring system also has a ``dmesh`` (its node layout, no cells)
+        if hasattr(system, "vertex_points"):
             rows, cols, vals = self._node_entries(system, node_tolerance)
             self.kind = "nodes"
+        elif hasattr(system, "dmesh"):
+            rows, cols, vals = self._fem_entries(system.dmesh)
+            self.kind = "fem"
         else:
             raise TypeError(f"cannot observe markers on {type(system).__name__}: it has neither "
                             "a dmesh nor vertex_points")

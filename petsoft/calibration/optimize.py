@@ -415,8 +415,12 @@ def _normalize_bounds(bounds, n):
 
 
 def projected_gradient_norm(z, g, lo, hi) -> float:
-    """``|z - clip(z - g)|``: the gradient norm with components blocked by active bounds removed."""
-    return float(np.linalg.norm(z - np.clip(z - g, lo, hi)))
+    """The gradient norm with the components blocked by active bounds removed (TAO's projected
+    gradient). Not ``|z - clip(z - g)|``: that is capped by the box's width, so with a large
+    objective (a tiny noise level) ``grtol |f|`` stopped at the start however large g was."""
+    z, g = np.asarray(z, dtype=float), np.asarray(g, dtype=float)
+    blocked = ((z <= lo) & (g > 0)) | ((z >= hi) & (g < 0))
+    return float(np.linalg.norm(np.where(blocked, 0.0, g)))
 
 
 def _option(prefix: str, name: str, default, kind=float):
