@@ -231,7 +231,8 @@ def run_calibration(experiment, recording_path, *, method: str = "gauss-newton",
     if gradient not in GRADIENTS:
         raise ExperimentError(f"unknown gradient method {gradient!r}; valid: "
                               f"{', '.join(GRADIENTS)}")
-    recording = on_root(comm, read_recording, Path(recording_path))
+    # on_root returns the result on rank 0 only: every rank needs the frames
+    recording = mpi.bcast(on_root(comm, read_recording, Path(recording_path)), root=0)
     names, start, bounds = calibration_parameters(experiment)
     if recording.positions is None:
         raise ExperimentError(f"{recording_path}: the recording has no /frames/position; "
