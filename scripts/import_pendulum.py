@@ -177,7 +177,7 @@ def plot(path: Path, parts: list, envelope: tuple, length: float) -> None:
     ax1.set_ylabel("theta - pi (rad)")
     ax1.legend(loc="upper right", fontsize=8)
     ax1.set_title("Real pendulum (Kaheman et al. 2022): free swing")
-    for label, t, th, colour in parts:
+    for _label, _t, th, colour in parts:
         p = marker_positions(th, length)
         ax2.plot(p[:, 0], p[:, 2], lw=0.3, color=colour)
     ax2.plot([0], [0], "ko")

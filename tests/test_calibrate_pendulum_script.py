@@ -13,7 +13,8 @@ import pytest
 from petsc4py import PETSc
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT / "scripts" / "data" / "pendulum-single" / "SinglePendulumDataForParameterEstimation.mat"
+DATA = (ROOT / "scripts" / "data" / "pendulum-single"
+        / "SinglePendulumDataForParameterEstimation.mat")
 
 
 @pytest.mark.skipif(not DATA.exists(), reason="the real pendulum data are not in this checkout")
