@@ -1,6 +1,7 @@
 """Calibrate the real single pendulum and predict its validation segments (issue 5).
 
-Run (serial; about 3-6 minutes on a quiet 2-core machine with the defaults)::
+Run (serial; about 4 minutes with the defaults on a loaded 2-core machine, of which the
+calibration is 2.5; 7 minutes with --step 0.0025)::
 
     .venv/bin/python scripts/calibrate_pendulum.py [--out out/pendulum-cal] [--span 6]
         [--step 0.005] [--every 10] [--val-span 9.16] [--no-halving]
