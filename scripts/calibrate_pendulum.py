@@ -16,7 +16,7 @@ What it does
    ``petsoft calibrate``'s driver (Gauss-Newton, adjoint/sensitivity gradients) on the first
    ``--span`` seconds of identification segment ``id0`` (released at 1.6 rad), with forward step
    ``--step`` and frames every ``--every`` ms of data (default: 6 s, h = 5 ms, 100 Hz frames:
-   about a minute per calibration). Results of the driver go to ``OUT/id/``.
+   2.5 minutes per calibration on a loaded machine). Results of the driver go to ``OUT/id/``.
 3. From angle data alone only g/L and the damping rate are identifiable (the mass cancels and
    only the ratio of gravity to length sets the period), so it reports g/L, L for g = 9.81,
    g for L = 0.1528 and the friction coefficient k = damping.mass * M L^2 next to the published
