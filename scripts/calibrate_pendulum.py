@@ -293,7 +293,8 @@ def _report(s: dict, say) -> None:
     say(f"{'quantity':<30} {'calibrated':>14} {'(1 sd)':>10} {'published':>12}")
     rows = [("g/L (1/s^2)", d["g_over_L"], d["g_over_L_std"], p["g_over_L"]),
             ("L for g = 9.81 (m)", d["L_for_g_9.81"], None, p["L_equivalent"]),
-            ("g for L = 0.1528 (m/s^2)", d["g_for_L_0.1528"], None, p["g"]),
+            ("g for L = 0.1528 (m/s^2)", d["g_for_L_0.1528"], None,
+             p["g"] * LENGTH / p["L_equivalent"]),
             ("damping.mass (1/s)", d["damping_rate_1_per_s"], s["std"]["damping.mass"],
              p["damping.mass"]),
             ("friction k (N m s)", d["friction_k_Nms"], d["friction_k_std"], p["friction_k_Nms"])]
