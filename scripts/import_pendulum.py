@@ -21,7 +21,8 @@ Conversion
 * Recordings: ``identification.h5`` (the 4 identification segments, 0 to 36.67 s) and
   ``validation.h5`` (the 2 validation segments; times shifted to start at 0, the offset kept in
   the root attribute ``time_offset``), or with ``--per-segment`` one file per segment
-  (``id0.h5`` ... ``val1.h5``, each starting at 0). Each has one marker, ``bob``, whose
+  (``id0.h5`` ... ``val1.h5``, each starting at 0, with experiments ``pendulum_id0.toml`` ...
+  ``pendulum_val1.toml``). Each has one marker, ``bob``, whose
   reference position is the rest position (0, 0, -L), and ``/noise position_std``.
 * Noise: the angle's noise is estimated from the high-pass residual of a Savitzky-Golay filter
   (cubic, 21 samples = 21 ms) on the 1 kHz data, corrected for the filter's own gain
@@ -176,7 +177,7 @@ def plot(path: Path, parts: list, envelope: tuple, length: float) -> None:
     ax1.set_ylabel("theta - pi (rad)")
     ax1.legend(loc="upper right", fontsize=8)
     ax1.set_title("Real pendulum (Kaheman et al. 2022): free swing")
-    for label, t, th, colour in parts:
+    for _label, _t, th, colour in parts:
         p = marker_positions(th, length)
         ax2.plot(p[:, 0], p[:, 2], lw=0.3, color=colour)
     ax2.plot([0], [0], "ko")
@@ -241,7 +242,9 @@ def main(argv=None) -> int:
                              f"{args.every} samples); Kaheman et al. 2022, MIT licence",
                    "time_offset": offset, "length": L},
             noise={"position_std": L * sigma})
-        short = "id" if name.startswith("id") else ("val" if name == "validation" else name)
+        # per segment: pendulum_id0.toml ... (each with its own segment's initial state; "id"
+        # for all four overwrote id0..id2 with id3's)
+        short = {"identification": "id", "validation": "val"}.get(name, name)
         toml = out / f"pendulum_{short}.toml"
         write_experiment(toml, "pendulum.msh", L, eq["point_mass"], round(float(t[-1] - offset), 9),
                          round(dt * args.every, 12), float(th[0]), float(om[0]), rec.name)

@@ -164,9 +164,27 @@ def build_forward(experiment, names, recording, frame_times, comm, integrator=No
         return MarkerObserver(system, recording.reference, recording.names,
                               source=str(recording.source))
 
+    comm = _petsc_comm(comm)
+    system = mass_spring_system(experiment, comm) if experiment.is_mass_spring else None
     # the experiment's [petsc] solver choice also for the forward model's own solvers
-    return ForwardModel(experiment, names, observer, frame_times, comm=_petsc_comm(comm),
-                        integrator=integrator, solver_options=experiment.petsc)
+    return ForwardModel(experiment, names, observer, frame_times, comm=comm,
+                        integrator=integrator, system=system, solver_options=experiment.petsc)
+
+
+def mass_spring_system(experiment, comm):
+    """The MassSpringSystem of a ``[springs]`` experiment, as :class:`ForwardModel` takes it.
+
+    ForwardModel's generic path takes the initial state from ``system.initial_state()``: here
+    ``[initial]`` displacement and velocity expressions, which do not depend on the calibrated
+    parameters (a static initial state is rejected by the mass-spring model builder).
+    """
+    from ..dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
+    from ..dynamics.simulate import initial_state
+
+    model = build_mass_spring_model(experiment, comm)
+    system = MassSpringSystem(model, experiment.damping.mass, experiment.damping.stiffness)
+    system.initial_state = lambda: initial_state(model, system, experiment)
+    return system
 
 
 def run_calibration(experiment, recording_path, *, method: str = "gauss-newton",
@@ -214,7 +232,7 @@ def run_calibration(experiment, recording_path, *, method: str = "gauss-newton",
     if gradient not in GRADIENTS:
         raise ExperimentError(f"unknown gradient method {gradient!r}; valid: "
                               f"{', '.join(GRADIENTS)}")
-    # read and validated once; every rank needs the data
+    # on_root returns the result on rank 0 only: every rank needs the frames
     recording = mpi.bcast(on_root(comm, read_recording, Path(recording_path)), root=0)
     names, start, bounds = calibration_parameters(experiment)
     if recording.positions is None:
