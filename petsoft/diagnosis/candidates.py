@@ -141,6 +141,14 @@ def _cells_in(centroids: np.ndarray, region: dict) -> int:
     return int((np.sum((centroids - c) ** 2, axis=1) < float(region["radius"]) ** 2).sum())
 
 
+def _grow_to_cell(centroids: np.ndarray, region: dict) -> dict:
+    """The sphere widened to hold at least the cell nearest its centre: marker-based regions sit
+    on the surface, and a radius of one marker spacing can miss every cell centroid."""
+    c = np.asarray(region["center"], dtype=float)
+    nearest = float(np.sqrt(np.min(np.sum((centroids - c) ** 2, axis=1))))
+    return {**region, "radius": max(float(region["radius"]), 1.01 * nearest)}
+
+
 def build_candidates(experiment, *, evidence_region: dict | None = None,
                      stiffness_region: dict | None = None,
                      centroids: np.ndarray | None = None) -> tuple[list[Candidate], dict]:
@@ -194,6 +202,8 @@ def build_candidates(experiment, *, evidence_region: dict | None = None,
             skipped[physics] = ("no region to place it: the residual is not localised and no "
                                 "sensitivity map was computed")
             continue
+        if centroids is not None and _cells_in(centroids, where_from) == 0:
+            where_from = _grow_to_cell(centroids, where_from)
         if centroids is not None and _cells_in(centroids, where_from) == 0:
             skipped[physics] = (f"the located sphere (centre {where_from['center']}, radius "
                                 f"{where_from['radius']:.3g}) holds no cell")

@@ -123,6 +123,14 @@ def _rms(sim, data) -> float | None:
     return float(np.sqrt(np.mean((sim[seen] - data[seen]) ** 2)))
 
 
+def _fmt(x) -> str:
+    return "-" if x is None else f"{x:.4g}"
+
+
+def _values(names, values) -> str:
+    return ", ".join(f"{n}={v:.6g}" for n, v in zip(names, values, strict=True))
+
+
 def _cell_geometry(mesh) -> tuple[np.ndarray, np.ndarray]:
     """(centroids (E, 3), volumes (E,)) of the whole mesh."""
     p = mesh.points[mesh.tets]
@@ -134,7 +142,7 @@ class _Diagnosis:
     """State shared by the steps (recording split, noise, communicator, options)."""
 
     def __init__(self, experiment, recording_path, *, fraction, alpha, method, gradient,
-                 integrator, comm, say):
+                 integrator, noise, comm, say):
         from ..model import on_root
         from ..recording import read_recording
         from .noise import NoiseError, noise_summary
@@ -142,6 +150,7 @@ class _Diagnosis:
         self.comm = _petsc_comm(comm)
         self.rank0 = self.comm.tompi4py().rank == 0
         self.say = say
+        self.t0 = time.perf_counter()
         self.path = Path(recording_path)
         self.method, self.gradient, self.integrator = method, gradient, integrator
         self.alpha = float(alpha)
@@ -162,8 +171,9 @@ class _Diagnosis:
                                 "= [1e4, 1e8]")
         keep = rec.times <= experiment.time.end * (1 + 1e-12)
         if rec.times[0] < -1e-12 or keep.sum() < 4:
-            raise DiagnoseError(f"{self.path}: need at least 4 frames in [0, {experiment.time.end:g}]"
-                                f" s ([time] end of {experiment.source}); the recording has "
+            raise DiagnoseError(f"{self.path}: need at least 4 frames in [0, "
+                                f"{experiment.time.end:g}] s ([time] end of {experiment.source}); "
+                                f"the recording has "
                                 f"{int(keep.sum())} (first at t = {rec.times[0]:g} s)")
         self.times = rec.times[keep]
         self.data = rec.positions[keep]
@@ -180,6 +190,10 @@ class _Diagnosis:
         if rec.noise and rec.noise.get("position_std"):
             self.sigma = float(rec.noise["position_std"])
             self.sigma_source = "given by the recording"
+        elif noise is not None:
+            if not (np.isfinite(noise) and noise > 0):
+                raise DiagnoseError(f"--noise = {noise}: the position noise std (m) must be > 0")
+            self.sigma, self.sigma_source = float(noise), "given (--noise)"
         else:
             try:
                 s = noise_summary(self.data, self.times)
@@ -191,7 +205,7 @@ class _Diagnosis:
 
     def tell(self, line: str) -> None:
         if self.say is not None and self.rank0:
-            self.say(line)
+            self.say(f"[{time.perf_counter() - self.t0:7.1f} s] {line}")
 
     # -- fitting ----------------------------------------------------------------------------
     def calibrate(self, experiment) -> Fit:
@@ -314,7 +328,8 @@ def numerics_check(diag: _Diagnosis, fit: Fit) -> dict:
 def run_diagnose(experiment, recording_path, *, out: Path | None = None, fraction: float = 0.7,
                  alpha: float = 0.01, max_additions: int = 3, max_tries: int = 3,
                  method: str = "gauss-newton", gradient: str = "sensitivity",
-                 integrator: str | None = None, numerics: bool = True, comm=None,
+                 integrator: str | None = None, noise: float | None = None,
+                 numerics: bool = True, comm=None,
                  say=None) -> DiagnoseResult:
     """Diagnose ``experiment`` against a recording (module docstring). All ranks call.
 
@@ -333,6 +348,8 @@ def run_diagnose(experiment, recording_path, *, out: Path | None = None, fractio
         At most this many terms are added.
     max_tries : int
         At most this many significant candidates are re-calibrated per round.
+    noise : float, optional
+        Position noise std (m) when the recording has no ``/noise`` (else estimated from it).
     method, gradient, integrator
         Calibration options (:func:`~petsoft.calibration.calibrate.run_calibration`).
     numerics : bool
@@ -344,14 +361,15 @@ def run_diagnose(experiment, recording_path, *, out: Path | None = None, fractio
 
     t0 = time.perf_counter()
     diag = _Diagnosis(experiment, recording_path, fraction=fraction, alpha=alpha, method=method,
-                      gradient=gradient, integrator=integrator, comm=comm, say=say)
+                      gradient=gradient, integrator=integrator, noise=noise, comm=comm,
+                      say=say)
     diag.tell(f"petsoft diagnose: {len(diag.times)} frames, identification t <= {diag.cut:.4g} s "
               f"({int(diag.ident.sum())} frames), held out {int(diag.held.sum())}; noise "
               f"{diag.sigma:.3g} m ({diag.sigma_source})")
     base = diag.calibrate(experiment)
-    diag.tell(f"base fit: {', '.join(f'{n}={v:.6g}' for n, v in zip(base.names, base.values, strict=True))}"
-              f"; chi2/dof {base.chi2 / max(np.isfinite(diag.data[diag.ident]).sum() - len(base.names), 1):.4g}"
-              f", held-out rms {base.heldout_rms if base.heldout_rms is not None else float('nan'):.4g} m")
+    dof = max(int(np.isfinite(diag.data[diag.ident]).sum()) - len(base.names), 1)
+    diag.tell(f"base fit: {_values(base.names, base.values)}; chi2/dof {base.chi2 / dof:.4g}, "
+              f"held-out rms {_fmt(base.heldout_rms)} m")
     ev = base_ev = _evidence(diag, base)
     diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g}, "
               f"whiteness p {ev['noise_test'].whiteness_p_value:.3g})")
@@ -395,8 +413,8 @@ def run_diagnose(experiment, recording_path, *, out: Path | None = None, fractio
             better = (new.heldout_rms is None or current.heldout_rms is None
                       or new.heldout_rms < current.heldout_rms)
             diag.tell(f"  try {c.physics}: LR {lr:.4g} (p {p_lr:.3g}), held-out rms "
-                      f"{current.heldout_rms or float('nan'):.4g} -> {new.heldout_rms or float('nan'):.4g}"
-                      f" m: {'added' if p_lr < diag.alpha and better else 'rejected'}")
+                      f"{_fmt(current.heldout_rms)} -> {_fmt(new.heldout_rms)} m: "
+                      f"{'added' if p_lr < diag.alpha and better else 'rejected'}")
             if p_lr < diag.alpha and better:
                 idx = [new.names.index(n) for n in c.parameters]
                 added.append({"physics": c.physics,
@@ -409,8 +427,8 @@ def run_diagnose(experiment, recording_path, *, out: Path | None = None, fractio
                               "evidence": (f"score test S = {s['score']:.4g} (p = "
                                            f"{s['p_value']:.3g}); likelihood ratio {lr:.4g} "
                                            f"(p = {p_lr:.3g}); held-out rms "
-                                           f"{current.heldout_rms or 0:.4g} -> "
-                                           f"{new.heldout_rms or 0:.4g} m"
+                                           f"{_fmt(current.heldout_rms)} -> "
+                                           f"{_fmt(new.heldout_rms)} m"
                                            + (f"; region {c.region}" if c.region else "")),
                               "region": c.region})
                 current = new
@@ -421,8 +439,8 @@ def run_diagnose(experiment, recording_path, *, out: Path | None = None, fractio
                     why.append(f"no significant improvement (likelihood ratio {lr:.3g}, p = "
                                f"{p_lr:.3g})")
                 if not better:
-                    why.append(f"held-out rms did not improve ({current.heldout_rms:.4g} -> "
-                               f"{new.heldout_rms:.4g} m)")
+                    why.append(f"held-out rms did not improve ({_fmt(current.heldout_rms)} -> "
+                               f"{_fmt(new.heldout_rms)} m)")
                 rejected.append({"physics": c.physics, "score": s["score"],
                                  "reason": "; ".join(why)})
         if not accepted:
@@ -442,8 +460,9 @@ def run_diagnose(experiment, recording_path, *, out: Path | None = None, fractio
             f"{k}: residual change {v['change']:.3g} m ({v['change_over_noise']:.3g} x noise)"
             for k, v in num.items() if isinstance(v, dict)))
     report = _build_report(diag, base, current, base_ev, ev, added, rejected)
-    result = DiagnoseResult(verdict=base_ev["verdict"], final_verdict=ev["verdict"], report=report, base=base, final=current,
-                            added=added, rejected=rejected, scores=all_scores,
+    result = DiagnoseResult(verdict=base_ev["verdict"], final_verdict=ev["verdict"],
+                            report=report, base=base, final=current, added=added,
+                            rejected=rejected, scores=all_scores,
                             not_modelled=not_modelled, numerics=num, evidence=ev)
     if out is not None:
         write_outputs(Path(out), diag, result, base_ev, time.perf_counter() - t0)
