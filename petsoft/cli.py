@@ -79,9 +79,11 @@ def _add_simulate_parser(sub) -> None:
     s.add_argument("--out", help="output directory (default: [output] directory)")
     s.add_argument("--integrator", help="override [time] integrator "
                    "(be, si, midpoint, trapezoidal, explicit, ...)")
-    s.add_argument("--solver", choices=("snes", "tao"), default="snes",
+    s.add_argument("--solver", choices=("snes", "tao", "local-global"), default="snes",
                    help="Newton on the step equations, or (be) minimise the incremental "
-                        "potential with TAO")
+                        "potential with TAO, or (be, mass-spring models) the local/global "
+                        "iteration of Liu et al. 2013 (options -lg_rtol, -lg_max_it, "
+                        "-lg_anderson, -lg_ksp_type...)")
     s.add_argument("--explicit-scheme", choices=("verlet", "euler"), default="verlet",
                    help="explicit integrator: velocity Verlet or symplectic Euler")
     s.add_argument("--recording", help="recording (HDF5) whose /inputs drive `series` supports")

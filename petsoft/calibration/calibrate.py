@@ -155,10 +155,30 @@ def _petsc_comm(comm):
     return comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm)
 
 
+def forward_solver_defaults(experiment) -> None:
+    """The experiment's ``[petsc]`` solver options also for the forward model's solvers.
+
+    The forward run's Newton (prefix ``fm_``) and its gradient solves (``fm_grad_``) have their
+    own prefixes; an experiment that chose, say, a direct solver wants it there too. Options the
+    user gave with those prefixes win.
+    """
+    from ..options import set_default_option
+    from .forward import GRAD_PREFIX, PREFIX
+
+    for key, value in experiment.petsc.items():
+        if key.startswith(("ksp_", "pc_", "mat_")):
+            set_default_option(f"{PREFIX}{key}", value)
+            set_default_option(f"{GRAD_PREFIX}{key}", value)
+        elif key.startswith("snes_"):
+            set_default_option(f"{PREFIX}{key}", value)
+
+
 def build_forward(experiment, names, recording, frame_times, comm, integrator=None):
     """The forward model of ``experiment`` observing the recording's markers on ``comm``."""
     from .forward import ForwardModel
     from .observation import MarkerObserver
+
+    forward_solver_defaults(experiment)
 
     def observer(system):
         return MarkerObserver(system, recording.reference, recording.names,
@@ -213,7 +233,8 @@ def run_calibration(experiment, recording_path, *, method: str = "gauss-newton",
     if gradient not in GRADIENTS:
         raise ExperimentError(f"unknown gradient method {gradient!r}; valid: "
                               f"{', '.join(GRADIENTS)}")
-    recording = on_root(comm, read_recording, Path(recording_path))
+    # read and validated once; every rank needs the data
+    recording = mpi.bcast(on_root(comm, read_recording, Path(recording_path)), root=0)
     names, start, bounds = calibration_parameters(experiment)
     if recording.positions is None:
         raise ExperimentError(f"{recording_path}: the recording has no /frames/position; "

@@ -591,13 +591,17 @@ def _levenberg_marquardt(ev: _Evaluator, z0, lo, hi, o, prefix, record) -> Optim
     max_funcs = _option(prefix, "tao_max_funcs", int(o["max_funcs"]), int)
     # relative change of z and f below which a step counts as stagnation (round-off level)
     xtol = _option(prefix, "lm_xtol", 1e-10)
+    # relative decrease of f in an accepted step below which the fit has stagnated: the
+    # gradient is then at the level of the solver tolerances, not of gatol
+    ftol = _option(prefix, "lm_ftol", 1e-10)
     z = z0.copy()
     r, J = ev.residual_jacobian(z)
     f, g = 0.5 * float(r @ r), J.T @ r
     gnorm = projected_gradient_norm(z, g, lo, hi)
     record(0, z, f, gnorm)
     A = J.T @ J
-    mu, nu = 1e-3 * max(float(np.max(np.diag(A))), 1e-300), 2.0
+    # mu is relative to the curvature: the damping matrix is mu diag(J^T J) (Marquardt)
+    mu, nu = 1e-3, 2.0
     reason, it = "DIVERGED_MAXITS", 0
     while True:
         if gnorm <= gatol:
@@ -644,13 +648,13 @@ def _levenberg_marquardt(ev: _Evaluator, z0, lo, hi, o, prefix, record) -> Optim
             it += 1
             gnorm = projected_gradient_norm(z, g, lo, hi)
             record(it, z, f, gnorm, float(np.linalg.norm(step)))
-            if rel <= 1e-14:
+            if rel <= ftol:
                 reason = "CONVERGED_FTOL"
                 break
         else:
             mu *= nu
             nu *= 2.0
-            if mu > 1e16 * max(float(np.max(np.diag(A))), 1e-300):
+            if mu > 1e16:
                 reason = "DIVERGED_LS_FAILURE"
                 break
     return OptimizeResult("gauss-newton", z, z, f, gnorm, it, ev.count, reason,

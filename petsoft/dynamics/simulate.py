@@ -50,6 +50,13 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
                     alpha_radius: float = 0.5, alpha_backend: str = "petsoft",
                     imex_slow_modes: int = 6):
     """The integrator object for a name of ``[time] integrator``."""
+    if solver == "local-global":
+        if name != "be":
+            raise ExperimentError(f"--solver local-global solves backward-Euler steps only "
+                                  f"(integrator be), not {name!r}")
+        from .local_global import LocalGlobalIntegrator
+
+        return LocalGlobalIntegrator(system)
     if name in IMPLICIT_METHODS:
         return ImplicitIntegrator(system, name, solver=solver)
     if name == "explicit":

@@ -1,0 +1,176 @@
+"""`petsoft calibrate` end to end on a tiny bar: recovery, uncertainty, outputs, errors, ranks.
+
+The recordings here are made on the calibration mesh itself (an inverse crime, on purpose: these
+tests check the pipeline, where the answer must then be the truth to the noise level). Recovery
+from refined-mesh data is measured by scripts/demo_calibrate_bar.py.
+"""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from argparse import Namespace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from petsoft.calibration.calibrate import run_calibration
+from petsoft.errors import ExperimentError
+from petsoft.experiment import get_parameter, load_experiment
+from petsoft.synth import run_synth
+
+TRUTH = {"material.youngs_modulus": 1.0e6, "damping.mass": 3.0}
+
+EXPERIMENT = """
+[mesh]
+box = {{ size = [0.2, 0.04, 0.04], cells = [5, 1, 1] }}
+
+[material]
+model = "linear"
+youngs_modulus = {E}
+poisson_ratio = 0.3
+density = 1000.0
+
+[damping]
+mass = {alpha}
+
+[[boundary]]
+kind = "fixed"
+where = "x < 1e-9"
+
+[initial]
+displacement = ["0.002*sin(pi*x/0.4)", "0", "0"]
+
+[time]
+end = 0.03
+step = 0.001
+integrator = "alpha"
+alpha_radius = 0.9
+
+[petsc]
+ksp_type = "preonly"
+pc_type = "lu"
+{calibrate}
+"""
+
+CALIBRATE = """
+[calibrate]
+"material.youngs_modulus" = [1.0e5, 1.0e7]
+"damping.mass" = [0.0, 20.0]
+"""
+
+NOISE = 1e-6
+
+
+def _shared_dir(tmp_path_factory, name):
+    comm = MPI.COMM_WORLD
+    return Path(comm.bcast(str(tmp_path_factory.mktemp(name)) if comm.rank == 0 else None))
+
+
+def _write(path, text):
+    if MPI.COMM_WORLD.rank == 0:
+        path.write_text(text)
+    MPI.COMM_WORLD.Barrier()
+    return path
+
+
+@pytest.fixture(scope="module")
+def case(tmp_path_factory):
+    d = _shared_dir(tmp_path_factory, "calibrate")
+    truth = _write(d / "truth.toml", EXPERIMENT.format(E=TRUTH["material.youngs_modulus"],
+                                                      alpha=TRUTH["damping.mass"], calibrate=""))
+    rec = d / "rec.h5"
+    run_synth(Namespace(experiment=str(truth), out=str(rec), noise=NOISE, markers=6,
+                        markers_file=None, dropout=0.1, refine=1, integrator=None, seed=5))
+    start = _write(d / "start.toml", EXPERIMENT.format(E=1.15e6, alpha=1.0, calibrate=CALIBRATE))
+    return d, rec, start
+
+
+def test_recovers_truth_with_consistent_uncertainty(case):
+    d, rec, start = case
+    exp = load_experiment(start)
+    lines = []
+    res = run_calibration(exp, rec, method="gauss-newton", out=d / "gn", say=lines.append)
+    values = dict(zip(res.names, res.values, strict=True))
+    std = dict(zip(res.names, res.std, strict=True))
+    for name, true in TRUTH.items():
+        # on the calibration mesh the only error is the noise: within 5 standard deviations
+        assert abs(values[name] - true) < 5 * std[name], (name, values[name], std[name])
+        assert 0 < std[name] < 0.01 * true
+    assert res.rms_before > 20 * NOISE
+    assert res.rms_after < 1.5 * NOISE
+    assert abs(res.noise_estimate / NOISE - 1) < 0.2   # the fit's residual is the noise
+    assert res.reason.startswith("CONVERGED")
+    if MPI.COMM_WORLD.rank == 0:
+        assert any(line.lstrip().startswith("it ") for line in lines)   # progress per iteration
+        assert any("material.youngs_modulus" in line and "[1e+05, 1e+07]" in line
+                   for line in lines)                                    # the result table
+        summary = json.loads((d / "gn" / "summary.json").read_text())
+        assert summary["command"] == "calibrate"
+        assert summary["parameters"]["damping.mass"] == pytest.approx(values["damping.mass"])
+        assert summary["rms_after"] < summary["rms_before"]
+        for f in ("trajectories.png", "residuals.png", "calibrated.toml"):
+            assert (d / "gn" / f).stat().st_size > 0
+    MPI.COMM_WORLD.Barrier()
+    calibrated = load_experiment(d / "gn" / "calibrated.toml")
+    assert get_parameter(calibrated, "material.youngs_modulus") == pytest.approx(
+        values["material.youngs_modulus"], rel=1e-12)
+
+
+@pytest.mark.parametrize("method, gradient", [("lbfgs", "adjoint"), ("gauss-newton", "fd")])
+def test_other_methods_and_gradients_agree(case, method, gradient):
+    d, rec, start = case
+    exp = load_experiment(start)
+    ref = run_calibration(exp, rec, method="gauss-newton")
+    res = run_calibration(exp, rec, method=method, gradient=gradient)
+    np.testing.assert_allclose(res.values, ref.values, rtol=2e-4)
+
+
+def test_nothing_to_calibrate_and_frames_before_zero(case, tmp_path_factory):
+    d, rec, start = case
+    exp = load_experiment(d / "truth.toml")
+    with pytest.raises(ExperimentError, match=r"nothing to calibrate.*\[calibrate\]"):
+        run_calibration(exp, rec)
+    from petsoft.recording import read_recording
+    r = read_recording(rec)
+    shifted = _shared_dir(tmp_path_factory, "shifted") / "rec.h5"
+    if MPI.COMM_WORLD.rank == 0:
+        r.times = r.times - 0.005
+        r.write(shifted)
+    MPI.COMM_WORLD.Barrier()
+    with pytest.raises(ExperimentError, match=r"first frame is at t = -0.005 s"):
+        run_calibration(load_experiment(start), shifted)
+
+
+def _env():
+    env = dict(os.environ)
+    env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1", MPLBACKEND="Agg")
+    for k in list(env):  # a child must not inherit this process's MPI singleton state
+        if k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess")):
+            env.pop(k)
+    return env
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
+def test_command_line_one_and_two_ranks_agree(case):
+    d, rec, start = case
+    out = {}
+    for n in (1, 2):
+        cmd = [sys.executable, "-m", "petsoft.cli", "calibrate", str(start), str(rec),
+               "--out", str(d / f"cli{n}")]
+        if n == 2:
+            cmd = [shutil.which("mpiexec") or "mpiexec", "-n", "2"] + cmd
+        run = subprocess.run(cmd, capture_output=True, text=True, env=_env(), timeout=600)
+        assert run.returncode == 0, run.stderr
+        assert "rms position error" in run.stdout
+        out[n] = json.loads((d / f"cli{n}" / "summary.json").read_text())
+    assert out[2]["ranks"] == 2
+    for name in TRUTH:
+        assert out[2]["parameters"][name] == pytest.approx(out[1]["parameters"][name], rel=1e-6)
+    bad = subprocess.run([sys.executable, "-m", "petsoft.cli", "calibrate", str(start),
+                          str(d / "missing.h5")], capture_output=True, text=True, env=_env())
+    assert bad.returncode == 2 and "missing.h5" in bad.stderr and "Traceback" not in bad.stderr
