@@ -8,6 +8,7 @@ model class must give ``consistent`` with nothing added. Under ``mpiexec -n 2`` 
 is also run rank-locally (COMM_SELF) and must agree with the 2-rank run.
 """
 
+import gc
 from argparse import Namespace
 from pathlib import Path
 
@@ -17,8 +18,12 @@ from mpi4py import MPI
 from petsc4py import PETSc
 from scipy import stats
 
-from petsoft.diagnosis.candidates import (NOT_MODELLED, build_candidates, sensitivity_region,
-                                          sphere_condition)
+from petsoft.diagnosis.candidates import (
+    NOT_MODELLED,
+    build_candidates,
+    sensitivity_region,
+    sphere_condition,
+)
 from petsoft.diagnosis.diagnose import DiagnoseError, run_diagnose
 from petsoft.diagnosis.report import PHYSICS, read_report
 from petsoft.diagnosis.score import ScoreError, score_test
@@ -236,6 +241,10 @@ def test_two_ranks_agree_with_one(case):
     if MPI.COMM_WORLD.size != 2:
         pytest.skip("compares a 2-rank run with a rank-local one (run under mpiexec -n 2)")
     world = _damped_result(case)
+    # the world run's PETSc objects are freed on both ranks before the rank-local runs (freeing
+    # a communicator's last object is collective)
+    gc.collect()
+    MPI.COMM_WORLD.Barrier()
     local = run_diagnose(load_experiment(case["user"]), case["damped"], out=None,
                          numerics=False, comm=PETSc.COMM_SELF)
     assert local.verdict == world.verdict and local.final_verdict == world.final_verdict

@@ -29,6 +29,7 @@ data (:func:`petsoft.diagnosis.noise.noise_summary`) before the base fit and kep
 
 from __future__ import annotations
 
+import gc
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -159,7 +160,9 @@ class _Diagnosis:
                                 "of the record must be in (0, 1]")
         if not 0.0 < self.alpha < 1.0:
             raise DiagnoseError(f"--alpha = {alpha}: the significance level must be in (0, 1)")
-        rec = self.recording = on_root(self.comm, read_recording, self.path)
+        # read on rank 0, then every rank gets it (on_root shares only the error)
+        rec = self.recording = self.comm.tompi4py().bcast(
+            on_root(self.comm, read_recording, self.path), root=0)
         if rec.positions is None:
             raise DiagnoseError(f"{self.path}: the recording has no /frames/position; diagnose "
                                 "needs marker positions")
@@ -464,6 +467,11 @@ def run_diagnose(experiment, recording_path, *, out: Path | None = None, fractio
                             report=report, base=base, final=current, added=added,
                             rejected=rejected, scores=all_scores,
                             not_modelled=not_modelled, numerics=num, evidence=ev)
+    # Collect the garbage of this run's PETSc objects on every rank *now*, at the same point:
+    # freeing the last object of a communicator is collective (PETSc's garbage cleanup), and
+    # rank 0's plotting alone would otherwise trigger Python's collector there only (observed:
+    # a 2-rank deadlock in DMPlex creation vs PetscGarbageCleanup).
+    gc.collect()
     if out is not None:
         write_outputs(Path(out), diag, result, base_ev, time.perf_counter() - t0)
         diag.tell(f"wrote {out}/ (report.json, report.md, figures, diagnosed.toml, summary.json)")
