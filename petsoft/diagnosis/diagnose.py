@@ -219,6 +219,7 @@ class _Diagnosis:
         res = run_calibration(ident_exp, self.path, method=self.method, gradient=self.gradient,
                               integrator=self.integrator, noise=self.sigma, comm=self.comm,
                               say=None)
+        gc.collect()                    # every rank, same point (see run_diagnose)
         names, _, _ = calibration_parameters(experiment)
         calibrated = with_parameters(experiment, dict(zip(names, res.values, strict=True)))
         sim = self.simulate(calibrated)
@@ -253,6 +254,7 @@ class _Diagnosis:
             sim, dsim = fm.jacobian(p)
         finally:
             fm.destroy()
+            gc.collect()                # every rank, same point (see run_diagnose)
         data = self.data[self.ident]
         seen = np.isfinite(data)
         r = (sim[seen] - data[seen]) / self.sigma
@@ -328,13 +330,34 @@ def numerics_check(diag: _Diagnosis, fit: Fit) -> dict:
     return out
 
 
-def run_diagnose(experiment, recording_path, *, out: Path | None = None, fraction: float = 0.7,
+def run_diagnose(experiment, recording_path, **kwargs) -> DiagnoseResult:
+    """Diagnose ``experiment`` against a recording (module docstring). All ranks call.
+
+    Python's cyclic garbage collector is paused for the run and run explicitly at the same
+    program points on every rank (after each calibration and score): freeing PETSc objects
+    of a parallel communicator is collective (petsc4py's garbage cleanup, communicator
+    destruction), and an automatic collection triggered on one rank only (rank 0 alone writes
+    files and figures) interleaved those collectives with the solvers' on 2 ranks (seen:
+    ranks stuck in VecCreate_MPI vs VecNorm). See :func:`_run_diagnose` for the parameters.
+    """
+    enabled = gc.isenabled()
+    gc.collect()
+    gc.disable()
+    try:
+        return _run_diagnose(experiment, recording_path, **kwargs)
+    finally:
+        gc.collect()
+        if enabled:
+            gc.enable()
+
+
+def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fraction: float = 0.7,
                  alpha: float = 0.01, max_additions: int = 3, max_tries: int = 3,
                  method: str = "gauss-newton", gradient: str = "sensitivity",
                  integrator: str | None = None, noise: float | None = None,
                  numerics: bool = True, comm=None,
                  say=None) -> DiagnoseResult:
-    """Diagnose ``experiment`` against a recording (module docstring). All ranks call.
+    """The diagnosis of :func:`run_diagnose` (call that: it handles the garbage collector).
 
     Parameters
     ----------
