@@ -324,7 +324,9 @@ def numerics_check(diag: _Diagnosis, fit: Fit) -> dict:
         sim = diag.simulate(e, **kw)
         change = float(np.sqrt(np.mean((sim[seen] - fit.sim[seen]) ** 2)))
         out[label] = {"rms": _rms(sim, diag.data), "change": change,
-                      "change_over_noise": change / diag.sigma}
+                      "change_over_noise": change / diag.sigma,
+                      # below the noise, the refinement cannot move the verdict
+                      "resolved": bool(change < diag.sigma)}
     if exp.mesh.box is None:
         out["mesh x2"] = "not done: only [mesh] box meshes are refined by diagnose yet"
     return out
@@ -551,7 +553,10 @@ def write_outputs(out: Path, diag: _Diagnosis, result: DiagnoseResult, base_ev: 
     for k, v in result.numerics.items():
         if isinstance(v, dict):
             notes.append(f"numerics {k}: the simulation changes by {v['change']:.3g} m rms "
-                         f"({v['change_over_noise']:.3g} x the noise)")
+                         f"({v['change_over_noise']:.3g} x the noise)" + (
+                             "" if v["resolved"] else ": more than the noise, so part of the "
+                             "mismatch (and of the fitted parameters) may be discretisation "
+                             "error; refine the model before trusting the diagnosis"))
         elif k != "base_rms_all":
             notes.append(f"numerics {k}: {v}")
     ev = dict(result.evidence or {})
