@@ -106,7 +106,7 @@ def run_case(name: str, folder: Path, comm) -> dict:
     t0 = time.perf_counter()
     res = run_diagnose(load_experiment(d / "user.toml"), d / "rec.h5", out=d / "diagnose")
     wall = time.perf_counter() - t0
-    first = sorted([s for s in res.scores if s["round"] == 1], key=lambda s: s["p_value"])
+    first = sorted([s for s in res.scores if s["round"] == 1], key=lambda s: s["log10_p"])
     ranking = [s["physics"] for s in first]
     rank = ranking.index(physics) + 1 if physics in ranking else None
     loc = None

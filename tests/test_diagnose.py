@@ -122,6 +122,7 @@ def test_score_equals_likelihood_ratio_for_a_linear_model():
     assert s.dof == 2
     assert s.statistic == pytest.approx(lr, rel=1e-9)
     assert s.p_value == pytest.approx(stats.chi2.sf(lr, 2), rel=1e-7)
+    assert 10 ** s.log10_p == pytest.approx(s.p_value, rel=1e-7)
     # invariant to a rescaling of the candidate's parameters
     assert score_test(r, Jb, Jc * [1e6, 1e-4]).statistic == pytest.approx(lr, rel=1e-8)
 
@@ -204,7 +205,7 @@ def test_concealed_mass_damping_is_found(case):
     assert res.final_verdict == "consistent"
     assert [a["physics"] for a in res.added] == ["damping.mass"]
     # the score test ranked it first among the candidates of round 1
-    first = sorted(res.scores, key=lambda s: s["p_value"])[0]
+    first = sorted(res.scores, key=lambda s: s["log10_p"])[0]
     assert first["physics"] == "damping.mass" and first["p_value"] < 1e-6
     alpha = res.added[0]["parameters"]["damping.mass"]
     std = res.added[0]["std"]["damping.mass"]

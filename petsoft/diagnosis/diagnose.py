@@ -266,9 +266,10 @@ class _Diagnosis:
         try:
             s = score_test(r, J[:, ib], J[:, ic])
         except ScoreError as exc:
-            return {**entry, "score": 0.0, "dof": len(ic), "p_value": 1.0, "note": str(exc)}
+            return {**entry, "score": 0.0, "dof": len(ic), "p_value": 1.0, "log10_p": 0.0,
+                    "note": str(exc)}
         return {**entry, "score": s.statistic, "dof": s.dof, "p_value": s.p_value,
-                "gradient": s.gradient.tolist()}
+                "log10_p": s.log10_p, "gradient": s.gradient.tolist()}
 
     def stiffness_map_region(self, fit: Fit) -> dict | None:
         """The sphere where the misfit is most sensitive to the local Young's modulus."""
@@ -419,7 +420,8 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
             diag.tell(f"  score {c.physics:<24} S = {s['score']:10.4g}  dof {s['dof']}  "
                       f"p = {s['p_value']:.3g}")
         all_scores += [s for s, _ in scores]
-        scores.sort(key=lambda sc: (sc[0]["p_value"], -sc[0]["score"]))
+        # by log p (p underflows to 0 for strong candidates of different dof), then S
+        scores.sort(key=lambda sc: (sc[0]["log10_p"], -sc[0]["score"]))
         accepted = False
         tried = 0
         for s, c in scores:

@@ -41,6 +41,8 @@ class ScoreResult:
     dof: int
     p_value: float
     gradient: np.ndarray
+    #: log10 of the p-value (finite where the p-value underflows to 0: ranks strong candidates)
+    log10_p: float = 0.0
 
 
 def score_test(r: np.ndarray, J_base: np.ndarray, J_cand: np.ndarray,
@@ -99,4 +101,5 @@ def score_test(r: np.ndarray, J_base: np.ndarray, J_cand: np.ndarray,
     gs = V[:, keep].T @ (g_perp / scale)
     S = float(np.sum(gs * gs / w[keep]))
     dof = int(keep.sum())
-    return ScoreResult(statistic=S, dof=dof, p_value=float(stats.chi2.sf(S, dof)), gradient=g)
+    return ScoreResult(statistic=S, dof=dof, p_value=float(stats.chi2.sf(S, dof)), gradient=g,
+                       log10_p=float(stats.chi2.logsf(S, dof) / np.log(10.0)))
