@@ -59,6 +59,7 @@ def _parser() -> argparse.ArgumentParser:
     _add_modes_parser(sub)
     _add_damping_parser(sub)
     _add_calibrate_parser(sub)
+    _add_diagnose_parser(sub)
     _add_recording_parsers(sub)
     d = sub.add_parser("demo", help="run the embedded example (no input needed)",
                        description="Solve an embedded neo-Hookean cantilever under gravity and an "
@@ -218,6 +219,37 @@ def _add_calibrate_parser(sub) -> None:
     c.add_argument("--regularization", type=float, default=0.0, metavar="LAMBDA",
                    help="Tikhonov weight on the scaled parameters' distance from the start")
     c.add_argument("--out", help="output directory (default: [output] directory)")
+
+
+def _add_diagnose_parser(sub) -> None:
+    c = sub.add_parser(
+        "diagnose", help="calibrate, test the residual against the noise, add missing physics",
+        description="Calibrate the experiment's [calibrate] parameters on the first --fraction "
+                    "of the recording, test whether the residual is noise (chi-square + "
+                    "whiteness), and if not rank the candidate physics by a score test, add the "
+                    "best, re-calibrate and keep it when the likelihood ratio is significant and "
+                    "the held-out rms improves (repeat). Checks the final model with the step "
+                    "halved and a box mesh refined. Writes report.json, report.md, figures, "
+                    "diagnosed.toml (the calibrated extended experiment) and summary.json.")
+    c.add_argument("experiment", help="experiment file (TOML) with [time] and [calibrate]")
+    c.add_argument("recording", help="recording (HDF5, formats spec section 2)")
+    c.add_argument("--out", help="output directory (default: [output] directory)")
+    c.add_argument("--fraction", type=float, default=0.7,
+                   help="share of the record's span used to identify parameters; the rest is "
+                        "held out for prediction (default %(default)s)")
+    c.add_argument("--alpha", type=float, default=0.01,
+                   help="significance level of all tests (default %(default)s)")
+    c.add_argument("--max-additions", type=_positive_int, default=3,
+                   help="at most this many physics terms are added (default %(default)s)")
+    c.add_argument("--method", default="gauss-newton",
+                   choices=("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead"),
+                   help="optimizer of every calibration (default %(default)s)")
+    c.add_argument("--integrator", choices=("be", "si", "alpha"),
+                   help="override [time] integrator for the forward model")
+    c.add_argument("--noise", type=float, help="position noise std (m) when the recording "
+                                                "has no /noise (default: estimated from it)")
+    c.add_argument("--no-numerics", action="store_true",
+                   help="skip the step/mesh refinement check")
 
 
 def _static_options(s) -> None:

@@ -70,6 +70,17 @@ def run(args) -> int:
                         regularization=args.regularization, noise=args.noise, out=out,
                         say=_print)
         return 0
+    if args.command == "diagnose":
+        from .diagnosis.diagnose import run_diagnose
+
+        experiment = load_experiment(args.experiment)
+        apply_experiment_options(experiment.petsc)
+        out = Path(args.out) if args.out else experiment.output.directory
+        run_diagnose(experiment, args.recording, out=out, fraction=args.fraction,
+                     alpha=args.alpha, max_additions=args.max_additions, method=args.method,
+                     integrator=args.integrator, noise=args.noise,
+                     numerics=not args.no_numerics, say=_print)
+        return 0
     if args.command == "demo":
         experiment = experiment_from_dict(DEMO_EXPERIMENT, source="<embedded demo>")
         out = Path(args.out)

@@ -117,8 +117,7 @@ def run_synth(args) -> int:
     """`petsoft synth EXPERIMENT.toml --out RECORDING.h5 ...` (all ranks call)."""
     from .calibration.observation import time_interpolation
     from .dynamics.simulate import Simulation
-    from .experiment import (experiment_from_dict, get_parameter, load_experiment,
-                             parameter_names)
+    from .experiment import experiment_from_dict, get_parameter, load_experiment, parameter_names
     from .model import build_model, load_mesh
     from .options import apply_experiment_options
     from .recording import write_recording

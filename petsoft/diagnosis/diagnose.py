@@ -1,0 +1,586 @@
+"""`petsoft diagnose`: calibrate the user's model, test the residual, add missing physics.
+
+The loop (issue 6, first increment):
+
+1. **Base fit.** The recording is split in time: the frames up to ``fraction`` (70 %) of its span
+   identify the parameters, the rest is held out for prediction. The user's ``[calibrate]``
+   parameters are fitted on the identification window (:func:`run_calibration`).
+2. **Verdict.** :func:`~petsoft.diagnosis.evidence.collect_evidence` on the identification
+   window: chi-square level and whiteness of the noise-scaled residual; the mismatch's markers,
+   region, time windows and frequencies.
+3. **Candidates.** If the verdict is not ``consistent``, every modelled candidate
+   (:mod:`petsoft.diagnosis.candidates`) is scored at the base fit by the efficient score test
+   (:mod:`petsoft.diagnosis.score`) from forward sensitivities of the base and the candidate's
+   parameters (candidate at its zero value). Spatial candidates are placed with the adjoint
+   per-cell Young's-modulus sensitivity map.
+4. **Model it.** Candidates with a significant score are tried in the order of their p-value
+   (then S): the extended model is re-calibrated (all parameters), and kept only if the
+   likelihood-ratio statistic chi2_old - chi2_new is significant (chi-square with k dof at
+   ``alpha``) **and** the held-out rms improves. Repeat (at most ``max_additions``) until the
+   verdict is consistent or nothing is accepted.
+5. **Numerics.** The final model is simulated with the step halved (and, for a ``[mesh] box``,
+   with the cells doubled per axis); the change of the residual is reported in units of the noise.
+6. **Report.** report.json (formats.md section 3), report.md, figures, the calibrated extended
+   experiment (``diagnosed.toml``) and summary.json.
+
+Noise: the recording's ``/noise position_std`` when present; otherwise it is estimated from the
+data (:func:`petsoft.diagnosis.noise.noise_summary`) before the base fit and kept fixed.
+"""
+
+from __future__ import annotations
+
+import gc
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from petsc4py import PETSc
+from scipy import stats
+
+from ..errors import ExperimentError, PetsoftError
+from ..experiment import experiment_from_dict, get_parameter, with_parameters
+
+
+class DiagnoseError(PetsoftError):
+    """``petsoft diagnose`` cannot run on these inputs; the message says what and where."""
+
+
+@dataclass
+class Fit:
+    """One calibrated model: experiment (calibrated values set), its parameter names/values/std,
+    chi2 and rms on the identification window, rms on the held-out window, simulations."""
+
+    experiment: object
+    names: list[str]
+    values: np.ndarray
+    std: np.ndarray
+    chi2: float
+    rms: float
+    heldout_rms: float | None
+    sim: np.ndarray
+    iterations: int = 0
+    evaluations: int = 0
+
+
+@dataclass
+class DiagnoseResult:
+    """What ``petsoft diagnose`` found (identical on every rank)."""
+
+    verdict: str
+    final_verdict: str
+    report: dict
+    base: Fit
+    final: Fit
+    added: list[dict] = field(default_factory=list)
+    rejected: list[dict] = field(default_factory=list)
+    scores: list[dict] = field(default_factory=list)
+    not_modelled: dict = field(default_factory=dict)
+    numerics: dict = field(default_factory=dict)
+    evidence: dict | None = None
+
+
+def _petsc_comm(comm):
+    if comm is None:
+        return PETSc.COMM_WORLD
+    return comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm)
+
+
+def _with_time(experiment, end: float | None = None, step: float | None = None,
+               cells_factor: int = 1):
+    """A copy with ``[time] end``/``step`` replaced and a box mesh's cells multiplied."""
+    data = experiment.to_dict()
+    if end is not None:
+        data["time"]["end"] = float(end)
+    if step is not None:
+        data["time"]["step"] = float(step)
+    if cells_factor != 1:
+        data["mesh"]["box"]["cells"] = [cells_factor * c for c in experiment.mesh.box.cells]
+    return experiment_from_dict(data, source=experiment.source, base_dir=experiment.base_dir,
+                                path=experiment.path)
+
+
+def _forward(experiment, names, recording, times, comm, integrator=None, h=None):
+    from ..calibration.forward import ForwardModel
+    from ..calibration.observation import MarkerObserver
+
+    def observer(system):
+        return MarkerObserver(system, recording.reference, recording.names,
+                              source=str(recording.source))
+
+    return ForwardModel(experiment, names, observer, times, comm=comm, integrator=integrator,
+                        h=h)
+
+
+def _chi2(sim, data, sigma) -> float:
+    seen = np.isfinite(data)
+    return float(np.sum(((sim[seen] - data[seen]) / sigma) ** 2))
+
+
+def _rms(sim, data) -> float | None:
+    seen = np.isfinite(data)
+    if not seen.any():
+        return None
+    return float(np.sqrt(np.mean((sim[seen] - data[seen]) ** 2)))
+
+
+def _fmt(x) -> str:
+    return "-" if x is None else f"{x:.4g}"
+
+
+def _values(names, values) -> str:
+    return ", ".join(f"{n}={v:.6g}" for n, v in zip(names, values, strict=True))
+
+
+def _cell_geometry(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """(centroids (E, 3), volumes (E,)) of the whole mesh."""
+    p = mesh.points[mesh.tets]
+    vol = np.abs(np.linalg.det(p[:, 1:] - p[:, :1])) / 6.0
+    return p.mean(axis=1), vol
+
+
+class _Diagnosis:
+    """State shared by the steps (recording split, noise, communicator, options)."""
+
+    def __init__(self, experiment, recording_path, *, fraction, alpha, method, gradient,
+                 integrator, noise, comm, say):
+        from ..model import on_root
+        from ..recording import read_recording
+        from .noise import NoiseError, noise_summary
+
+        self.comm = _petsc_comm(comm)
+        self.rank0 = self.comm.tompi4py().rank == 0
+        self.say = say
+        self.t0 = time.perf_counter()
+        self.path = Path(recording_path)
+        self.method, self.gradient, self.integrator = method, gradient, integrator
+        self.alpha = float(alpha)
+        if not 0.0 < fraction <= 1.0:
+            raise DiagnoseError(f"--fraction = {fraction}: the identification window's share "
+                                "of the record must be in (0, 1]")
+        if not 0.0 < self.alpha < 1.0:
+            raise DiagnoseError(f"--alpha = {alpha}: the significance level must be in (0, 1)")
+        # read on rank 0, then every rank gets it (on_root shares only the error)
+        rec = self.recording = self.comm.tompi4py().bcast(
+            on_root(self.comm, read_recording, self.path), root=0)
+        if rec.positions is None:
+            raise DiagnoseError(f"{self.path}: the recording has no /frames/position; diagnose "
+                                "needs marker positions")
+        if experiment.time is None:
+            raise DiagnoseError(f"{experiment.source}: [time] (end, step) is needed")
+        if not experiment.calibrate:
+            raise DiagnoseError(f"{experiment.source}: diagnose calibrates the model as given "
+                                'first: add a [calibrate] table, e.g. "material.youngs_modulus" '
+                                "= [1e4, 1e8]")
+        keep = rec.times <= experiment.time.end * (1 + 1e-12)
+        if rec.times[0] < -1e-12 or keep.sum() < 4:
+            raise DiagnoseError(f"{self.path}: need at least 4 frames in [0, "
+                                f"{experiment.time.end:g}] s ([time] end of {experiment.source}); "
+                                f"the recording has "
+                                f"{int(keep.sum())} (first at t = {rec.times[0]:g} s)")
+        self.times = rec.times[keep]
+        self.data = rec.positions[keep]
+        span = self.times[-1]
+        self.cut = float(fraction * span)
+        ident = self.times <= self.cut * (1 + 1e-12)
+        if ident.sum() < 4:
+            raise DiagnoseError(f"--fraction = {fraction}: the identification window [0, "
+                                f"{self.cut:g}] s holds {int(ident.sum())} frames; at least 4 "
+                                "are needed")
+        self.ident = ident
+        self.held = ~ident
+        self.base_experiment = experiment
+        if rec.noise and rec.noise.get("position_std"):
+            self.sigma = float(rec.noise["position_std"])
+            self.sigma_source = "given by the recording"
+        elif noise is not None:
+            if not (np.isfinite(noise) and noise > 0):
+                raise DiagnoseError(f"--noise = {noise}: the position noise std (m) must be > 0")
+            self.sigma, self.sigma_source = float(noise), "given (--noise)"
+        else:
+            try:
+                s = noise_summary(self.data, self.times)
+            except NoiseError as exc:
+                raise DiagnoseError(f"{self.path}: the recording has no /noise and {exc}; give "
+                                    "the noise with --noise") from exc
+            self.sigma = float(s["std_mad"] if s["gaussian"] else s["std_rms"])
+            self.sigma_source = "estimated from the data"
+
+    def tell(self, line: str) -> None:
+        if self.say is not None and self.rank0:
+            self.say(f"[{time.perf_counter() - self.t0:7.1f} s] {line}")
+
+    # -- fitting ----------------------------------------------------------------------------
+    def calibrate(self, experiment) -> Fit:
+        """Calibrate ``experiment`` on the identification window; predict the held-out one."""
+        from ..calibration.calibrate import calibration_parameters, run_calibration
+
+        ident_exp = _with_time(experiment, end=self.cut)
+        res = run_calibration(ident_exp, self.path, method=self.method, gradient=self.gradient,
+                              integrator=self.integrator, noise=self.sigma, comm=self.comm,
+                              say=None)
+        gc.collect()                    # every rank, same point (see run_diagnose)
+        names, _, _ = calibration_parameters(experiment)
+        calibrated = with_parameters(experiment, dict(zip(names, res.values, strict=True)))
+        sim = self.simulate(calibrated)
+        return Fit(experiment=calibrated, names=names, values=np.asarray(res.values),
+                   std=np.asarray(res.std), chi2=_chi2(sim[self.ident], self.data[self.ident],
+                                                        self.sigma),
+                   rms=_rms(sim[self.ident], self.data[self.ident]) or 0.0,
+                   heldout_rms=_rms(sim[self.held], self.data[self.held]) if self.held.any()
+                   else None, sim=sim, iterations=res.iterations, evaluations=res.evaluations)
+
+    def simulate(self, experiment, h=None) -> np.ndarray:
+        """Marker positions of ``experiment`` at every frame of the record."""
+        names = list(experiment.calibrate)
+        p = np.array([get_parameter(experiment, n) for n in names])
+        fm = _forward(experiment, names, self.recording, self.times, self.comm,
+                      self.integrator, h=h)
+        try:
+            return fm.simulate(p)
+        finally:
+            fm.destroy()
+
+    def score(self, fit: Fit, candidate) -> dict:
+        """Score test of ``candidate`` at ``fit`` (identification window)."""
+        from .score import ScoreError, score_test
+
+        ext = candidate.extend(fit.experiment)
+        names = list(ext.calibrate)
+        p = np.array([get_parameter(ext, n) for n in names])
+        fm = _forward(ext, names, self.recording, self.times[self.ident], self.comm,
+                      self.integrator)
+        try:
+            sim, dsim = fm.jacobian(p)
+        finally:
+            fm.destroy()
+            gc.collect()                # every rank, same point (see run_diagnose)
+        data = self.data[self.ident]
+        seen = np.isfinite(data)
+        r = (sim[seen] - data[seen]) / self.sigma
+        J = dsim[seen] / self.sigma
+        ib = [names.index(n) for n in fit.names]
+        ic = [names.index(n) for n in candidate.parameters]
+        entry = {"physics": candidate.physics, "parameters": candidate.parameters,
+                 "region": candidate.region}
+        try:
+            s = score_test(r, J[:, ib], J[:, ic])
+        except ScoreError as exc:
+            return {**entry, "score": 0.0, "dof": len(ic), "p_value": 1.0, "log10_p": 0.0,
+                    "note": str(exc)}
+        return {**entry, "score": s.statistic, "dof": s.dof, "p_value": s.p_value,
+                "log10_p": s.log10_p, "gradient": s.gradient.tolist()}
+
+    def stiffness_map_region(self, fit: Fit) -> dict | None:
+        """The sphere where the misfit is most sensitive to the local Young's modulus."""
+        from .candidates import sensitivity_region
+
+        names = fit.names
+        data = self.data[self.ident]
+        seen = np.isfinite(data)
+        sigma = self.sigma
+        fm = _forward(fit.experiment, names, self.recording, self.times[self.ident], self.comm,
+                      self.integrator)
+
+        def dphi(sim):
+            diff = np.where(seen, sim - np.where(seen, data, 0.0), 0.0) / sigma
+            return 0.5 * float(np.sum(diff * diff)), diff / sigma
+
+        try:
+            _, _, cells = fm.cell_gradient(fit.values, dphi)
+            centroids, volumes = _cell_geometry(fm.system.dmesh.mesh)
+        except ExperimentError:
+            return None
+        finally:
+            fm.destroy()
+        self.centroids = centroids
+        return sensitivity_region(centroids, cells, volumes)
+
+
+def _evidence(diag: _Diagnosis, fit: Fit) -> dict:
+    from .evidence import collect_evidence
+
+    rec = diag.recording
+    return collect_evidence(diag.data[diag.ident], fit.sim[diag.ident], diag.times[diag.ident],
+                            rec.reference, rec.names, sigma=diag.sigma,
+                            num_parameters=len(fit.names), alpha=diag.alpha)
+
+
+def numerics_check(diag: _Diagnosis, fit: Fit) -> dict:
+    """Residual change when the step is halved and (box meshes) the cells are doubled.
+
+    Returns
+    -------
+    dict
+        Per refinement: ``rms`` of the refined model's residual over all frames, ``change`` =
+        rms of (refined - original simulation) over the seen samples, ``change_over_noise``.
+    """
+    out = {"base_rms_all": _rms(fit.sim, diag.data)}
+    exp = fit.experiment
+    checks = [("step/2", dict(h=exp.time.step / 2), exp)]
+    if exp.mesh.box is not None:
+        checks.append(("mesh x2", {}, _with_time(exp, cells_factor=2)))
+    seen = np.isfinite(diag.data)
+    for label, kw, e in checks:
+        sim = diag.simulate(e, **kw)
+        change = float(np.sqrt(np.mean((sim[seen] - fit.sim[seen]) ** 2)))
+        out[label] = {"rms": _rms(sim, diag.data), "change": change,
+                      "change_over_noise": change / diag.sigma,
+                      # below the noise, the refinement cannot move the verdict
+                      "resolved": bool(change < diag.sigma)}
+    if exp.mesh.box is None:
+        out["mesh x2"] = "not done: only [mesh] box meshes are refined by diagnose yet"
+    return out
+
+
+def run_diagnose(experiment, recording_path, **kwargs) -> DiagnoseResult:
+    """Diagnose ``experiment`` against a recording (module docstring). All ranks call.
+
+    Python's cyclic garbage collector is paused for the run and run explicitly at the same
+    program points on every rank (after each calibration and score): freeing PETSc objects
+    of a parallel communicator is collective (petsc4py's garbage cleanup, communicator
+    destruction), and an automatic collection triggered on one rank only (rank 0 alone writes
+    files and figures) interleaved those collectives with the solvers' on 2 ranks (seen:
+    ranks stuck in VecCreate_MPI vs VecNorm). See :func:`_run_diagnose` for the parameters.
+    """
+    enabled = gc.isenabled()
+    gc.collect()
+    gc.disable()
+    try:
+        return _run_diagnose(experiment, recording_path, **kwargs)
+    finally:
+        gc.collect()
+        if enabled:
+            gc.enable()
+
+
+def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fraction: float = 0.7,
+                 alpha: float = 0.01, max_additions: int = 3, max_tries: int = 3,
+                 method: str = "gauss-newton", gradient: str = "sensitivity",
+                 integrator: str | None = None, noise: float | None = None,
+                 numerics: bool = True, comm=None,
+                 say=None) -> DiagnoseResult:
+    """The diagnosis of :func:`run_diagnose` (call that: it handles the garbage collector).
+
+    Parameters
+    ----------
+    experiment : Experiment
+        The user's model, with ``[time]`` and ``[calibrate]``.
+    recording_path : path
+    out : Path, optional
+        Output directory (report.json, report.md, figures, diagnosed.toml, summary.json).
+    fraction : float
+        Share of the record's span used for identification; the rest is held out.
+    alpha : float
+        Significance level of the verdict, the score tests and the likelihood-ratio tests.
+    max_additions : int
+        At most this many terms are added.
+    max_tries : int
+        At most this many significant candidates are re-calibrated per round.
+    noise : float, optional
+        Position noise std (m) when the recording has no ``/noise`` (else estimated from it).
+    method, gradient, integrator
+        Calibration options (:func:`~petsoft.calibration.calibrate.run_calibration`).
+    numerics : bool
+        Run the step/mesh refinement check.
+    say : callable(str), optional
+        Progress lines (rank 0).
+    """
+    from .candidates import build_candidates
+
+    t0 = time.perf_counter()
+    diag = _Diagnosis(experiment, recording_path, fraction=fraction, alpha=alpha, method=method,
+                      gradient=gradient, integrator=integrator, noise=noise, comm=comm,
+                      say=say)
+    diag.tell(f"petsoft diagnose: {len(diag.times)} frames, identification t <= {diag.cut:.4g} s "
+              f"({int(diag.ident.sum())} frames), held out {int(diag.held.sum())}; noise "
+              f"{diag.sigma:.3g} m ({diag.sigma_source})")
+    base = diag.calibrate(experiment)
+    dof = max(int(np.isfinite(diag.data[diag.ident]).sum()) - len(base.names), 1)
+    diag.tell(f"base fit: {_values(base.names, base.values)}; chi2/dof {base.chi2 / dof:.4g}, "
+              f"held-out rms {_fmt(base.heldout_rms)} m")
+    ev = base_ev = _evidence(diag, base)
+    diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g}, "
+              f"whiteness p {ev['noise_test'].whiteness_p_value:.3g})")
+    current = base
+    added: list[dict] = []
+    rejected: list[dict] = []
+    all_scores: list[dict] = []
+    not_modelled: dict = {}
+    while ev["verdict"] != "consistent" and len(added) < max_additions:
+        stiff = diag.stiffness_map_region(current)
+        cands, not_modelled = build_candidates(
+            current.experiment, evidence_region=ev["region"], stiffness_region=stiff,
+            centroids=getattr(diag, "centroids", None))
+        scores = []
+        for c in cands:
+            s = diag.score(current, c)
+            s["round"] = len(added) + 1
+            scores.append((s, c))
+            diag.tell(f"  score {c.physics:<24} S = {s['score']:10.4g}  dof {s['dof']}  "
+                      f"p = {s['p_value']:.3g}")
+        all_scores += [s for s, _ in scores]
+        # by log p (p underflows to 0 for strong candidates of different dof), then S
+        scores.sort(key=lambda sc: (sc[0]["log10_p"], -sc[0]["score"]))
+        accepted = False
+        tried = 0
+        for s, c in scores:
+            if s["p_value"] >= diag.alpha:
+                rejected.append({"physics": c.physics, "score": s["score"],
+                                 "reason": f"score not significant (p = {s['p_value']:.3g})"})
+                continue
+            if tried >= max_tries or accepted:
+                rejected.append({"physics": c.physics, "score": s["score"],
+                                 "reason": "not tried: " + ("a better-scoring candidate was "
+                                                            "added first" if accepted else
+                                                            f"max {max_tries} tries per round")})
+                continue
+            tried += 1
+            new = diag.calibrate(c.extend(current.experiment))
+            lr = current.chi2 - new.chi2
+            k = len(c.parameters)
+            p_lr = float(stats.chi2.sf(max(lr, 0.0), k))
+            better = (new.heldout_rms is None or current.heldout_rms is None
+                      or new.heldout_rms < current.heldout_rms)
+            diag.tell(f"  try {c.physics}: LR {lr:.4g} (p {p_lr:.3g}), held-out rms "
+                      f"{_fmt(current.heldout_rms)} -> {_fmt(new.heldout_rms)} m: "
+                      f"{'added' if p_lr < diag.alpha and better else 'rejected'}")
+            if p_lr < diag.alpha and better:
+                idx = [new.names.index(n) for n in c.parameters]
+                added.append({"physics": c.physics,
+                              "parameters": {n: float(new.values[i]) for n, i in
+                                             zip(c.parameters, idx, strict=True)},
+                              "std": {n: float(new.std[i]) for n, i in
+                                      zip(c.parameters, idx, strict=True)
+                                      if np.isfinite(new.std[i])},
+                              "score": s["score"], "rms_after": new.rms,
+                              "evidence": (f"score test S = {s['score']:.4g} (p = "
+                                           f"{s['p_value']:.3g}); likelihood ratio {lr:.4g} "
+                                           f"(p = {p_lr:.3g}); held-out rms "
+                                           f"{_fmt(current.heldout_rms)} -> "
+                                           f"{_fmt(new.heldout_rms)} m"
+                                           + (f"; region {c.region}" if c.region else "")),
+                              "region": c.region})
+                current = new
+                accepted = True
+            else:
+                why = []
+                if p_lr >= diag.alpha:
+                    why.append(f"no significant improvement (likelihood ratio {lr:.3g}, p = "
+                               f"{p_lr:.3g})")
+                if not better:
+                    why.append(f"held-out rms did not improve ({_fmt(current.heldout_rms)} -> "
+                               f"{_fmt(new.heldout_rms)} m)")
+                rejected.append({"physics": c.physics, "score": s["score"],
+                                 "reason": "; ".join(why)})
+        if not accepted:
+            break
+        ev = _evidence(diag, current)
+        diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
+    # a physics rejected in one round and added in a later one is reported as added only
+    names_added = {a["physics"] for a in added}
+    rejected = [r for r in rejected if r["physics"] not in names_added]
+    seen_r: dict[str, dict] = {}
+    for r in rejected:
+        seen_r.setdefault(r["physics"], r)
+    rejected = list(seen_r.values())
+    num = numerics_check(diag, current) if numerics else {}
+    if num:
+        diag.tell("numerics: " + "; ".join(
+            f"{k}: residual change {v['change']:.3g} m ({v['change_over_noise']:.3g} x noise)"
+            for k, v in num.items() if isinstance(v, dict)))
+    report = _build_report(diag, base, current, base_ev, ev, added, rejected)
+    result = DiagnoseResult(verdict=base_ev["verdict"], final_verdict=ev["verdict"],
+                            report=report, base=base, final=current, added=added,
+                            rejected=rejected, scores=all_scores,
+                            not_modelled=not_modelled, numerics=num, evidence=ev)
+    # Collect the garbage of this run's PETSc objects on every rank *now*, at the same point:
+    # freeing the last object of a communicator is collective (PETSc's garbage cleanup), and
+    # rank 0's plotting alone would otherwise trigger Python's collector there only (observed:
+    # a 2-rank deadlock in DMPlex creation vs PetscGarbageCleanup).
+    gc.collect()
+    if out is not None:
+        write_outputs(Path(out), diag, result, base_ev, time.perf_counter() - t0)
+        diag.tell(f"wrote {out}/ (report.json, report.md, figures, diagnosed.toml, summary.json)")
+    return result
+
+
+def _build_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict, added, rejected) -> dict:
+    from .report import build_report, fit_summary
+
+    d = diag.data[diag.ident]
+    validation = None
+    if base.heldout_rms is not None and final.heldout_rms is not None:
+        validation = {"base_rms": base.heldout_rms, "final_rms": final.heldout_rms}
+    mismatch = base_ev["mismatch"]
+    region = mismatch["region"]
+    spatial = [a["region"] for a in added if a.get("region")]
+    if spatial:
+        region = spatial[0]
+    return build_report(
+        # the verdict is about the user's model: anything missing makes it missing-physics
+        verdict=base_ev["verdict"],
+        noise_std=diag.sigma,
+        base=fit_summary(d, base.sim[diag.ident], diag.sigma, len(base.names)),
+        final=fit_summary(d, final.sim[diag.ident], diag.sigma, len(final.names)),
+        parameters={n: float(v) for n, v in zip(final.names, final.values, strict=True)},
+        validation=validation, markers=mismatch["markers"],
+        time_windows=mismatch["time_windows"], frequencies_hz=mismatch["frequencies_hz"],
+        region=region, added=added, rejected=rejected)
+
+
+def write_outputs(out: Path, diag: _Diagnosis, result: DiagnoseResult, base_ev: dict,
+                  wall_time: float) -> None:
+    """report.json, report.md, figures, diagnosed.toml, summary.json (rank 0 writes)."""
+    from ..experiment import write_toml
+    from ..summary import write_summary
+    from .evidence import write_figures
+    from .report import write_report, write_report_md
+
+    if not diag.rank0:
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    write_report(out / "report.json", result.report)
+    t = diag.times[diag.ident]
+    figs = write_figures(out, base_ev, t, diag.data[diag.ident], result.base.sim[diag.ident],
+                         result.final.sim[diag.ident], result.added, result.rejected)
+    notes = list(result.evidence.get("notes", [])) if result.evidence else []
+    notes.append(f"identification window t <= {diag.cut:.4g} s; held out: "
+                 f"{int(diag.held.sum())} later frames")
+    for s in result.scores:
+        notes.append(f"round {s['round']}: score test {s['physics']}: S = {s['score']:.4g}, "
+                     f"dof {s['dof']}, p = {s['p_value']:.3g}")
+    for k, why in sorted(result.not_modelled.items()):
+        notes.append(f"{k}: not modelled yet / not tried ({why})")
+    for k, v in result.numerics.items():
+        if isinstance(v, dict):
+            notes.append(f"numerics {k}: the simulation changes by {v['change']:.3g} m rms "
+                         f"({v['change_over_noise']:.3g} x the noise)" + (
+                             "" if v["resolved"] else ": more than the noise, so part of the "
+                             "mismatch (and of the fitted parameters) may be discretisation "
+                             "error; refine the model before trusting the diagnosis"))
+        elif k != "base_rms_all":
+            notes.append(f"numerics {k}: {v}")
+    ev = dict(result.evidence or {})
+    ev["notes"] = notes
+    write_report_md(out / "report.md", result.report, ev, [f.name for f in figs])
+    write_toml(result.final.experiment, out / "diagnosed.toml")
+    results = {
+        "recording": str(diag.path), "verdict": result.verdict,
+        "final_verdict": result.final_verdict,
+        "noise_std": diag.sigma, "noise_source": diag.sigma_source,
+        "identification_end": diag.cut,
+        "base": {"parameters": dict(zip(result.base.names, result.base.values.tolist(),
+                                        strict=True)),
+                 "chi2": result.base.chi2, "rms": result.base.rms,
+                 "heldout_rms": result.base.heldout_rms},
+        "final": {"parameters": dict(zip(result.final.names, result.final.values.tolist(),
+                                         strict=True)),
+                  "chi2": result.final.chi2, "rms": result.final.rms,
+                  "heldout_rms": result.final.heldout_rms},
+        "scores": [{k: v for k, v in s.items() if k != "gradient"} for s in result.scores],
+        "not_modelled": result.not_modelled, "numerics": result.numerics,
+        "files": {"report": "report.json", "markdown": "report.md",
+                  "experiment": "diagnosed.toml", "figures": [f.name for f in figs]},
+    }
+    write_summary(out, "diagnose", results, {"simulations": None}, wall_time, diag.comm)
