@@ -6,7 +6,6 @@ from refined-mesh data is measured by scripts/demo_calibrate_bar.py.
 """
 
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -21,6 +20,8 @@ from petsoft.calibration.calibrate import run_calibration
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, load_experiment
 from petsoft.synth import run_synth
+
+from child_process import child_env  # tests/child_process.py
 
 TRUTH = {"material.youngs_modulus": 1.0e6, "damping.mass": 3.0}
 
@@ -145,16 +146,6 @@ def test_nothing_to_calibrate_and_frames_before_zero(case, tmp_path_factory):
         run_calibration(load_experiment(start), shifted)
 
 
-def _env():
-    env = dict(os.environ)
-    env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
-               OMPI_MCA_rmaps_base_oversubscribe="1", MPLBACKEND="Agg")
-    for k in list(env):  # a child must not inherit this process's MPI singleton state
-        if k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess")):
-            env.pop(k)
-    return env
-
-
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 def test_command_line_one_and_two_ranks_agree(case):
     d, rec, start = case
@@ -164,7 +155,7 @@ def test_command_line_one_and_two_ranks_agree(case):
                "--out", str(d / f"cli{n}")]
         if n == 2:
             cmd = [shutil.which("mpiexec") or "mpiexec", "-n", "2"] + cmd
-        run = subprocess.run(cmd, capture_output=True, text=True, env=_env(), timeout=600)
+        run = subprocess.run(cmd, capture_output=True, text=True, env=child_env(), timeout=600)
         assert run.returncode == 0, run.stderr
         assert "rms position error" in run.stdout
         out[n] = json.loads((d / f"cli{n}" / "summary.json").read_text())
@@ -172,5 +163,5 @@ def test_command_line_one_and_two_ranks_agree(case):
     for name in TRUTH:
         assert out[2]["parameters"][name] == pytest.approx(out[1]["parameters"][name], rel=1e-6)
     bad = subprocess.run([sys.executable, "-m", "petsoft.cli", "calibrate", str(start),
-                          str(d / "missing.h5")], capture_output=True, text=True, env=_env())
+                          str(d / "missing.h5")], capture_output=True, text=True, env=child_env())
     assert bad.returncode == 2 and "missing.h5" in bad.stderr and "Traceback" not in bad.stderr

@@ -10,7 +10,6 @@ serial == 2 ranks comparison spawns ``mpiexec -n 2 petsoft calibrate`` from the 
 """
 
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -24,6 +23,8 @@ from petsoft.calibration.calibrate import build_forward, run_calibration
 from petsoft.dynamics.mass_spring import write_spring_mesh
 from petsoft.experiment import load_experiment
 from petsoft.recording import read_recording, write_recording
+
+from child_process import child_env  # tests/child_process.py
 
 L, G, C = 0.2, 9.81, 0.5           # length (m), gravity (m/s^2), damping.mass (1/s)
 PHI0, END, FRAME = 1.0, 1.0, 0.02  # release angle (rad from hanging), span (s), frame spacing
@@ -88,16 +89,6 @@ integrator = "alpha"
                         pos[:, None, :], names=["bob"], noise={"position_std": noise})
     PETSc.COMM_WORLD.tompi4py().barrier()
     return d / "pendulum.toml", d / "recording.h5"
-
-
-def _env():
-    # yield when idle: ranks busy-polling a shared, oversubscribed machine crawl
-    env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
-               OMPI_MCA_rmaps_base_oversubscribe="1", OMPI_MCA_mpi_yield_when_idle="1")
-    for k in list(env):  # a child must not inherit this process's MPI singleton state
-        if k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess")):
-            env.pop(k)
-    return env
 
 
 @pytest.fixture(scope="module")
@@ -178,7 +169,7 @@ def test_cli_two_ranks_equal_serial(tmp_path):
     out = d / "out2"
     cmd = [shutil.which("mpiexec") or "mpiexec", "-n", "2", sys.executable, "-m", "petsoft.cli",
            "calibrate", str(toml), str(rec), "--out", str(out)]
-    run = subprocess.run(cmd, cwd=d, capture_output=True, text=True, env=_env(), timeout=600)
+    run = subprocess.run(cmd, cwd=d, capture_output=True, text=True, env=child_env(), timeout=600)
     assert run.returncode == 0, run.stdout + run.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert summary["ranks"] == 2

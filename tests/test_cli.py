@@ -1,7 +1,6 @@
 """The `petsoft` command end to end: outputs, clear errors for bad input, 1 vs 2 ranks."""
 
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -12,6 +11,8 @@ import pytest
 from mpi4py import MPI
 
 from petsoft.cli import split_arguments
+
+from child_process import child_env  # tests/child_process.py
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 PETSOFT = [sys.executable, "-m", "petsoft.cli"]
@@ -48,21 +49,11 @@ pc_type = "gamg"
 """
 
 
-def _env():
-    env = dict(os.environ)
-    env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
-               OMPI_MCA_rmaps_base_oversubscribe="1", MPLBACKEND="Agg")
-    for k in list(env):  # a child must not inherit this process's MPI singleton state
-        if k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess")):
-            env.pop(k)
-    return env
-
-
 def _run(args, cwd, mpi=0):
     cmd = PETSOFT + args
     if mpi:
         cmd = [shutil.which("mpiexec") or "mpiexec", "-n", str(mpi)] + cmd
-    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, env=_env(), timeout=300)
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, env=child_env(), timeout=300)
 
 
 def _write(tmp_path, text, name="exp.toml"):

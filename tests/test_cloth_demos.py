@@ -1,7 +1,6 @@
 """The cloth demos run (tiny) and pass their own checks: penetration below the stated tolerance,
 backward Euler and semi-implicit never gaining energy, Newton and local/global BE agreeing."""
 
-import os
 import re
 import subprocess
 import sys
@@ -10,21 +9,15 @@ from pathlib import Path
 import pytest
 from mpi4py import MPI
 
+from child_process import child_env  # tests/child_process.py
+
 ROOT = Path(__file__).resolve().parents[1]
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 
 
-def _env():
-    env = dict(os.environ, MPLBACKEND="Agg")
-    for k in list(env):
-        if k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess")):
-            env.pop(k)
-    return env
-
-
 def _run(script, out, *args):
     r = subprocess.run([sys.executable, str(ROOT / "scripts" / script), "--quick", "--out",
-                        str(out), *args], capture_output=True, text=True, env=_env(),
+                        str(out), *args], capture_output=True, text=True, env=child_env(),
                        timeout=300)
     return r, {line.split()[0]: line.split() for line in r.stdout.splitlines()
                if line.split() and line.split()[0] in ("be", "be-lg", "si", "midpoint", "ere")}

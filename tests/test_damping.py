@@ -16,7 +16,6 @@ prints the measured tables.
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 
@@ -29,6 +28,8 @@ from petsoft import damping as D
 from petsoft.dynamics.alpha import alpha_parameters
 from petsoft.experiment import experiment_from_dict
 from petsoft.model import build_model
+
+from child_process import child_env  # tests/child_process.py
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 RADII = (0.0, 0.25, 0.5, 0.75, 1.0)
@@ -173,20 +174,12 @@ def test_fem_mode_damping_of_a_linear_bar():
 
 
 # -- CLI -----------------------------------------------------------------------------------------
-def _env():
-    env = dict(os.environ)
-    env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
-               OMPI_MCA_rmaps_base_oversubscribe="1")
-    for k in list(env):  # a child must not inherit this process's MPI singleton state
-        if k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess")):
-            env.pop(k)
-    return env
 
 
 @serial_only
 def test_cli_writes_plot_tables_and_summary(tmp_path):
     cmd = [sys.executable, "-m", "petsoft.cli", "damping", "--out", "d"]
-    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, env=_env(),
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, env=child_env(),
                           timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert "| BE | 1 | 0.693147 |" in proc.stdout and "unstable" in proc.stdout
@@ -203,5 +196,5 @@ def test_cli_writes_plot_tables_and_summary(tmp_path):
     assert len((out / "damping_scalar.csv").read_text().splitlines()) == 1 + 11 * 17
 
     bad = subprocess.run([sys.executable, "-m", "petsoft.cli", "damping", "--radii", "0,2"],
-                         cwd=tmp_path, capture_output=True, text=True, env=_env(), timeout=60)
+                         cwd=tmp_path, capture_output=True, text=True, env=child_env(), timeout=60)
     assert bad.returncode == 2 and "radii must lie in [0, 1]" in bad.stderr

@@ -1,6 +1,5 @@
 """The demo scripts run (small) and produce their figures and outputs."""
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -8,23 +7,17 @@ from pathlib import Path
 import pytest
 from mpi4py import MPI
 
+from child_process import child_env  # tests/child_process.py
+
 ROOT = Path(__file__).resolve().parents[1]
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
-
-
-def _env():
-    env = dict(os.environ, MPLBACKEND="Agg")
-    for k in list(env):
-        if k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess")):
-            env.pop(k)
-    return env
 
 
 @serial_only
 def test_twisted_bar_demo_quick(tmp_path):
     r = subprocess.run([sys.executable, str(ROOT / "scripts" / "demo_twisted_bar.py"), "--quick",
                         "--out", str(tmp_path), "--methods", "be", "midpoint"],
-                       capture_output=True, text=True, env=_env(), timeout=300)
+                       capture_output=True, text=True, env=child_env(), timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
     assert (tmp_path / "energy.png").stat().st_size > 10_000
     assert (tmp_path / "midpoint" / "trajectory.xdmf").exists()

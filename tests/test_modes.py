@@ -14,7 +14,6 @@ reductions, so the assertions agree on every rank. ``pytest -s`` prints the meas
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
 
@@ -29,6 +28,8 @@ from petsoft.errors import PetsoftError
 from petsoft.model import build_model
 from petsoft.modes import assemble_operators, compute_modes
 from petsoft.options import clear_options
+
+from child_process import child_env  # tests/child_process.py
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 
@@ -334,16 +335,6 @@ ksp_type = "cg"
 """
 
 
-def _env():
-    env = dict(os.environ)
-    env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
-               OMPI_MCA_rmaps_base_oversubscribe="1")
-    for k in list(env):  # a child must not inherit this process's MPI singleton state
-        if k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess")):
-            env.pop(k)
-    return env
-
-
 @serial_only
 def test_cli_writes_frequencies_and_mode_shapes(tmp_path):
     import meshio
@@ -351,7 +342,7 @@ def test_cli_writes_frequencies_and_mode_shapes(tmp_path):
     (tmp_path / "exp.toml").write_text(EXPERIMENT)
     cmd = [sys.executable, "-m", "petsoft.cli", "modes", "exp.toml", "-eps_tol", "1e-9",
            "-n", "4", "--out", "d"]
-    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, env=_env(),
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, env=child_env(),
                           timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert "frequency (Hz)" in proc.stdout and "wrote" in proc.stdout
@@ -369,5 +360,5 @@ def test_cli_writes_frequencies_and_mode_shapes(tmp_path):
             assert np.abs(point_data["mode"][points[:, 0] < 1e-6]).max() == 0.0
 
     bad = subprocess.run([sys.executable, "-m", "petsoft.cli", "modes", "exp.toml", "-n", "0"],
-                         cwd=tmp_path, capture_output=True, text=True, env=_env(), timeout=60)
+                         cwd=tmp_path, capture_output=True, text=True, env=child_env(), timeout=60)
     assert bad.returncode == 2 and "must be >= 1" in bad.stderr

@@ -1,7 +1,6 @@
 """Checkpoints and restarts: bitwise on the same ranks, 1e-10 across rank counts, and a run
 killed (SIGKILL) while writing a checkpoint restarts from the previous valid one."""
 
-import os
 import shutil
 import signal
 import subprocess
@@ -19,6 +18,8 @@ from petsoft.dynamics.checkpoint import checkpoint_files
 from petsoft.dynamics.simulate import Simulation
 from petsoft.experiment import experiment_from_dict
 from petsoft.model import build_model
+
+from child_process import child_env  # tests/child_process.py
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 
@@ -93,24 +94,14 @@ def test_restart_is_bitwise_on_the_same_ranks(tmp_path_factory, integrator):
         assert (base / "cut" / "segments" / "1" / "trajectory.xdmf").exists()
 
 
-def _env():
-    env = dict(os.environ)
-    env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
-               OMPI_MCA_rmaps_base_oversubscribe="1")
-    for k in list(env):
-        if k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess")):
-            env.pop(k)
-    return env
-
-
 def _cli(args, cwd, ranks=1, env=None, wait=True):
     cmd = [sys.executable, "-m", "petsoft.cli", *args]
     if ranks > 1:
         cmd = [shutil.which("mpiexec") or "mpiexec", "-n", str(ranks)] + cmd
     if not wait:
-        return subprocess.Popen(cmd, cwd=cwd, env=env or _env(), stdout=subprocess.PIPE,
+        return subprocess.Popen(cmd, cwd=cwd, env=env or child_env(), stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, text=True)
-    r = subprocess.run(cmd, cwd=cwd, env=env or _env(), capture_output=True, text=True,
+    r = subprocess.run(cmd, cwd=cwd, env=env or child_env(), capture_output=True, text=True,
                        timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
     return r
@@ -157,7 +148,7 @@ def test_sigkill_during_checkpoint_write_restarts_from_previous(tmp_path):
     bit for bit."""
     (tmp_path / "exp.toml").write_text(EXPERIMENT.format(integrator="be"))
     _cli(["simulate", "exp.toml", "--out", "full"], tmp_path)
-    env = _env()
+    env = child_env()
     env["PETSOFT_CHECKPOINT_PAUSE"] = "40:60"
     proc = _cli(["simulate", "exp.toml", "--out", "cut"], tmp_path, env=env, wait=False)
     partial = tmp_path / "cut" / "checkpoints" / ".checkpoint-00000040.h5.tmp"
