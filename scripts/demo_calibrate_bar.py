@@ -144,6 +144,8 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="bar-calibration")
     p.add_argument("--cases", default="bar,regions")
     p.add_argument("--cells", type=int, default=20, help="cells along the bar (calibration)")
+    p.add_argument("--section", type=int, default=2,
+                   help="cells across the section (each direction) of the calibration mesh")
     p.add_argument("--step", type=float, default=0.0005,
                    help="calibration time step (s); the recording uses step/2")
     p.add_argument("--method", default="gauss-newton")
@@ -169,7 +171,7 @@ def main(argv=None) -> int:
             print(line, flush=True)
 
     out = Path(args.out)
-    nx, ny = (6, 1) if args.quick else (args.cells, 2)
+    nx, ny = (6, 1) if args.quick else (args.cells, args.section)
     end, step = (0.02, 0.001) if args.quick else (0.1, args.step)
     markers = 6 if args.quick else 20
     table = []
