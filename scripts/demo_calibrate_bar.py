@@ -10,11 +10,14 @@ x = 0, y on y = 0, z on z = 0, and vibrates axially from an initial displacement
 first two axial modes, with the lateral Poisson contraction of that strain (nu = 0.3, as observed
 at t = 0). Without it the lateral field starts out of equilibrium and rings in breathing modes
 near 400 Hz, which a 0.5 ms step cannot follow (generalized-alpha damps them, the fine midpoint
-run keeps them) and the fit of nu then absorbs the time-discretisation error (seen: nu 41 % off). Why this and not a cantilever: P1 tetrahedra are stiff in bending and
-torsion (the first bending frequency of a 20x4x4 Kuhn-split bar is 6 % above the 40x8x8 one), so
-a calibrated E would absorb the discretisation error; axial motion and the lateral Poisson
-contraction (linear across the section) are resolved to 0.1 %. The mismatch of a bending case is
-what `petsoft diagnose` must attribute to numerics, not physics.
+run keeps them), and the fit of nu absorbs that error (seen: nu 41 % off).
+
+Why not a cantilever: P1 tetrahedra are stiff in bending and torsion (the first bending
+frequency of a 20x4x4 Kuhn-split bar is 6 % above the 40x8x8 one), so a calibrated E would absorb
+the discretisation error. Axial motion resolves E to 0.1-0.5 %; nu needs the section resolved
+(-4.5 % with 2x2 cells across it, -1.25 % with 4x4: ``--section 4``); Rayleigh alpha and beta
+stay 3-5 % off on these meshes, with the fit's rms at 2x the noise (the mesh-to-mesh mismatch).
+That mismatch is what `petsoft diagnose` must attribute to numerics, not physics.
 
 Run::
 

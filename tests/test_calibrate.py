@@ -14,14 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from child_process import child_env  # tests/child_process.py
 from mpi4py import MPI
 
 from petsoft.calibration.calibrate import run_calibration
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, load_experiment
 from petsoft.synth import run_synth
-
-from child_process import child_env  # tests/child_process.py
 
 TRUTH = {"material.youngs_modulus": 1.0e6, "damping.mass": 3.0}
 
@@ -165,3 +164,22 @@ def test_command_line_one_and_two_ranks_agree(case):
     bad = subprocess.run([sys.executable, "-m", "petsoft.cli", "calibrate", str(start),
                           str(d / "missing.h5")], capture_output=True, text=True, env=child_env())
     assert bad.returncode == 2 and "missing.h5" in bad.stderr and "Traceback" not in bad.stderr
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
+def test_recovery_demo_quick(tmp_path):
+    """scripts/demo_calibrate_bar.py --quick: both cases run, the table and recovery.json are
+    written, and even on its 6x1x1 mesh E lands within 5 % (region E within 15 %)."""
+    script = Path(__file__).resolve().parents[1] / "scripts" / "demo_calibrate_bar.py"
+    run = subprocess.run([sys.executable, str(script), "--quick", "--out", str(tmp_path)],
+                         capture_output=True, text=True, env=child_env(), timeout=600)
+    assert run.returncode == 0, run.stderr
+    assert "all within target" in run.stdout
+    rows = json.loads((tmp_path / "recovery.json").read_text())
+    assert {r["case"] for r in rows} == {"bar", "regions"}
+    errors = {(r["case"], r["parameter"]): r["error"] for r in rows}
+    assert abs(errors[("bar", "material.youngs_modulus")]) < 0.05
+    for (case, name), err in errors.items():
+        if case == "regions":
+            assert abs(err) < 0.15, (name, err)
+    assert (tmp_path / "bar" / "calibrated" / "calibrated.toml").is_file()

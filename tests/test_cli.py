@@ -8,11 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from child_process import child_env  # tests/child_process.py
 from mpi4py import MPI
 
 from petsoft.cli import split_arguments
-
-from child_process import child_env  # tests/child_process.py
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 PETSOFT = [sys.executable, "-m", "petsoft.cli"]
@@ -53,7 +52,8 @@ def _run(args, cwd, mpi=0):
     cmd = PETSOFT + args
     if mpi:
         cmd = [shutil.which("mpiexec") or "mpiexec", "-n", str(mpi)] + cmd
-    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, env=child_env(), timeout=300)
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, env=child_env(),
+                          timeout=300)
 
 
 def _write(tmp_path, text, name="exp.toml"):

@@ -21,6 +21,7 @@ import sys
 
 import numpy as np
 import pytest
+from child_process import child_env  # tests/child_process.py
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -28,8 +29,6 @@ from petsoft import damping as D
 from petsoft.dynamics.alpha import alpha_parameters
 from petsoft.experiment import experiment_from_dict
 from petsoft.model import build_model
-
-from child_process import child_env  # tests/child_process.py
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 RADII = (0.0, 0.25, 0.5, 0.75, 1.0)

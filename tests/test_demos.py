@@ -5,9 +5,8 @@ import sys
 from pathlib import Path
 
 import pytest
-from mpi4py import MPI
-
 from child_process import child_env  # tests/child_process.py
+from mpi4py import MPI
 
 ROOT = Path(__file__).resolve().parents[1]
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")

@@ -20,6 +20,7 @@ import sys
 import numpy as np
 import pytest
 from _static_cases import experiment
+from child_process import child_env  # tests/child_process.py
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -28,8 +29,6 @@ from petsoft.errors import PetsoftError
 from petsoft.model import build_model
 from petsoft.modes import assemble_operators, compute_modes
 from petsoft.options import clear_options
-
-from child_process import child_env  # tests/child_process.py
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 

@@ -5,8 +5,12 @@ import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.calibration.observation import (MarkerObserver, ObservationError, frame_residual,
-                                             time_interpolation)
+from petsoft.calibration.observation import (
+    MarkerObserver,
+    ObservationError,
+    frame_residual,
+    time_interpolation,
+)
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.experiment import experiment_from_dict
 from petsoft.model import build_model

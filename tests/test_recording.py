@@ -7,8 +7,13 @@ import h5py
 import numpy as np
 import pytest
 
-from petsoft.recording import (Recording, RecordingError, RecordingWarning, read_recording,
-                               write_recording)
+from petsoft.recording import (
+    Recording,
+    RecordingError,
+    RecordingWarning,
+    read_recording,
+    write_recording,
+)
 
 pytestmark = pytest.mark.serial_only  # rank-local file I/O in tmp_path
 

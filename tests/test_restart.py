@@ -12,14 +12,13 @@ import h5py
 import numpy as np
 import pytest
 import tomllib
+from child_process import child_env  # tests/child_process.py
 from mpi4py import MPI
 
 from petsoft.dynamics.checkpoint import checkpoint_files
 from petsoft.dynamics.simulate import Simulation
 from petsoft.experiment import experiment_from_dict
 from petsoft.model import build_model
-
-from child_process import child_env  # tests/child_process.py
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 

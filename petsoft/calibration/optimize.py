@@ -535,6 +535,19 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
     return res
 
 
+def _stopping_reason(gnorm, f, it, count, gatol, grtol, max_it, max_funcs) -> str:
+    """TAO's stopping tests for the own (non-TAO) methods; "" to go on."""
+    if gnorm <= gatol:
+        return "CONVERGED_GATOL"
+    if gnorm <= grtol * abs(f):
+        return "CONVERGED_GRTOL"
+    if it >= max_it:
+        return "DIVERGED_MAXITS"
+    if count >= max_funcs:
+        return "DIVERGED_MAXFCN"
+    return ""
+
+
 def _gradient_descent(ev: _Evaluator, z0, lo, hi, o, prefix, record) -> OptimizeResult:
     gatol = _option(prefix, "tao_gatol", o["gatol"])
     grtol = _option(prefix, "tao_grtol", o["grtol"])
@@ -550,17 +563,9 @@ def _gradient_descent(ev: _Evaluator, z0, lo, hi, o, prefix, record) -> Optimize
     alpha = alpha_max / 2.0
     reason, it = "DIVERGED_MAXITS", 0
     while True:
-        if gnorm <= gatol:
-            reason = "CONVERGED_GATOL"
-            break
-        if gnorm <= grtol * abs(f):
-            reason = "CONVERGED_GRTOL"
-            break
-        if it >= max_it:
-            reason = "DIVERGED_MAXITS"
-            break
-        if ev.count >= max_funcs:
-            reason = "DIVERGED_MAXFCN"
+        stop = _stopping_reason(gnorm, f, it, ev.count, gatol, grtol, max_it, max_funcs)
+        if stop:
+            reason = stop
             break
         alpha = min(alpha_max, 2.0 * alpha)
         # Decrease predicted by the first trial; below the rounding error of f no step can pass
@@ -610,16 +615,9 @@ def _levenberg_marquardt(ev: _Evaluator, z0, lo, hi, o, prefix, record) -> Optim
     mu, nu = 1e-3, 2.0
     reason, it = "DIVERGED_MAXITS", 0
     while True:
-        if gnorm <= gatol:
-            reason = "CONVERGED_GATOL"
-            break
-        if gnorm <= grtol * abs(f):
-            reason = "CONVERGED_GRTOL"
-            break
-        if it >= max_it:
-            break
-        if ev.count >= max_funcs:
-            reason = "DIVERGED_MAXFCN"
+        stop = _stopping_reason(gnorm, f, it, ev.count, gatol, grtol, max_it, max_funcs)
+        if stop:
+            reason = stop
             break
         # Marquardt's scaling: damp each parameter in proportion to its curvature
         damping = np.maximum(np.diag(A), 1e-12 * max(float(np.max(np.diag(A))), 1e-300))
