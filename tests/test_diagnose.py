@@ -19,7 +19,6 @@ from petsc4py import PETSc
 from scipy import stats
 
 from petsoft.diagnosis.candidates import (
-    NOT_MODELLED,
     build_candidates,
     sensitivity_region,
     sphere_condition,
@@ -171,11 +170,14 @@ def test_candidates_extend_the_experiment_at_the_zero_value(case):
     region = {"center": [0.275, 0.02, 0.02], "radius": 0.03}
     cands, skipped = build_candidates(exp, evidence_region=region, stiffness_region=region)
     by = {c.physics: c for c in cands}
-    assert set(by) == {"damping.mass", "damping.stiffness", "gravity", "material.heterogeneous",
-                       "mass.added"}
-    # every vocabulary term is either a candidate or reported as not modelled, never silently
+    assert {"damping.mass", "damping.stiffness", "gravity", "material.heterogeneous",
+            "mass.added", "material.nonlinear"} <= set(by)
+    # every vocabulary term is either a candidate or skipped with its reason, never silently
     assert set(by) | set(skipped) == set(PHYSICS)
-    assert set(NOT_MODELLED) <= set(skipped)
+    assert not set(by) & set(skipped)
+    assert all(skipped.values())
+    # the simulation stays inside the data: no plane to offer
+    assert "extent" in skipped["contact.plane"]
     for c in cands:
         ext = c.extend(exp)
         # the extended model starts as the base model: same values, new [calibrate] keys

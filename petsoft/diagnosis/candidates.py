@@ -3,24 +3,36 @@
 A :class:`Candidate` names a term of the physics vocabulary (formats.md section 3,
 :data:`petsoft.diagnosis.report.PHYSICS`), the experiment parameters it adds (or frees) and
 how to switch it on: :meth:`Candidate.extend` maps an experiment to the extended experiment
-with the term at its *zero* value (the extended model reproduces the base model exactly) and
-``[calibrate]`` bounds for the new parameters. The score test
-(:mod:`petsoft.diagnosis.score`) is evaluated there, and the re-calibration starts there.
+with the term at its *zero* value (the extended model reproduces the base model, exactly or to
+a negligible penalty) and ``[calibrate]`` bounds for the new parameters. How a candidate is
+ranked (``Candidate.kind``):
 
-Only the terms that existing differentiable experiment parameters can express are modelled:
+* ``"score"``: the efficient score test (:mod:`petsoft.diagnosis.score`) at the zero value, from
+  the forward model's exact sensitivities;
+* ``"score-fd"``: the same test with the new parameters' columns by one-sided finite differences
+  (terms the sensitivities do not cover, e.g. the viscoelastic branch's internal variable);
+* ``"fit"``: no derivative at the zero value says anything (a model switch, a contact that is not
+  touched at zero), so the extended model is fitted and its likelihood-ratio statistic is the
+  score.
 
-* ``damping.mass``: Rayleigh alpha, from 0;
-* ``damping.stiffness``: Rayleigh beta, from 0;
+The terms and how each is placed and bounded (``scales`` are the model's size, mass, surface, the
+data's speed and dominant frequency, :func:`petsoft.diagnosis.diagnose.model_scales`):
+
+* ``damping.mass`` / ``damping.stiffness``: Rayleigh alpha / beta from 0;
 * ``gravity``: the three components of ``gravity.acceleration``, freed at their current values;
-* ``material.heterogeneous``: a spherical ``[region]`` whose Young's modulus
-  ``material.<region>.youngs_modulus`` starts at the surrounding modulus; the sphere is where the
-  adjoint per-cell sensitivity map of the misfit to Young's modulus (``ForwardModel.
-  cell_gradient``) is largest;
-* ``mass.added``: a spherical region whose density ``material.<region>.density`` starts at the
-  surrounding density (extra mass = a denser region); the sphere is the residual's
-  ``mismatch.region`` (markers), else the sensitivity map's sphere.
-
-Every other term of the vocabulary is reported as not modelled yet (:data:`NOT_MODELLED`).
+* ``material.heterogeneous``: a spherical ``[region]`` whose Young's modulus starts at the
+  surrounding modulus, placed where the adjoint per-cell map of d misfit/d E is largest;
+* ``mass.added``: a spherical region whose density starts at the surrounding one (extra mass =
+  a denser region), placed at the residual's ``mismatch.region`` (else the sensitivity map's);
+* ``drag.linear`` / ``drag.quadratic``: ``[drag]`` on the body's surface, from 0;
+* ``friction.dry``: ``[friction] dry`` from 0, regularised at 1 % of the data's rms speed;
+* ``boundary.compliance``: the fixed supports made elastic, from a compliance 1e-3 x (cell size
+  / E), i.e. a support displacement a thousandth of a cell's strain (numerically rigid);
+* ``material.viscoelastic``: a standard-linear-solid branch (``[viscoelastic]``) of modulus ratio
+  from 0, relaxation time starting at 1/(2 pi f) of the data's dominant frequency;
+* ``material.nonlinear``: the linear law switched to the corotated one (a fit, no parameter);
+* ``contact.plane``: a plane where the base simulation leaves the extent of the data by more than
+  the noise (normal along that axis, at the data's extreme), its offset fitted.
 """
 
 from __future__ import annotations
@@ -29,25 +41,27 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..errors import ExperimentError
 from ..experiment import experiment_from_dict, get_parameter
 from .report import PHYSICS
 
-#: Vocabulary terms without a differentiable parametrisation in petsoft yet (with why).
-NOT_MODELLED = {
-    "material.nonlinear": "switching the material law (linear -> corotated/neo-Hookean) is a "
-                          "discrete model change, not a parameter at a zero value",
-    "material.viscoelastic": "no viscoelastic material law yet",
-    "boundary.compliance": "no elastic-support (Robin) boundary condition yet",
-    "drag.linear": "no drag force on the body surface yet (damping.mass is the closest modelled "
-                   "term)",
-    "drag.quadratic": "no velocity-squared drag force yet",
-    "friction.dry": "no Coulomb friction yet",
-    "contact.plane": "contact with a plane exists only as a prescribed collider without "
-                     "differentiable parameters",
-}
+#: Why a vocabulary term may not be tried (the reasons are filled in by build_candidates).
+NOT_APPLICABLE = "not applicable to this model"
 
 #: Name of the region a spatial candidate adds.
 REGION = {"material.heterogeneous": "diag_stiffness", "mass.added": "diag_mass"}
+
+#: Ranking methods (module docstring).
+KINDS = ("score", "score-fd", "fit")
+
+
+def _merge(data: dict, settings: dict) -> None:
+    """Deep-merge ``settings`` (nested dicts) into the experiment dict ``data``."""
+    for key, value in settings.items():
+        if isinstance(value, dict) and isinstance(data.get(key), dict):
+            _merge(data[key], value)
+        else:
+            data[key] = value
 
 
 @dataclass
@@ -66,6 +80,25 @@ class Candidate:
         ``{"center", "radius"}`` of a spatial candidate.
     reason : str
         Why it was placed there / what it means (for the report).
+    regions : dict
+        ``{name: where}`` regions the extension adds.
+    kind : {"score", "score-fd", "fit"}
+        How it is ranked (module docstring).
+    settings : dict
+        Nested experiment keys the extension sets (deep-merged), e.g. ``{"drag": {"linear":
+        0.0}}``.
+    colliders : list of dict
+        ``[[collider]]`` tables the extension appends.
+    compliance : float or None
+        Set as ``compliance`` on every rigid fixed support.
+    tested : list of str
+        The parameters the score test is about (default: all of ``parameters``); the others are
+        fitted but not tested (a relaxation time is undefined while the branch is off).
+    fd_steps : dict
+        Finite-difference step per parameter of a ``"score-fd"`` candidate.
+    gradient : str or None
+        Calibration gradient the extended model needs (``"fd"`` when the sensitivities do not
+        cover the term).
     """
 
     physics: str
@@ -74,6 +107,13 @@ class Candidate:
     region: dict | None = None
     reason: str = ""
     regions: dict = field(default_factory=dict)
+    kind: str = "score"
+    settings: dict = field(default_factory=dict)
+    colliders: list = field(default_factory=list)
+    compliance: float | None = None
+    tested: list[str] | None = None
+    fd_steps: dict = field(default_factory=dict)
+    gradient: str | None = None
 
     def extend(self, experiment):
         """The experiment with this term switched on at its zero value and its parameters in
@@ -83,6 +123,14 @@ class Candidate:
             data.setdefault("region", {})[name] = {"where": where}
             # an empty material table makes material.<name>.* parameters (following the default)
             data.setdefault("material", {}).setdefault(name, {})
+        _merge(data, self.settings)
+        if self.colliders:
+            data["collider"] = list(data.get("collider", [])) + [dict(c) for c in
+                                                                 self.colliders]
+        if self.compliance is not None:
+            for b in data.get("boundary", []):
+                if b.get("kind") == "fixed" and not b.get("compliance"):
+                    b["compliance"] = float(self.compliance)
         cal = dict(data.get("calibrate", {}))
         for name, b in zip(self.parameters, self.bounds, strict=True):
             cal[name] = [float(b[0]), float(b[1])]
@@ -94,6 +142,10 @@ class Candidate:
         """The new parameters' values in the extended experiment (the base model)."""
         ext = self.extend(experiment)
         return {n: get_parameter(ext, n) for n in self.parameters}
+
+    @property
+    def tested_parameters(self) -> list[str]:
+        return list(self.tested) if self.tested else list(self.parameters)
 
 
 def sphere_condition(center, radius) -> str:
@@ -149,9 +201,23 @@ def _grow_to_cell(centroids: np.ndarray, region: dict) -> dict:
     return {**region, "radius": max(float(region["radius"]), 1.01 * nearest)}
 
 
+def _value(experiment, name: str, default: float = 0.0) -> float:
+    """A parameter's current value, ``default`` when this experiment has no such parameter."""
+    try:
+        return float(get_parameter(experiment, name))
+    except ExperimentError:
+        return default
+
+
+def _off(experiment, name: str, cal: set) -> bool:
+    """Whether the term of parameter ``name`` is absent (zero and not calibrated)."""
+    return name not in cal and _value(experiment, name) == 0.0
+
+
 def build_candidates(experiment, *, evidence_region: dict | None = None,
                      stiffness_region: dict | None = None,
-                     centroids: np.ndarray | None = None) -> tuple[list[Candidate], dict]:
+                     centroids: np.ndarray | None = None, scales: dict | None = None,
+                     plane: dict | None = None) -> tuple[list[Candidate], dict]:
     """The candidates that can be modelled for ``experiment``, and the rest with the reason.
 
     Parameters
@@ -164,32 +230,95 @@ def build_candidates(experiment, *, evidence_region: dict | None = None,
         :func:`sensitivity_region` of the adjoint Young's-modulus map.
     centroids : ndarray (E, 3), optional
         Cell centroids, to drop a spatial candidate whose sphere holds no cell.
+    scales : dict, optional
+        ``mass`` (kg), ``area`` (m^2, surface), ``length`` (m), ``cell`` (m), ``speed`` (m/s, rms
+        marker speed), ``speed_max``, ``frequency`` (Hz or None): they size the bounds of the
+        new parameters (:func:`petsoft.diagnosis.diagnose.model_scales`).
+    plane : dict, optional
+        ``{"point", "normal", "excess"}``: where the simulation leaves the data's extent
+        (:func:`petsoft.diagnosis.diagnose.escape_plane`); the ``contact.plane`` candidate.
 
     Returns
     -------
     (list of Candidate, dict)
-        The candidates, and ``{physics: reason}`` of the vocabulary terms not tried.
+        The candidates, and ``{physics: reason}`` of the vocabulary terms not tried. Candidates
+        whose extension the experiment reader refuses (e.g. drag on a spring network without a
+        surface) are listed there with the reader's message.
     """
+    sc = {"mass": 1.0, "area": 1.0, "length": 1.0, "cell": 1.0, "speed": 1.0,
+          "speed_max": 1.0, "frequency": None}
+    sc.update({k: v for k, v in (scales or {}).items() if v is not None})
     cands: list[Candidate] = []
-    skipped = dict(NOT_MODELLED)
+    skipped: dict[str, str] = {}
     cal = set(experiment.calibrate or {})
-    if experiment.damping.mass == 0.0 and "damping.mass" not in cal:
-        cands.append(Candidate("damping.mass", ["damping.mass"], [(0.0, 100.0)],
-                               reason=PHYSICS["damping.mass"]))
-    else:
-        skipped["damping.mass"] = "already in the model"
-    if experiment.damping.stiffness == 0.0 and "damping.stiffness" not in cal:
-        cands.append(Candidate("damping.stiffness", ["damping.stiffness"], [(0.0, 0.05)],
-                               reason=PHYSICS["damping.stiffness"]))
-    else:
-        skipped["damping.stiffness"] = "already in the model"
+    springs = experiment.is_mass_spring
+
+    def offer(c: Candidate) -> None:
+        try:
+            c.extend(experiment)
+        except ExperimentError as exc:
+            skipped[c.physics] = f"cannot be added to this model: {exc}"
+            return
+        cands.append(c)
+
+    for physics, hi in (("damping.mass", 100.0), ("damping.stiffness", 0.05)):
+        if _off(experiment, physics, cal):
+            offer(Candidate(physics, [physics], [(0.0, hi)], reason=PHYSICS[physics]))
+        else:
+            skipped[physics] = "already in the model"
     gnames = [f"gravity.acceleration.{c}" for c in "xyz"]
     if not cal.intersection(gnames):
         g = [get_parameter(experiment, n) for n in gnames]
-        cands.append(Candidate("gravity", gnames, [(v - 20.0, v + 20.0) for v in g],
-                               reason=PHYSICS["gravity"]))
+        offer(Candidate("gravity", gnames, [(v - 20.0, v + 20.0) for v in g],
+                        reason=PHYSICS["gravity"]))
     else:
         skipped["gravity"] = "already calibrated"
+    # velocity-dependent forces, bounded by an equivalent mass-damping rate of 100/s
+    rate = 100.0
+    for physics, bound, what in (
+            ("drag.linear", rate * sc["mass"] / sc["area"], "on the body's surface"),
+            ("drag.quadratic", rate * sc["mass"] / (sc["area"] * sc["speed_max"]),
+             "on the body's surface")):
+        if _off(experiment, physics, cal):
+            key = physics.split(".")[1]
+            offer(Candidate(physics, [physics], [(0.0, bound)], reason=f"{PHYSICS[physics]} "
+                            f"({what})", settings={"drag": {key: 0.0}}))
+        else:
+            skipped[physics] = "already in the model"
+    if _off(experiment, "friction.dry", cal):
+        speed = 0.01 * sc["speed"]
+        offer(Candidate("friction.dry", ["friction.dry"], [(0.0, rate * sc["speed"])],
+                        reason=f"{PHYSICS['friction.dry']} (per unit mass, regularised below "
+                        f"{speed:.3g} m/s)", settings={"friction": {"dry": 0.0,
+                                                                      "speed": speed}}))
+    else:
+        skipped["friction.dry"] = "already in the model"
+    if springs:
+        for physics in ("material.heterogeneous", "mass.added", "material.nonlinear",
+                        "material.viscoelastic", "boundary.compliance"):
+            skipped[physics] = f"{NOT_APPLICABLE}: a mass-spring model has no continuum material"
+    else:
+        _continuum_candidates(experiment, cal, sc, offer, skipped, evidence_region,
+                              stiffness_region, centroids)
+    if plane is None:
+        skipped["contact.plane"] = ("the simulation stays within the extent of the data "
+                                    "(no side where a plane could stop it)")
+    else:
+        n = np.asarray(plane["normal"], dtype=float)
+        depth = float(plane["excess"])
+        index = len(experiment.colliders)
+        offer(Candidate("contact.plane", [f"collider.{index}.offset"], [(-depth, depth)],
+                        kind="fit", colliders=[{"kind": "plane",
+                                                "point": [float(c) for c in plane["point"]],
+                                                "normal": n.tolist()}],
+                        reason=f"{PHYSICS['contact.plane']}: the simulation passes the data's "
+                        f"extent by {depth:.3g} m along {n.tolist()}"))
+    return cands, skipped
+
+
+def _continuum_candidates(experiment, cal, sc, offer, skipped, evidence_region,
+                          stiffness_region, centroids) -> None:
+    """The FEM-only terms: spatial ones, supports, viscoelasticity, the nonlinear law."""
     regions = experiment.regions or {}
     for physics, key, where_from in (
             ("material.heterogeneous", "youngs_modulus", stiffness_region),
@@ -215,8 +344,44 @@ def build_candidates(experiment, *, evidence_region: dict | None = None,
                   "radius": float(where_from["radius"])}
         origin = ("the residual's mismatch region" if physics == "mass.added" and evidence_region
                   else "the adjoint Young's-modulus sensitivity map")
-        cands.append(Candidate(
+        offer(Candidate(
             physics, [f"material.{name}.{key}"], [(lo, hi)], region=region,
             regions={name: sphere_condition(region["center"], region["radius"])},
             reason=f"{PHYSICS[physics]}; sphere from {origin}"))
-    return cands, skipped
+    E = get_parameter(experiment, "material.youngs_modulus")
+    rigid = [b for b in experiment.boundaries
+             if b.kind == "fixed" and not getattr(b, "compliance", 0.0)]
+    if "boundary.compliance" in cal or len(rigid) < len([b for b in experiment.boundaries
+                                                         if b.kind == "fixed"]):
+        skipped["boundary.compliance"] = "already in the model"
+    elif not rigid:
+        skipped["boundary.compliance"] = f"{NOT_APPLICABLE}: no fixed support"
+    else:
+        c0 = 1e-3 * sc["cell"] / E
+        offer(Candidate("boundary.compliance", ["boundary.compliance"],
+                        [(c0, max(10.0 * sc["length"] / E, 10.0 * c0))], compliance=c0,
+                        reason=f"{PHYSICS['boundary.compliance']} (support springs, starting "
+                        f"numerically rigid at {c0:.3g} m/Pa)"))
+    if _off(experiment, "viscoelastic.ratio", cal):
+        f = sc["frequency"] or 1.0 / max(experiment.time.end, 1e-12)
+        tau = 1.0 / (2.0 * np.pi * f)
+        offer(Candidate("material.viscoelastic", ["viscoelastic.ratio",
+                                                  "viscoelastic.relaxation_time"],
+                        [(0.0, 2.0), (tau / 30.0, 30.0 * tau)], kind="score-fd",
+                        settings={"viscoelastic": {"ratio": 0.0, "relaxation_time": tau}},
+                        tested=["viscoelastic.ratio"], fd_steps={"viscoelastic.ratio": 1e-3},
+                        gradient="fd",
+                        reason=f"{PHYSICS['material.viscoelastic']} (standard linear solid, "
+                        f"relaxation time from {tau:.3g} s)"))
+    else:
+        skipped["material.viscoelastic"] = "already in the model"
+    linear = [name for name, m in experiment.material.items() if m.model == "linear"]
+    if linear:
+        settings: dict = {"material": {"model": "corotated"}}
+        for name in linear:
+            if name != "default":
+                settings["material"][name] = {"model": "corotated"}
+        offer(Candidate("material.nonlinear", [], [], kind="fit", settings=settings,
+                        reason=f"{PHYSICS['material.nonlinear']} (linear -> corotated)"))
+    else:
+        skipped["material.nonlinear"] = "the material law is already nonlinear"

@@ -112,6 +112,112 @@ def _forward(experiment, names, recording, times, comm, integrator=None, h=None)
                         h=h)
 
 
+def gradient_for(experiment, default: str) -> str:
+    """The calibration gradient ``experiment`` allows: finite differences once the viscoelastic
+    branch is on or calibrated (the sensitivities do not carry its internal variable)."""
+    cal = set(experiment.calibrate or {})
+    try:
+        ratio = float(get_parameter(experiment, "viscoelastic.ratio"))
+    except ExperimentError:
+        ratio = 0.0
+    if ratio != 0.0 or any(n.startswith("viscoelastic.") for n in cal):
+        return "fd"
+    return default
+
+
+def model_scales(experiment, times: np.ndarray, data: np.ndarray,
+                 evidence: dict | None = None) -> dict:
+    """Sizes that bound the candidates' new parameters (:func:`~petsoft.diagnosis.candidates.
+    build_candidates`): ``mass`` (kg), ``area`` (exterior surface, m^2), ``length`` (bounding-box
+    diagonal, m), ``cell`` (mean cell size, m) of the model; ``speed``/``speed_max`` (rms and
+    largest marker speed, m/s, by differences of the seen samples) and ``frequency`` (the data's
+    dominant modal frequency, Hz, when the evidence found one)."""
+    from ..topology import exterior_faces
+
+    out: dict = {}
+    if experiment.is_mass_spring:
+        from ..dynamics.mass_spring import load_spring_mesh
+
+        mesh = load_spring_mesh(experiment)
+        pts = mesh.points
+        total = float(sum(m.value for m in experiment.masses))
+        total += float(experiment.springs.node_mass or 0.0) * len(pts)
+        out["mass"] = total if total > 0 else 1.0
+        tri = getattr(mesh, "triangles", None)
+        if tri is not None and len(tri):
+            e1, e2 = pts[tri[:, 1]] - pts[tri[:, 0]], pts[tri[:, 2]] - pts[tri[:, 0]]
+            out["area"] = float(0.5 * np.linalg.norm(np.cross(e1, e2), axis=1).sum())
+        else:
+            out["area"] = 1.0
+        edges = (mesh.lines if len(mesh.lines) else
+                 np.concatenate([mesh.triangles[:, [0, 1]], mesh.triangles[:, [1, 2]]])
+                 if len(mesh.triangles) else np.zeros((0, 2), dtype=int))
+        out["cell"] = float(np.mean(np.linalg.norm(pts[edges[:, 0]] - pts[edges[:, 1]],
+                                                   axis=1))) if len(edges) else 1.0
+    else:
+        from ..model import load_mesh
+
+        mesh = load_mesh(experiment)
+        pts = mesh.points
+        p = pts[mesh.tets]
+        vol = np.abs(np.linalg.det(p[:, 1:] - p[:, :1])) / 6.0
+        out["mass"] = float(get_parameter(experiment, "material.density") * vol.sum())
+        faces, _ = exterior_faces(mesh.tets)
+        q = pts[faces]
+        out["area"] = float(0.5 * np.linalg.norm(np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]),
+                                                 axis=1).sum())
+        out["cell"] = float(np.cbrt(np.mean(vol)))
+    out["length"] = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) or 1.0
+    dt = np.diff(times)[:, None, None]
+    vel = np.diff(data, axis=0) / dt
+    speed = np.linalg.norm(vel, axis=2)
+    speed = speed[np.isfinite(speed)]
+    out["speed"] = float(np.sqrt(np.mean(speed**2))) if speed.size else 1.0
+    out["speed_max"] = float(speed.max()) if speed.size else 1.0
+    out["speed"] = out["speed"] or 1.0
+    out["speed_max"] = out["speed_max"] or 1.0
+    modes = (evidence or {}).get("data_modes") or []
+    osc = [m for m in modes if m["frequency_hz"] > 0]
+    out["frequency"] = (float(max(osc, key=lambda m: m["amplitude"])["frequency_hz"])
+                        if osc else None)
+    return out
+
+
+def escape_plane(data: np.ndarray, sim: np.ndarray, sigma: float,
+                 threshold: float = 3.0) -> dict | None:
+    """Where the simulation leaves the extent of the data: a plane that could have stopped it.
+
+    For each axis and side, ``excess`` = how far the simulated markers go beyond the farthest
+    recorded position on that side (seen samples). The side with the largest excess above
+    ``threshold`` x the noise gives a plane through the data's extreme, its unit normal
+    pointing back into the data (the allowed side).
+
+    Returns
+    -------
+    dict or None
+        ``{"point", "normal", "excess"}``, None when the simulation stays within the data.
+    """
+    seen = np.isfinite(data)
+    best = None
+    for axis in range(3):
+        ok = seen[..., axis]
+        if not ok.any():
+            continue
+        d, s = data[..., axis][ok], sim[..., axis][ok]
+        for sign in (1.0, -1.0):
+            excess = float(np.max(sign * s) - np.max(sign * d))
+            if excess > threshold * sigma and (best is None or excess > best[0]):
+                at = np.unravel_index(np.argmax(np.where(ok, sign * data[..., axis], -np.inf)),
+                                      ok.shape)
+                point = np.nan_to_num(data[at[0], at[1]]).astype(float)
+                normal = np.zeros(3)
+                normal[axis] = -sign
+                best = (excess, point, normal)
+    if best is None:
+        return None
+    return {"point": best[1].tolist(), "normal": best[2].tolist(), "excess": best[0]}
+
+
 def _chi2(sim, data, sigma) -> float:
     seen = np.isfinite(data)
     return float(np.sum(((sim[seen] - data[seen]) / sigma) ** 2))
@@ -211,18 +317,23 @@ class _Diagnosis:
             self.say(f"[{time.perf_counter() - self.t0:7.1f} s] {line}")
 
     # -- fitting ----------------------------------------------------------------------------
-    def calibrate(self, experiment) -> Fit:
-        """Calibrate ``experiment`` on the identification window; predict the held-out one."""
+    def calibrate(self, experiment, comm=None) -> Fit:
+        """Calibrate ``experiment`` on the identification window; predict the held-out one.
+
+        ``comm`` (default: the diagnosis' communicator) lets candidate fits run on groups of
+        ranks (:func:`petsoft.groups.map_on_groups`)."""
         from ..calibration.calibrate import calibration_parameters, run_calibration
 
+        comm = self.comm if comm is None else _petsc_comm(comm)
         ident_exp = _with_time(experiment, end=self.cut)
-        res = run_calibration(ident_exp, self.path, method=self.method, gradient=self.gradient,
-                              integrator=self.integrator, noise=self.sigma, comm=self.comm,
+        res = run_calibration(ident_exp, self.path, method=self.method,
+                              gradient=gradient_for(experiment, self.gradient),
+                              integrator=self.integrator, noise=self.sigma, comm=comm,
                               say=None)
         gc.collect()                    # every rank, same point (see run_diagnose)
         names, _, _ = calibration_parameters(experiment)
         calibrated = with_parameters(experiment, dict(zip(names, res.values, strict=True)))
-        sim = self.simulate(calibrated)
+        sim = self.simulate(calibrated, comm=comm)
         return Fit(experiment=calibrated, names=names, values=np.asarray(res.values),
                    std=np.asarray(res.std), chi2=_chi2(sim[self.ident], self.data[self.ident],
                                                         self.sigma),
@@ -230,43 +341,64 @@ class _Diagnosis:
                    heldout_rms=_rms(sim[self.held], self.data[self.held]) if self.held.any()
                    else None, sim=sim, iterations=res.iterations, evaluations=res.evaluations)
 
-    def simulate(self, experiment, h=None) -> np.ndarray:
-        """Marker positions of ``experiment`` at every frame of the record."""
+    def simulate(self, experiment, h=None, comm=None, times=None) -> np.ndarray:
+        """Marker positions of ``experiment`` at every frame of the record (or ``times``)."""
         names = list(experiment.calibrate)
         p = np.array([get_parameter(experiment, n) for n in names])
-        fm = _forward(experiment, names, self.recording, self.times, self.comm,
-                      self.integrator, h=h)
+        fm = _forward(experiment, names, self.recording,
+                      self.times if times is None else times,
+                      self.comm if comm is None else _petsc_comm(comm), self.integrator, h=h)
         try:
             return fm.simulate(p)
         finally:
             fm.destroy()
 
-    def score(self, fit: Fit, candidate) -> dict:
-        """Score test of ``candidate`` at ``fit`` (identification window)."""
+    def score(self, fit: Fit, candidate, comm=None) -> dict:
+        """Rank ``candidate`` at ``fit`` (identification window): its score-test statistic, or
+        for a ``"fit"`` candidate the likelihood ratio of its fitted extension (then the fit is
+        returned too, under ``"fit"``)."""
         from .score import ScoreError, score_test
 
+        comm = self.comm if comm is None else _petsc_comm(comm)
+        entry = {"physics": candidate.physics, "parameters": candidate.parameters,
+                 "region": candidate.region, "kind": candidate.kind}
         ext = candidate.extend(fit.experiment)
+        if candidate.kind == "fit":
+            new = self.calibrate(ext, comm=comm)
+            lr = fit.chi2 - new.chi2
+            # a model switch adds no parameter; count it as one (conservative)
+            k = max(len(candidate.parameters), 1)
+            return {**entry, "score": float(lr), "dof": k,
+                    "p_value": float(stats.chi2.sf(max(lr, 0.0), k)),
+                    "log10_p": float(stats.chi2.logsf(max(lr, 0.0), k) / np.log(10.0)),
+                    "fit": new}
         names = list(ext.calibrate)
         p = np.array([get_parameter(ext, n) for n in names])
-        fm = _forward(ext, names, self.recording, self.times[self.ident], self.comm,
-                      self.integrator)
+        fd = [n for n in candidate.parameters if candidate.kind == "score-fd"]
+        exact = [n for n in names if n not in fd]
+        t = self.times[self.ident]
+        fm = _forward(ext, exact, self.recording, t, comm, self.integrator)
         try:
-            sim, dsim = fm.jacobian(p)
+            sim, dsim = fm.jacobian(np.array([p[names.index(n)] for n in exact]))
         finally:
             fm.destroy()
             gc.collect()                # every rank, same point (see run_diagnose)
+        cols = {n: dsim[..., i] for i, n in enumerate(exact)}
+        for n in fd:
+            step = float(candidate.fd_steps.get(n, 1e-6 * max(abs(get_parameter(ext, n)), 1.0)))
+            moved = with_parameters(ext, {n: get_parameter(ext, n) + step})
+            cols[n] = (self.simulate(moved, comm=comm, times=t) - sim) / step
+            gc.collect()
         data = self.data[self.ident]
         seen = np.isfinite(data)
         r = (sim[seen] - data[seen]) / self.sigma
-        J = dsim[seen] / self.sigma
-        ib = [names.index(n) for n in fit.names]
-        ic = [names.index(n) for n in candidate.parameters]
-        entry = {"physics": candidate.physics, "parameters": candidate.parameters,
-                 "region": candidate.region}
+        base_cols = np.stack([cols[n][seen] for n in fit.names], axis=1) / self.sigma
+        tested = candidate.tested_parameters
+        cand_cols = np.stack([cols[n][seen] for n in tested], axis=1) / self.sigma
         try:
-            s = score_test(r, J[:, ib], J[:, ic])
+            s = score_test(r, base_cols, cand_cols)
         except ScoreError as exc:
-            return {**entry, "score": 0.0, "dof": len(ic), "p_value": 1.0, "log10_p": 0.0,
+            return {**entry, "score": 0.0, "dof": len(tested), "p_value": 1.0, "log10_p": 0.0,
                     "note": str(exc)}
         return {**entry, "score": s.statistic, "dof": s.dof, "p_value": s.p_value,
                 "log10_p": s.log10_p, "gradient": s.gradient.tolist()}
@@ -333,6 +465,108 @@ def numerics_check(diag: _Diagnosis, fit: Fit) -> dict:
     return out
 
 
+def _judge(diag: _Diagnosis, current: Fit, s: dict, c) -> dict:
+    """Keep candidate ``c`` (score entry ``s`` with its fit) only if the likelihood ratio is
+    significant AND the held-out rms improves: ``{"added", "entry" | "reason"}``."""
+    new = s.get("fit")
+    if new is None:
+        diag.tell(f"  try {c.physics}: the fit failed ({s.get('fit_error', '')})")
+        return {"added": False, "reason": f"the fit failed: {s.get('fit_error', '')}"}
+    lr = current.chi2 - new.chi2
+    k = max(len(c.parameters), 1)
+    p_lr = float(stats.chi2.sf(max(lr, 0.0), k))
+    better = (new.heldout_rms is None or current.heldout_rms is None
+              or new.heldout_rms < current.heldout_rms)
+    ok = p_lr < diag.alpha and better
+    diag.tell(f"  try {c.physics}: LR {lr:.4g} (p {p_lr:.3g}), held-out rms "
+              f"{_fmt(current.heldout_rms)} -> {_fmt(new.heldout_rms)} m: "
+              f"{'added' if ok else 'rejected'}")
+    if not ok:
+        why = []
+        if p_lr >= diag.alpha:
+            why.append(f"no significant improvement (likelihood ratio {lr:.3g}, p = "
+                       f"{p_lr:.3g})")
+        if not better:
+            why.append(f"held-out rms did not improve ({_fmt(current.heldout_rms)} -> "
+                       f"{_fmt(new.heldout_rms)} m)")
+        return {"added": False, "reason": "; ".join(why)}
+    idx = [new.names.index(n) for n in c.parameters]
+    what = "fitted" if c.kind == "fit" else "score test"
+    entry = {"physics": c.physics,
+             "parameters": {n: float(new.values[i]) for n, i in zip(c.parameters, idx,
+                                                                     strict=True)},
+             "std": {n: float(new.std[i]) for n, i in zip(c.parameters, idx, strict=True)
+                     if np.isfinite(new.std[i])},
+             "score": s["score"], "rms_after": new.rms,
+             "evidence": (f"{what} S = {s['score']:.4g} (p = {s['p_value']:.3g}); likelihood "
+                          f"ratio {lr:.4g} (p = {p_lr:.3g}); held-out rms "
+                          f"{_fmt(current.heldout_rms)} -> {_fmt(new.heldout_rms)} m"
+                          + (f"; region {c.region}" if c.region else "")
+                          + (f"; {c.reason}" if c.reason else "")),
+             "region": c.region}
+    return {"added": True, "entry": entry}
+
+
+def _refined(experiment, what: str):
+    """The experiment with the step halved (``"step/2"``) or a box mesh's cells doubled."""
+    if what == "step/2":
+        return _with_time(experiment, step=experiment.time.step / 2)
+    return _with_time(experiment, cells_factor=2)
+
+
+def resolve_numerics(diag: _Diagnosis, fit: Fit, ev: dict, max_rounds: int = 2):
+    """Rule out numerics before blaming physics (issue 6, step 5).
+
+    The base model is re-calibrated with the step halved and (``[mesh] box`` only, once) with
+    the cells doubled per axis, concurrently on groups of ranks. A refinement *matters* when its
+    fit lowers chi2 by more than 10 % of the residual's excess over the noise (chi2 - dof) and by
+    more than 10: part of the mismatch is then discretisation error (backward Euler's artificial
+    damping looks exactly like physical damping), so the refined model replaces the base model
+    and the check is repeated, at most ``max_rounds`` times. Returns the (possibly refined)
+    fit, its evidence and a list of what each round measured.
+    """
+    from ..groups import map_on_groups
+
+    rounds: list[dict] = []
+    mesh_done = False
+    for _ in range(max_rounds):
+        exp = fit.experiment
+        options = ["step/2"]
+        if exp.mesh is not None and getattr(exp.mesh, "box", None) is not None and not mesh_done:
+            options.append("mesh x2")
+        fits = map_on_groups(
+            lambda what, sub, exp=exp: diag.calibrate(_refined(exp, what), comm=sub),
+            options, diag.comm)
+        gc.collect()
+        dof = max(int(np.isfinite(diag.data[diag.ident]).sum()) - len(fit.names), 1)
+        excess = max(fit.chi2 - dof, 0.0)
+        entry = {"chi2": fit.chi2, "dof": dof, "step": exp.time.step, "options": {}}
+        best = None
+        for what, res in zip(options, fits, strict=True):
+            if not res.ok:
+                entry["options"][what] = {"error": res.error}
+                continue
+            gain = fit.chi2 - res.value.chi2
+            matters = bool(gain > 0.1 * excess and gain > 10.0)
+            entry["options"][what] = {"chi2": res.value.chi2, "gain": gain, "matters": matters}
+            diag.tell(f"numerics: {what}: chi2 {fit.chi2:.5g} -> {res.value.chi2:.5g} "
+                      f"({'matters' if matters else 'resolved'})")
+            if matters and (best is None or gain > best[1]):
+                best = (what, gain, res.value)
+        rounds.append(entry)
+        if best is None:
+            break
+        entry["adopted"] = best[0]
+        mesh_done = mesh_done or best[0] == "mesh x2"
+        fit = best[2]
+        ev = _evidence(diag, fit)
+        diag.tell(f"numerics: adopted {best[0]} (step {fit.experiment.time.step:.4g} s); verdict "
+                  f"{ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
+        if ev["verdict"] == "consistent":
+            break
+    return fit, ev, rounds
+
+
 def run_diagnose(experiment, recording_path, **kwargs) -> DiagnoseResult:
     """Diagnose ``experiment`` against a recording (module docstring). All ranks call.
 
@@ -386,6 +620,7 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
     say : callable(str), optional
         Progress lines (rank 0).
     """
+    from ..groups import map_on_groups
     from .candidates import build_candidates
 
     t0 = time.perf_counter()
@@ -407,74 +642,81 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
     rejected: list[dict] = []
     all_scores: list[dict] = []
     not_modelled: dict = {}
+    refinements: list[dict] = []
+    if ev["verdict"] != "consistent" and numerics:
+        current, ev, refinements = resolve_numerics(diag, current, ev)
+    diag.scales = model_scales(current.experiment, diag.times[diag.ident],
+                               diag.data[diag.ident], ev)
     while ev["verdict"] != "consistent" and len(added) < max_additions:
-        stiff = diag.stiffness_map_region(current)
+        rnd = len(added) + 1
+        stiff = (diag.stiffness_map_region(current)
+                 if not current.experiment.is_mass_spring else None)
+        plane = escape_plane(diag.data[diag.ident], current.sim[diag.ident], diag.sigma)
         cands, not_modelled = build_candidates(
             current.experiment, evidence_region=ev["region"], stiffness_region=stiff,
-            centroids=getattr(diag, "centroids", None))
+            centroids=getattr(diag, "centroids", None), scales=diag.scales, plane=plane)
+        diag.tell(f"round {rnd}: ranking {len(cands)} candidates "
+                  f"({', '.join(c.physics for c in cands)})")
+        ranked = map_on_groups(lambda c, sub, cur=current: diag.score(cur, c, comm=sub), cands,
+                               diag.comm)
+        gc.collect()
         scores = []
-        for c in cands:
-            s = diag.score(current, c)
-            s["round"] = len(added) + 1
+        for c, res in zip(cands, ranked, strict=True):
+            s = res.value if res.ok else {"physics": c.physics, "parameters": c.parameters,
+                                          "region": c.region, "kind": c.kind, "score": 0.0,
+                                          "dof": max(len(c.parameters), 1), "p_value": 1.0,
+                                          "log10_p": 0.0, "note": res.error}
+            s["round"] = rnd
             scores.append((s, c))
-            diag.tell(f"  score {c.physics:<24} S = {s['score']:10.4g}  dof {s['dof']}  "
-                      f"p = {s['p_value']:.3g}")
-        all_scores += [s for s, _ in scores]
+            diag.tell(f"  {'fit' if c.kind == 'fit' else 'score'} {c.physics:<24} "
+                      f"S = {s['score']:10.4g}  dof {s['dof']}  p = {s['p_value']:.3g}"
+                      + (f"  ({s['note']})" if s.get("note") else ""))
+        all_scores += [{k: v for k, v in s.items() if k != "fit"} for s, _ in scores]
         # by log p (p underflows to 0 for strong candidates of different dof), then S
         scores.sort(key=lambda sc: (sc[0]["log10_p"], -sc[0]["score"]))
-        accepted = False
-        tried = 0
+        significant = [(s, c) for s, c in scores if s["p_value"] < diag.alpha][:max_tries]
         for s, c in scores:
             if s["p_value"] >= diag.alpha:
                 rejected.append({"physics": c.physics, "score": s["score"],
-                                 "reason": f"score not significant (p = {s['p_value']:.3g})"})
-                continue
-            if tried >= max_tries or accepted:
-                rejected.append({"physics": c.physics, "score": s["score"],
-                                 "reason": "not tried: " + ("a better-scoring candidate was "
-                                                            "added first" if accepted else
-                                                            f"max {max_tries} tries per round")})
-                continue
-            tried += 1
-            new = diag.calibrate(c.extend(current.experiment))
-            lr = current.chi2 - new.chi2
-            k = len(c.parameters)
-            p_lr = float(stats.chi2.sf(max(lr, 0.0), k))
-            better = (new.heldout_rms is None or current.heldout_rms is None
-                      or new.heldout_rms < current.heldout_rms)
-            diag.tell(f"  try {c.physics}: LR {lr:.4g} (p {p_lr:.3g}), held-out rms "
-                      f"{_fmt(current.heldout_rms)} -> {_fmt(new.heldout_rms)} m: "
-                      f"{'added' if p_lr < diag.alpha and better else 'rejected'}")
-            if p_lr < diag.alpha and better:
-                idx = [new.names.index(n) for n in c.parameters]
-                added.append({"physics": c.physics,
-                              "parameters": {n: float(new.values[i]) for n, i in
-                                             zip(c.parameters, idx, strict=True)},
-                              "std": {n: float(new.std[i]) for n, i in
-                                      zip(c.parameters, idx, strict=True)
-                                      if np.isfinite(new.std[i])},
-                              "score": s["score"], "rms_after": new.rms,
-                              "evidence": (f"score test S = {s['score']:.4g} (p = "
-                                           f"{s['p_value']:.3g}); likelihood ratio {lr:.4g} "
-                                           f"(p = {p_lr:.3g}); held-out rms "
-                                           f"{_fmt(current.heldout_rms)} -> "
-                                           f"{_fmt(new.heldout_rms)} m"
-                                           + (f"; region {c.region}" if c.region else "")),
-                              "region": c.region})
-                current = new
-                accepted = True
-            else:
-                why = []
-                if p_lr >= diag.alpha:
-                    why.append(f"no significant improvement (likelihood ratio {lr:.3g}, p = "
-                               f"{p_lr:.3g})")
-                if not better:
-                    why.append(f"held-out rms did not improve ({_fmt(current.heldout_rms)} -> "
-                               f"{_fmt(new.heldout_rms)} m)")
-                rejected.append({"physics": c.physics, "score": s["score"],
-                                 "reason": "; ".join(why)})
-        if not accepted:
+                                 "reason": f"score not significant (p = {s['p_value']:.3g})"
+                                 + (f": {s['note']}" if s.get("note") else "")})
+        for s, c in [sc for sc in scores if sc[0]["p_value"] < diag.alpha][max_tries:]:
+            rejected.append({"physics": c.physics, "score": s["score"],
+                             "reason": f"not tried: max {max_tries} tries per round"})
+        accepted = None
+        # re-fit the significant candidates in batches of one per group of ranks; the first (in
+        # ranking order) that passes both tests is added, so the outcome does not depend on the
+        # number of ranks
+        batch = max(1, min(diag.comm.tompi4py().size, len(significant)))
+        for start in range(0, len(significant), batch):
+            chunk = significant[start:start + batch]
+            need = [(s, c) for s, c in chunk if "fit" not in s]
+            fits = map_on_groups(
+                lambda sc, sub, cur=current: diag.calibrate(sc[1].extend(cur.experiment),
+                                                              comm=sub),
+                need, diag.comm)
+            gc.collect()
+            for (s, _), f in zip(need, fits, strict=True):
+                s["fit"] = f.value if f.ok else None
+                s["fit_error"] = f.error
+            for s, c in chunk:
+                if accepted is not None:
+                    rejected.append({"physics": c.physics, "score": s["score"],
+                                     "reason": "not added: a better-ranked candidate was added "
+                                               "first"})
+                    continue
+                verdict = _judge(diag, current, s, c)
+                if verdict["added"]:
+                    accepted = (verdict["entry"], s["fit"])
+                else:
+                    rejected.append({"physics": c.physics, "score": s["score"],
+                                     "reason": verdict["reason"]})
+            if accepted is not None:
+                break
+        if accepted is None:
             break
+        added.append(accepted[0])
+        current = accepted[1]
         ev = _evidence(diag, current)
         diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
     # a physics rejected in one round and added in a later one is reported as added only
@@ -485,6 +727,8 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
         seen_r.setdefault(r["physics"], r)
     rejected = list(seen_r.values())
     num = numerics_check(diag, current) if numerics else {}
+    if refinements:
+        num["refinements"] = refinements
     if num:
         diag.tell("numerics: " + "; ".join(
             f"{k}: residual change {v['change']:.3g} m ({v['change_over_noise']:.3g} x noise)"
