@@ -42,8 +42,19 @@ __all__ = [
 ]
 
 
+def _addr(a: np.ndarray) -> int:
+    """The address of ``a``'s data.
+
+    Not ``a.ctypes.data``: numpy builds that from a ``ctypes.cast`` result, which references
+    itself, so every call leaves a reference cycle that keeps the array alive until Python's
+    cyclic collector runs -- gigabytes over a calibration run with the collector paused (as
+    ``petsoft diagnose`` does on several ranks).
+    """
+    return a.__array_interface__["data"][0]
+
+
 def _ptr_of(a: np.ndarray | None) -> int | None:
-    return None if a is None else a.ctypes.data
+    return None if a is None else _addr(a)
 
 
 def _c_array(a, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -102,8 +113,8 @@ def element_energy(model: str, dN, volume, u, mu, lam) -> np.ndarray:
     W = np.empty(n)
     bad_J = ctypes.c_double(0.0)
     status = _lib.petsoft_elastic_energy(
-        code, n, dN.ctypes.data, volume.ctypes.data, u.ctypes.data, mu.ctypes.data,
-        lam.ctypes.data, W.ctypes.data, ctypes.addressof(bad_J),
+        code, n, _addr(dN), _addr(volume), _addr(u), _addr(mu),
+        _addr(lam), _addr(W), ctypes.addressof(bad_J),
     )  # fmt: skip
     _check_status(status, bad_J)
     return W
@@ -146,8 +157,8 @@ def element_gradient_hessian_into(
         _check_output(H_out, (n, 12, 12), "H_out")
     bad_J = ctypes.c_double(0.0)
     status = _lib.petsoft_elastic_gradient_hessian(
-        code, n, dN.ctypes.data, volume.ctypes.data, u.ctypes.data, mu.ctypes.data,
-        lam.ctypes.data, int(bool(project_spd)), _ptr_of(g_out), _ptr_of(H_out),
+        code, n, _addr(dN), _addr(volume), _addr(u), _addr(mu),
+        _addr(lam), int(bool(project_spd)), _ptr_of(g_out), _ptr_of(H_out),
         ctypes.addressof(bad_J),
     )  # fmt: skip
     _check_status(status, bad_J)
@@ -189,8 +200,8 @@ def material_response(model: str, F, mu, lam) -> tuple[np.ndarray, np.ndarray, n
     psi, P, dPdF = np.empty(n), np.empty((n, 3, 3)), np.empty((n, 3, 3, 3, 3))
     bad_J = ctypes.c_double(0.0)
     status = _lib.petsoft_material_response(
-        code, n, F.ctypes.data, mu.ctypes.data, lam.ctypes.data, psi.ctypes.data, P.ctypes.data,
-        dPdF.ctypes.data, ctypes.addressof(bad_J),
+        code, n, _addr(F), _addr(mu), _addr(lam), _addr(psi), _addr(P),
+        _addr(dPdF), ctypes.addressof(bad_J),
     )  # fmt: skip
     _check_status(status, bad_J)
     return psi, P, dPdF
@@ -203,5 +214,5 @@ def project_spd(dPdF) -> np.ndarray:
     shape = A.shape
     if A.ndim < 1 or A.size != shape[0] * 81:
         raise ValueError(f"dPdF must have shape (n, 3, 3, 3, 3) or (n, 9, 9), got {shape}")
-    _lib.petsoft_project_spd9(shape[0], A.ctypes.data)
+    _lib.petsoft_project_spd9(shape[0], _addr(A))
     return A

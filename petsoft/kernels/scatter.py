@@ -15,8 +15,12 @@ from functools import lru_cache
 
 import numpy as np
 
-_i64p = np.ctypeslib.ndpointer(dtype=np.int64, flags="C_CONTIGUOUS")
-_f64p = np.ctypeslib.ndpointer(dtype=np.float64, flags="C_CONTIGUOUS")
+from .compiled import _addr
+
+# Arrays go in as plain addresses (checked contiguous and typed by the callers below): numpy's
+# ndpointer/``.ctypes`` conversion leaves a self-referencing ctypes object per call that keeps the
+# array alive until the cyclic collector runs (see petsoft.kernels.compiled._addr).
+_i64p = _f64p = ctypes.c_void_p
 
 
 @lru_cache(maxsize=1)
@@ -120,9 +124,11 @@ def scatter_add_matrix(pattern: BlockPattern, conn: np.ndarray, positions: np.nd
         raise ValueError(f"element matrices have shape {ke.shape}, expected {(ne, 3*npe, 3*npe)}")
     if values.shape != (pattern.nvalues,) or not values.flags.c_contiguous:
         raise ValueError("values must be a contiguous array of the pattern's size")
-    if backend == "c":
-        _library().petsoft_scatter_add_matrix(ne, npe, conn, np.ascontiguousarray(positions),
-                                              pattern.bptr, ke, values)
+    if backend == "c" and values.dtype == np.float64:
+        pos = np.ascontiguousarray(positions, dtype=np.int64)
+        bptr = np.ascontiguousarray(pattern.bptr, dtype=np.int64)
+        _library().petsoft_scatter_add_matrix(ne, npe, _addr(conn), _addr(pos), _addr(bptr),
+                                              _addr(ke), _addr(values))
         return
     r = conn[:, :, None]                                   # (ne, a, 1)
     row0 = pattern.bptr[r]
@@ -142,7 +148,7 @@ def scatter_add_vector(conn: np.ndarray, element_vectors: np.ndarray, out: np.nd
     ne, npe = conn.shape
     fe = np.ascontiguousarray(element_vectors, dtype=np.float64).reshape(ne, 3 * npe)
     if backend == "c" and out.flags.c_contiguous and out.dtype == np.float64:
-        _library().petsoft_scatter_add_vector(ne, npe, conn, fe, out)
+        _library().petsoft_scatter_add_vector(ne, npe, _addr(conn), _addr(fe), _addr(out))
         return
     dofs = (3 * conn[:, :, None] + np.arange(3)).ravel()
     out += np.bincount(dofs, weights=fe.ravel(), minlength=out.size)
