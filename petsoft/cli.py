@@ -62,9 +62,14 @@ def _parser() -> argparse.ArgumentParser:
     _add_diagnose_parser(sub)
     _add_recording_parsers(sub)
     d = sub.add_parser("demo", help="run the embedded example (no input needed)",
-                       description="Solve an embedded neo-Hookean cantilever under gravity and an "
-                                   "end load; writes results and a plot to --out.")
+                       description="The embedded example: (static) solve a neo-Hookean "
+                                   "cantilever under gravity and an end load; (diagnose) "
+                                   "synthesise a recording of a bar with an effect its model "
+                                   "lacks, and let `petsoft diagnose` find it. Writes results, "
+                                   "plots and the diagnosis report to --out.")
     d.add_argument("--out", default="petsoft-demo", help="output directory (default %(default)s)")
+    d.add_argument("--part", choices=("all", "static", "diagnose"), default="all",
+                   help="which part to run (default %(default)s)")
     d.add_argument("--method", choices=("snes", "tao"), default="snes")
     d.add_argument("--load-steps", type=int, default=4)
     return p

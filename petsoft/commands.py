@@ -82,13 +82,19 @@ def run(args) -> int:
                      numerics=not args.no_numerics, say=_print)
         return 0
     if args.command == "demo":
-        experiment = experiment_from_dict(DEMO_EXPERIMENT, source="<embedded demo>")
         out = Path(args.out)
-        summary = solve_static(experiment, out, args.method, args.load_steps, False,
-                               command="demo")
-        if PETSc.COMM_WORLD.rank == 0:
-            png = plot_deflection(summary["_mesh"], summary["_u"], out / "deflection.png")
-            _print(f"plot: {png}   (open displacement.xdmf in ParaView for the 3D field)")
+        if args.part in ("all", "static"):
+            experiment = experiment_from_dict(DEMO_EXPERIMENT, source="<embedded demo>")
+            summary = solve_static(experiment, out, args.method, args.load_steps, False,
+                                   command="demo")
+            if PETSc.COMM_WORLD.rank == 0:
+                png = plot_deflection(summary["_mesh"], summary["_u"], out / "deflection.png")
+                _print(f"plot: {png}   (open displacement.xdmf in ParaView for the 3D field)")
+        if args.part in ("all", "diagnose"):
+            from .diagnosis.demo import run_diagnosis_demo
+
+            _print("\n== the whole loop: a recording with a hidden effect, diagnosed ==")
+            run_diagnosis_demo(out / "diagnose", say=_print)
         return 0
     raise AssertionError(args.command)
 

@@ -18,7 +18,7 @@ import numpy as np
 from mpi4py import MPI
 
 from petsoft.calibration.optimize import OptimizationError, OptimizeResult, minimize
-from petsoft.errors import PetsoftError
+from petsoft.groups import map_on_groups
 
 
 @dataclass
@@ -117,36 +117,26 @@ def multistart(make_problem: Callable, starts: Sequence, comm=None, method: str 
         When every start failed (the messages are included), on every rank.
     """
     comm = MPI.COMM_WORLD if comm is None else comm
-    size, rank = comm.Get_size(), comm.Get_rank()
+    size = comm.Get_size()
     ngroups = size if groups is None else max(1, min(int(groups), size))
     starts = np.atleast_2d(np.asarray(starts, dtype=float))
-    color = rank * ngroups // size
-    sub = comm.Split(color, rank)
-    local: list[StartResult] = []
-    bug = ""
+
+    def run(i: int, sub, problem) -> OptimizeResult:
+        # A start that fails (e.g. the forward model breaks far from the data) raises a
+        # PetsoftError on every rank of its group (evaluations are synchronized): map_on_groups
+        # records it and the other starts go on.
+        mon = monitor_factory(i, sub) if monitor_factory is not None else None
+        return minimize(problem, starts[i], method=method, bounds=bounds, options=options,
+                        monitor=mon, scaling=scaling, prefix=prefix)
+
     try:
-        problem = make_problem(sub)
-        for i in range(color, len(starts), ngroups):
-            mon = monitor_factory(i, sub) if monitor_factory is not None else None
-            try:
-                res = minimize(problem, starts[i], method=method, bounds=bounds, options=options,
-                               monitor=mon, scaling=scaling, prefix=prefix)
-                local.append(StartResult(i, color, starts[i].copy(), res))
-            except PetsoftError as err:
-                # A start that fails (e.g. the forward model breaks far from the data) must not
-                # stop the others; every rank of the group raised the same error (evaluations
-                # are synchronized), so the group stays consistent.
-                local.append(StartResult(i, color, starts[i].copy(), None, str(err)))
-    except Exception as err:  # noqa: BLE001 - re-raised on every rank after the gather
-        # A bug in one group must not leave the other groups waiting in the gather below.
-        bug = f"group {color}, rank {rank}: {type(err).__name__}: {err}"
-    gathered = comm.allgather((local if sub.Get_rank() == 0 else [], bug))
-    sub.Free()
-    bugs = [b for _, b in gathered if b]
-    if bugs:
-        raise RuntimeError("multistart failed: " + "; ".join(bugs))
-    gathered = [part for part, _ in gathered]
-    results = sorted((s for part in gathered for s in part), key=lambda s: s.index)
+        tasks = map_on_groups(run, list(range(len(starts))), comm, groups=ngroups,
+                              setup=make_problem)
+    except RuntimeError as err:
+        raise RuntimeError(f"multistart failed: {err}") from err
+    ngroups = max(1, min(ngroups, len(starts)))
+    results = [StartResult(t.index, t.group, starts[t.index].copy(), t.value, t.error)
+               for t in tasks]
     ok = [s for s in results if s.result is not None and np.isfinite(s.result.f)]
     if not ok:
         raise OptimizationError(

@@ -784,6 +784,14 @@ def write_outputs(out: Path, diag: _Diagnosis, result: DiagnoseResult, base_ev: 
     if not diag.rank0:
         return
     out.mkdir(parents=True, exist_ok=True)
+    if not result.base.experiment.is_mass_spring and base_ev.get("markers") is not None:
+        # where on the body: the base fit's per-marker residual spread over the mesh (ParaView)
+        from ..model import load_mesh
+        from .locate import write_residual_field
+
+        mesh = load_mesh(result.base.experiment)
+        write_residual_field(out / "residual_field.xdmf", mesh.points, mesh.tets,
+                             diag.recording.reference, base_ev["markers"])
     write_report(out / "report.json", result.report)
     t = diag.times[diag.ident]
     figs = write_figures(out, base_ev, t, diag.data[diag.ident], result.base.sim[diag.ident],
@@ -825,6 +833,8 @@ def write_outputs(out: Path, diag: _Diagnosis, result: DiagnoseResult, base_ev: 
         "scores": [{k: v for k, v in s.items() if k != "gradient"} for s in result.scores],
         "not_modelled": result.not_modelled, "numerics": result.numerics,
         "files": {"report": "report.json", "markdown": "report.md",
-                  "experiment": "diagnosed.toml", "figures": [f.name for f in figs]},
+                  "experiment": "diagnosed.toml", "figures": [f.name for f in figs],
+                  "residual_field": ("residual_field.xdmf"
+                                     if (out / "residual_field.xdmf").exists() else None)},
     }
     write_summary(out, "diagnose", results, {"simulations": None}, wall_time, diag.comm)
