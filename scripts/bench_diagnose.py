@@ -8,7 +8,7 @@ smaller step, position noise, 8 random surface markers and 10 % dropped samples 
 started 10 % off, calibrating E only (plus what the case says). No petsoft command reads the
 truth (``truth.json`` beside the recording is the benchmark's only).
 
-The body is a cantilever bar, 0.3 x 0.04 x 0.04 m (user mesh 6 x 1 x 1 box cells, generalized-
+The body is a cantilever bar, 0.3 x 0.04 x 0.04 m (user mesh 12 x 2 x 2 box cells, generalized-
 alpha with r = 0.9 and h = 4 ms over 0.3 s), set swinging by an initial velocity. Twelve single-
 effect cases (one per vocabulary term), two combined ones and two controls (nothing missing: a
 linear and a corotated body).
@@ -42,15 +42,17 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-E_TRUE, RHO, NOISE = 2.0e7, 1000.0, 5e-5
+E_TRUE, RHO, NOISE = 2.0e7, 1000.0, 1e-4
 SIZE = [0.3, 0.04, 0.04]
 
 BASE = {
-    "mesh": {"box": {"size": SIZE, "cells": [6, 1, 1]}},
+    "mesh": {"box": {"size": SIZE, "cells": [12, 2, 2]}},
     "material": {"model": "linear", "youngs_modulus": E_TRUE, "poisson_ratio": 0.3,
                  "density": RHO},
     "gravity": {"acceleration": [0.0, 0.0, -9.81]},
-    "initial": {"velocity": ["0", "0", "2*x"]},
+    # close to the first bending mode's shape: higher modes, which the coarse model's mesh gets
+    # wrong by more than the noise, are barely excited
+    "initial": {"velocity": ["0", "0", "6*x*x"]},
     "boundary": [{"kind": "fixed", "where": "x < 1e-9"}],
     "time": {"end": 0.3, "step": 0.004, "integrator": "alpha", "alpha_radius": 0.9},
     "output": {"directory": "out"},
@@ -83,8 +85,8 @@ CASES: dict[str, dict] = {
     "added-mass": dict(truth=_region("heavy", HEAVY, "density", 4 * RHO),
                        physics=["mass.added"], locate=HEAVY),
     "nonlinear": dict(truth={"material": {"model": "corotated"},
-                             "initial": {"velocity": ["0", "0", "20*x"]}},
-                      user={"initial": {"velocity": ["0", "0", "20*x"]}},
+                             "initial": {"velocity": ["0", "0", "60*x*x"]}},
+                      user={"initial": {"velocity": ["0", "0", "60*x*x"]}},
                       physics=["material.nonlinear"]),
     "viscoelastic": dict(truth={"viscoelastic": {"ratio": 0.3, "relaxation_time": 0.015}},
                          physics=["material.viscoelastic"],
@@ -101,8 +103,8 @@ CASES: dict[str, dict] = {
                          integrator="be"),
     "contact": dict(truth={"collider": [{"kind": "plane", "point": [0.0, 0.0, -0.012],
                                          "normal": [0.0, 0.0, 1.0]}],
-                           "initial": {"velocity": ["0", "0", "-6*x"]}},
-                    user={"initial": {"velocity": ["0", "0", "-6*x"]}},
+                           "initial": {"velocity": ["0", "0", "-18*x*x"]}},
+                    user={"initial": {"velocity": ["0", "0", "-18*x*x"]}},
                     physics=["contact.plane"], param=("collider.0.offset", None)),
     "damping+mass": dict(truth={"damping": {"mass": 4.0},
                                 **_region("heavy", HEAVY, "density", 4 * RHO)},

@@ -478,7 +478,7 @@ def test_user_errors():
     # a step that inverts elements: a clear error naming the step, no retry with halved steps
     crash = _bar("neohookean", initial={"velocity": ["0", "0", "3000*x"]})
     fm = ForwardModel(crash, NAMES[:1], obs, FRAMES)
-    with pytest.raises(SolverError, match=r"forward model \(be\) step 1 at t = 0 s.*No retry"):
+    with pytest.raises(SolverError, match=r"forward model \(be\) step \d+ at t = .*No retry"):
         fm.simulate(fm.p0)
     fm.destroy()
     from petsoft.calibration.observation import ObservationError

@@ -72,6 +72,9 @@ PREFIX = "fm_"
 GRAD_PREFIX = "fm_grad_"
 #: Newton of the forward run: gradients are only as accurate as the solves (user options win).
 FORWARD_OPTIONS = {PREFIX + "snes_rtol": "1e-12"}
+#: Systems up to this many dofs are solved directly by default (:meth:`ForwardModel.
+#: _small_problem_defaults`).
+SMALL_DOFS = 6000
 #: Relative size of the SI third-derivative difference: eps |w|_inf = this x mean cell size.
 SI_EPS = 1e-4
 _GROUP = re.compile(r"#(\d+)$")
@@ -170,6 +173,7 @@ class ForwardModel:
             system = DynamicSystem(self.model, exp.damping.mass, exp.damping.stiffness)
         self.system = s = system
         self.comm = s.comm
+        self._small_problem_defaults(opts)
         self.names = list(names)
         groups = [int(m.group(1)) for n in self.names if (m := _GROUP.search(n))]
         if groups:
@@ -362,6 +366,30 @@ class ForwardModel:
             for k, w in uses:
                 out[k] += w * obs[n]
         return out
+
+    def _small_problem_defaults(self, opts: dict) -> None:
+        """A direct solve (LU; MUMPS on several ranks) for small systems unless the experiment
+        chose a linear solver: a calibration makes thousands of runs, and on a few thousand
+        dofs an algebraic-multigrid set-up per step cost 10x the factorisation (measured: 17 ms
+        vs under 2 ms per step on a 36-tet bar). The command line still overrides it."""
+        if any(k.startswith(("ksp_", "pc_")) for k in opts):
+            return
+        probe = self.system.create_vec()
+        size = probe.getSize()
+        probe.destroy()
+        if size > SMALL_DOFS:
+            return
+        direct = {"ksp_type": "preonly", "pc_type": "lu"}
+        if self.comm.getSize() > 1:
+            direct["pc_factor_mat_solver_type"] = "mumps"
+        db = PETSc.Options()
+        for prefix, attr in ((PREFIX, "_forward_defaults"), (GRAD_PREFIX, "_grad_defaults")):
+            # a solver half-chosen on the command line (e.g. only -fm_pc_type) keeps the rest
+            # of petsoft's iterative default, not a direct solver's "preonly"
+            if db.hasName(prefix + "ksp_type") or db.hasName(prefix + "pc_type"):
+                continue
+            setattr(self, attr, {**{prefix + k: v for k, v in direct.items()},
+                                 **getattr(self, attr)})
 
     @_collects_garbage
     def simulate(self, p) -> np.ndarray:
