@@ -265,6 +265,11 @@ class BoundarySpec:
         Name of a measured input in the recording, e.g. ``"inputs/shaker"`` (prescribed).
     value : tuple of 3 Expression or None
         Traction in Pa, expressions of x, y, z, t (traction).
+    compliance : float
+        m/Pa, >= 0 (fixed only): 0 is a rigid support (Dirichlet rows); > 0 ties each
+        constrained component of the boundary's nodes to 0 by a spring of stiffness
+        A_i / compliance, A_i the node's lumped area of the boundary faces inside ``where``
+        (:mod:`petsoft.physics.support`).
     """
 
     kind: str
@@ -273,6 +278,7 @@ class BoundarySpec:
     displacement: Expr3 | None = None
     series: str | None = None
     value: Expr3 | None = None
+    compliance: float = 0.0
 
     @property
     def region(self) -> str | None:
@@ -369,7 +375,10 @@ class MassSpec:
 class ColliderSpec:
     """One ``[[collider]]``: a rigid ``"sphere"`` (center, radius > 0) or ``"plane"`` (point,
     unit normal pointing to the allowed side; given non-zero, stored normalised), with Coulomb
-    ``friction`` >= 0 and an optional penalty ``stiffness`` > 0 (None: the solver's choice)."""
+    ``friction`` >= 0 and an optional penalty ``stiffness`` > 0 (None: the solver's choice).
+    A plane's ``offset`` (m, any sign, default 0) moves it along its normal: the surface is
+    ``point + offset * normal`` (the calibration parameter ``collider.<i>.offset``; ``point``
+    itself is never rewritten)."""
 
     kind: str
     center: Vec3 | None = None
@@ -378,6 +387,7 @@ class ColliderSpec:
     normal: Vec3 | None = None
     friction: float = 0.0
     stiffness: float | None = None
+    offset: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -699,13 +709,13 @@ _TOP_KEYS = (
 )
 _MATERIAL_KEYS = ("model", "youngs_modulus", "poisson_ratio", "density")
 _BOUNDARY_KEYS = {
-    "fixed": ("kind", "where", "components"),
+    "fixed": ("kind", "where", "components", "compliance"),
     "prescribed": ("kind", "where", "components", "displacement", "series"),
     "traction": ("kind", "where", "value"),
 }
 _COLLIDER_KEYS = {
     "sphere": ("kind", "center", "radius", "friction", "stiffness"),
-    "plane": ("kind", "point", "normal", "friction", "stiffness"),
+    "plane": ("kind", "point", "normal", "friction", "stiffness", "offset"),
 }
 
 _TOML_POSITION = re.compile(r"\(at line (\d+), column (\d+)\)")
@@ -1055,6 +1065,10 @@ def _read_boundary(r: _Reader) -> BoundarySpec:
             )
     elif kind == "traction":
         spec = dataclasses.replace(spec, value=r.expressions("value", SPACE_TIME, what="in Pa"))
+    else:
+        spec = dataclasses.replace(
+            spec, compliance=r.number("compliance", 0.0, _NONNEGATIVE, unit="m/Pa")
+        )
     return spec
 
 
@@ -1215,6 +1229,7 @@ def _read_collider(r: _Reader) -> ColliderSpec:
         kind=kind,
         point=r.vector("point", unit="m"),
         normal=tuple(c / length for c in normal),
+        offset=r.number("offset", 0.0, _ANY, unit="m, along the normal"),
         **common,
     )
 
@@ -1240,6 +1255,13 @@ def _parameter_table(exp: Experiment) -> dict[str, tuple[float, _Range]]:
     params["damping.stiffness"] = (exp.damping.stiffness, _NONNEGATIVE)
     for i, c in enumerate(COMPONENTS):
         params[f"gravity.acceleration.{c}"] = (exp.gravity.acceleration[i], _ANY)
+    compliant = [b.compliance for b in exp.boundaries if b.kind == "fixed" and b.compliance > 0]
+    if compliant:
+        # one value shared by every elastic support (with_parameters sets them all)
+        params["boundary.compliance"] = (compliant[0], _POSITIVE)
+    for i, c in enumerate(exp.colliders):
+        if c.kind == "plane":
+            params[f"collider.{i}.offset"] = (c.offset, _ANY)
     if exp.springs is not None:
         s = exp.springs
         params["springs.stiffness"] = (s.stiffness, _POSITIVE)
@@ -1254,7 +1276,8 @@ def parameter_names(experiment: Experiment) -> list[str]:
     :func:`with_parameters` accept, e.g. ``"material.youngs_modulus"``,
     ``"material.<region>.density"`` (for regions with a ``[material.<region>]`` table or a
     ``[region.<name>]``), ``"damping.mass"``, ``"gravity.acceleration.z"``,
-    ``"springs.stiffness"``."""
+    ``"springs.stiffness"``, ``"boundary.compliance"`` (when a fixed boundary has
+    compliance > 0), ``"collider.<i>.offset"`` (for a plane collider)."""
     return list(_parameter_table(experiment))
 
 
@@ -1276,6 +1299,13 @@ def _unknown_parameter(source: str, name: str, table: Mapping[str, Any]) -> str:
             f" (for a region that is a mesh physical group, add an empty [material.{parts[1]}] "
             "table so it can be calibrated)"
         )
+    if name == "boundary.compliance":
+        note = (
+            ' (no [[boundary]] kind = "fixed" has compliance > 0: give the support an elastic '
+            "compliance > 0 in the experiment to calibrate it)"
+        )
+    if parts[0] == "collider":
+        note = ' (collider.<i>.offset exists for [[collider]] kind = "plane" only)'
     return (
         f'{source}: "{name}" is not a numeric parameter of this experiment{hint}{note}. '
         f"Valid: {', '.join(table)}"
@@ -1303,6 +1333,15 @@ def with_parameters(experiment: Experiment, values: Mapping[str, float]) -> Expe
         if name not in table:
             raise ExperimentError(_unknown_parameter(experiment.source, name, table))
         parts = _split_parameter(name)
+        if parts[0] == "boundary":
+            # every elastic support shares the compliance
+            for entry in data["boundary"]:
+                if entry["kind"] == "fixed" and entry.get("compliance", 0.0) > 0.0:
+                    entry["compliance"] = float(value)
+            continue
+        if parts[0] == "collider":
+            data["collider"][int(parts[1])]["offset"] = float(value)
+            continue
         if parts[0] == "gravity":
             acc = list(data.setdefault("gravity", {}).get("acceleration", [0.0, 0.0, 0.0]))
             acc[COMPONENTS.index(parts[2])] = float(value)
@@ -1432,6 +1471,8 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
                 entry["series"] = b.series
             if b.value is not None:
                 entry["value"] = _literals(b.value)
+            if b.compliance > 0.0:
+                entry["compliance"] = b.compliance
             boundaries.append(entry)
         d["boundary"] = boundaries
     initial: dict[str, Any] = {}
@@ -1460,7 +1501,7 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
             {
                 k: (list(v) if isinstance(v, tuple) else v)
                 for k, v in dataclasses.asdict(c).items()
-                if v is not None
+                if v is not None and not (k == "offset" and v == 0.0)
             }
             for c in exp.colliders
         ]
