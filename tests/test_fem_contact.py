@@ -1,0 +1,346 @@
+"""Plane colliders on FEM bodies (penalty contact on the surface nodes, collider.<i>.offset).
+
+1. Static: a bar resting on a plane carries its weight: the contact forces sum to m g (1e-8).
+2. Dynamics: a bar dropped on a plane (be) penetrates less than the energy (penalty) bound
+   sum k/2 p^2 <= released gravitational energy and comes to rest on it carrying its weight;
+   with the discrete-gradient midpoint rule the energy balance closes (contact energy counted as
+   potential: the ledger's "numerical" column stays at round-off).
+3. Taylor tests: energy/gradient/Hessian with contact; the residual's derivatives with respect to
+   collider.0.offset (jointly with boundary.compliance: order 2; the offset alone: exactly
+   linear); the forward model's jacobian (be) w.r.t. both vs central differences.
+4. serial == 2 ranks (probe trajectories, 1e-10).
+5. Bad input: a zero normal (file and key named), friction on a FEM body, offset on a sphere.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from petsoft.calibration.forward import ForwardModel
+from petsoft.calibration.observation import MarkerObserver
+from petsoft.dynamics.implicit import ImplicitIntegrator
+from petsoft.dynamics.simulate import Simulation
+from petsoft.dynamics.system import DynamicSystem
+from petsoft.errors import ExperimentError
+from petsoft.experiment import (
+    experiment_from_dict,
+    get_parameter,
+    load_experiment,
+    with_parameters,
+    write_toml,
+)
+from petsoft.model import build_model
+from petsoft.options import clear_options
+from petsoft.static import StaticSolver
+
+L, A, RHO, G = 0.3, 0.04, 1000.0, 9.81
+WEIGHT = RHO * L * A * A * G
+
+
+def _print(*args):
+    if PETSc.COMM_WORLD.getRank() == 0:
+        print(*args)
+
+
+def _orders(remainders):
+    r = np.asarray(remainders)
+    return np.log2(r[:-1] / r[1:])
+
+
+def _data(collider, model="linear", **extra):
+    data = {
+        "mesh": {"box": {"size": [L, A, A], "cells": [4, 1, 1]}},
+        "material": {"model": model, "youngs_modulus": 1e5, "poisson_ratio": 0.3,
+                     "density": RHO},
+        "gravity": {"acceleration": [0.0, 0.0, -G]},
+        "collider": [collider],
+    }
+    data.update(extra)
+    return data
+
+
+def _contact_force(model, q):
+    c = model.elastic.contact
+    return model.dmesh.comm.tompi4py().allreduce(c.forces(model.dmesh.to_local(q)).sum(axis=0))
+
+
+# -- 1. static ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("time", [None, {"end": 0.1, "step": 1e-3}], ids=["no_time", "time"])
+def test_bar_resting_on_plane_carries_its_weight(time):
+    """x, y held at the bottom (the plane holds z only); start in contact (offset 1e-9 m) so
+    the tangent is not singular in z. Both default stiffnesses (with and without [time])."""
+    extra = {"boundary": [{"kind": "fixed", "where": "z < 1e-9", "components": ["x", "y"]}]}
+    if time is not None:
+        extra["time"] = time
+    exp = experiment_from_dict(_data({"kind": "plane", "point": [0, 0, 0], "normal": [0, 0, 1],
+                                      "offset": 1e-9}, **extra))
+    model = build_model(exp)
+    solver = StaticSolver(model)
+    try:
+        q = solver.solve().displacement
+        force = _contact_force(model, q)
+        k = model.elastic.contact.colliders[0].stiffness
+        pen = model.dmesh.comm.tompi4py().allreduce(
+            model.elastic.contact.penetration(model.dmesh.to_local(q)).max(), op=MPI.MAX)
+    finally:
+        solver.destroy()
+    _print(f"resting bar ({'static' if time is None else 'step'} default k = {k:.3g} N/m): "
+           f"contact force {force}, weight {WEIGHT}, penetration {pen:.3g} m")
+    assert abs(force[2] - WEIGHT) <= 1e-8 * WEIGHT
+    assert np.abs(force[:2]).max() <= 1e-12 * WEIGHT
+    assert 0 < pen < 1e-3 * A
+
+
+# -- 2. dynamics ----------------------------------------------------------------------------------
+def test_dropped_bar_be_penetration_bound_and_rest():
+    d, h, n = 0.01, 1e-3, 250
+    exp = experiment_from_dict(_data({"kind": "plane", "point": [0, 0, -d], "normal": [0, 0, 1]},
+                                     damping={"mass": 20.0},
+                                     time={"end": n * h, "step": h, "integrator": "be"}))
+    model = build_model(exp)
+    s = DynamicSystem(model, exp.damping.mass)
+    integ = ImplicitIntegrator(s, "be")
+    q, v = s.create_vec(), s.create_vec()
+    q.zeroEntries()
+    v.zeroEntries()
+    q1, v1 = q.duplicate(), v.duplicate()
+    c = model.elastic.contact
+    k = c.colliders[0].stiffness
+    mpi = s.comm.tompi4py()
+    pmax, worst = 0.0, 0.0
+    try:
+        for i in range(n):
+            assert integ.step(i * h, q, v, h, q1, v1).converged
+            q1.copy(q)
+            v1.copy(v)
+            u = s.dmesh.to_local(q)
+            pmax = max(pmax, mpi.allreduce(c.penetration(u).max(), op=MPI.MAX))
+            contact = s.dmesh.allreduce_sum(c.energy(u))
+            released = -s.gravitational_energy(q)
+            worst = max(worst, contact - released)
+        force = _contact_force(model, q)
+        speed = v.norm(PETSc.NormType.INFINITY)
+    finally:
+        integ.destroy()
+    bound = np.sqrt(2.0 * WEIGHT * (d + pmax) / k)
+    _print(f"dropped bar (be): k = {k:.3g} N/m, max penetration {pmax:.3g} m, energy bound "
+           f"{bound:.3g} m, final contact force {force[2]:.6g} N (weight {WEIGHT:.6g}), speed "
+           f"{speed:.2g} m/s")
+    assert pmax > 0.0                           # it did hit the plane
+    assert worst <= 1e-12 * WEIGHT * d          # contact energy <= released gravity energy
+    assert pmax <= bound
+    assert abs(force[2] - WEIGHT) <= 1e-2 * WEIGHT and speed < 1e-2   # at rest on the plane
+
+
+def test_dropped_bar_midpoint_energy_balance_closes():
+    d, h = 0.005, 1e-3
+    exp = experiment_from_dict(_data({"kind": "plane", "point": [0, 0, -d], "normal": [0, 0, 1]},
+                                     model="corotated",
+                                     time={"end": 0.06, "step": h, "integrator": "midpoint"}))
+    model = build_model(exp)
+    sim = Simulation(model, exp)
+    try:
+        result = sim.run()
+    finally:
+        sim.destroy()
+    e = result.energies        # time, kinetic, elastic (+ contact), gravitational, ..., numerical
+    contact = model.elastic.contact
+    released = -e[:, 3].min()
+    assert released > WEIGHT * d                       # it fell onto the plane and into it
+    assert e[:, 2].max() > 0.1 * WEIGHT * d            # contact energy took a large share
+    _print(f"midpoint drop: max |numerical| {np.abs(e[:, 6]).max():.2e} J of {released:.3g} J "
+           f"released; contact k {contact.colliders[0].stiffness:.3g}")
+    assert np.abs(e[:, 6]).max() <= 1e-9 * released
+
+
+# -- 3. Taylor tests ------------------------------------------------------------------------------
+def _penetrated(model="corotated", offset=0.004, **extra):
+    """The bar with its bottom 4 mm inside a plane (tilted a little) and an elastic support."""
+    data = _data({"kind": "plane", "point": [0, 0, 0], "normal": [0.005, -0.003, 1.0],
+                  "offset": offset, "stiffness": 2e4}, model=model,
+                 boundary=[{"kind": "fixed", "where": "x < 1e-9", "compliance": 3e-7}],
+                 damping={"mass": 0.5, "stiffness": 0.002})
+    data.update(extra)
+    return experiment_from_dict(data)
+
+
+def _state(s, seed=1, scale=1e-4):
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(3):
+        x = s.create_vec()
+        x.setArray(scale * 10.0**k * rng.standard_normal(x.getLocalSize()))
+        out.append(x)
+    return out
+
+
+def test_contact_energy_gradient_hessian_taylor():
+    exp = _penetrated()
+    s = DynamicSystem(build_model(exp), exp.damping.mass, exp.damping.stiffness)
+    q, d, _ = _state(s)
+    u = s.dmesh.to_local(q)
+    c = s.elastic.contact
+    active = s.comm.tompi4py().allreduce(int((c.penetration(u) > 1e-3).sum()))
+    assert active == 10        # the bottom nodes are in contact, far from the switch
+    d.scale(1.0 / d.norm())
+    g0 = s.internal_gradient(q, s.create_vec())
+    W0 = s.elastic_energy(q)
+    H = s.assemble_combination(q, 0.0, 1.0, 0.0, s.create_matrix(), eliminate=False)
+    Hd = H.createVecLeft()
+    H.mult(d, Hd)
+    remW, remG = [], []
+    for k in range(5):
+        eps = 1e-4 * 2.0**-k
+        x = q.copy()
+        x.axpy(eps, d)
+        remW.append(abs(s.elastic_energy(x) - W0 - eps * g0.dot(d)))
+        g = s.internal_gradient(x, s.create_vec())
+        g.axpy(-1.0, g0)
+        g.axpy(-eps, Hd)
+        remG.append(g.norm())
+    _print(f"contact Taylor: energy {_orders(remW)}, gradient {_orders(remG)}")
+    for rem in (remW, remG):
+        o = _orders(rem)
+        assert np.all((o > 1.8) & (o < 2.2)), o
+    # the contact is in K(q) but not in K0 (penetrating here: K0 would differ if it were)
+    K0 = s.K0_matrix()
+    lin = DynamicSystem(build_model(_penetrated(collider=[])), 0.0, 0.0).K0_matrix()
+    K0.axpy(-1.0, lin)
+    assert K0.norm() <= 1e-12 * lin.norm()
+
+
+def _residual(s, values, q, v, a):
+    s.set_parameters(values)
+    out, w = s.create_vec(), s.create_vec()
+    s.internal_gradient(q, out)
+    s.M.mult(a, w)
+    out.axpy(1.0, w)
+    out.axpy(1.0, s.damping_apply(v, w))
+    out.axpy(-1.0, s.gravity)
+    s.zero_prescribed(out)
+    return out
+
+
+def test_offset_derivative_taylor():
+    exp = _penetrated()
+    s = DynamicSystem(build_model(exp), exp.damping.mass, exp.damping.stiffness)
+    names = ["collider.0.offset", "boundary.compliance"]
+    assert set(names) <= set(s.parameter_names())
+    q, v, a = _state(s)
+    base = {n: s.parameters.values[n] for n in names}
+    R = s.residual_parameter_derivatives(names, q, v, a)
+    r0 = _residual(s, base, q, v, a)
+    assert R[0].norm() > 0
+    # the offset alone: r is exactly linear in it while no node enters or leaves the contact
+    for eps in (1e-4, 1e-5):
+        r = _residual(s, {**base, names[0]: base[names[0]] + eps}, q, v, a)
+        r.axpy(-1.0, r0)
+        r.axpy(-eps, R[0])
+        assert r.norm() <= 1e-9 * eps * R[0].norm()
+    # jointly with the compliance (r ~ 1/c): a wrong offset derivative would leave O(eps)
+    dp = np.array([5e-4, 0.5 * base["boundary.compliance"]])
+    lin = R[0].copy()
+    lin.scale(dp[0])
+    lin.axpy(dp[1], R[1])
+    rem = []
+    for k in range(5):
+        eps = 1e-1 * 2.0**-k
+        r = _residual(s, {n: base[n] + eps * dp[j] for j, n in enumerate(names)}, q, v, a)
+        r.axpy(-1.0, r0)
+        r.axpy(-eps, lin)
+        rem.append(r.norm())
+    orders = _orders(rem)
+    _print(f"offset + compliance residual Taylor {rem}, orders {orders}")
+    assert np.all((orders > 1.8) & (orders < 2.2)), orders
+    s.set_parameters(base)
+    # the plane moved by the offset along its unit normal
+    c = s.elastic.contact.colliders[0]
+    s.set_parameters({names[0]: 0.01})
+    n = np.array([0.005, -0.003, 1.0]) / np.linalg.norm([0.005, -0.003, 1.0])
+    np.testing.assert_allclose(c.point, 0.01 * n, atol=1e-15)
+    s.set_parameters(base)
+
+
+MARKERS = np.array([[L, 0.02, 0.02], [0.15, 0.0, 0.0], [0.2, 0.04, 0.04]])
+FRAMES = [0.004, 0.01]
+
+
+def test_forward_jacobian_offset_and_compliance():
+    """be through 5 steps of a bar bouncing in contact: jacobian == central differences."""
+    exp = _penetrated(model="linear", offset=0.002,
+                      time={"end": 0.01, "step": 2e-3, "integrator": "be"})
+    names = ["collider.0.offset", "boundary.compliance"]
+    fm = ForwardModel(exp, names, lambda s: MarkerObserver(s, MARKERS), FRAMES)
+    try:
+        p = fm.p0.copy()
+        _, jac = fm.jacobian(p)
+        fd = fm.fd_jacobian(p, rel_step=1e-9)     # steps of 1e-9 (m, m/Pa)
+    finally:
+        fm.destroy()
+    for j, name in enumerate(names):
+        scale = np.abs(jac[..., j]).max()
+        err = np.abs(jac[..., j] - fd[..., j]).max() / scale
+        _print(f"{name}: |jacobian| {scale:.3e}, relative difference to central differences "
+               f"{err:.2e}")
+        assert scale > 0 and err < 1e-5, (name, err)
+
+
+# -- 4. serial == 2 ranks --------------------------------------------------------------------
+def test_one_rank_equals_all_ranks():
+    exp = experiment_from_dict(_data({"kind": "plane", "point": [0, 0, -0.002],
+                                      "normal": [0.1, 0, 1]},
+                                     time={"end": 0.04, "step": 1e-3, "integrator": "be"},
+                                     output={"probes": [[L, 0.02, 0.0], [0.0, 0.0, 0.0]]}))
+    runs = []
+    opts = PETSc.Options()
+    opts.setValue("ksp_rtol", "1e-13")
+    try:
+        for comm in (PETSc.COMM_SELF, PETSc.COMM_WORLD):
+            model = build_model(exp, comm)
+            sim = Simulation(model, exp)
+            runs.append(np.array(sim.run().probe_displacements))
+            sim.destroy()
+    finally:
+        clear_options(["ksp_rtol"])
+    a, b = (MPI.COMM_WORLD.bcast(x) for x in runs)
+    assert np.abs(a).max() > 1e-3
+    assert np.abs(a - b).max() <= 1e-10 * np.abs(a).max()
+
+
+# -- 5. the experiment side ---------------------------------------------------------------------
+def test_offset_parameter_round_trip(tmp_path):
+    exp = _penetrated()
+    assert get_parameter(exp, "collider.0.offset") == 0.004
+    new = with_parameters(exp, {"collider.0.offset": -0.002})
+    assert new.colliders[0].offset == -0.002 and new.colliders[0].point == (0.0, 0.0, 0.0)
+    path = tmp_path / "calibrated.toml"        # every rank has its own tmp_path
+    write_toml(new, path)
+    assert load_experiment(path) == new
+    sphere = experiment_from_dict(_data({"kind": "sphere", "center": [0, 0, -1], "radius": 0.5}))
+    with pytest.raises(ExperimentError, match="plane"):
+        get_parameter(sphere, "collider.0.offset")
+
+
+def test_zero_normal_names_file_and_key(tmp_path):
+    path = tmp_path / "bad.toml"
+    path.write_text('[mesh]\nbox = { size = [0.3, 0.04, 0.04], cells = [2, 1, 1] }\n'
+                    '[material]\nyoungs_modulus = 1e5\npoisson_ratio = 0.3\ndensity = 1000\n'
+                    '[[collider]]\nkind = "plane"\npoint = [0, 0, 0]\nnormal = [0, 0, 0]\n')
+    with pytest.raises(ExperimentError,
+                       match=rf"^{path}: collider\[0\]\.normal = \[0, 0, 0\]: the plane's normal "
+                             "must be non-zero"):
+        load_experiment(path)
+
+
+def test_friction_and_sphere_offset_refused():
+    exp = experiment_from_dict(_data({"kind": "plane", "point": [0, 0, 0], "normal": [0, 0, 1],
+                                      "friction": 0.3}))
+    with pytest.raises(ExperimentError, match=r"collider\[0\]\.friction = 0\.3: Coulomb friction "
+                                              r"is implemented for \[springs\] models only"):
+        build_model(exp)
+    with pytest.raises(ExperimentError, match=r"unknown key collider\[0\]\.offset"):
+        experiment_from_dict(_data({"kind": "sphere", "center": [0, 0, -1], "radius": 0.5,
+                                    "offset": 0.1}))
