@@ -47,7 +47,12 @@ Decisions the format leaves open
 * Optional keys beyond formats.md (allowed: the format grows only by optional keys):
   ``[springs] pairs`` (explicit node pairs instead of the mesh edges) and ``node_mass`` (kg added at
   every node), and ``[[collider]] friction``, ``stiffness`` (penalty), plus the geometry each kind
-  needs (``center``/``radius`` for a sphere, ``point``/``normal`` for a plane).
+  needs (``center``/``radius`` for a sphere, ``point``/``normal`` for a plane), and a plane's
+  ``offset`` (m, default 0: the plane moved along its normal, the calibration parameter
+  ``collider.<i>.offset`` of ``[material]`` models; calibrated values are written back as this
+  key, ``point`` is kept); ``[[boundary]] kind = "fixed"`` ``compliance`` (m/Pa, default 0 =
+  rigid; > 0: an elastic support, see :mod:`petsoft.physics.support`; the parameter
+  ``boundary.compliance`` sets every elastic support).
 * ``format_version = 1`` is optional at the top level; other versions are refused.
 """
 
@@ -1260,7 +1265,8 @@ def _parameter_table(exp: Experiment) -> dict[str, tuple[float, _Range]]:
         # one value shared by every elastic support (with_parameters sets them all)
         params["boundary.compliance"] = (compliant[0], _POSITIVE)
     for i, c in enumerate(exp.colliders):
-        if c.kind == "plane":
+        # a differentiable parameter of continuum models (mass-spring models honour the key)
+        if c.kind == "plane" and exp.material:
             params[f"collider.{i}.offset"] = (c.offset, _ANY)
     if exp.springs is not None:
         s = exp.springs
@@ -1305,7 +1311,10 @@ def _unknown_parameter(source: str, name: str, table: Mapping[str, Any]) -> str:
             "compliance > 0 in the experiment to calibrate it)"
         )
     if parts[0] == "collider":
-        note = ' (collider.<i>.offset exists for [[collider]] kind = "plane" only)'
+        note = (
+            ' (collider.<i>.offset exists for [[collider]] kind = "plane" of [material] models '
+            "only)"
+        )
     return (
         f'{source}: "{name}" is not a numeric parameter of this experiment{hint}{note}. '
         f"Valid: {', '.join(table)}"

@@ -147,12 +147,7 @@ def build_contact(experiment, dmesh, density_file: np.ndarray, youngs_file: np.n
     if any(spec.stiffness is None for spec in experiment.colliders):
         step = experiment.time.step if experiment.time is not None else None
         default_k = default_fem_stiffness(mesh, density_file, youngs_file, surface, step)
-    colliders = []
-    for spec in experiment.colliders:
-        c = Collider.from_spec(spec, default_k)
-        if c.kind == "plane":
-            c.point = c.point + spec.offset * c.normal
-        colliders.append(c)
+    colliders = [Collider.from_spec(spec, default_k) for spec in experiment.colliders]
     local = np.flatnonzero(surface[dmesh.vertex_ids] & dmesh.owned)
     return SurfaceContact(dmesh, local, colliders,
                           [spec.offset if spec.kind == "plane" else 0.0
