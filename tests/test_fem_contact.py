@@ -94,6 +94,31 @@ def test_bar_resting_on_plane_carries_its_weight(time):
     assert 0 < pen < 1e-3 * A
 
 
+def test_cantilever_sagging_onto_plane_static():
+    """An elastically supported cantilever sags onto a plane (no contact at the start; the
+    default Newton line search for contact, l2): the support springs and the contact together
+    carry the weight, and both carry a share."""
+    exp = experiment_from_dict(_data(
+        {"kind": "plane", "point": [0, 0, -0.004], "normal": [0, 0, 1], "stiffness": 4e4},
+        boundary=[{"kind": "fixed", "where": "x < 1e-9", "compliance": 1e-8}]))
+    model = build_model(exp)
+    solver = StaticSolver(model)
+    try:
+        result = solver.solve()
+        q = result.displacement
+        contact = _contact_force(model, q)
+        u = model.dmesh.to_local(q)
+        support = model.dmesh.comm.tompi4py().allreduce(
+            -model.elastic.support.gradient(u).sum(axis=0))
+    finally:
+        solver.destroy()
+    _print(f"sagging cantilever: {result.newton_iterations} Newton iterations, contact "
+           f"{contact[2]:.6g} N + support {support[2]:.6g} N = weight {WEIGHT:.6g} N")
+    assert result.retries == 0 and result.newton_iterations <= 10
+    assert contact[2] > 0.1 * WEIGHT and support[2] > 0.1 * WEIGHT
+    assert abs(contact[2] + support[2] - WEIGHT) <= 1e-8 * WEIGHT
+
+
 # -- 2. dynamics ----------------------------------------------------------------------------------
 def test_dropped_bar_be_penetration_bound_and_rest():
     d, h, n = 0.01, 1e-3, 250
