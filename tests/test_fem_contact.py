@@ -202,8 +202,14 @@ def _state(s, seed=1, scale=1e-4):
     return out
 
 
-def test_contact_energy_gradient_hessian_taylor():
-    exp = _penetrated()
+SPHERE = {"kind": "sphere", "center": [0.15, 0.02, -10.0 + 0.004], "radius": 10.0,
+          "stiffness": 2e4}
+
+
+@pytest.mark.parametrize("sphere", [False, True], ids=["plane", "sphere"])
+def test_contact_energy_gradient_hessian_taylor(sphere):
+    """Plane, and a sphere (its exact Hessian has the curvature term -k p (I - n n^T) / r)."""
+    exp = _penetrated(collider=[SPHERE]) if sphere else _penetrated()
     s = DynamicSystem(build_model(exp), exp.damping.mass, exp.damping.stiffness)
     q, d, _ = _state(s)
     u = s.dmesh.to_local(q)
