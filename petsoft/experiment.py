@@ -104,7 +104,9 @@ __all__ = [
     "get_parameter",
     "load_experiment",
     "parameter_names",
+    "with_compliance",
     "with_parameters",
+    "with_plane_collider",
     "write_toml",
 ]
 
@@ -1363,6 +1365,66 @@ def with_parameters(experiment: Experiment, values: Mapping[str, float]) -> Expe
     return experiment_from_dict(
         data, source=experiment.source, base_dir=experiment.base_dir, path=experiment.path
     )
+
+
+def with_compliance(
+    experiment: Experiment, compliance: float, boundaries: Sequence[int] | None = None
+) -> Experiment:
+    """A copy with ``compliance`` (m/Pa, > 0) on fixed boundaries: every one, or the
+    ``[[boundary]]`` indices given. Turns rigid supports elastic (which ``set_parameters``
+    cannot do in place), e.g. to try the ``boundary.compliance`` term.
+
+    Raises
+    ------
+    ExperimentError
+        For a compliance <= 0, an index that is not a fixed boundary, or no fixed boundary.
+    """
+    c = float(compliance)
+    if not (math.isfinite(c) and c > 0.0):
+        raise ExperimentError(
+            f"{experiment.source}: compliance = {compliance!r}: an elastic support needs a "
+            "finite compliance > 0 (m/Pa)"
+        )
+    fixed = [i for i, b in enumerate(experiment.boundaries) if b.kind == "fixed"]
+    chosen = fixed if boundaries is None else [int(i) for i in boundaries]
+    if not chosen:
+        raise ExperimentError(
+            f'{experiment.source}: no [[boundary]] kind = "fixed" to make elastic (compliance '
+            "applies to fixed boundaries only)"
+        )
+    bad = [i for i in chosen if i not in fixed]
+    if bad:
+        raise ExperimentError(
+            f'{experiment.source}: boundary[{bad[0]}] is not a [[boundary]] kind = "fixed": '
+            f"compliance applies to fixed boundaries (here: {fixed})"
+        )
+    data = experiment.to_dict()
+    for i in chosen:
+        data["boundary"][i]["compliance"] = c
+    return experiment_from_dict(
+        data, source=experiment.source, base_dir=experiment.base_dir, path=experiment.path
+    )
+
+
+def with_plane_collider(
+    experiment: Experiment,
+    point: Sequence[float],
+    normal: Sequence[float],
+    stiffness: float | None = None,
+    offset: float = 0.0,
+) -> tuple[Experiment, int]:
+    """A copy with one more ``[[collider]] kind = "plane"`` (validated like a file's); returns
+    it and the new collider's index i (its parameter is ``collider.<i>.offset``)."""
+    data = experiment.to_dict()
+    plane: dict[str, Any] = {"kind": "plane", "point": [float(x) for x in point],
+                             "normal": [float(x) for x in normal], "offset": float(offset)}
+    if stiffness is not None:
+        plane["stiffness"] = float(stiffness)
+    data.setdefault("collider", []).append(plane)
+    new = experiment_from_dict(
+        data, source=experiment.source, base_dir=experiment.base_dir, path=experiment.path
+    )
+    return new, len(new.colliders) - 1
 
 
 def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:

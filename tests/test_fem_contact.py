@@ -30,6 +30,7 @@ from petsoft.experiment import (
     get_parameter,
     load_experiment,
     with_parameters,
+    with_plane_collider,
     write_toml,
 )
 from petsoft.model import build_model
@@ -350,6 +351,10 @@ def test_offset_parameter_round_trip(tmp_path):
     path = tmp_path / "calibrated.toml"        # every rank has its own tmp_path
     write_toml(new, path)
     assert load_experiment(path) == new
+    # adding a plane (e.g. a candidate contact term) gives it the next index
+    more, i = with_plane_collider(exp, [0, 0, -0.1], [0, 0, 3], stiffness=1e4)
+    assert i == 1 and more.colliders[1].normal == (0.0, 0.0, 1.0)
+    assert get_parameter(more, "collider.1.offset") == 0.0
     sphere = experiment_from_dict(_data({"kind": "sphere", "center": [0, 0, -1], "radius": 0.5}))
     with pytest.raises(ExperimentError, match="plane"):
         get_parameter(sphere, "collider.0.offset")

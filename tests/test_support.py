@@ -29,6 +29,7 @@ from petsoft.experiment import (
     get_parameter,
     load_experiment,
     parameter_names,
+    with_compliance,
     with_parameters,
     write_toml,
 )
@@ -366,3 +367,15 @@ def test_support_without_faces_and_differing_compliances():
     assert "boundary.compliance" not in s.parameter_names()
     with pytest.raises(ExperimentError, match="different compliances"):
         s.set_parameters({"boundary.compliance": 1e-7})
+
+
+def test_with_compliance_turns_rigid_supports_elastic():
+    rigid = experiment_from_dict(_data(0.0))
+    elastic = with_compliance(rigid, 4e-7)
+    assert elastic.boundaries[0].compliance == 4e-7
+    assert get_parameter(elastic, "boundary.compliance") == 4e-7
+    assert elastic == experiment_from_dict(_data(4e-7))
+    with pytest.raises(ExperimentError, match=r"boundary\[1\] is not a \[\[boundary\]\] kind = "):
+        with_compliance(rigid, 1e-7, boundaries=[1])
+    with pytest.raises(ExperimentError, match="finite compliance > 0"):
+        with_compliance(rigid, 0.0)
