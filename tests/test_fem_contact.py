@@ -306,12 +306,16 @@ def test_forward_jacobian_offset_and_compliance():
                       time={"end": 0.01, "step": 2e-3, "integrator": "be"})
     names = ["collider.0.offset", "boundary.compliance"]
     fm = ForwardModel(exp, names, lambda s: MarkerObserver(s, MARKERS), FRAMES)
+    weights = np.random.default_rng(2).standard_normal((len(FRAMES), len(MARKERS), 3))
     try:
         p = fm.p0.copy()
         _, jac = fm.jacobian(p)
         fd = fm.fd_jacobian(p, rel_step=1e-9)     # steps of 1e-9 (m, m/Pa)
+        # the discrete adjoint (contract path of the derivatives) agrees with the sensitivities
+        _, grad = fm.gradient(p, lambda sim: (float(np.sum(weights * sim)), weights))
     finally:
         fm.destroy()
+    np.testing.assert_allclose(grad, np.einsum("kmc,kmcp->p", weights, jac), rtol=1e-8)
     for j, name in enumerate(names):
         scale = np.abs(jac[..., j]).max()
         err = np.abs(jac[..., j] - fd[..., j]).max() / scale
