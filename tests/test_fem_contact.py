@@ -85,7 +85,7 @@ def test_bar_resting_on_plane_carries_its_weight(time):
         force = _contact_force(model, q)
         k = model.elastic.contact.colliders[0].stiffness
         pen = model.dmesh.comm.tompi4py().allreduce(
-            model.elastic.contact.penetration(model.dmesh.to_local(q)).max(), op=MPI.MAX)
+            model.elastic.contact.penetration(model.dmesh.to_local(q)).max(initial=0.0), op=MPI.MAX)
     finally:
         solver.destroy()
     _print(f"resting bar ({'static' if time is None else 'step'} default k = {k:.3g} N/m): "
@@ -143,7 +143,7 @@ def test_dropped_bar_be_penetration_bound_and_rest():
             q1.copy(q)
             v1.copy(v)
             u = s.dmesh.to_local(q)
-            pmax = max(pmax, mpi.allreduce(c.penetration(u).max(), op=MPI.MAX))
+            pmax = max(pmax, mpi.allreduce(c.penetration(u).max(initial=0.0), op=MPI.MAX))
             contact = s.dmesh.allreduce_sum(c.energy(u))
             released = -s.gravitational_energy(q)
             worst = max(worst, contact - released)

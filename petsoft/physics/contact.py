@@ -118,7 +118,8 @@ class SurfaceContact:
     def penetration(self, u_local: np.ndarray) -> np.ndarray:
         """(n,) the largest penetration max(0, -phi) of each node over the colliders."""
         x = self.positions(u_local)
-        return np.max([np.maximum(-c.distance(x)[0], 0.0) for c in self.colliders], axis=0)
+        depth = [np.maximum(-c.distance(x)[0], 0.0) for c in self.colliders]
+        return np.max(depth, axis=0) if len(x) else np.zeros(0)
 
     def offset_derivative(self, index: int, u_local: np.ndarray) -> np.ndarray:
         """(n, 3) d(gradient)/d offset of collider ``index`` (a plane): -e''(phi) n."""
