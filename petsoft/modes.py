@@ -169,6 +169,20 @@ def rigid_body_modes(model, M: PETSc.Mat) -> list[PETSc.Vec]:
         dofs = dmesh.global_dof[support.nodes][support.areas > 0.0]
         offsets = np.concatenate([offsets, dofs - R[0].getOwnershipRange()[0]])
     B = np.stack([v.getArray(readonly=True)[offsets] for v in R], axis=1)
+    # collider contact active at the reference (petsoft.physics.contact) holds the motions
+    # along the normals of the penetrating nodes
+    contact = getattr(model.elastic, "contact", None)
+    if contact is not None:
+        lo = R[0].getOwnershipRange()[0]
+        dofs = dmesh.global_dof[contact.nodes] - lo                     # (n, 3)
+        X = contact.positions(np.zeros((dmesh.nvertices, 3)))
+        rows = []
+        for c in contact.colliders:
+            phi, n, _ = c.distance(X)
+            inside = phi < 0.0
+            rows.append(np.stack([np.einsum("pi,pi->p", v.getArray(readonly=True)[
+                dofs[inside]], n[inside]) for v in R], axis=1))
+        B = np.concatenate([B, *rows])
     G = mpi.allreduce(B.T @ B)
     # G c = mu H c: mu is the fraction of the motion R c on constrained dofs.
     L = np.linalg.cholesky(H)

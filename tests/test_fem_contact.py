@@ -34,6 +34,7 @@ from petsoft.experiment import (
     write_toml,
 )
 from petsoft.model import build_model
+from petsoft.modes import compute_modes
 from petsoft.options import clear_options
 from petsoft.static import StaticSolver
 
@@ -118,6 +119,21 @@ def test_cantilever_sagging_onto_plane_static():
     assert result.retries == 0 and result.newton_iterations <= 10
     assert contact[2] > 0.1 * WEIGHT and support[2] > 0.1 * WEIGHT
     assert abs(contact[2] + support[2] - WEIGHT) <= 1e-8 * WEIGHT
+
+
+def test_modes_of_a_body_resting_in_a_plane():
+    """modes: a free bar pressed into a plane at the reference (offset > 0) keeps 3 rigid motions
+    (in-plane translations, rotation about the normal); the plane holds the other 3."""
+    plane = {"kind": "plane", "point": [0, 0, 0], "normal": [0, 0, 1], "stiffness": 1e4}
+    counts = []
+    for offset in (-1.0, 1e-4):
+        model = build_model(experiment_from_dict(_data({**plane, "offset": offset})))
+        result = compute_modes(model, 7)
+        counts.append(result.rigid_modes)
+        assert result.relative_errors.max() < 1e-8
+        assert result.frequencies_hz[result.rigid_modes] > 1.0
+        result.destroy()
+    assert counts == [6, 3]
 
 
 # -- 2. dynamics ----------------------------------------------------------------------------------
