@@ -202,6 +202,33 @@ def test_dropped_bar_midpoint_energy_balance_closes():
     assert np.abs(e[:, 6]).max() <= 1e-9 * released
 
 
+def test_dropped_bar_explicit_default_stiffness_is_stable():
+    """integrator = "explicit": k = m_min / h^2 (the implicit rule 4 m_max / h^2 gained energy);
+    the drop's energy balance stays within 5 % of the released energy."""
+    h = 2e-4
+    exp = experiment_from_dict(_data({"kind": "plane", "point": [0, 0, -0.005],
+                                      "normal": [0, 0, 1]},
+                                     time={"end": 0.06, "step": h, "integrator": "explicit"}))
+    model = build_model(exp)
+    mesh = model.dmesh.mesh
+    X = mesh.points[mesh.tets]
+    volume = np.abs(np.linalg.det(X[:, 1:] - X[:, :1])) / 6.0
+    masses = np.bincount(mesh.tets.ravel(), weights=np.repeat(RHO * volume / 4.0, 4))
+    k = model.elastic.contact.colliders[0].stiffness
+    surface_min = masses.min()          # every vertex of this 1-cell-thick bar is on the surface
+    assert abs(k - surface_min / h**2) <= 1e-9 * k
+    sim = Simulation(model, exp)
+    try:
+        e = sim.run().energies
+    finally:
+        sim.destroy()
+    released = -e[:, 3].min()
+    _print(f"explicit drop: k = {k:.3g} N/m, max |numerical| {np.abs(e[:, 6]).max():.2e} J of "
+           f"{released:.3g} J released")
+    assert e[:, 2].max() > 0.1 * released          # the contact was hit hard
+    assert np.abs(e[:, 6]).max() <= 0.05 * released
+
+
 # -- 3. Taylor tests ------------------------------------------------------------------------------
 def _penetrated(model="corotated", offset=0.004, **extra):
     """The bar with its bottom 4 mm inside a plane (tilted a little) and an elastic support."""

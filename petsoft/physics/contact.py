@@ -12,7 +12,10 @@ Stiffness per node when ``[[collider]] stiffness`` is not given (:func:`default_
 * with ``[time]``: the springs' rule k = 4 m_max / h^2, m_max the largest lumped (row-sum) mass of
   a surface node, h the step: a node's contact frequency sqrt(k/m) <= 2/h is resolved by one step,
   a node hitting at speed v penetrates at most about v sqrt(m/k) >= v h/2, and under its own weight
-  (m g) a node sinks m g / k <= g h^2 / 4;
+  (m g) a node sinks m g / k <= g h^2 / 4. With ``integrator = "explicit"`` that rule puts the
+  lighter nodes beyond the stability limit h omega < 2 (measured: a dropped bar gained 4x the
+  released energy), so there k = m_min / h^2 (the lightest surface node: h omega <= 1). The rule
+  follows ``[time] integrator``; a ``--integrator`` given on the command line does not change k;
 * without ``[time]`` (``static``, ``modes``): k = 1000 E_max L, E_max the largest Young's modulus
   and L the mean edge length of the exterior faces (E L is the order of a surface node's elastic
   stiffness, so the penetration is ~1e-3 of the body's own deformation near the contact).
@@ -37,6 +40,8 @@ from .colliders import DEFAULT_STEP_FACTOR, Collider
 
 #: Without a time step: k = this x E_max x mean exterior edge length.
 DEFAULT_STATIC_FACTOR = 1000.0
+#: ``integrator = "explicit"``: k = this x m_min / h^2 (every node's contact frequency <= 1/h).
+EXPLICIT_STEP_FACTOR = 1.0
 
 
 def surface_vertices(tets: np.ndarray, exterior_faces: np.ndarray, nvertices: int) -> np.ndarray:
@@ -47,17 +52,19 @@ def surface_vertices(tets: np.ndarray, exterior_faces: np.ndarray, nvertices: in
 
 
 def default_fem_stiffness(mesh, density: np.ndarray, youngs: np.ndarray, surface: np.ndarray,
-                          step: float | None) -> float:
+                          step: float | None, explicit: bool = False) -> float:
     """The penalty stiffness per node of a collider without ``stiffness`` (module docstring).
 
     ``density`` and ``youngs`` are per cell of the whole mesh (file numbering): the value is the
-    same on every rank.
+    same on every rank. ``explicit``: the rule for the explicit integrator (lightest node).
     """
     _, volume = shape_gradients(mesh.points[mesh.tets])
     lumped = np.bincount(mesh.tets.ravel(), weights=np.repeat(density * volume / 4.0, 4),
                          minlength=len(mesh.points))
     m_max = float(lumped[surface].max())
     if step is not None and m_max > 0.0:
+        if explicit:
+            return EXPLICIT_STEP_FACTOR * float(lumped[surface].min()) / step ** 2
         return DEFAULT_STEP_FACTOR * m_max / step ** 2
     p = mesh.points[exterior_faces(mesh.tets)[0]]
     edges = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2)
@@ -147,7 +154,9 @@ def build_contact(experiment, dmesh, density_file: np.ndarray, youngs_file: np.n
     default_k = None
     if any(spec.stiffness is None for spec in experiment.colliders):
         step = experiment.time.step if experiment.time is not None else None
-        default_k = default_fem_stiffness(mesh, density_file, youngs_file, surface, step)
+        explicit = experiment.time is not None and experiment.time.integrator == "explicit"
+        default_k = default_fem_stiffness(mesh, density_file, youngs_file, surface, step,
+                                          explicit)
     colliders = [Collider.from_spec(spec, default_k) for spec in experiment.colliders]
     local = np.flatnonzero(surface[dmesh.vertex_ids] & dmesh.owned)
     return SurfaceContact(dmesh, local, colliders,
