@@ -373,10 +373,10 @@ def test_forward_jacobian_offset_and_compliance():
 
 @pytest.mark.serial_only
 def test_gauss_newton_recovers_compliance_and_offset():
-    """(serial only: ~25 iterations of 2x2-rank collectives cost 30 s on 2 ranks, and serial ==
-    parallel is checked on the trajectories and gradients above.) Noise-free synthetic markers of a cantilever on an elastic support slapping onto a plane:
+    """Noise-free synthetic markers of a cantilever on an elastic support slapping onto a plane:
     Gauss-Newton (backtracking) on the forward sensitivities recovers (c, offset) from
-    (0.6 c, offset - 2 mm)."""
+    (0.6 c, offset - 2 mm). Serial only: ~25 runs of 2x2-rank collectives cost 30 s on 2 ranks,
+    and serial == parallel is checked on the trajectories and gradients above."""
     data = _data({"kind": "plane", "point": [0, 0, -0.02], "normal": [0, 0, 1]},
                  boundary=[{"kind": "fixed", "where": "x < 1e-9", "compliance": 5e-7}],
                  initial={"velocity": ["0", "0", "-2*x"]},
