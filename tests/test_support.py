@@ -7,7 +7,8 @@
    tends to the clamped one.
 3. Taylor tests: the potential (elastic + supports) energy/gradient/Hessian, the residual's
    derivative with respect to the compliance, the forward model's jacobian (be) vs central
-   differences.
+   differences; the springs are exactly diag(A/c) in K0 and K; the midpoint energy balance
+   closes with them.
 4. serial == 2 ranks (probe trajectory of a run on COMM_SELF vs COMM_WORLD, 1e-10).
 5. with_parameters / get_parameter / write_toml round trip; bad input.
 """
