@@ -845,6 +845,13 @@ def experiment_from_dict(
     damping = _read_damping(top.table("damping"))
     gravity = _read_gravity(top.table("gravity"))
     boundaries = tuple(_read_boundary(r) for r in top.table_array("boundary"))
+    for i, b in enumerate(boundaries):
+        if springs is not None and b.compliance > 0.0:
+            raise ExperimentError(
+                f"{source}: boundary[{i}].compliance = {_show(b.compliance)}: elastic supports "
+                "are implemented for [material] (continuum) models only; the fixed nodes of a "
+                "[springs] model are rigid (remove compliance, or model the support by springs)"
+            )
     initial = _read_initial(top.table("initial"))
     time = _read_time(top.table("time"))
     output = _read_output(top.table("output"), base)

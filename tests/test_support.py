@@ -400,3 +400,12 @@ def test_with_compliance_turns_rigid_supports_elastic():
         with_compliance(rigid, 1e-7, boundaries=[1])
     with pytest.raises(ExperimentError, match="finite compliance > 0"):
         with_compliance(rigid, 0.0)
+
+
+def test_compliance_on_a_mass_spring_model_is_refused():
+    data = {"mesh": {"box": {"size": [1.0, 0.1, 0.1], "cells": [2, 1, 1]}},
+            "springs": {"stiffness": 100.0, "damping": 0.0},
+            "boundary": [{"kind": "fixed", "where": "x < 1e-9", "compliance": 1e-3}]}
+    with pytest.raises(ExperimentError, match=r"<embedded>: boundary\[0\]\.compliance = 0\.001: "
+                                              r"elastic supports are implemented for \[material\]"):
+        experiment_from_dict(data)
