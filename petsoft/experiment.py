@@ -47,7 +47,12 @@ Decisions the format leaves open
 * Optional keys beyond formats.md (allowed: the format grows only by optional keys):
   ``[springs] pairs`` (explicit node pairs instead of the mesh edges) and ``node_mass`` (kg added at
   every node), and ``[[collider]] friction``, ``stiffness`` (penalty), plus the geometry each kind
-  needs (``center``/``radius`` for a sphere, ``point``/``normal`` for a plane).
+  needs (``center``/``radius`` for a sphere, ``point``/``normal`` for a plane), and a plane's
+  ``offset`` (m, default 0: the plane moved along its normal, the calibration parameter
+  ``collider.<i>.offset`` of ``[material]`` models; calibrated values are written back as this
+  key, ``point`` is kept); ``[[boundary]] kind = "fixed"`` ``compliance`` (m/Pa, default 0 =
+  rigid; > 0: an elastic support, see :mod:`petsoft.physics.support`; the parameter
+  ``boundary.compliance`` sets every elastic support).
 * ``format_version = 1`` is optional at the top level; other versions are refused.
 """
 
@@ -99,7 +104,9 @@ __all__ = [
     "get_parameter",
     "load_experiment",
     "parameter_names",
+    "with_compliance",
     "with_parameters",
+    "with_plane_collider",
     "write_toml",
 ]
 
@@ -265,6 +272,11 @@ class BoundarySpec:
         Name of a measured input in the recording, e.g. ``"inputs/shaker"`` (prescribed).
     value : tuple of 3 Expression or None
         Traction in Pa, expressions of x, y, z, t (traction).
+    compliance : float
+        m/Pa, >= 0 (fixed only): 0 is a rigid support (Dirichlet rows); > 0 ties each
+        constrained component of the boundary's nodes to 0 by a spring of stiffness
+        A_i / compliance, A_i the node's lumped area of the boundary faces inside ``where``
+        (:mod:`petsoft.physics.support`).
     """
 
     kind: str
@@ -273,6 +285,7 @@ class BoundarySpec:
     displacement: Expr3 | None = None
     series: str | None = None
     value: Expr3 | None = None
+    compliance: float = 0.0
 
     @property
     def region(self) -> str | None:
@@ -369,7 +382,10 @@ class MassSpec:
 class ColliderSpec:
     """One ``[[collider]]``: a rigid ``"sphere"`` (center, radius > 0) or ``"plane"`` (point,
     unit normal pointing to the allowed side; given non-zero, stored normalised), with Coulomb
-    ``friction`` >= 0 and an optional penalty ``stiffness`` > 0 (None: the solver's choice)."""
+    ``friction`` >= 0 and an optional penalty ``stiffness`` > 0 (None: the solver's choice).
+    A plane's ``offset`` (m, any sign, default 0) moves it along its normal: the surface is
+    ``point + offset * normal`` (the calibration parameter ``collider.<i>.offset``; ``point``
+    itself is never rewritten)."""
 
     kind: str
     center: Vec3 | None = None
@@ -378,6 +394,7 @@ class ColliderSpec:
     normal: Vec3 | None = None
     friction: float = 0.0
     stiffness: float | None = None
+    offset: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -699,13 +716,13 @@ _TOP_KEYS = (
 )
 _MATERIAL_KEYS = ("model", "youngs_modulus", "poisson_ratio", "density")
 _BOUNDARY_KEYS = {
-    "fixed": ("kind", "where", "components"),
+    "fixed": ("kind", "where", "components", "compliance"),
     "prescribed": ("kind", "where", "components", "displacement", "series"),
     "traction": ("kind", "where", "value"),
 }
 _COLLIDER_KEYS = {
     "sphere": ("kind", "center", "radius", "friction", "stiffness"),
-    "plane": ("kind", "point", "normal", "friction", "stiffness"),
+    "plane": ("kind", "point", "normal", "friction", "stiffness", "offset"),
 }
 
 _TOML_POSITION = re.compile(r"\(at line (\d+), column (\d+)\)")
@@ -828,6 +845,13 @@ def experiment_from_dict(
     damping = _read_damping(top.table("damping"))
     gravity = _read_gravity(top.table("gravity"))
     boundaries = tuple(_read_boundary(r) for r in top.table_array("boundary"))
+    for i, b in enumerate(boundaries):
+        if springs is not None and b.compliance > 0.0:
+            raise ExperimentError(
+                f"{source}: boundary[{i}].compliance = {_show(b.compliance)}: elastic supports "
+                "are implemented for [material] (continuum) models only; the fixed nodes of a "
+                "[springs] model are rigid (remove compliance, or model the support by springs)"
+            )
     initial = _read_initial(top.table("initial"))
     time = _read_time(top.table("time"))
     output = _read_output(top.table("output"), base)
@@ -1055,6 +1079,10 @@ def _read_boundary(r: _Reader) -> BoundarySpec:
             )
     elif kind == "traction":
         spec = dataclasses.replace(spec, value=r.expressions("value", SPACE_TIME, what="in Pa"))
+    else:
+        spec = dataclasses.replace(
+            spec, compliance=r.number("compliance", 0.0, _NONNEGATIVE, unit="m/Pa")
+        )
     return spec
 
 
@@ -1215,6 +1243,7 @@ def _read_collider(r: _Reader) -> ColliderSpec:
         kind=kind,
         point=r.vector("point", unit="m"),
         normal=tuple(c / length for c in normal),
+        offset=r.number("offset", 0.0, _ANY, unit="m, along the normal"),
         **common,
     )
 
@@ -1240,6 +1269,14 @@ def _parameter_table(exp: Experiment) -> dict[str, tuple[float, _Range]]:
     params["damping.stiffness"] = (exp.damping.stiffness, _NONNEGATIVE)
     for i, c in enumerate(COMPONENTS):
         params[f"gravity.acceleration.{c}"] = (exp.gravity.acceleration[i], _ANY)
+    compliant = [b.compliance for b in exp.boundaries if b.kind == "fixed" and b.compliance > 0]
+    if compliant:
+        # one value shared by every elastic support (with_parameters sets them all)
+        params["boundary.compliance"] = (compliant[0], _POSITIVE)
+    for i, c in enumerate(exp.colliders):
+        # a differentiable parameter of continuum models (mass-spring models honour the key)
+        if c.kind == "plane" and exp.material:
+            params[f"collider.{i}.offset"] = (c.offset, _ANY)
     if exp.springs is not None:
         s = exp.springs
         params["springs.stiffness"] = (s.stiffness, _POSITIVE)
@@ -1254,7 +1291,8 @@ def parameter_names(experiment: Experiment) -> list[str]:
     :func:`with_parameters` accept, e.g. ``"material.youngs_modulus"``,
     ``"material.<region>.density"`` (for regions with a ``[material.<region>]`` table or a
     ``[region.<name>]``), ``"damping.mass"``, ``"gravity.acceleration.z"``,
-    ``"springs.stiffness"``."""
+    ``"springs.stiffness"``, ``"boundary.compliance"`` (when a fixed boundary has
+    compliance > 0), ``"collider.<i>.offset"`` (for a plane collider)."""
     return list(_parameter_table(experiment))
 
 
@@ -1275,6 +1313,16 @@ def _unknown_parameter(source: str, name: str, table: Mapping[str, Any]) -> str:
         note = (
             f" (for a region that is a mesh physical group, add an empty [material.{parts[1]}] "
             "table so it can be calibrated)"
+        )
+    if name == "boundary.compliance":
+        note = (
+            ' (no [[boundary]] kind = "fixed" has compliance > 0: give the support an elastic '
+            "compliance > 0 in the experiment to calibrate it)"
+        )
+    if parts[0] == "collider":
+        note = (
+            ' (collider.<i>.offset exists for [[collider]] kind = "plane" of [material] models '
+            "only)"
         )
     return (
         f'{source}: "{name}" is not a numeric parameter of this experiment{hint}{note}. '
@@ -1303,6 +1351,15 @@ def with_parameters(experiment: Experiment, values: Mapping[str, float]) -> Expe
         if name not in table:
             raise ExperimentError(_unknown_parameter(experiment.source, name, table))
         parts = _split_parameter(name)
+        if parts[0] == "boundary":
+            # every elastic support shares the compliance
+            for entry in data["boundary"]:
+                if entry["kind"] == "fixed" and entry.get("compliance", 0.0) > 0.0:
+                    entry["compliance"] = float(value)
+            continue
+        if parts[0] == "collider":
+            data["collider"][int(parts[1])]["offset"] = float(value)
+            continue
         if parts[0] == "gravity":
             acc = list(data.setdefault("gravity", {}).get("acceleration", [0.0, 0.0, 0.0]))
             acc[COMPONENTS.index(parts[2])] = float(value)
@@ -1315,6 +1372,66 @@ def with_parameters(experiment: Experiment, values: Mapping[str, float]) -> Expe
     return experiment_from_dict(
         data, source=experiment.source, base_dir=experiment.base_dir, path=experiment.path
     )
+
+
+def with_compliance(
+    experiment: Experiment, compliance: float, boundaries: Sequence[int] | None = None
+) -> Experiment:
+    """A copy with ``compliance`` (m/Pa, > 0) on fixed boundaries: every one, or the
+    ``[[boundary]]`` indices given. Turns rigid supports elastic (which ``set_parameters``
+    cannot do in place), e.g. to try the ``boundary.compliance`` term.
+
+    Raises
+    ------
+    ExperimentError
+        For a compliance <= 0, an index that is not a fixed boundary, or no fixed boundary.
+    """
+    c = float(compliance)
+    if not (math.isfinite(c) and c > 0.0):
+        raise ExperimentError(
+            f"{experiment.source}: compliance = {compliance!r}: an elastic support needs a "
+            "finite compliance > 0 (m/Pa)"
+        )
+    fixed = [i for i, b in enumerate(experiment.boundaries) if b.kind == "fixed"]
+    chosen = fixed if boundaries is None else [int(i) for i in boundaries]
+    if not chosen:
+        raise ExperimentError(
+            f'{experiment.source}: no [[boundary]] kind = "fixed" to make elastic (compliance '
+            "applies to fixed boundaries only)"
+        )
+    bad = [i for i in chosen if i not in fixed]
+    if bad:
+        raise ExperimentError(
+            f'{experiment.source}: boundary[{bad[0]}] is not a [[boundary]] kind = "fixed": '
+            f"compliance applies to fixed boundaries (here: {fixed})"
+        )
+    data = experiment.to_dict()
+    for i in chosen:
+        data["boundary"][i]["compliance"] = c
+    return experiment_from_dict(
+        data, source=experiment.source, base_dir=experiment.base_dir, path=experiment.path
+    )
+
+
+def with_plane_collider(
+    experiment: Experiment,
+    point: Sequence[float],
+    normal: Sequence[float],
+    stiffness: float | None = None,
+    offset: float = 0.0,
+) -> tuple[Experiment, int]:
+    """A copy with one more ``[[collider]] kind = "plane"`` (validated like a file's); returns
+    it and the new collider's index i (its parameter is ``collider.<i>.offset``)."""
+    data = experiment.to_dict()
+    plane: dict[str, Any] = {"kind": "plane", "point": [float(x) for x in point],
+                             "normal": [float(x) for x in normal], "offset": float(offset)}
+    if stiffness is not None:
+        plane["stiffness"] = float(stiffness)
+    data.setdefault("collider", []).append(plane)
+    new = experiment_from_dict(
+        data, source=experiment.source, base_dir=experiment.base_dir, path=experiment.path
+    )
+    return new, len(new.colliders) - 1
 
 
 def _flatten(table: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -1432,6 +1549,8 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
                 entry["series"] = b.series
             if b.value is not None:
                 entry["value"] = _literals(b.value)
+            if b.compliance > 0.0:
+                entry["compliance"] = b.compliance
             boundaries.append(entry)
         d["boundary"] = boundaries
     initial: dict[str, Any] = {}
@@ -1460,7 +1579,7 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
             {
                 k: (list(v) if isinstance(v, tuple) else v)
                 for k, v in dataclasses.asdict(c).items()
-                if v is not None
+                if v is not None and not (k == "offset" and v == 0.0)
             }
             for c in exp.colliders
         ]

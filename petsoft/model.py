@@ -11,8 +11,11 @@ from .boundary import DirichletConditions
 from .distributed import DistributedMesh
 from .errors import ExperimentError, PetsoftError
 from .mesh import box_mesh, read_mesh
+from .physics.contact import build_contact
 from .physics.elastic import ElasticTerm
 from .physics.loads import gravity_forces, traction_forces
+from .physics.potential import ModelPotential
+from .physics.support import build_support
 from .regions import RegionResolver
 
 
@@ -48,7 +51,9 @@ class Model:
     ----------
     dmesh : DistributedMesh
     resolver : RegionResolver
-    elastic : ElasticTerm
+    elastic : ModelPotential
+        The potential terms: the elastic term (``elastic.term``), elastic supports
+        (``elastic.support``) and collider contact (``elastic.contact``).
     density : ndarray (ne,)
         Density of each local cell.
     external : PETSc.Vec
@@ -128,9 +133,13 @@ def build_model(experiment, comm: PETSc.Comm | None = None, *, project_spd: bool
         mask = resolver.vertex_mask(b.where, key)
         if not mask.any():
             raise ExperimentError(f"{experiment.source}: {key}: selects no vertex of the mesh")
+        if b.kind == "fixed" and b.compliance > 0.0:
+            continue   # an elastic support: penalty springs (build_support), no Dirichlet rows
         conditions.append((mask, b.component_indices, displacement))
     external = dmesh.create_global_vec()
     external.zeroEntries()
     dmesh.add_to_global(forces, external)
-    return Model(experiment, dmesh, resolver, elastic, rho[local], external,
-                 DirichletConditions(dmesh, conditions))
+    dirichlet = DirichletConditions(dmesh, conditions)
+    potential = ModelPotential(elastic, build_support(experiment, dmesh, resolver, dirichlet),
+                               build_contact(experiment, dmesh, rho, E))
+    return Model(experiment, dmesh, resolver, potential, rho[local], external, dirichlet)

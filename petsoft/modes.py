@@ -140,7 +140,8 @@ def assemble_operators(model) -> tuple[PETSc.Mat, PETSc.Mat, float]:
 
 
 def rigid_body_modes(model, M: PETSc.Mat) -> list[PETSc.Vec]:
-    """The zero-energy rigid motions the Dirichlet conditions leave free, M-orthonormal.
+    """The zero-energy rigid motions the Dirichlet conditions (and elastic supports) leave free,
+    M-orthonormal.
 
     A combination R c of the six rigid motions (three translations, three rotations) is free when
     it vanishes on every constrained dof, i.e. when c is in the null space of the 6x6 Gram matrix
@@ -160,7 +161,28 @@ def rigid_body_modes(model, M: PETSc.Mat) -> list[PETSc.Vec]:
     nullspace.destroy()
     # Gram matrices: of the whole motions (H) and of their constrained parts (G).
     H = np.array([[a.dot(b) for b in R] for a in R])
-    B = np.stack([v.getArray(readonly=True)[bc.owned_offsets(v)] for v in R], axis=1)
+    # elastic supports (petsoft.physics.support) hold the motions that stretch their springs:
+    # their dofs count as constrained here (but stay free dofs of the eigenproblem)
+    offsets = bc.owned_offsets(R[0])
+    support = getattr(model.elastic, "support", None)
+    if support is not None:
+        dofs = dmesh.global_dof[support.nodes][support.areas > 0.0]
+        offsets = np.concatenate([offsets, dofs - R[0].getOwnershipRange()[0]])
+    B = np.stack([v.getArray(readonly=True)[offsets] for v in R], axis=1)
+    # collider contact active at the reference (petsoft.physics.contact) holds the motions
+    # along the normals of the penetrating nodes
+    contact = getattr(model.elastic, "contact", None)
+    if contact is not None:
+        lo = R[0].getOwnershipRange()[0]
+        dofs = dmesh.global_dof[contact.nodes] - lo                     # (n, 3)
+        X = contact.positions(np.zeros((dmesh.nvertices, 3)))
+        rows = []
+        for c in contact.colliders:
+            phi, n, _ = c.distance(X)
+            inside = phi < 0.0
+            rows.append(np.stack([np.einsum("pi,pi->p", v.getArray(readonly=True)[
+                dofs[inside]], n[inside]) for v in R], axis=1))
+        B = np.concatenate([B, *rows])
     G = mpi.allreduce(B.T @ B)
     # G c = mu H c: mu is the fraction of the motion R c on constrained dofs.
     L = np.linalg.cholesky(H)

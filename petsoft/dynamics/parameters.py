@@ -29,6 +29,13 @@ Parameter names (see :meth:`ParameterMap.names`):
   contiguous runs of nearly equal cell counts (``np.array_split``), so each group is spatially
   compact and the grouping does not depend on the number of MPI ranks. P is fixed by
   :meth:`ParameterMap.define_groups` (the forward model uses 1 + the largest k it is asked for).
+* ``boundary.compliance`` (m/Pa; when the model has elastic supports, all of one compliance):
+  the supports' springs K_s = diag(A / c) are part of grad W and of K0, so
+  d r/dc = -(A/c^2)(q + w + beta v) on the support dofs (:mod:`petsoft.physics.support`);
+* ``collider.<i>.offset`` (m; a plane collider of a model with colliders): the plane moved by the
+  offset along its normal; d r/ds = -e''(phi) n on the surface nodes in contact
+  (:mod:`petsoft.physics.contact`; the penalty's curvature is piecewise constant, so the ``w``
+  term has no offset derivative).
 """
 
 from __future__ import annotations
@@ -108,6 +115,22 @@ class ParameterMap:
         self.values["damping.stiffness"] = system.beta
         for i, c in enumerate("xyz"):
             self.values[f"gravity.acceleration.{c}"] = float(exp.gravity.acceleration[i])
+        # elastic supports and collider planes (petsoft.physics.support / contact)
+        self.support = getattr(system.elastic, "support", None)
+        self.contact = getattr(system.elastic, "contact", None)
+        self._compliance_error = None
+        if self.support is not None:
+            from ..physics.support import shared_compliance
+
+            try:
+                shared_compliance(exp)
+                self.values["boundary.compliance"] = self.support.compliance
+            except ExperimentError as exc:
+                self._compliance_error = str(exc)
+        if self.contact is not None:
+            for i, c in enumerate(self.contact.colliders):
+                if c.kind == "plane":
+                    self.values[f"collider.{i}.offset"] = self.contact.offsets[i]
 
     def _current(self, name: str) -> float:
         key = name.rsplit(".", 1)[1]
@@ -148,6 +171,13 @@ class ParameterMap:
         """Raise (on every rank: the check is deterministic) for a name not differentiable."""
         valid = self.names()
         for n in names:
+            if n == "boundary.compliance" and n not in valid:
+                if self._compliance_error is not None:
+                    raise ExperimentError(self._compliance_error)
+                raise ExperimentError(
+                    f'"{n}": every support of this system was built rigid (no [[boundary]] kind = '
+                    '"fixed" has compliance > 0); a rigid support cannot be made elastic in '
+                    "place: set compliance > 0 in the experiment (its starting value)")
             if n not in valid:
                 m = GROUP_PATTERN.match(n)
                 extra = (f" (stiffness field: call define_groups with more than {m.group(1)} "
@@ -172,6 +202,9 @@ class ParameterMap:
                 ok, valid = v > 0.0, "> 0"
             elif name.startswith("damping."):
                 ok, valid = v >= 0.0, ">= 0"
+            elif name == "boundary.compliance":
+                ok, valid = v > 0.0, ("> 0 (m/Pa; a rigid support, compliance 0, is a Dirichlet "
+                                      "condition and cannot be set in place)")
             else:
                 ok, valid = np.isfinite(v), "finite"
             if not (ok and np.isfinite(v)):
@@ -227,6 +260,10 @@ class ParameterMap:
             m = GROUP_PATTERN.match(name)
             if m:
                 self.E_mult[self.group == int(m.group(1))] = value
+            elif name == "boundary.compliance":
+                self.support.set_compliance(value)
+            elif name.startswith("collider."):
+                self.contact.set_offset(int(name.split(".")[1]), value)
             elif name.startswith("material."):
                 key = name.rsplit(".", 1)[1]
                 arr = {"youngs_modulus": self.E_base, "poisson_ratio": self.nu,
@@ -260,6 +297,9 @@ class ParameterDerivatives:
         Em -= (vol / 4.0)[:, None, None] * g[None, None, :]
         self.E_rho = Em.reshape(n, 12)
         self.v = v.copy()   # the caller may destroy its state vectors
+        # nodal terms: d/dp of K_s (u + w) + beta K_s v (supports), of the contact gradient
+        self.u = u
+        self.support_state = u + (wl if wl is not None else 0.0) + s.beta * vl
 
     def _global_vector(self, name: str, out: PETSc.Vec) -> None:
         s = self.system
@@ -268,6 +308,16 @@ class ParameterDerivatives:
             s.M.mult(self.v, out)
         elif name == "damping.stiffness":
             s.K0_matrix().mult(self.v, out)
+        elif name == "boundary.compliance":
+            support = s.parameters.support
+            local = np.zeros((s.dmesh.nvertices, 3))
+            local[support.nodes] = support.compliance_derivative(self.support_state)
+            s.dmesh.add_to_global(local, out)
+        elif name.startswith("collider."):
+            contact = s.parameters.contact
+            local = np.zeros((s.dmesh.nvertices, 3))
+            local[contact.nodes] = contact.offset_derivative(int(name.split(".")[1]), self.u)
+            s.dmesh.add_to_global(local, out)
         else:
             c = "xyz".index(name[-1])
             arr = out.getArray()

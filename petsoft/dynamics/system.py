@@ -58,7 +58,7 @@ class DynamicSystem:
             self.assembler.add(group.name, np.ascontiguousarray(mass_e[group.cells]))
         self.mass_values = self.assembler.values.copy()
         self.assembler.begin()
-        self.elastic.add_hessian(np.zeros((dm.nvertices, 3)), self.assembler)
+        self._add_reference_hessian()
         self.k0_values = self.assembler.values.copy()
         self.M = self._matrix_from(self.mass_values)
         self.lumped = dm.create_global_vec()
@@ -75,6 +75,15 @@ class DynamicSystem:
         self._work = dm.create_global_vec()
 
     # -- matrices ---------------------------------------------------------------------------
+    def _add_reference_hessian(self) -> None:
+        """K0 into the assembler: the elastic Hessian at q = 0 (plus the model's elastic
+        supports: :meth:`petsoft.physics.potential.ModelPotential.add_reference_hessian`)."""
+        reference = getattr(self.elastic, "add_reference_hessian", None)
+        if reference is not None:
+            reference(self.assembler)
+        else:
+            self.elastic.add_hessian(np.zeros((self.dmesh.nvertices, 3)), self.assembler)
+
     def _matrix_from(self, values: np.ndarray) -> PETSc.Mat:
         A = self.assembler.create_matrix()
         self.assembler.values[:] = values
@@ -243,7 +252,7 @@ class DynamicSystem:
         self.mass_values = self.assembler.values.copy()
         self.assembler.finish(self.M)
         self.assembler.begin()
-        self.elastic.add_hessian(np.zeros((dm.nvertices, 3)), self.assembler)
+        self._add_reference_hessian()
         self.k0_values = self.assembler.values.copy()
         if hasattr(self, "K0"):
             self.assembler.finish(self.K0)

@@ -77,8 +77,10 @@ class Collider:
             return cls("sphere", float(k), spec.friction, np.asarray(spec.center, float),
                        float(spec.radius))
         n = np.asarray(spec.normal, float)
-        return cls("plane", float(k), spec.friction, point=np.asarray(spec.point, float),
-                   normal=n / np.linalg.norm(n))
+        n = n / np.linalg.norm(n)
+        # the plane moved by its offset along the normal (0 unless given)
+        point = np.asarray(spec.point, float) + float(getattr(spec, "offset", 0.0)) * n
+        return cls("plane", float(k), spec.friction, point=point, normal=n)
 
     def describe(self) -> str:
         if self.kind == "sphere":
