@@ -47,7 +47,11 @@ Decisions the format leaves open
 * Optional keys beyond formats.md (allowed: the format grows only by optional keys):
   ``[springs] pairs`` (explicit node pairs instead of the mesh edges) and ``node_mass`` (kg added at
   every node), and ``[[collider]] friction``, ``stiffness`` (penalty), plus the geometry each kind
-  needs (``center``/``radius`` for a sphere, ``point``/``normal`` for a plane).
+  needs (``center``/``radius`` for a sphere, ``point``/``normal`` for a plane); and the
+  ``[viscoelastic]`` table (``ratio`` = E_M/E >= 0, default 0 = no branch; ``relaxation_time``
+  > 0 s, default 0.1): a standard linear solid, one Maxwell branch of modulus ratio ``ratio``
+  and relaxation time ``relaxation_time`` beside the elastic law (continuum models only; see
+  :mod:`petsoft.physics.viscoelastic`).
 * ``format_version = 1`` is optional at the top level; other versions are refused.
 """
 
@@ -94,6 +98,7 @@ __all__ = [
     "RegionSpec",
     "SpringsSpec",
     "TimeSpec",
+    "ViscoelasticSpec",
     "dumps_toml",
     "experiment_from_dict",
     "get_parameter",
@@ -238,6 +243,17 @@ class DampingSpec:
 
     mass: float = 0.0
     stiffness: float = 0.0
+
+
+@dataclass(frozen=True)
+class ViscoelasticSpec:
+    """``[viscoelastic]``: a Maxwell branch (standard linear solid) beside the elastic law.
+
+    ``ratio`` = E_M / E >= 0 (0: no branch), ``relaxation_time`` tau > 0 in s.
+    """
+
+    ratio: float = 0.0
+    relaxation_time: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -408,6 +424,8 @@ class Experiment:
     springs : SpringsSpec or None
     masses : tuple of MassSpec
     colliders : tuple of ColliderSpec
+    viscoelastic : ViscoelasticSpec
+        ``[viscoelastic]`` (ratio 0, the default, is the purely elastic model).
     format_version : int
     source : str
         The name used in messages (the path as given, or ``"<embedded>"``).
@@ -431,6 +449,7 @@ class Experiment:
     springs: SpringsSpec | None = None
     masses: tuple[MassSpec, ...] = ()
     colliders: tuple[ColliderSpec, ...] = ()
+    viscoelastic: ViscoelasticSpec = ViscoelasticSpec()
     format_version: int = FORMAT_VERSION
     path: Path | None = field(default=None, compare=False)
     source: str = field(default="<embedded>", compare=False)
@@ -696,6 +715,7 @@ _TOP_KEYS = (
     "springs",
     "mass",
     "collider",
+    "viscoelastic",
 )
 _MATERIAL_KEYS = ("model", "youngs_modulus", "poisson_ratio", "density")
 _BOUNDARY_KEYS = {
@@ -834,6 +854,12 @@ def experiment_from_dict(
     petsc = _read_petsc(top.table("petsc"))
     masses = tuple(_read_mass(r) for r in top.table_array("mass"))
     colliders = tuple(_read_collider(r) for r in top.table_array("collider"))
+    viscoelastic = _read_viscoelastic(top.table("viscoelastic"))
+    if viscoelastic.ratio > 0.0 and springs is not None:
+        raise ExperimentError(
+            f"{source}: [viscoelastic] ratio = {_num(viscoelastic.ratio)}: the standard linear "
+            "solid acts on a continuum [material] model, not on [springs]; remove "
+            "[viscoelastic] or set ratio = 0")
 
     experiment = Experiment(
         mesh=mesh,
@@ -850,6 +876,7 @@ def experiment_from_dict(
         springs=springs,
         masses=masses,
         colliders=colliders,
+        viscoelastic=viscoelastic,
         format_version=version,
         path=Path(path) if path is not None else None,
         source=source,
@@ -984,6 +1011,16 @@ def _read_damping(r: _Reader | None) -> DampingSpec:
     return DampingSpec(
         mass=r.number("mass", 0.0, _NONNEGATIVE, "1/s"),
         stiffness=r.number("stiffness", 0.0, _NONNEGATIVE, "s"),
+    )
+
+
+def _read_viscoelastic(r: _Reader | None) -> ViscoelasticSpec:
+    if r is None:
+        return ViscoelasticSpec()
+    r.check_keys(("ratio", "relaxation_time"))
+    return ViscoelasticSpec(
+        ratio=r.number("ratio", 0.0, _NONNEGATIVE, "E_M / E"),
+        relaxation_time=r.number("relaxation_time", 0.1, _POSITIVE, "s"),
     )
 
 
@@ -1246,6 +1283,9 @@ def _parameter_table(exp: Experiment) -> dict[str, tuple[float, _Range]]:
         params["springs.damping"] = (s.damping, _NONNEGATIVE)
         params["springs.bending"] = (s.bending or 0.0, _NONNEGATIVE)
         params["springs.node_mass"] = (s.node_mass, _NONNEGATIVE)
+    else:
+        params["viscoelastic.ratio"] = (exp.viscoelastic.ratio, _NONNEGATIVE)
+        params["viscoelastic.relaxation_time"] = (exp.viscoelastic.relaxation_time, _POSITIVE)
     return params
 
 
@@ -1254,7 +1294,7 @@ def parameter_names(experiment: Experiment) -> list[str]:
     :func:`with_parameters` accept, e.g. ``"material.youngs_modulus"``,
     ``"material.<region>.density"`` (for regions with a ``[material.<region>]`` table or a
     ``[region.<name>]``), ``"damping.mass"``, ``"gravity.acceleration.z"``,
-    ``"springs.stiffness"``."""
+    ``"springs.stiffness"``, ``"viscoelastic.ratio"`` (continuum models)."""
     return list(_parameter_table(experiment))
 
 
@@ -1417,6 +1457,8 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
         d["region"] = {name: {"where": r.where.literal} for name, r in exp.regions.items()}
     d["damping"] = {"mass": exp.damping.mass, "stiffness": exp.damping.stiffness}
     d["gravity"] = {"acceleration": list(exp.gravity.acceleration)}
+    if exp.viscoelastic != ViscoelasticSpec():
+        d["viscoelastic"] = dataclasses.asdict(exp.viscoelastic)
     if exp.boundaries:
         boundaries = []
         for b in exp.boundaries:

@@ -35,6 +35,12 @@ Per step with h, Jacobian J and parameter derivative R_p = d r/d p of the step e
   :meth:`ForwardModel._alpha_tangent`) and J dq1 = -R_p - (M da_m' + K(q_f) dq_f' + D dv_f');
   the consistent initial acceleration M a0 = f - grad W(q0) - D v0 gives M da0 = -R_p(t0).
 
+A viscoelastic branch (``[viscoelastic]`` ratio > 0, or its parameters among the names) is
+simulated (:meth:`ForwardModel.simulate`, :meth:`ForwardModel.fd_jacobian`, be and si only) but
+not differentiated: its internal variable z is not part of the tangent/adjoint state, so
+:meth:`ForwardModel.jacobian`, :meth:`~ForwardModel.gradient` and
+:meth:`~ForwardModel.cell_gradient` raise an ExperimentError pointing to finite differences.
+
 Also: :meth:`ForwardModel.cell_gradient` (the adjoint gradient plus d value/d E of every cell,
 a sensitivity map, from the same sweep), :meth:`ForwardModel.fd_jacobian` (central differences),
 and ``observe="acceleration"`` (marker accelerations instead of positions).
@@ -219,6 +225,29 @@ class ForwardModel:
             raise ExperimentError(f"{self.experiment.source}: non-finite parameter values "
                                   f"{dict(zip(self.names, p.tolist(), strict=True))}")
         self.system.set_parameters(dict(zip(self.names, p.tolist(), strict=True)))
+        from ..physics.viscoelastic import check_integrator
+
+        check_integrator(getattr(self.system, "viscoelastic", None), self.method,
+                         where=f"{self.experiment.source}: the forward model's integrator")
+
+    def _refuse_derivatives(self, p) -> None:
+        """Raise (on every rank) when the run has a viscoelastic branch or its parameters are
+        requested: the sensitivities do not include the branch's internal variable."""
+        from ..dynamics.parameters import VISCOELASTIC
+
+        asked = [n for n in self.names if n in VISCOELASTIC]
+        branch = getattr(self.system, "viscoelastic", None)
+        ratio = branch.ratio if branch is not None else 0.0
+        if "viscoelastic.ratio" in self.names:
+            ratio = float(np.asarray(p, dtype=float).reshape(-1)[
+                self.names.index("viscoelastic.ratio")])
+        if asked or ratio > 0.0:
+            what = (f'parameter "{asked[0]}" is requested' if asked
+                    else f"[viscoelastic] ratio = {ratio:g} (the branch is on)")
+            raise ExperimentError(
+                f"{self.experiment.source}: {what}: gradients by forward sensitivities or the "
+                "adjoint do not include the viscoelastic branch's internal variable; use "
+                "--gradient fd (ForwardModel.fd_jacobian), or ratio = 0")
 
     def _initial(self):
         s = self.system
@@ -260,6 +289,9 @@ class ForwardModel:
         s, h = self.system, self.h
         self._set(p)
         q, v = self._initial()
+        branch = getattr(s, "viscoelastic", None)
+        if branch is not None:
+            branch.reset(q)     # every run starts with the branch relaxed
         a = None
         if self.has_a:
             a = s.create_vec()
@@ -474,6 +506,7 @@ class ForwardModel:
     # -- forward sensitivities --------------------------------------------------------------------
     def jacobian(self, p):
         """(sim (K, M, 3), dsim/dp (K, M, 3, P)) by forward sensitivities (one run)."""
+        self._refuse_derivatives(p)
         s, h, P = self.system, self.h, len(self.names)
         K_frames = len(self.frame_times)
         nm = len(self.reference)
@@ -631,6 +664,7 @@ class ForwardModel:
         return value, grad, out
 
     def _adjoint(self, p, dphi, cell_map: bool):
+        self._refuse_derivatives(p)
         s, h, P = self.system, self.h, len(self.names)
         states, sim = self._run(p, store=True)
         value, wsim = dphi(sim)

@@ -23,6 +23,9 @@ Parameter names (see :meth:`ParameterMap.names`):
   region ``material.<region>.<key>``, with the meaning of :func:`petsoft.experiment.with_parameters`
   (a region material that does not override a key follows the default);
 * ``damping.mass``, ``damping.stiffness``, ``gravity.acceleration.x|y|z``;
+* ``viscoelastic.ratio``, ``viscoelastic.relaxation_time`` (the Maxwell branch): set in place by
+  :meth:`~petsoft.dynamics.system.DynamicSystem.set_parameters` but **not differentiable**
+  (:class:`ParameterDerivatives` refuses them: use finite differences);
 * ``material.youngs_modulus#k``, k = 0..P-1: a *stiffness field*, a multiplier (1 at the start)
   of Young's modulus on the k-th of P cell groups. The groups are **Morton chunks**: the cells of
   the whole mesh sorted along the Morton (Z-order) curve of their centroids and cut into P
@@ -43,6 +46,9 @@ from ..kernels.scatter import scatter_add_vector
 from ..ordering import morton_order
 
 MATERIAL_KEYS = ("youngs_modulus", "poisson_ratio", "density")
+#: Parameters set_parameters changes but the residual derivatives do not cover: the Maxwell
+#: branch's internal variable z is not part of the differentiated state.
+VISCOELASTIC = ("viscoelastic.ratio", "viscoelastic.relaxation_time")
 _KIND = {"youngs_modulus": "E", "poisson_ratio": "nu", "density": "rho"}
 GROUP_PATTERN = re.compile(r"^material\.youngs_modulus#(\d+)$")
 
@@ -108,6 +114,10 @@ class ParameterMap:
         self.values["damping.stiffness"] = system.beta
         for i, c in enumerate("xyz"):
             self.values[f"gravity.acceleration.{c}"] = float(exp.gravity.acceleration[i])
+        # the Maxwell branch: settable in place, not differentiable (see VISCOELASTIC)
+        branch = system.viscoelastic
+        self.values["viscoelastic.ratio"] = branch.ratio
+        self.values["viscoelastic.relaxation_time"] = branch.tau
 
     def _current(self, name: str) -> float:
         key = name.rsplit(".", 1)[1]
@@ -170,8 +180,10 @@ class ParameterMap:
                 ok, valid = -1.0 < v < 0.5, "in (-1, 0.5)"
             elif key in ("youngs_modulus", "density"):
                 ok, valid = v > 0.0, "> 0"
-            elif name.startswith("damping."):
+            elif name.startswith("damping.") or name == "viscoelastic.ratio":
                 ok, valid = v >= 0.0, ">= 0"
+            elif name == "viscoelastic.relaxation_time":
+                ok, valid = v > 0.0, "> 0 (seconds)"
             else:
                 ok, valid = np.isfinite(v), "finite"
             if not (ok and np.isfinite(v)):
@@ -240,6 +252,17 @@ def get_default(system, name: str) -> float:
     return float(get_parameter(system.model.experiment, name))
 
 
+def refuse_viscoelastic(names) -> None:
+    """Raise (on every rank) for Maxwell-branch parameters: their derivatives are not
+    implemented (the branch's internal variable is not part of the differentiated state)."""
+    bad = [n for n in names if n in VISCOELASTIC]
+    if bad:
+        raise ExperimentError(
+            f'"{bad[0]}" is not differentiable: the viscoelastic branch\'s internal variable is '
+            "not part of the sensitivities; use finite differences (--gradient fd, "
+            "ForwardModel.fd_jacobian)")
+
+
 class ParameterDerivatives:
     """Element-level evaluation of d r / d p (see the module docstring) for one state."""
 
@@ -274,6 +297,7 @@ class ParameterDerivatives:
             arr.reshape(-1, 3)[:, c] = -s.lumped.getArray(readonly=True).reshape(-1, 3)[:, c]
 
     def vectors(self, names) -> list[PETSc.Vec]:
+        refuse_viscoelastic(names)
         s, dm = self.system, self.system.dmesh
         out = []
         local = np.zeros(3 * dm.nvertices)
@@ -299,6 +323,7 @@ class ParameterDerivatives:
 
     def contract(self, names, mu: PETSc.Vec) -> np.ndarray:
         """[d r / d p_j . mu for j], mu with zero prescribed entries (collective)."""
+        refuse_viscoelastic(names)
         s, dm = self.system, self.system.dmesh
         mul = dm.to_local(mu)[dm.cells].reshape(-1, 12)
         per_cell = {k: np.einsum("ni,ni->n", e, mul)
