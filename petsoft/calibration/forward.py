@@ -162,6 +162,10 @@ class ForwardModel:
         if groups:
             s.define_stiffness_groups(max(groups) + 1)
         pnames = s.parameter_names()
+        if getattr(s, "viscoelastic", None) is not None:
+            from ..dynamics.parameters import VISCOELASTIC
+
+            pnames = pnames + list(VISCOELASTIC)   # simulate / fd only (see the docstring)
         bad = [n for n in self.names if n not in pnames]
         if bad:
             raise ExperimentError(f'{exp.source}: "{bad[0]}" is not a differentiable parameter; '

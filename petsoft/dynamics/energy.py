@@ -1,8 +1,9 @@
 """Energy bookkeeping of a simulation: what is stored, what was dissipated, what was done.
 
 Per step: kinetic, elastic (including a viscoelastic branch's stored energy) and gravitational
-energy of the state; cumulative physical dissipation (Rayleigh damping, the viscoelastic branch) and external work (tractions and moving supports) as paired with
-the displacement increment by the integrator itself. Their balance
+energy of the state; cumulative physical dissipation (Rayleigh damping, the viscoelastic branch)
+and external work (tractions and moving supports) as paired with the displacement increment by
+the integrator itself. Their balance
 
     numerical = E(0) + external work - (kinetic + elastic + gravitational + dissipated)
 

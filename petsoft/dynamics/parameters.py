@@ -152,11 +152,17 @@ class ParameterMap:
         return [f"material.youngs_modulus#{k}" for k in range(count)]
 
     def names(self) -> list[str]:
-        return list(self.values)
+        """The differentiable names (set_parameters also takes :data:`VISCOELASTIC`)."""
+        return [n for n in self.values if n not in VISCOELASTIC]
 
-    def check(self, names) -> None:
-        """Raise (on every rank: the check is deterministic) for a name not differentiable."""
+    def check(self, names, settable: bool = False) -> None:
+        """Raise (on every rank: the check is deterministic) for a name not differentiable
+        (with ``settable``: not settable; the viscoelastic names are settable only)."""
         valid = self.names()
+        if settable:
+            valid = valid + list(VISCOELASTIC)
+        else:
+            refuse_viscoelastic(names)
         for n in names:
             if n not in valid:
                 m = GROUP_PATTERN.match(n)
@@ -230,7 +236,7 @@ class ParameterMap:
 
     def update(self, values: dict) -> None:
         """Set parameter values (material ones per cell; the caller rebuilds matrices)."""
-        self.check(values)
+        self.check(values, settable=True)
         self.validate(values)
         # defaults before regions: a region set together with the default keeps its own value
         for name, value in sorted(values.items(), key=lambda kv: kv[0].count(".")):

@@ -216,7 +216,9 @@ class DynamicSystem:
         return self._parameters
 
     def parameter_names(self) -> list[str]:
-        """Names :meth:`set_parameters` and :meth:`residual_parameter_derivatives` accept."""
+        """Names :meth:`set_parameters` and :meth:`residual_parameter_derivatives` accept
+        (:meth:`set_parameters` also takes ``viscoelastic.ratio`` and
+        ``viscoelastic.relaxation_time``, which are not differentiable)."""
         return self.parameters.names()
 
     def define_stiffness_groups(self, count: int) -> list[str]:
