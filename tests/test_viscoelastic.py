@@ -78,7 +78,7 @@ def test_first_mode_matches_the_sls_roots(method, order):
         system.viscoelastic.reset(q)
         q1, v1 = q.duplicate(), v.duplicate()
         y = [q.dot(Mphi)]
-        for n in range(int(round(1.5 * period / h))):
+        for n in range(int(round(period / h))):
             assert integ.step(n * h, q, v, h, q1, v1).converged
             q1.copy(q)
             v1.copy(v)
@@ -105,10 +105,11 @@ def test_first_mode_matches_the_sls_roots(method, order):
 def test_reaction_relaxes_from_one_plus_g_to_one():
     """A bar stretched by eps = 1% in T = 0.1 tau, then held (uniaxial: the x = 0 face slides,
     two corner nodes stop rigid motions): the end reaction follows the exact ramp-and-hold
-    solution E A eps (1 + g (tau/T)(1 - e^-T/tau) e^-(t-T)/tau) within 1% of its viscous part,
-    starts near (1 + g) E A eps, ends at E A eps, and decays with backward Euler's time
-    constant h / log(1 + h/tau) (within 1% of tau). Inertia is negligible (density 0.01)."""
-    g, tau, T, eps, E, h = 0.8, 0.1, 0.01, 0.01, 1e5, 1e-3
+    solution E A eps (1 + g (tau/T)(1 - e^-T/tau) e^-(t-T)/tau) within 1.5% of its viscous
+    part, starts near (1 + g) E A eps, ends at E A eps, and decays with backward Euler's time
+    constant h / log(1 + h/tau) (within 1.5% of tau at h = tau/50). Inertia is negligible
+    (density 0.01)."""
+    g, tau, T, eps, E, h = 0.8, 0.1, 0.01, 0.01, 1e5, 2e-3
     exp = _experiment(density=0.01, viscoelastic={"ratio": g, "relaxation_time": tau}, boundary=[
         {"kind": "fixed", "where": "x < 1e-9", "components": ["x"]},
         {"kind": "fixed", "where": "x < 1e-9 and y < 1e-9 and z < 1e-9",
@@ -133,7 +134,7 @@ def test_reaction_relaxes_from_one_plus_g_to_one():
         f.axpy(1.0, s.viscoelastic.stress_force(q, fb))
         return float(np.sum(MPI.COMM_WORLD.bcast(dm.gather_global(f))[right, 0]))
 
-    n = int(round((T + 6 * tau) / h))
+    n = int(round((T + 5 * tau) / h))
     force = [reaction()]
     for i in range(n):
         assert integ.step(i * h, q, v, h, q1, v1).converged
@@ -151,13 +152,13 @@ def test_reaction_relaxes_from_one_plus_g_to_one():
     print(f"peak {force.max() / elastic:.5f} (1 + g = {1 + g}), final "
           f"{force[-1] / elastic:.5f}, max error {err:.3g} of g E A eps, fitted tau "
           f"{tau_fit:.6f} s")
-    assert err < 0.01
+    assert err < 0.015          # backward Euler: O(h/tau) = 2%
     # the instantaneous modulus: (1 + g) for an instant stretch, (1 + 0.95 g) for this ramp
     peak = force.max()
     assert abs(peak - exact[hold].max()) < 0.01 * g * elastic and peak > (1 + 0.9 * g) * elastic
-    assert abs(force[-1] / elastic - 1.0) < 0.003                  # g e^-6 = 0.002 left
-    assert abs(tau_fit - h / np.log1p(h / tau)) < 1e-6 * tau
-    assert abs(tau_fit - tau) < 0.01 * tau
+    assert abs(force[-1] / elastic - 1.0) < 0.006                  # g e^-5 = 0.005 left
+    assert abs(tau_fit - h / np.log1p(h / tau)) < 1e-5 * tau
+    assert abs(tau_fit - tau) < 0.015 * tau
     for x in (q, v, q1, v1, f, fb):
         x.destroy()
     integ.destroy()
@@ -233,13 +234,13 @@ def _run(exp, out, restart=False, comm=None):
 
 @pytest.mark.parametrize("method", ["be", "midpoint"])
 def test_restart_is_bitwise(tmp_path_factory, method):
-    """Stop after the step-20 checkpoint (later ones deleted, as if the run died), restart:
+    """Stop after the step-10 checkpoint (later ones deleted, as if the run died), restart:
     final state, probes and energies equal the uninterrupted run bit for bit; the checkpoint
     holds the branch's internal variable z (/state/z)."""
     base = _shared_dir(tmp_path_factory, f"visco-restart-{method}")
 
     def exp(out):
-        return _bent(method, end=0.06, output={"directory": str(out), "checkpoint_every": 20,
+        return _bent(method, end=0.03, output={"directory": str(out), "checkpoint_every": 10,
                                                "probes": [[L, A / 2, A / 2]]})
 
     full = _run(exp(base / "full"), base / "full")
@@ -250,7 +251,7 @@ def test_restart_is_bitwise(tmp_path_factory, method):
             assert f["state/z"].shape == f["state/q"].shape
             assert not np.array_equal(f["state/z"][()], f["state/q"][()])
         for step, path in files:
-            if step > 20:
+            if step > 10:
                 path.unlink()
     MPI.COMM_WORLD.barrier()
     again = _run(exp(base / "cut"), base / "cut", restart=True)
