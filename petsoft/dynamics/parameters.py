@@ -272,7 +272,7 @@ def refuse_viscoelastic(names) -> None:
 class ParameterDerivatives:
     """Element-level evaluation of d r / d p (see the module docstring) for one state."""
 
-    def __init__(self, system, q, v, a, w=None):
+    def __init__(self, system, q, v, a, w=None, k0x=None):
         self.system = system
         s, dm = system, system.dmesh
         pm = s.parameters
@@ -282,6 +282,13 @@ class ParameterDerivatives:
         vol = dm.cell_volumes
         # the elastic term's own parameter derivatives (+ K w, + beta K0 v)
         self.E_mu, self.E_lam = s.elastic.lame_derivatives(u, wl, vl, s.beta)
+        if k0x is not None:
+            # a residual term K0 x (the viscoelastic branch's c K0 (q1 - z0)): K0_e x_e is the
+            # linear law's gradient at x, i.e. the reference term's derivative at u = 0
+            zero = np.zeros_like(u)
+            extra = s.elastic.lame_derivatives(zero, None, dm.to_local(k0x), 1.0)
+            self.E_mu += extra[0]
+            self.E_lam += extra[1]
         # mass (consistent: rho V/20 (sum_b y_b + y_a)) and gravity (rho V/4 g) per unit density
         y = (al + s.alpha * vl)[dm.cells]                       # (n, 4, 3)
         Em = (vol / 20.0)[:, None, None] * (y + y.sum(axis=1, keepdims=True))

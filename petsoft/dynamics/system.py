@@ -269,12 +269,13 @@ class DynamicSystem:
             self.K0 = self._matrix_from(self.k0_values)
         return self.K0
 
-    def parameter_derivatives(self, q, v, a, w=None):
-        """Element-level d r/d p at (q, v, a) (+ d/dp [K(q) w]) for many names at once:
-        ``.vectors(names)`` gives the vectors, ``.contract(names, mu)`` their dots with mu."""
+    def parameter_derivatives(self, q, v, a, w=None, k0x=None):
+        """Element-level d r/d p at (q, v, a) (+ d/dp [K(q) w], + d/dp [K0 k0x]) for many names
+        at once: ``.vectors(names)`` gives the vectors, ``.contract(names, mu)`` their dots
+        with mu."""
         from .parameters import ParameterDerivatives
 
-        return ParameterDerivatives(self, q, v, a, w)
+        return ParameterDerivatives(self, q, v, a, w, k0x)
 
     def residual_parameter_derivatives(self, names, q, v, a, t: float = 0.0) -> list:
         """d/dp of r(q, v, a; p) = M a + grad W(q) + D v - f_g - f_t(t), prescribed rows zeroed

@@ -182,6 +182,38 @@ class MaxwellBranch:
         Kw.destroy()
         return dissipated
 
+    # -- derivatives of a backward Euler step (forward sensitivities) ---------------------------
+    @property
+    def step_start(self) -> PETSc.Vec:
+        """z0 of the step last prepared (z itself is z1 once the step is accepted)."""
+        return self._z0
+
+    def residual_derivative(self, name: str, q1: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = d R/d p of the backward Euler step's branch term g/(1 + r) K0 (q1 - z0) for
+        p = ``viscoelastic.ratio`` (1/(1 + r) K0 (q1 - z0)) or ``viscoelastic.relaxation_time``
+        (g (r/tau)/(1 + r)^2 K0 (q1 - z0)); all rows."""
+        r = self._h / self.tau
+        x = q1.copy()
+        x.axpy(-1.0, self._z0)
+        self.system.K0_matrix().mult(x, out)
+        if name == "viscoelastic.ratio":
+            out.scale(1.0 / (1.0 + r))
+        else:
+            out.scale(self.ratio * (r / self.tau) / (1.0 + r) ** 2)
+        x.destroy()
+        return out
+
+    def tangent_update(self, dz: PETSc.Vec, dq1: PETSc.Vec, q1: PETSc.Vec,
+                       name: str | None = None) -> None:
+        """dz <- dz1 of the accepted backward Euler step z1 = (z0 + r q1)/(1 + r):
+        dz1 = (dz0 + r dq1 + dr (q1 - z1))/(1 + r), dr = -r/tau for ``relaxation_time``."""
+        r = self._h / self.tau
+        dz.axpy(r, dq1)
+        if name == "viscoelastic.relaxation_time":
+            dz.axpy(-r / self.tau, q1)
+            dz.axpy(r / self.tau, self.z)
+        dz.scale(1.0 / (1.0 + r))
+
     # -- energy -------------------------------------------------------------------------------
     def energy(self, q: PETSc.Vec) -> float:
         """Stored energy 1/2 g (q - z)^T K0 (q - z) (0 when off or before reset)."""
