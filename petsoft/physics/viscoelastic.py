@@ -109,10 +109,6 @@ class MaxwellBranch:
             self.z = z.duplicate()
         z.copy(self.z)
 
-    def _require_state(self) -> None:
-        if self.z is None:
-            raise RuntimeError("MaxwellBranch.reset(q0) must be called before the first step")
-
     # -- one step -----------------------------------------------------------------------------
     def _factor(self) -> float:
         """1 + r (backward Euler) or 1 + r/2 (midpoint): q - z = (q* - z0)/factor."""
@@ -120,8 +116,11 @@ class MaxwellBranch:
         return 1.0 + r if self._method in ("be", "si") else 1.0 + 0.5 * r
 
     def prepare(self, method: str, h: float, q0: PETSc.Vec) -> None:
-        """Fix the step [t0, t0 + h] that starts from (q0, z)."""
-        self._require_state()
+        """Fix the step [t0, t0 + h] that starts from (q0, z). A branch never reset starts
+        relaxed here (z = q0); a caller running several trajectories on one system calls
+        :meth:`reset` at the start of each (Simulation and ForwardModel do)."""
+        if self.z is None:
+            self.reset(q0)
         if method not in SUPPORTED:
             check_integrator(self, method)
         self._method, self._h = method, float(h)
