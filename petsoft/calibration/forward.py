@@ -45,6 +45,10 @@ c = g/(1 + r), r = h/tau, the step's residual gains c K0 (q1 - z0) and
 * dz1 = (dz0 + r dq1 + dr (q1 - z1))/(1 + r), dr = -r/tau for ``viscoelastic.relaxation_time``;
 * d R/d g = K0 (q1 - z0)/(1 + r), d R/d tau = g (r/tau)/(1 + r)^2 K0 (q1 - z0).
 
+When the branch's parameters are among the names, z is tracked also at ratio 0 (the force is
+then zero and the trajectory exactly the elastic one), so d sim/d ratio exists at 0, the null
+hypothesis of a diagnosis.
+
 The adjoint (:meth:`~ForwardModel.gradient`, :meth:`~ForwardModel.cell_gradient`) and the si and
 alpha sensitivities do not include z: they raise an ExperimentError pointing to
 ``--gradient fd`` (or ``sensitivity`` with be).
@@ -178,6 +182,9 @@ class ForwardModel:
         if bad:
             raise ExperimentError(f'{exp.source}: "{bad[0]}" is not a differentiable parameter; '
                                   f"valid: {', '.join(pnames)} (and material.youngs_modulus#k)")
+        if any(n.startswith("viscoelastic.") for n in self.names):
+            # z evolves also at ratio 0, so that d sim/d ratio exists there (be sensitivities)
+            s.viscoelastic.track = True
         if hasattr(s, "parameters"):
             self.p0 = np.array([s.parameters.values[n] for n in self.names])
         else:
@@ -247,15 +254,6 @@ class ForwardModel:
         requested: the adjoint (and the forward sensitivities of si and alpha) do not include
         the branch's internal variable; backward Euler's forward sensitivities do."""
         if sensitivities and self.method == "be":
-            p = np.asarray(p, dtype=float).reshape(-1)
-            ratio = (p[self.names.index("viscoelastic.ratio")] if "viscoelastic.ratio" in
-                     self.names else getattr(getattr(self.system, "viscoelastic", None), "ratio",
-                                             0.0))
-            if ratio == 0.0 and any(n.startswith("viscoelastic.") for n in self.names):
-                raise ExperimentError(
-                    f"{self.experiment.source}: viscoelastic parameters are differentiated at "
-                    "ratio > 0 only (at ratio = 0 the branch and its internal variable are "
-                    "off); start from a positive ratio, or use --gradient fd")
             return
         from ..dynamics.parameters import VISCOELASTIC
 
@@ -488,9 +486,9 @@ class ForwardModel:
         return deriv, data
 
     def _branch(self):
-        """The system's viscoelastic branch when it is on, else None."""
+        """The system's viscoelastic branch when it is on or tracked, else None."""
         branch = getattr(self.system, "viscoelastic", None)
-        return branch if branch is not None and branch.active else None
+        return branch if branch is not None and branch.stepping else None
 
     def _derivatives(self, q, v, a, w=None, k0x=None):
         """d r/d p of the system at (q, v, a) (+ d/dp [K(q) w], + d/dp [K0 k0x]):
@@ -617,12 +615,8 @@ class ForwardModel:
                             strict=True):
                 Rp[j] = r
             branch = self._branch() if self.method == "be" else None
-            for j in visco:
-                Rp[j] = s.create_vec()
-                if branch is not None:
-                    branch.residual_derivative(self.names[j], st1[0], Rp[j])
-                else:
-                    Rp[j].zeroEntries()   # ratio 0 and tau asked: the branch is absent
+            for j in visco:   # (be only: _refuse_derivatives; the branch is tracked)
+                Rp[j] = branch.residual_derivative(self.names[j], st1[0], s.create_vec())
             rhs, tmp = s.create_vec(), s.create_vec()
             for j in range(P):
                 dq0, dv0 = tangents["q"][j], tangents["v"][j]

@@ -79,7 +79,7 @@ class _NoBranch:
 
 def _branch_of(system):
     branch = getattr(system, "viscoelastic", None)
-    return branch if branch is not None and branch.active else _NoBranch()
+    return branch if branch is not None and branch.stepping else _NoBranch()
 
 
 class ImplicitIntegrator:
@@ -283,7 +283,7 @@ class ImplicitIntegrator:
         q0.copy(self.q0)
         v0.copy(self.v0)
         self._branch = _branch_of(s)
-        if self._branch.active:
+        if not isinstance(self._branch, _NoBranch):
             self._branch.prepare(self.method, h, q0)
         t1 = t0 + h
         gravity = s.gravity

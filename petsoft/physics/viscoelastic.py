@@ -72,6 +72,9 @@ class MaxwellBranch:
     def __init__(self, system, ratio: float = 0.0, relaxation_time: float = 0.1):
         self.system = system
         self.set(ratio, relaxation_time)
+        #: Update z also at ratio 0 (no force): the forward sensitivities then differentiate
+        #: with respect to the ratio at 0 (a diagnosis' null hypothesis). Set by ForwardModel.
+        self.track = False
         self.z = None          # the internal variable (a global vector), set by reset()
         self._z0 = None
         self._q0 = None
@@ -95,6 +98,11 @@ class MaxwellBranch:
     def active(self) -> bool:
         """Whether the branch contributes (ratio > 0)."""
         return self.ratio > 0.0
+
+    @property
+    def stepping(self) -> bool:
+        """Whether the integrators advance z (the branch is active, or :attr:`track`)."""
+        return self.active or self.track
 
     # -- state --------------------------------------------------------------------------------
     def reset(self, q0: PETSc.Vec) -> None:
@@ -168,7 +176,7 @@ class MaxwellBranch:
     def accept(self, q1: PETSc.Vec) -> float:
         """Update z for the accepted step ending at q1; returns the dissipated work g dz . K0 w
         (>= 0)."""
-        if not self.active:
+        if not self.stepping:
             return 0.0
         w = self.strain(q1)
         dz = w.copy()
