@@ -54,6 +54,9 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
 
     branch = getattr(system, "viscoelastic", None)
     check_integrator(branch, name)
+    if name == "alpha" and alpha_backend == "ts" and branch is not None and branch.active:
+        raise ExperimentError("--alpha-backend ts does not include the [viscoelastic] branch; "
+                              "use petsoft's own generalized-alpha (--alpha-backend petsoft)")
     if solver == "local-global" and branch is not None and branch.active:
         raise ExperimentError("--solver local-global does not include the [viscoelastic] branch; "
                               "use --solver snes or tao")

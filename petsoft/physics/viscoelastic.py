@@ -26,12 +26,18 @@ Time discretisation (r = h/tau; z is updated once a step is accepted, never insi
   rule, z1 - z0 = r (wm), wm = (q0 + q1)/2 - (z0 + z1)/2, which gives
   wm = ((q0 + q1)/2 - z0)/(1 + r/2); the residual gains g K0 wm, the Jacobian g/(2 (1 + r/2)) K0.
   Second order.
+* ``alpha`` (petsoft's generalized-alpha; not ``--alpha-backend ts``): z by the same
+  trapezoidal rule, the force evaluated like the elastic one at the alpha_f level,
+  g K0 w_f with w_f = (1 - alpha_f) w0 + alpha_f w1, w1 = q1 - z1
+  = (q1 - (r/2) q0 - (1 - r/2) z0)/(1 + r/2); Jacobian g alpha_f/(1 + r/2) K0. The consistent
+  initial acceleration includes the branch force g K0 (q0 - z0).
 
 Energy: the branch's stored energy is booked with the elastic energy, its dissipation
-g dz . K0 w (w the branch strain the step's force used: w1 for backward Euler, wm for the
-midpoint rule; >= 0 because dz = r w) with the dissipated work. For the midpoint rule
-f_M . dq = (stored energy change) + dissipation exactly; backward Euler's surplus
-1/2 g |dw|^2_K0 >= 0 is its numerical dissipation and shows in the ledger's ``numerical`` column.
+g dz . K0 w with the dissipated work (w1 for backward Euler, the mean strain wm of the
+trapezoidal z update for midpoint, trapezoidal and generalized-alpha; >= 0 because dz = r w).
+For the midpoint rule f_M . dq = (stored energy change) + dissipation exactly; backward Euler's
+surplus 1/2 g |dw|^2_K0 >= 0 (and generalized-alpha's f-level pairing) is numerical and shows
+in the ledger's ``numerical`` column.
 
 The initial state is z(0) = q(0): the branch is relaxed (the body has rested at q(0) for long).
 """
@@ -43,7 +49,7 @@ from petsc4py import PETSc
 from ..errors import ExperimentError
 
 #: Integrators whose step equations include the branch.
-SUPPORTED = ("be", "si", "midpoint", "trapezoidal")
+SUPPORTED = ("be", "si", "midpoint", "trapezoidal", "alpha")
 
 
 def check_integrator(branch, name: str, where: str = "time.integrator") -> None:
@@ -80,7 +86,9 @@ class MaxwellBranch:
         self._q0 = None
         self._method = None
         self._h = None
+        self._af = 1.0         # generalized-alpha's alpha_f
         self._w = None         # the branch strain q - z the last force used
+        self._wm = None        # the trapezoidal rule's mean strain (accept)
 
     # -- parameters ---------------------------------------------------------------------------
     def set(self, ratio: float, relaxation_time: float) -> None:
@@ -123,7 +131,7 @@ class MaxwellBranch:
         r = self._h / self.tau
         return 1.0 + r if self._method in ("be", "si") else 1.0 + 0.5 * r
 
-    def prepare(self, method: str, h: float, q0: PETSc.Vec) -> None:
+    def prepare(self, method: str, h: float, q0: PETSc.Vec, alpha_f: float = 1.0) -> None:
         """Fix the step [t0, t0 + h] that starts from (q0, z). A branch never reset starts
         relaxed here (z = q0); a caller running several trajectories on one system calls
         :meth:`reset` at the start of each (Simulation and ForwardModel do)."""
@@ -131,10 +139,10 @@ class MaxwellBranch:
             self.reset(q0)
         if method not in SUPPORTED:
             check_integrator(self, method)
-        self._method, self._h = method, float(h)
+        self._method, self._h, self._af = method, float(h), float(alpha_f)
         if self._z0 is None:
-            self._z0, self._q0, self._w = (self.z.duplicate(), q0.duplicate(),
-                                           q0.duplicate())
+            self._z0, self._q0, self._w, self._wm = (self.z.duplicate(), q0.duplicate(),
+                                                     q0.duplicate(), q0.duplicate())
         self.z.copy(self._z0)
         q0.copy(self._q0)
 
@@ -143,19 +151,34 @@ class MaxwellBranch:
         if not self.active:
             return 0.0
         c = self.ratio / self._factor()
-        return c if self._method in ("be", "si") else 0.5 * c
+        if self._method in ("be", "si"):
+            return c
+        return self._af * c if self._method == "alpha" else 0.5 * c
 
     def strain(self, q1: PETSc.Vec) -> PETSc.Vec:
         """The branch strain w the step's force uses, as a function of the unknown q1."""
         w = self._w
         if self._method in ("be", "si"):
             w.waxpy(-1.0, self._z0, q1)
+            w.scale(1.0 / self._factor())
+        elif self._method == "alpha":
+            r2 = 0.5 * self._h / self.tau
+            w.waxpy(-r2, self._q0, q1)                  # w1 = (q1 - r/2 q0 - (1 - r/2) z0)
+            w.axpy(-(1.0 - r2), self._z0)               #      / (1 + r/2)
+            w.scale(self._af / (1.0 + r2))
+            w.axpy(1.0 - self._af, self._q0)            # + (1 - af) (q0 - z0)
+            w.axpy(-(1.0 - self._af), self._z0)
         else:
-            w.waxpy(1.0, self._q0, q1)
-            w.scale(0.5)
-            w.axpy(-1.0, self._z0)
-        w.scale(1.0 / self._factor())
+            self._mean_strain(q1, w)
         return w
+
+    def _mean_strain(self, q1: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """wm = (w0 + w1)/2 = ((q0 + q1)/2 - z0)/(1 + r/2) of the trapezoidal z update."""
+        out.waxpy(1.0, self._q0, q1)
+        out.scale(0.5)
+        out.axpy(-1.0, self._z0)
+        out.scale(1.0 / (1.0 + 0.5 * self._h / self.tau))
+        return out
 
     def add_force(self, q1: PETSc.Vec, out: PETSc.Vec, work: PETSc.Vec) -> None:
         """out += g K0 w(q1) (the branch's contribution to the step's residual; all rows)."""
@@ -178,9 +201,10 @@ class MaxwellBranch:
         (>= 0)."""
         if not self.stepping:
             return 0.0
-        w = self.strain(q1)
+        # be: dz = r w1; midpoint, trapezoidal, alpha: dz = r wm
+        w = self.strain(q1) if self._method in ("be", "si") else self._mean_strain(q1, self._wm)
         dz = w.copy()
-        dz.scale(self._h / self.tau)          # be: dz = r w1; midpoint: dz = r wm
+        dz.scale(self._h / self.tau)
         self.z.axpy(1.0, dz)
         Kw = w.duplicate()
         self.system.K0_matrix().mult(w, Kw)
@@ -248,7 +272,7 @@ class MaxwellBranch:
         return out
 
     def destroy(self) -> None:
-        for v in (self.z, self._z0, self._q0, self._w):
+        for v in (self.z, self._z0, self._q0, self._w, self._wm):
             if v is not None:
                 v.destroy()
-        self.z = self._z0 = self._q0 = self._w = None
+        self.z = self._z0 = self._q0 = self._w = self._wm = None
