@@ -36,7 +36,7 @@ Per step with h, Jacobian J and parameter derivative R_p = d r/d p of the step e
   the consistent initial acceleration M a0 = f - grad W(q0) - D v0 gives M da0 = -R_p(t0).
 
 A viscoelastic branch (``[viscoelastic]`` ratio > 0, or its parameters among the names) is
-simulated by be and si (:meth:`ForwardModel.simulate`, :meth:`ForwardModel.fd_jacobian`).
+simulated by be, si and alpha (:meth:`ForwardModel.simulate`, :meth:`~ForwardModel.fd_jacobian`).
 Backward Euler's forward sensitivities carry its internal variable z as one more state: with
 c = g/(1 + r), r = h/tau, the step's residual gains c K0 (q1 - z0) and
 
