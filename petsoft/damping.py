@@ -380,6 +380,7 @@ class FreeVibrationSystem(DynamicSystem):
 
     def __init__(self, model):
         super().__init__(model)             # no Rayleigh damping: only the artificial one
+        self.viscoelastic.set(0.0, self.viscoelastic.tau)   # nor the viscoelastic branch's
         self.gravity.zeroEntries()
 
     def tractions(self, t: float, out: PETSc.Vec) -> PETSc.Vec:

@@ -52,7 +52,11 @@ Decisions the format leaves open
   ``collider.<i>.offset`` of ``[material]`` models; calibrated values are written back as this
   key, ``point`` is kept); ``[[boundary]] kind = "fixed"`` ``compliance`` (m/Pa, default 0 =
   rigid; > 0: an elastic support, see :mod:`petsoft.physics.support`; the parameter
-  ``boundary.compliance`` sets every elastic support).
+  ``boundary.compliance`` sets every elastic support); and the ``[viscoelastic]`` table
+  (``ratio`` = E_M/E >= 0, default 0 = no branch; ``relaxation_time``
+  > 0 s, default 0.1): a standard linear solid, one Maxwell branch of modulus ratio ``ratio``
+  and relaxation time ``relaxation_time`` beside the elastic law (continuum models only; see
+  :mod:`petsoft.physics.viscoelastic`).
 * ``format_version = 1`` is optional at the top level; other versions are refused.
 """
 
@@ -99,6 +103,7 @@ __all__ = [
     "RegionSpec",
     "SpringsSpec",
     "TimeSpec",
+    "ViscoelasticSpec",
     "dumps_toml",
     "experiment_from_dict",
     "get_parameter",
@@ -245,6 +250,17 @@ class DampingSpec:
 
     mass: float = 0.0
     stiffness: float = 0.0
+
+
+@dataclass(frozen=True)
+class ViscoelasticSpec:
+    """``[viscoelastic]``: a Maxwell branch (standard linear solid) beside the elastic law.
+
+    ``ratio`` = E_M / E >= 0 (0: no branch), ``relaxation_time`` tau > 0 in s.
+    """
+
+    ratio: float = 0.0
+    relaxation_time: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -425,6 +441,8 @@ class Experiment:
     springs : SpringsSpec or None
     masses : tuple of MassSpec
     colliders : tuple of ColliderSpec
+    viscoelastic : ViscoelasticSpec
+        ``[viscoelastic]`` (ratio 0, the default, is the purely elastic model).
     format_version : int
     source : str
         The name used in messages (the path as given, or ``"<embedded>"``).
@@ -448,6 +466,7 @@ class Experiment:
     springs: SpringsSpec | None = None
     masses: tuple[MassSpec, ...] = ()
     colliders: tuple[ColliderSpec, ...] = ()
+    viscoelastic: ViscoelasticSpec = ViscoelasticSpec()
     format_version: int = FORMAT_VERSION
     path: Path | None = field(default=None, compare=False)
     source: str = field(default="<embedded>", compare=False)
@@ -713,6 +732,7 @@ _TOP_KEYS = (
     "springs",
     "mass",
     "collider",
+    "viscoelastic",
 )
 _MATERIAL_KEYS = ("model", "youngs_modulus", "poisson_ratio", "density")
 _BOUNDARY_KEYS = {
@@ -858,6 +878,12 @@ def experiment_from_dict(
     petsc = _read_petsc(top.table("petsc"))
     masses = tuple(_read_mass(r) for r in top.table_array("mass"))
     colliders = tuple(_read_collider(r) for r in top.table_array("collider"))
+    viscoelastic = _read_viscoelastic(top.table("viscoelastic"))
+    if viscoelastic.ratio > 0.0 and springs is not None:
+        raise ExperimentError(
+            f"{source}: [viscoelastic] ratio = {_num(viscoelastic.ratio)}: the standard linear "
+            "solid acts on a continuum [material] model, not on [springs]; remove "
+            "[viscoelastic] or set ratio = 0")
 
     experiment = Experiment(
         mesh=mesh,
@@ -874,6 +900,7 @@ def experiment_from_dict(
         springs=springs,
         masses=masses,
         colliders=colliders,
+        viscoelastic=viscoelastic,
         format_version=version,
         path=Path(path) if path is not None else None,
         source=source,
@@ -1008,6 +1035,16 @@ def _read_damping(r: _Reader | None) -> DampingSpec:
     return DampingSpec(
         mass=r.number("mass", 0.0, _NONNEGATIVE, "1/s"),
         stiffness=r.number("stiffness", 0.0, _NONNEGATIVE, "s"),
+    )
+
+
+def _read_viscoelastic(r: _Reader | None) -> ViscoelasticSpec:
+    if r is None:
+        return ViscoelasticSpec()
+    r.check_keys(("ratio", "relaxation_time"))
+    return ViscoelasticSpec(
+        ratio=r.number("ratio", 0.0, _NONNEGATIVE, "E_M / E"),
+        relaxation_time=r.number("relaxation_time", 0.1, _POSITIVE, "s"),
     )
 
 
@@ -1283,6 +1320,9 @@ def _parameter_table(exp: Experiment) -> dict[str, tuple[float, _Range]]:
         params["springs.damping"] = (s.damping, _NONNEGATIVE)
         params["springs.bending"] = (s.bending or 0.0, _NONNEGATIVE)
         params["springs.node_mass"] = (s.node_mass, _NONNEGATIVE)
+    else:
+        params["viscoelastic.ratio"] = (exp.viscoelastic.ratio, _NONNEGATIVE)
+        params["viscoelastic.relaxation_time"] = (exp.viscoelastic.relaxation_time, _POSITIVE)
     return params
 
 
@@ -1292,7 +1332,8 @@ def parameter_names(experiment: Experiment) -> list[str]:
     ``"material.<region>.density"`` (for regions with a ``[material.<region>]`` table or a
     ``[region.<name>]``), ``"damping.mass"``, ``"gravity.acceleration.z"``,
     ``"springs.stiffness"``, ``"boundary.compliance"`` (when a fixed boundary has
-    compliance > 0), ``"collider.<i>.offset"`` (for a plane collider)."""
+    compliance > 0), ``"collider.<i>.offset"`` (for a plane collider),
+    ``"viscoelastic.ratio"`` (continuum models)."""
     return list(_parameter_table(experiment))
 
 
@@ -1534,6 +1575,8 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
         d["region"] = {name: {"where": r.where.literal} for name, r in exp.regions.items()}
     d["damping"] = {"mass": exp.damping.mass, "stiffness": exp.damping.stiffness}
     d["gravity"] = {"acceleration": list(exp.gravity.acceleration)}
+    if exp.viscoelastic != ViscoelasticSpec():
+        d["viscoelastic"] = dataclasses.asdict(exp.viscoelastic)
     if exp.boundaries:
         boundaries = []
         for b in exp.boundaries:

@@ -35,6 +35,24 @@ Per step with h, Jacobian J and parameter derivative R_p = d r/d p of the step e
   :meth:`ForwardModel._alpha_tangent`) and J dq1 = -R_p - (M da_m' + K(q_f) dq_f' + D dv_f');
   the consistent initial acceleration M a0 = f - grad W(q0) - D v0 gives M da0 = -R_p(t0).
 
+A viscoelastic branch (``[viscoelastic]`` ratio > 0, or its parameters among the names) is
+simulated by be, si and alpha (:meth:`ForwardModel.simulate`, :meth:`~ForwardModel.fd_jacobian`).
+Backward Euler's forward sensitivities carry its internal variable z as one more state: with
+c = g/(1 + r), r = h/tau, the step's residual gains c K0 (q1 - z0) and
+
+* J dq1 = (the BE right-hand side, with d/dp of c K0 (q1 - z0) in R_p) + c K0 dz0,
+  J including c K0; dz0 = dq0 at t = 0 (the branch starts relaxed, z0 = q0);
+* dz1 = (dz0 + r dq1 + dr (q1 - z1))/(1 + r), dr = -r/tau for ``viscoelastic.relaxation_time``;
+* d R/d g = K0 (q1 - z0)/(1 + r), d R/d tau = g (r/tau)/(1 + r)^2 K0 (q1 - z0).
+
+When the branch's parameters are among the names, z is tracked also at ratio 0 (the force is
+then zero and the trajectory exactly the elastic one), so d sim/d ratio exists at 0, the null
+hypothesis of a diagnosis.
+
+The adjoint (:meth:`~ForwardModel.gradient`, :meth:`~ForwardModel.cell_gradient`) and the si and
+alpha sensitivities do not include z: they raise an ExperimentError pointing to
+``--gradient fd`` (or ``sensitivity`` with be).
+
 Also: :meth:`ForwardModel.cell_gradient` (the adjoint gradient plus d value/d E of every cell,
 a sensitivity map, from the same sweep), :meth:`ForwardModel.fd_jacobian` (central differences),
 and ``observe="acceleration"`` (marker accelerations instead of positions).
@@ -179,10 +197,17 @@ class ForwardModel:
         if groups:
             s.define_stiffness_groups(max(groups) + 1)
         pnames = s.parameter_names()
+        if getattr(s, "viscoelastic", None) is not None:
+            from ..dynamics.parameters import VISCOELASTIC
+
+            pnames = pnames + list(VISCOELASTIC)   # simulate / fd only (see the docstring)
         bad = [n for n in self.names if n not in pnames]
         if bad:
             raise ExperimentError(f'{exp.source}: "{bad[0]}" is not a differentiable parameter; '
                                   f"valid: {', '.join(pnames)} (and material.youngs_modulus#k)")
+        if any(n.startswith("viscoelastic.") for n in self.names):
+            # z evolves also at ratio 0, so that d sim/d ratio exists there (be sensitivities)
+            s.viscoelastic.track = True
         if hasattr(s, "parameters"):
             self.p0 = np.array([s.parameters.values[n] for n in self.names])
         else:
@@ -242,6 +267,33 @@ class ForwardModel:
             raise ExperimentError(f"{self.experiment.source}: non-finite parameter values "
                                   f"{dict(zip(self.names, p.tolist(), strict=True))}")
         self.system.set_parameters(dict(zip(self.names, p.tolist(), strict=True)))
+        from ..physics.viscoelastic import check_integrator
+
+        check_integrator(getattr(self.system, "viscoelastic", None), self.method,
+                         where=f"{self.experiment.source}: the forward model's integrator")
+
+    def _refuse_derivatives(self, p, sensitivities: bool = False) -> None:
+        """Raise (on every rank) when the run has a viscoelastic branch or its parameters are
+        requested: the adjoint (and the forward sensitivities of si and alpha) do not include
+        the branch's internal variable; backward Euler's forward sensitivities do."""
+        if sensitivities and self.method == "be":
+            return
+        from ..dynamics.parameters import VISCOELASTIC
+
+        asked = [n for n in self.names if n in VISCOELASTIC]
+        branch = getattr(self.system, "viscoelastic", None)
+        ratio = branch.ratio if branch is not None else 0.0
+        if "viscoelastic.ratio" in self.names:
+            ratio = float(np.asarray(p, dtype=float).reshape(-1)[
+                self.names.index("viscoelastic.ratio")])
+        if asked or ratio > 0.0:
+            what = (f'parameter "{asked[0]}" is requested' if asked
+                    else f"[viscoelastic] ratio = {ratio:g} (the branch is on)")
+            raise ExperimentError(
+                f"{self.experiment.source}: {what}: the adjoint gradient (and the forward "
+                "sensitivities of si and alpha) do not include the viscoelastic branch's "
+                "internal variable; use --gradient fd (ForwardModel.fd_jacobian), --gradient "
+                "sensitivity with integrator be, or ratio = 0")
 
     def _initial(self):
         s = self.system
@@ -283,6 +335,9 @@ class ForwardModel:
         s, h = self.system, self.h
         self._set(p)
         q, v = self._initial()
+        branch = getattr(s, "viscoelastic", None)
+        if branch is not None:
+            branch.reset(q)     # every run starts with the branch relaxed
         a = None
         if self.has_a:
             a = s.create_vec()
@@ -436,9 +491,19 @@ class ForwardModel:
             acc = v1.copy()
             acc.axpy(-1.0, v0)
             acc.scale(1.0 / h)
-            s.assemble_combination(q1, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h, self.J)
-            deriv = self._derivatives(q1, v1, acc)
+            # the viscoelastic branch (forward sensitivities only; the adjoint refuses it):
+            # c K0 (q1 - z0) with c = g/(1 + h/tau), z0 the step's start (see jacobian)
+            branch, c, k0x = self._branch(), 0.0, None
+            if branch is not None:
+                c = branch.jacobian_coefficient()
+                k0x = q1.copy()
+                k0x.axpy(-1.0, branch.step_start)
+                k0x.scale(c)
+            s.assemble_combination(q1, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h + c, self.J)
+            deriv = self._derivatives(q1, v1, acc, k0x=k0x)
             acc.destroy()
+            if k0x is not None:
+                k0x.destroy()
         elif self.method == "si":
             qp = self._predictor(n, q0, v0)
             w = q1.copy()
@@ -468,8 +533,16 @@ class ForwardModel:
                 x.destroy()
         return deriv, data
 
-    def _derivatives(self, q, v, a, w=None):
-        """d r/d p of the system at (q, v, a) (+ d/dp [K(q) w]): ``.vectors``, ``.contract``."""
+    def _branch(self):
+        """The system's viscoelastic branch when it is on or tracked, else None."""
+        branch = getattr(self.system, "viscoelastic", None)
+        return branch if branch is not None and branch.stepping else None
+
+    def _derivatives(self, q, v, a, w=None, k0x=None):
+        """d r/d p of the system at (q, v, a) (+ d/dp [K(q) w], + d/dp [K0 k0x]):
+        ``.vectors``, ``.contract``."""
+        if k0x is not None:
+            return self.system.parameter_derivatives(q, v, a, w, k0x)
         if hasattr(self.system, "parameter_derivatives"):
             return self.system.parameter_derivatives(q, v, a, w)
         return _GenericDerivatives(self.system, q, v, a, w, self.cell_size)
@@ -523,6 +596,7 @@ class ForwardModel:
     @_collects_garbage
     def jacobian(self, p):
         """(sim (K, M, 3), dsim/dp (K, M, 3, P)) by forward sensitivities (one run)."""
+        self._refuse_derivatives(p, sensitivities=True)
         s, h, P = self.system, self.h, len(self.names)
         K_frames = len(self.frame_times)
         nm = len(self.reference)
@@ -533,6 +607,12 @@ class ForwardModel:
         for x in tangents["q"] + tangents["v"]:
             x.zeroEntries()
         ksp = self._solver()
+        # backward Euler with a viscoelastic branch: z is one more state (dz0 = dq0: z0 = q0)
+        from ..dynamics.parameters import VISCOELASTIC
+
+        visco = [j for j, n in enumerate(self.names) if n in VISCOELASTIC]
+        others = [j for j in range(P) if j not in visco]
+        tangents["z"] = [s.create_vec() for _ in range(P)] if self.method == "be" else None
 
         def observe_tangents(n):
             for k, w in self.uses.get(n, []):
@@ -545,12 +625,18 @@ class ForwardModel:
             if self.static:
                 # K(q0) dq0 = -P d r_static/dp
                 sksp, sderiv = self._static_setup(q0)
-                for j, r in enumerate(sderiv.vectors(self.names)):
+                # (the relaxed branch does not act on the static equilibrium: dq0 = 0 for its
+                # parameters)
+                for j, r in zip(others, sderiv.vectors([self.names[j] for j in others]),
+                                strict=True):
                     r.scale(-1.0)
                     s.zero_prescribed(r)
                     self._solve(sksp, r, tangents["q"][j])
                     r.destroy()
                 sksp.destroy()
+            if tangents["z"] is not None:
+                for dq, dz in zip(tangents["q"], tangents["z"], strict=True):
+                    dq.copy(dz)
             if self.has_a:
                 # M da0 = -P (R_p + K(q0) dq0)   (self.J holds K(q0) when static)
                 deriv = self._derivatives(q0, v0, a0)
@@ -573,7 +659,13 @@ class ForwardModel:
                 started.append(True)
             deriv, data = self._step_setup(n, st0, st1)
             ksp.setOperators(self.J)
-            Rp = deriv.vectors(self.names)
+            Rp = [None] * P
+            for j, r in zip(others, deriv.vectors([self.names[j] for j in others]),
+                            strict=True):
+                Rp[j] = r
+            branch = self._branch() if self.method == "be" else None
+            for j in visco:   # (be only: _refuse_derivatives; the branch is tracked)
+                Rp[j] = branch.residual_derivative(self.names[j], st1[0], s.create_vec())
             rhs, tmp = s.create_vec(), s.create_vec()
             for j in range(P):
                 dq0, dv0 = tangents["q"][j], tangents["v"][j]
@@ -592,9 +684,15 @@ class ForwardModel:
                     data["T"].mult(dqp, tmp)
                     rhs.axpy(-1.0, tmp)
                     dqp.destroy()
+                if branch is not None:
+                    # R has -c K0 z0: its tangent moves to the right-hand side as + c K0 dz0
+                    s.K0_matrix().mult(tangents["z"][j], tmp)
+                    rhs.axpy(branch.jacobian_coefficient(), tmp)
                 s.zero_prescribed(rhs)
                 dq1 = tmp
                 self._solve(ksp, rhs, dq1)
+                if branch is not None:
+                    branch.tangent_update(tangents["z"][j], dq1, st1[0], self.names[j])
                 if self.accel:
                     dv0.copy(tangents["a"][j])
                 # dv1 = (dq1 - dq0)/h
@@ -614,7 +712,7 @@ class ForwardModel:
         states, sim = self._run(p, store=False, on_step=on_step)
         self._free(states)
         ksp.destroy()
-        for x in tangents["q"] + tangents["v"] + (tangents["a"] or []):
+        for x in tangents["q"] + tangents["v"] + (tangents["a"] or []) + (tangents["z"] or []):
             x.destroy()
         return sim, dsim
 
@@ -682,6 +780,7 @@ class ForwardModel:
         return value, grad, out
 
     def _adjoint(self, p, dphi, cell_map: bool):
+        self._refuse_derivatives(p)
         s, h, P = self.system, self.h, len(self.names)
         states, sim = self._run(p, store=True)
         value, wsim = dphi(sim)

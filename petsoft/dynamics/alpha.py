@@ -33,7 +33,7 @@ from petsc4py import PETSc
 from ..errors import InvertedElementError
 from ..linear import linear_defaults
 from ..options import scoped_defaults
-from .implicit import SNES_REASONS, StepReport
+from .implicit import SNES_REASONS, StepReport, _branch_of, _NoBranch
 
 TS_REASONS = {v: k for k, v in PETSc.TS.ConvergedReason.__dict__.items() if k.isupper()}
 
@@ -216,6 +216,7 @@ class GeneralizedAlpha:
          self.load) = (s.create_vec() for _ in range(10))
         self._last = None
         self._bad = None
+        self._branch = _NoBranch()
         self.prefix = prefix
         self.snes = None
         self._new_solver()
@@ -243,6 +244,9 @@ class GeneralizedAlpha:
         s.internal_gradient(q0, rhs)
         rhs.scale(-1.0)
         rhs.axpy(-1.0, s.damping_apply(v0, self.work))
+        branch = getattr(s, "viscoelastic", None)
+        if branch is not None and branch.active:
+            rhs.axpy(-1.0, branch.stress_force(q0, self.work))   # g K0 (q0 - z0)
         rhs.axpy(1.0, s.gravity)
         rhs.axpy(1.0, s.tractions(t0, self.work))
         s.zero_prescribed(rhs)
@@ -286,6 +290,7 @@ class GeneralizedAlpha:
         grad.destroy()
         R.axpy(1.0, s.damping_apply(self.vf, self.work))
         R.axpy(-1.0, self.load)
+        self._branch.add_force(q1, R, self.work)       # the viscoelastic branch at alpha_f
 
     def _residual_cb(self, snes, x, F):
         try:
@@ -301,7 +306,7 @@ class GeneralizedAlpha:
         self._update(x)
         c = self.af * self.gamma / (self.beta * h)
         s.assemble_combination(self.qf, self.am / (self.beta * h * h) + s.alpha * c, self.af,
-                               s.beta * c, P)
+                               s.beta * c + self._branch.jacobian_coefficient(), P)
 
     def _forget(self) -> None:
         if self._last is not None:
@@ -345,6 +350,10 @@ class GeneralizedAlpha:
 
     def step(self, t0, q0, v0, h, q1, v1) -> StepReport:
         s = self.system
+        self._branch = _branch_of(s)
+        if not isinstance(self._branch, _NoBranch):
+            # (before the consistent acceleration: a branch never reset starts relaxed here)
+            self._branch.prepare("alpha", h, q0, alpha_f=self.af)
         if not self._continues(t0, q0, v0):
             self.consistent_acceleration(t0, q0, v0, self.a0)
         self.h = h
@@ -386,6 +395,7 @@ class GeneralizedAlpha:
         report.dissipated = dq.dot(s.damping_apply(self.vf, self.work))
         report.external_work = dq.dot(traction_f)
         report.boundary_work = dq.dot(full)
+        report.dissipated += self._branch.accept(q1)
         self.a1.copy(self.a0)   # the new step starts from this step's acceleration
         self._remember(t0 + h, q1, v1)
         for vec in (full, dq, traction_f):

@@ -12,6 +12,8 @@ Layout of ``checkpoint-<step>.h5``::
     /                attrs: format = "petsoft-checkpoint", version, step, time, step_size,
                              integrator, ranks, petsoft_version, complete = 1
     /state/q, /state/v               (N, 3)  file numbering
+    /state/z                         (N, 3)  the viscoelastic branch's internal variable
+                                             (only when [viscoelastic] ratio > 0)
     /integrator/<name>               (N, 3)  integrator state vectors
     /ledger/rows                     (S, 7)  energies so far; attrs dissipated, external_work,
                                              initial

@@ -1,8 +1,9 @@
 """Energy bookkeeping of a simulation: what is stored, what was dissipated, what was done.
 
-Per step: kinetic, elastic and gravitational energy of the state; cumulative physical
-dissipation (Rayleigh damping) and external work (tractions and moving supports) as paired with
-the displacement increment by the integrator itself. Their balance
+Per step: kinetic, elastic (including a viscoelastic branch's stored energy) and gravitational
+energy of the state; cumulative physical dissipation (Rayleigh damping, the viscoelastic branch)
+and external work (tractions and moving supports) as paired with the displacement increment by
+the integrator itself. Their balance
 
     numerical = E(0) + external work - (kinetic + elastic + gravitational + dissipated)
 
@@ -31,6 +32,11 @@ class EnergyLedger:
     def record(self, system, t: float, q, v) -> dict:
         kin = system.kinetic_energy(v)
         el = system.elastic_energy(q)
+        # a Maxwell branch's stored energy is elastic energy too (its dissipation is booked by
+        # the steps); systems without one do not have the method
+        branch = getattr(system, "viscoelastic_energy", None)
+        if branch is not None:
+            el += branch(q)
         grav = system.gravitational_energy(q)
         total = kin + el + grav
         if not self.rows:

@@ -16,6 +16,11 @@ grad_d W . dq = W(q1) - W(q0): it is second order and conserves the energy of a 
 undamped body exactly (to the Newton tolerance), where the plain midpoint rule conserves only
 quadratic energies. The Jacobian a M + b K + c K0 ignores the rank-one correction's derivative.
 
+With a Maxwell branch (``[viscoelastic]``, :mod:`petsoft.physics.viscoelastic`) every residual
+gains the branch force g K0 w(q1) (backward Euler: w = (q1 - z0)/(1 + h/tau); midpoint and
+trapezoidal: w = ((q0 + q1)/2 - z0)/(1 + h/(2 tau))), the Jacobian the matching multiple of K0,
+and an accepted step updates the branch's internal variable z and books its dissipation.
+
 Every step also returns the work terms paired with dq = q1 - q0 by the method itself (damping,
 tractions, the reactions of moving supports), so that the energy balance of
 :mod:`petsoft.dynamics.energy` closes exactly for the midpoint rule and exposes the numerical
@@ -54,6 +59,29 @@ class StepReport:
     reason: str = ""
 
 
+class _NoBranch:
+    """Stands in for the Maxwell branch of a system without one (e.g. mass-spring)."""
+
+    active = False
+
+    def add_force(self, q1, out, work) -> None:
+        pass
+
+    def jacobian_coefficient(self) -> float:
+        return 0.0
+
+    def incremental_potential(self, q1, work) -> float:
+        return 0.0
+
+    def accept(self, q1) -> float:
+        return 0.0
+
+
+def _branch_of(system):
+    branch = getattr(system, "viscoelastic", None)
+    return branch if branch is not None and branch.stepping else _NoBranch()
+
+
 class ImplicitIntegrator:
     """Backward Euler, semi-implicit, (discrete-gradient) midpoint or trapezoidal steps.
 
@@ -84,6 +112,7 @@ class ImplicitIntegrator:
         self.h = None
         self.t0 = 0.0
         self._dg_c = 0.0
+        self._branch = _NoBranch()
         self.prefix = prefix
         self.snes = self.tao = None
         self._new_solver()
@@ -187,6 +216,7 @@ class ImplicitIntegrator:
         full.axpy(1.0, grad)
         full.axpy(1.0, damping)
         full.axpy(-1.0, load)
+        self._branch.add_force(q1, full, grad)   # grad is free again: the branch's work vector
         return {"damping": damping, "load": load}
 
     def _residual(self, q1: PETSc.Vec, R: PETSc.Vec) -> bool:
@@ -202,9 +232,10 @@ class ImplicitIntegrator:
 
     def _jacobian_coefficients(self) -> tuple[float, float, float]:
         h, s = self.h, self.system
+        branch = self._branch.jacobian_coefficient()
         if self.method in ("be", "si"):
-            return 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h
-        return 2.0 / h**2 + s.alpha / h, 0.5, s.beta / h
+            return 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h + branch
+        return 2.0 / h**2 + s.alpha / h, 0.5, s.beta / h + branch
 
     def _jacobian(self, q1: PETSc.Vec, P: PETSc.Mat) -> None:
         a, b, c = self._jacobian_coefficients()
@@ -239,7 +270,7 @@ class ImplicitIntegrator:
             damp = s.damping_apply(d, s.create_vec())
             value += 0.5 * d.dot(damp) / h
             damp.destroy()
-        return value
+        return value + self._branch.incremental_potential(x, self._b)
 
     def _hessian_cb(self, tao, x, H, P):
         self._jacobian(x, P)
@@ -251,6 +282,9 @@ class ImplicitIntegrator:
         self.t0, self.h = t0, h
         q0.copy(self.q0)
         v0.copy(self.v0)
+        self._branch = _branch_of(s)
+        if not isinstance(self._branch, _NoBranch):
+            self._branch.prepare(self.method, h, q0)
         t1 = t0 + h
         gravity = s.gravity
         s.tractions(t1, self.f1)
@@ -309,6 +343,8 @@ class ImplicitIntegrator:
         s.apply_prescribed(q1, t0 + h)
         self._velocity(q1, v1)
         self._work_terms(q1, report)
+        # the branch's internal variable moves only with an accepted step
+        report.dissipated += self._branch.accept(q1)
         return report
 
     def _work_terms(self, q1: PETSc.Vec, report: StepReport) -> None:

@@ -23,6 +23,9 @@ Parameter names (see :meth:`ParameterMap.names`):
   region ``material.<region>.<key>``, with the meaning of :func:`petsoft.experiment.with_parameters`
   (a region material that does not override a key follows the default);
 * ``damping.mass``, ``damping.stiffness``, ``gravity.acceleration.x|y|z``;
+* ``viscoelastic.ratio``, ``viscoelastic.relaxation_time`` (the Maxwell branch): set in place by
+  :meth:`~petsoft.dynamics.system.DynamicSystem.set_parameters` but **not differentiable**
+  (:class:`ParameterDerivatives` refuses them: use finite differences);
 * ``material.youngs_modulus#k``, k = 0..P-1: a *stiffness field*, a multiplier (1 at the start)
   of Young's modulus on the k-th of P cell groups. The groups are **Morton chunks**: the cells of
   the whole mesh sorted along the Morton (Z-order) curve of their centroids and cut into P
@@ -50,6 +53,9 @@ from ..kernels.scatter import scatter_add_vector
 from ..ordering import morton_order
 
 MATERIAL_KEYS = ("youngs_modulus", "poisson_ratio", "density")
+#: Parameters set_parameters changes but the residual derivatives do not cover: the Maxwell
+#: branch's internal variable z is not part of the differentiated state.
+VISCOELASTIC = ("viscoelastic.ratio", "viscoelastic.relaxation_time")
 _KIND = {"youngs_modulus": "E", "poisson_ratio": "nu", "density": "rho"}
 GROUP_PATTERN = re.compile(r"^material\.youngs_modulus#(\d+)$")
 
@@ -131,6 +137,10 @@ class ParameterMap:
             for i, c in enumerate(self.contact.colliders):
                 if c.kind == "plane":
                     self.values[f"collider.{i}.offset"] = self.contact.offsets[i]
+        # the Maxwell branch: settable in place, not differentiable (see VISCOELASTIC)
+        branch = system.viscoelastic
+        self.values["viscoelastic.ratio"] = branch.ratio
+        self.values["viscoelastic.relaxation_time"] = branch.tau
 
     def _current(self, name: str) -> float:
         key = name.rsplit(".", 1)[1]
@@ -165,11 +175,17 @@ class ParameterMap:
         return [f"material.youngs_modulus#{k}" for k in range(count)]
 
     def names(self) -> list[str]:
-        return list(self.values)
+        """The differentiable names (set_parameters also takes :data:`VISCOELASTIC`)."""
+        return [n for n in self.values if n not in VISCOELASTIC]
 
-    def check(self, names) -> None:
-        """Raise (on every rank: the check is deterministic) for a name not differentiable."""
+    def check(self, names, settable: bool = False) -> None:
+        """Raise (on every rank: the check is deterministic) for a name not differentiable
+        (with ``settable``: not settable; the viscoelastic names are settable only)."""
         valid = self.names()
+        if settable:
+            valid = valid + list(VISCOELASTIC)
+        else:
+            refuse_viscoelastic(names)
         for n in names:
             if n == "boundary.compliance" and n not in valid:
                 if self._compliance_error is not None:
@@ -200,11 +216,13 @@ class ParameterMap:
                 ok, valid = -1.0 < v < 0.5, "in (-1, 0.5)"
             elif key in ("youngs_modulus", "density"):
                 ok, valid = v > 0.0, "> 0"
-            elif name.startswith("damping."):
+            elif name.startswith("damping.") or name == "viscoelastic.ratio":
                 ok, valid = v >= 0.0, ">= 0"
             elif name == "boundary.compliance":
                 ok, valid = v > 0.0, ("> 0 (m/Pa; a rigid support, compliance 0, is a Dirichlet "
                                       "condition and cannot be set in place)")
+            elif name == "viscoelastic.relaxation_time":
+                ok, valid = v > 0.0, "> 0 (seconds)"
             else:
                 ok, valid = np.isfinite(v), "finite"
             if not (ok and np.isfinite(v)):
@@ -251,7 +269,7 @@ class ParameterMap:
 
     def update(self, values: dict) -> None:
         """Set parameter values (material ones per cell; the caller rebuilds matrices)."""
-        self.check(values)
+        self.check(values, settable=True)
         self.validate(values)
         # defaults before regions: a region set together with the default keeps its own value
         for name, value in sorted(values.items(), key=lambda kv: kv[0].count(".")):
@@ -277,10 +295,21 @@ def get_default(system, name: str) -> float:
     return float(get_parameter(system.model.experiment, name))
 
 
+def refuse_viscoelastic(names) -> None:
+    """Raise (on every rank) for Maxwell-branch parameters: their derivatives are not
+    implemented (the branch's internal variable is not part of the differentiated state)."""
+    bad = [n for n in names if n in VISCOELASTIC]
+    if bad:
+        raise ExperimentError(
+            f'"{bad[0]}" is not differentiable: the viscoelastic branch\'s internal variable is '
+            "not part of the sensitivities; use finite differences (--gradient fd, "
+            "ForwardModel.fd_jacobian)")
+
+
 class ParameterDerivatives:
     """Element-level evaluation of d r / d p (see the module docstring) for one state."""
 
-    def __init__(self, system, q, v, a, w=None):
+    def __init__(self, system, q, v, a, w=None, k0x=None):
         self.system = system
         s, dm = system, system.dmesh
         pm = s.parameters
@@ -290,6 +319,13 @@ class ParameterDerivatives:
         vol = dm.cell_volumes
         # the elastic term's own parameter derivatives (+ K w, + beta K0 v)
         self.E_mu, self.E_lam = s.elastic.lame_derivatives(u, wl, vl, s.beta)
+        if k0x is not None:
+            # a residual term K0 x (the viscoelastic branch's c K0 (q1 - z0)): K0_e x_e is the
+            # linear law's gradient at x, i.e. the reference term's derivative at u = 0
+            zero = np.zeros_like(u)
+            extra = s.elastic.lame_derivatives(zero, None, dm.to_local(k0x), 1.0)
+            self.E_mu += extra[0]
+            self.E_lam += extra[1]
         # mass (consistent: rho V/20 (sum_b y_b + y_a)) and gravity (rho V/4 g) per unit density
         y = (al + s.alpha * vl)[dm.cells]                       # (n, 4, 3)
         Em = (vol / 20.0)[:, None, None] * (y + y.sum(axis=1, keepdims=True))
@@ -324,6 +360,7 @@ class ParameterDerivatives:
             arr.reshape(-1, 3)[:, c] = -s.lumped.getArray(readonly=True).reshape(-1, 3)[:, c]
 
     def vectors(self, names) -> list[PETSc.Vec]:
+        refuse_viscoelastic(names)
         s, dm = self.system, self.system.dmesh
         out = []
         local = np.zeros(3 * dm.nvertices)
@@ -349,6 +386,7 @@ class ParameterDerivatives:
 
     def contract(self, names, mu: PETSc.Vec) -> np.ndarray:
         """[d r / d p_j . mu for j], mu with zero prescribed entries (collective)."""
+        refuse_viscoelastic(names)
         s, dm = self.system, self.system.dmesh
         mul = dm.to_local(mu)[dm.cells].reshape(-1, 12)
         per_cell = {k: np.einsum("ni,ni->n", e, mul)

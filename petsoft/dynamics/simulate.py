@@ -50,6 +50,16 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
                     alpha_radius: float = 0.5, alpha_backend: str = "petsoft",
                     imex_slow_modes: int = 6):
     """The integrator object for a name of ``[time] integrator``."""
+    from ..physics.viscoelastic import check_integrator
+
+    branch = getattr(system, "viscoelastic", None)
+    check_integrator(branch, name)
+    if name == "alpha" and alpha_backend == "ts" and branch is not None and branch.active:
+        raise ExperimentError("--alpha-backend ts does not include the [viscoelastic] branch; "
+                              "use petsoft's own generalized-alpha (--alpha-backend petsoft)")
+    if solver == "local-global" and branch is not None and branch.active:
+        raise ExperimentError("--solver local-global does not include the [viscoelastic] branch; "
+                              "use --solver snes or tao")
     if solver == "local-global":
         if name != "be":
             raise ExperimentError(f"--solver local-global solves backward-Euler steps only "
@@ -200,6 +210,8 @@ class Simulation:
         else:
             q, v = initial_state(self.model, s, exp, monitor=self.monitor)
             first = 1
+            if getattr(s, "viscoelastic", None) is not None:
+                s.viscoelastic.reset(q)   # the branch starts relaxed
             result = SimulationResult(0.0, 0, q, v, np.zeros((0, len(FIELDS))))
         q1, v1 = q.duplicate(), v.duplicate()
         if isinstance(self.integrator, ExplicitIntegrator):
@@ -267,15 +279,19 @@ class Simulation:
 
         dm = self.model.dmesh
         state = getattr(self.integrator, "state", dict)()
+        fields = {"q": q, "v": v}
+        branch = getattr(self.system, "viscoelastic", None)
+        if branch is not None and branch.active:
+            fields["z"] = branch.z       # the Maxwell branch's internal variable
         gathered = {k: dm.gather_global(vec) for k, vec in
-                    {"q": q, "v": v, **{f"integrator:{k}": w for k, w in state.items()}}.items()}
+                    {**fields, **{f"integrator:{k}": w for k, w in state.items()}}.items()}
         if dm.comm.rank == 0:
             text = (self.experiment.path.read_text() if self.experiment.path is not None
                     else "")
             path = write_checkpoint(
                 self.out / "checkpoints", step=n, time=t, step_size=self.experiment.time.step,
                 integrator=self.name,
-                fields={"q": gathered["q"], "v": gathered["v"]},
+                fields={k: gathered[k] for k in fields},
                 integrator_state={k.split(":", 1)[1]: a for k, a in gathered.items()
                                   if k.startswith("integrator:")},
                 ledger=ledger, probes=(result.probe_times, result.probe_displacements),
@@ -304,6 +320,12 @@ class Simulation:
                 if float(data["step_size"]) != self.experiment.time.step:
                     raise PetsoftError(f"{data['path']}: step {data['step_size']} s differs from "
                                        f"[time] step {self.experiment.time.step} s")
+                branch = getattr(self.system, "viscoelastic", None)
+                if branch is not None and branch.active and "z" not in data["fields"]:
+                    raise PetsoftError(f"{data['path']}: written without a [viscoelastic] "
+                                       "branch (no /state/z), but the experiment has one "
+                                       f"(ratio = {branch.ratio:g}); restart with the "
+                                       "experiment that wrote it")
             except PetsoftError as exc:
                 error = exc
         error = mpi.bcast(error)
@@ -313,6 +335,14 @@ class Simulation:
         q = dm.from_file_field(data["fields"]["q"])
         v = dm.from_file_field(data["fields"]["v"])
         state = {k: dm.from_file_field(a) for k, a in data["integrator_state"].items()}
+        branch = getattr(self.system, "viscoelastic", None)
+        if branch is not None:
+            if "z" in data["fields"]:
+                z = dm.from_file_field(data["fields"]["z"])
+                branch.restore(z)
+                z.destroy()
+            else:
+                branch.reset(q)
         t = float(data["time"])
         restore = getattr(self.integrator, "restore", None)
         if restore is not None:

@@ -9,7 +9,10 @@
   the energy balance is well defined also for nonlinear materials),
 * f_g gravity (a potential: -f_g . q), f_t(t) surface tractions (expressions of x, y, z, t: their
   work is booked as external work),
-* Dirichlet conditions q_D = g(t) (fixed or prescribed expressions of x, y, z, t).
+* Dirichlet conditions q_D = g(t) (fixed or prescribed expressions of x, y, z, t),
+* optionally a Maxwell branch (standard linear solid, ``[viscoelastic]``): a force
+  -g K0 (q - z) with an internal variable z, dz/dt = (q - z)/tau, that the implicit integrators
+  include in their steps (:mod:`petsoft.physics.viscoelastic`, :attr:`DynamicSystem.viscoelastic`).
 
 All matrices share one block-CSR pattern, so an integrator's Jacobian a M + b K(q) + c K0 is a
 combination of value arrays handed to PETSc once.
@@ -73,6 +76,7 @@ class DynamicSystem:
         self._traction_cache = None
         self._g = np.zeros(3 * dm.nvertices)
         self._work = dm.create_global_vec()
+        self._viscoelastic_setup()
 
     # -- matrices ---------------------------------------------------------------------------
     def _add_reference_hessian(self) -> None:
@@ -221,7 +225,9 @@ class DynamicSystem:
         return self._parameters
 
     def parameter_names(self) -> list[str]:
-        """Names :meth:`set_parameters` and :meth:`residual_parameter_derivatives` accept."""
+        """Names :meth:`set_parameters` and :meth:`residual_parameter_derivatives` accept
+        (:meth:`set_parameters` also takes ``viscoelastic.ratio`` and
+        ``viscoelastic.relaxation_time``, which are not differentiable)."""
         return self.parameters.names()
 
     def define_stiffness_groups(self, count: int) -> list[str]:
@@ -238,6 +244,7 @@ class DynamicSystem:
         pm.update(values)
         self.alpha = pm.values["damping.mass"]
         self.beta = pm.values["damping.stiffness"]
+        self._viscoelastic_parameters(pm.values)
         mu, lam = lame_parameters(pm.E(), pm.nu)
         for group in self.elastic.groups:
             group.mu[:] = mu[group.cells]
@@ -271,12 +278,13 @@ class DynamicSystem:
             self.K0 = self._matrix_from(self.k0_values)
         return self.K0
 
-    def parameter_derivatives(self, q, v, a, w=None):
-        """Element-level d r/d p at (q, v, a) (+ d/dp [K(q) w]) for many names at once:
-        ``.vectors(names)`` gives the vectors, ``.contract(names, mu)`` their dots with mu."""
+    def parameter_derivatives(self, q, v, a, w=None, k0x=None):
+        """Element-level d r/d p at (q, v, a) (+ d/dp [K(q) w], + d/dp [K0 k0x]) for many names
+        at once: ``.vectors(names)`` gives the vectors, ``.contract(names, mu)`` their dots
+        with mu."""
         from .parameters import ParameterDerivatives
 
-        return ParameterDerivatives(self, q, v, a, w)
+        return ParameterDerivatives(self, q, v, a, w, k0x)
 
     def residual_parameter_derivatives(self, names, q, v, a, t: float = 0.0) -> list:
         """d/dp of r(q, v, a; p) = M a + grad W(q) + D v - f_g - f_t(t), prescribed rows zeroed
@@ -284,7 +292,25 @@ class DynamicSystem:
         self.parameters.check(names)
         return self.parameter_derivatives(q, v, a).vectors(list(names))
 
+    # -- the viscoelastic (Maxwell) branch -------------------------------------------------------
+    def _viscoelastic_setup(self) -> None:
+        from ..physics.viscoelastic import MaxwellBranch
+
+        spec = self.model.experiment.viscoelastic
+        #: the :class:`~petsoft.physics.viscoelastic.MaxwellBranch` (inactive for ratio 0)
+        self.viscoelastic = MaxwellBranch(self, spec.ratio, spec.relaxation_time)
+
+    def _viscoelastic_parameters(self, values: dict) -> None:
+        """Follow ``viscoelastic.ratio`` / ``relaxation_time`` (set_parameters)."""
+        self.viscoelastic.set(values["viscoelastic.ratio"],
+                              values["viscoelastic.relaxation_time"])
+
+    def viscoelastic_energy(self, q: PETSc.Vec) -> float:
+        """The branch's stored energy 1/2 g (q - z)^T K0 (q - z) (0 without a branch)."""
+        return self.viscoelastic.energy(q)
+
     def destroy(self) -> None:
+        self.viscoelastic.destroy()
         for name in ("M", "K0", "lumped", "gravity", "_work"):
             if hasattr(self, name):
                 getattr(self, name).destroy()
