@@ -84,19 +84,40 @@ class MarkerMisfit:
             r = np.concatenate([r, self._regularization_residual(z)])
         return r
 
+    def _fd_scaled(self, z: np.ndarray, sim: np.ndarray, step: float = 1e-6) -> np.ndarray:
+        """dsim/dz (K, M, 3, P) by differences in the scaled variables (all of order one, so
+        one step size suits a Young's modulus and a support compliance of 1e-9 m/Pa alike):
+        central inside the bounds, one-sided where a bound is closer than the step (a damping
+        or a viscoelastic ratio starting at 0 must not be evaluated below it)."""
+        lo, hi = self.scaling.bounds()
+        cols = []
+        for j in range(len(z)):
+            e = step * max(abs(z[j]), 1.0)
+            up, down = z.copy(), z.copy()
+            up[j] += e
+            down[j] -= e
+            if z[j] + e > hi[j]:
+                cols.append((sim - self.forward.simulate(self.scaling.to_physical(down))) / e)
+            elif z[j] - e < lo[j]:
+                cols.append((self.forward.simulate(self.scaling.to_physical(up)) - sim) / e)
+            else:
+                cols.append((self.forward.simulate(self.scaling.to_physical(up))
+                             - self.forward.simulate(self.scaling.to_physical(down))) / (2 * e))
+        return np.stack(cols, axis=-1)
+
     def residual_jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(r, dr/dz) by forward sensitivities (or finite differences with ``gradient="fd"``)."""
         p = self.scaling.to_physical(z)
         self.evaluations += 1
         if self.gradient_method == "fd":
             sim = self.forward.simulate(p)
-            dsim = self.forward.fd_jacobian(p)
+            J = self._fd_scaled(z, sim)[self.seen] / self.sigma   # (m, P) in z
         else:
             sim, dsim = self.forward.jacobian(p)
+            J = dsim[self.seen] / self.sigma                       # (m, P) in physical p
+            J = J * self.scaling.dp_dz(z)[None, :]              # chain rule dp/dz (diagonal)
         self.last_simulation = sim
         r = self._data_residual(sim)
-        J = dsim[self.seen] / self.sigma                           # (m, P) in physical p
-        J = J * self.scaling.dp_dz(z)[None, :]                  # chain rule dp/dz (diagonal)
         if self.regularization > 0.0:
             r = np.concatenate([r, self._regularization_residual(z)])
             J = np.vstack([J, np.sqrt(self.regularization) * np.eye(self.n)])
