@@ -47,7 +47,11 @@ Decisions the format leaves open
 * Optional keys beyond formats.md (allowed: the format grows only by optional keys):
   ``[springs] pairs`` (explicit node pairs instead of the mesh edges) and ``node_mass`` (kg added at
   every node), and ``[[collider]] friction``, ``stiffness`` (penalty), plus the geometry each kind
-  needs (``center``/``radius`` for a sphere, ``point``/``normal`` for a plane).
+  needs (``center``/``radius`` for a sphere, ``point``/``normal`` for a plane), and the
+  velocity-dependent forces ``[drag] linear`` (Pa s/m), ``quadratic`` (kg/m^3) on the boundary
+  surface (triangles of a mass-spring model) and ``[friction] dry`` (m/s^2), ``speed`` (m/s,
+  > 0, default 1e-3), ``where`` (region name or condition; default all nodes): see
+  :mod:`petsoft.dynamics.velocity`. All default to zero (absent).
 * ``format_version = 1`` is optional at the top level; other versions are refused.
 """
 
@@ -84,6 +88,8 @@ __all__ = [
     "BoxSpec",
     "ColliderSpec",
     "DampingSpec",
+    "DragSpec",
+    "FrictionSpec",
     "Experiment",
     "GravitySpec",
     "InitialSpec",
@@ -238,6 +244,26 @@ class DampingSpec:
 
     mass: float = 0.0
     stiffness: float = 0.0
+
+
+@dataclass(frozen=True)
+class DragSpec:
+    """``[drag]``: surface drag per unit area, linear (Pa s/m) and quadratic (kg/m^3) in the
+    normal velocity (both >= 0; see :mod:`petsoft.physics.drag`)."""
+
+    linear: float = 0.0
+    quadratic: float = 0.0
+
+
+@dataclass(frozen=True)
+class FrictionSpec:
+    """``[friction]``: regularised dry friction ``dry`` (m/s^2, force per unit mass, >= 0) with
+    regularisation ``speed`` (m/s, > 0) on the nodes of ``where`` (None: all nodes; see
+    :mod:`petsoft.physics.friction`)."""
+
+    dry: float = 0.0
+    speed: float = 1e-3
+    where: str | Expression | None = None
 
 
 @dataclass(frozen=True)
@@ -408,6 +434,8 @@ class Experiment:
     springs : SpringsSpec or None
     masses : tuple of MassSpec
     colliders : tuple of ColliderSpec
+    drag : DragSpec
+    friction : FrictionSpec
     format_version : int
     source : str
         The name used in messages (the path as given, or ``"<embedded>"``).
@@ -431,6 +459,8 @@ class Experiment:
     springs: SpringsSpec | None = None
     masses: tuple[MassSpec, ...] = ()
     colliders: tuple[ColliderSpec, ...] = ()
+    drag: DragSpec = DragSpec()
+    friction: FrictionSpec = FrictionSpec()
     format_version: int = FORMAT_VERSION
     path: Path | None = field(default=None, compare=False)
     source: str = field(default="<embedded>", compare=False)
@@ -448,6 +478,8 @@ class Experiment:
         checks once it has read the mesh."""
         used = {name for name in self.material if name != "default"}
         used |= {b.region for b in self.boundaries if b.region is not None}
+        if isinstance(self.friction.where, str):
+            used.add(self.friction.where)
         return frozenset(used - set(self.regions))
 
     def material_for(self, region: str | None = None) -> MaterialSpec:
@@ -696,6 +728,8 @@ _TOP_KEYS = (
     "springs",
     "mass",
     "collider",
+    "drag",
+    "friction",
 )
 _MATERIAL_KEYS = ("model", "youngs_modulus", "poisson_ratio", "density")
 _BOUNDARY_KEYS = {
@@ -834,6 +868,8 @@ def experiment_from_dict(
     petsc = _read_petsc(top.table("petsc"))
     masses = tuple(_read_mass(r) for r in top.table_array("mass"))
     colliders = tuple(_read_collider(r) for r in top.table_array("collider"))
+    drag = _read_drag(top.table("drag"))
+    friction = _read_friction(top.table("friction"))
 
     experiment = Experiment(
         mesh=mesh,
@@ -850,6 +886,8 @@ def experiment_from_dict(
         springs=springs,
         masses=masses,
         colliders=colliders,
+        drag=drag,
+        friction=friction,
         format_version=version,
         path=Path(path) if path is not None else None,
         source=source,
@@ -984,6 +1022,36 @@ def _read_damping(r: _Reader | None) -> DampingSpec:
     return DampingSpec(
         mass=r.number("mass", 0.0, _NONNEGATIVE, "1/s"),
         stiffness=r.number("stiffness", 0.0, _NONNEGATIVE, "s"),
+    )
+
+
+def _read_drag(r: _Reader | None) -> DragSpec:
+    if r is None:
+        return DragSpec()
+    r.check_keys(("linear", "quadratic"))
+    return DragSpec(
+        linear=r.number("linear", 0.0, _NONNEGATIVE, "Pa s/m"),
+        quadratic=r.number("quadratic", 0.0, _NONNEGATIVE, "kg/m^3"),
+    )
+
+
+def _read_where(r: _Reader, k: str) -> str | Expression:
+    """A ``where``: a region name (bare identifier) or a condition of x, y, z."""
+    text = r.string(k, what='a region name or a condition of x, y, z, e.g. "x < 1e-6"')
+    if _is_region_name(text):
+        return text.strip()
+    return parse_expression(text, source=f"{r.source}: {r.key(k)}", variables=SPACE,
+                            expect="condition")
+
+
+def _read_friction(r: _Reader | None) -> FrictionSpec:
+    if r is None:
+        return FrictionSpec()
+    r.check_keys(("dry", "speed", "where"))
+    return FrictionSpec(
+        dry=r.number("dry", 0.0, _NONNEGATIVE, "m/s^2"),
+        speed=r.number("speed", 1e-3, _POSITIVE, "m/s"),
+        where=_read_where(r, "where") if "where" in r.data else None,
     )
 
 
@@ -1238,6 +1306,9 @@ def _parameter_table(exp: Experiment) -> dict[str, tuple[float, _Range]]:
                 params[f"material.{_key_part(name)}.{k}"] = (getattr(spec, k), rng)
     params["damping.mass"] = (exp.damping.mass, _NONNEGATIVE)
     params["damping.stiffness"] = (exp.damping.stiffness, _NONNEGATIVE)
+    params["drag.linear"] = (exp.drag.linear, _NONNEGATIVE)
+    params["drag.quadratic"] = (exp.drag.quadratic, _NONNEGATIVE)
+    params["friction.dry"] = (exp.friction.dry, _NONNEGATIVE)
     for i, c in enumerate(COMPONENTS):
         params[f"gravity.acceleration.{c}"] = (exp.gravity.acceleration[i], _ANY)
     if exp.springs is not None:
@@ -1417,6 +1488,14 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
         d["region"] = {name: {"where": r.where.literal} for name, r in exp.regions.items()}
     d["damping"] = {"mass": exp.damping.mass, "stiffness": exp.damping.stiffness}
     d["gravity"] = {"acceleration": list(exp.gravity.acceleration)}
+    if exp.drag != DragSpec():
+        d["drag"] = {"linear": exp.drag.linear, "quadratic": exp.drag.quadratic}
+    if exp.friction != FrictionSpec():
+        fr: dict[str, Any] = {"dry": exp.friction.dry, "speed": exp.friction.speed}
+        if exp.friction.where is not None:
+            w = exp.friction.where
+            fr["where"] = w if isinstance(w, str) else w.literal
+        d["friction"] = fr
     if exp.boundaries:
         boundaries = []
         for b in exp.boundaries:

@@ -23,6 +23,10 @@ Parameter names (see :meth:`ParameterMap.names`):
   region ``material.<region>.<key>``, with the meaning of :func:`petsoft.experiment.with_parameters`
   (a region material that does not override a key follows the default);
 * ``damping.mass``, ``damping.stiffness``, ``gravity.acceleration.x|y|z``;
+* ``drag.linear``, ``drag.quadratic``, ``friction.dry``: r is linear in each, its derivative is
+  the term's damping G per unit coefficient (:mod:`petsoft.dynamics.velocity`) at v, also when
+  the coefficient is 0; for a step that linearises the term at v_lin (semi-implicit) it is
+  G(v_lin) + dG/dv(v_lin) (v - v_lin);
 * ``material.youngs_modulus#k``, k = 0..P-1: a *stiffness field*, a multiplier (1 at the start)
   of Young's modulus on the k-th of P cell groups. The groups are **Morton chunks**: the cells of
   the whole mesh sorted along the Morton (Z-order) curve of their centroids and cut into P
@@ -41,6 +45,7 @@ from petsc4py import PETSc
 from ..errors import ExperimentError
 from ..kernels.scatter import scatter_add_vector
 from ..ordering import morton_order
+from .velocity import NAMES as VELOCITY_NAMES
 
 MATERIAL_KEYS = ("youngs_modulus", "poisson_ratio", "density")
 _KIND = {"youngs_modulus": "E", "poisson_ratio": "nu", "density": "rho"}
@@ -106,6 +111,8 @@ class ParameterMap:
         self.values = {n: float(self._current(n)) for n in self.cells}
         self.values["damping.mass"] = system.alpha
         self.values["damping.stiffness"] = system.beta
+        for name, value in system.velocity_terms.coef.items():
+            self.values[name] = float(value)
         for i, c in enumerate("xyz"):
             self.values[f"gravity.acceleration.{c}"] = float(exp.gravity.acceleration[i])
 
@@ -243,7 +250,7 @@ def get_default(system, name: str) -> float:
 class ParameterDerivatives:
     """Element-level evaluation of d r / d p (see the module docstring) for one state."""
 
-    def __init__(self, system, q, v, a, w=None):
+    def __init__(self, system, q, v, a, w=None, v_lin=None):
         self.system = system
         s, dm = system, system.dmesh
         pm = s.parameters
@@ -258,8 +265,15 @@ class ParameterDerivatives:
         Em = (vol / 20.0)[:, None, None] * (y + y.sum(axis=1, keepdims=True))
         g = np.asarray([pm.values[f"gravity.acceleration.{c}"] for c in "xyz"])
         Em -= (vol / 4.0)[:, None, None] * g[None, None, :]
+        vt = s.velocity_terms
+        if vt.coef["friction.dry"] != 0.0:
+            # the friction force is proportional to the lumped mass (V/4 rho per cell vertex)
+            vll = dm.to_local(v_lin) if v_lin is not None else None
+            yf = vt.coef["friction.dry"] * s.friction_unit_mass_local(vl, vll)
+            Em += (vol / 4.0)[:, None, None] * yf[dm.cells]
         self.E_rho = Em.reshape(n, 12)
         self.v = v.copy()   # the caller may destroy its state vectors
+        self.v_lin = v_lin.copy() if v_lin is not None else None
 
     def _global_vector(self, name: str, out: PETSc.Vec) -> None:
         s = self.system
@@ -268,6 +282,12 @@ class ParameterDerivatives:
             s.M.mult(self.v, out)
         elif name == "damping.stiffness":
             s.K0_matrix().mult(self.v, out)
+        elif name in VELOCITY_NAMES:
+            lin = None
+            if self.v_lin is not None:
+                lin = self.v_lin.getArray(readonly=True).reshape(-1, 3)
+            out.getArray().reshape(-1, 3)[:] = s.velocity_terms.unit_linearised(
+                name, self.v.getArray(readonly=True).reshape(-1, 3), lin)
         else:
             c = "xyz".index(name[-1])
             arr = out.getArray()
