@@ -110,7 +110,12 @@ class ImplicitIntegrator:
             self.ksp = snes.getKSP()
             linear(self.ksp)
             # The mass term keeps the step's energy convex near the old state: full Newton steps.
-            with scoped_defaults(**{prefix + "snes_linesearch_type": "basic"}):
+            # Not with dry friction or quadratic drag: their force saturates (friction: a
+            # sigmoid of width friction.speed), where full Newton steps cycle around the stop;
+            # backtracking on the residual norm converges (the step's potential is convex).
+            terms = getattr(s, "velocity_terms", None)
+            search = "bt" if terms is not None and terms.nonlinear else "basic"
+            with scoped_defaults(**{prefix + "snes_linesearch_type": search}):
                 snes.setFromOptions()
         else:
             self.tao = tao = PETSc.TAO().create(comm=s.comm)
