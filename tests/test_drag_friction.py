@@ -1,5 +1,6 @@
-"""Velocity-dependent forces: ``[drag] linear/quadratic`` and ``[friction] dry`` (petsoft.physics.drag,
-petsoft.physics.friction, petsoft.dynamics.velocity).
+"""Velocity-dependent forces: ``[drag] linear/quadratic`` and ``[friction] dry``.
+
+Modules: petsoft.physics.drag, petsoft.physics.friction, petsoft.dynamics.velocity.
 
 1. Kernels: Taylor tests (remainder order 2) of the forces' velocity Jacobians, of the second
    velocity derivative (the SI gradient needs it) and of the dissipation potentials.
