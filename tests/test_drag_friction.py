@@ -647,3 +647,19 @@ def test_explicit_refuses_a_step_above_the_friction_limit():
         integ.check_step(q, 5e-4)
     assert integ.check_step(q, 1e-5) > 1e-5
     s.destroy()
+    # linear drag: rate c_l A_i / m_i; the bar's lightest surface node (a corner) has
+    # A_i / m_i = (sum of its faces' A/3) / (sum of its cells' rho V / 4)
+    exp = _bar(drag={"linear": 2e4})
+    model = build_model(exp)
+    s = DynamicSystem(model)
+    vt = s.velocity_terms
+    rate = s.comm.tompi4py().allreduce(vt.rate_bound(), op=__import__("mpi4py").MPI.MAX)
+    area = np.einsum("pii->p", vt.S)
+    expected = 2e4 * s.comm.tompi4py().allreduce(float(np.max(area / vt.node_mass)),
+                                                 op=__import__("mpi4py").MPI.MAX)
+    assert rate == pytest.approx(expected) and rate > 0
+    q, _ = initial_state(model, s, exp)
+    integ = ExplicitIntegrator(s)
+    with pytest.raises(ExperimentError, match="drag.linear"):
+        integ.check_step(q, 2.5 / rate)
+    s.destroy()

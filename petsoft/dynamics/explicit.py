@@ -79,9 +79,10 @@ class ExplicitIntegrator:
             # explicit step above 2/rate makes a resting node oscillate with growing amplitude
             raise ExperimentError(
                 f"{source}: step {h:g} s is above the explicit stability limit {2.0 / rate:.4g} "
-                f"s of the regularised dry friction (rate friction.dry / friction.speed = "
-                f"{rate:.4g} 1/s); use a smaller step, a larger friction.speed or an implicit "
-                "integrator (be, si, alpha, midpoint)")
+                f"s of the velocity-dependent forces (damping rate {rate:.4g} 1/s: the "
+                "regularised dry friction's friction.dry / friction.speed, or drag.linear x the "
+                "lumped area / mass of a node); use a smaller step, a larger friction.speed or "
+                "an implicit integrator (be, si, alpha, midpoint)")
         if h > limit:
             raise ExperimentError(
                 f"{source}: step {h:g} s is above the explicit stability limit {limit:.4g} s "

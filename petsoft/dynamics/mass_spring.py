@@ -530,7 +530,8 @@ class MassSpringSystem:
                                                                   "friction.where")
         self.velocity_terms = VelocityTerms(hi - lo, pairs, self._friction_masses(),
                                             exp.drag.linear, exp.drag.quadratic,
-                                            exp.friction.dry, exp.friction.speed)
+                                            exp.friction.dry, exp.friction.speed,
+                                            node_mass=self.masses[lo:hi].copy())
 
     def _friction_masses(self) -> np.ndarray:
         lo, hi = self.node_range
@@ -888,7 +889,9 @@ class MassSpringSystem:
         if mass_changed:
             self._update_mass()
             if hasattr(self, "velocity_terms"):
+                lo, hi = self.node_range
                 self.velocity_terms.friction_mass = self._friction_masses()
+                self.velocity_terms.node_mass = self.masses[lo:hi].copy()
         if ref_changed:
             self._update_reference()
 

@@ -104,7 +104,8 @@ class DynamicSystem:
             self._friction_mask_local = mask[dm.vertex_ids]
         self.velocity_terms = VelocityTerms(nown, pairs, self._friction_masses(),
                                             exp.drag.linear, exp.drag.quadratic,
-                                            exp.friction.dry, exp.friction.speed)
+                                            exp.friction.dry, exp.friction.speed,
+                                            node_mass=self._node_masses())
         self._v_last = np.zeros((nown, 3))
 
     def friction_unit_mass_local(self, v_local: np.ndarray, v_lin_local=None) -> np.ndarray:
@@ -120,9 +121,11 @@ class DynamicSystem:
                 + np.einsum("pij,pj->pi", friction.damping_blocks(v_lin_local, m, eps),
                             v_local - v_lin_local))
 
+    def _node_masses(self) -> np.ndarray:
+        return self.lumped.getArray(readonly=True).reshape(-1, 3)[:, 0].copy()
+
     def _friction_masses(self) -> np.ndarray:
-        m = self.lumped.getArray(readonly=True).reshape(-1, 3)[:, 0]
-        return np.where(self._friction_mask, m, 0.0)
+        return np.where(self._friction_mask, self._node_masses(), 0.0)
 
     # -- matrices ---------------------------------------------------------------------------
     def _matrix_from(self, values: np.ndarray) -> PETSc.Mat:
@@ -360,6 +363,7 @@ class DynamicSystem:
         self.gravity.zeroEntries()
         dm.add_to_global(gravity_forces(dm, model.density, acc), self.gravity)
         self.velocity_terms.friction_mass = self._friction_masses()
+        self.velocity_terms.node_mass = self._node_masses()
         # the static solver's load (gravity + tractions at t = 0) follows
         self.gravity.copy(model.external)
         model.external.axpy(1.0, self.tractions(0.0, self._work))

@@ -40,10 +40,14 @@ class VelocityTerms:
         Lumped mass of each owned node where friction acts, 0 elsewhere.
     linear, quadratic, dry, speed : float
         ``[drag] linear``, ``quadratic``, ``[friction] dry``, ``speed``.
+    node_mass : ndarray (nnodes,), optional
+        Lumped mass of every owned node (for :meth:`rate_bound`; the system keeps it current).
     """
 
     def __init__(self, nnodes: int, pairs, friction_mass: np.ndarray, linear: float = 0.0,
-                 quadratic: float = 0.0, dry: float = 0.0, speed: float = 1e-3):
+                 quadratic: float = 0.0, dry: float = 0.0, speed: float = 1e-3,
+                 node_mass: np.ndarray | None = None):
+        self.node_mass = node_mass
         self.nnodes = int(nnodes)
         self.has_surface = pairs is not None
         if pairs is None:
@@ -133,10 +137,17 @@ class VelocityTerms:
         return out
 
     def rate_bound(self) -> float:
-        """An upper bound of the largest eigenvalue of M^-1 dG/dv over velocities of the linear
-        drag and the friction (the quadratic drag's grows with the speed): the explicit
-        schemes' damping rate."""
+        """An upper bound (this rank's nodes) of the largest eigenvalue of M^-1 dG/dv of the
+        linear drag (c_l trace S_i / m_i, the lumped area over the mass) and the friction
+        (dry / speed, its viscous regime): the explicit schemes' damping rate. The quadratic
+        drag's rate 2 c_q (A_i/m_i) |v.n| grows with the speed and is not bounded here."""
         rate = 0.0
         if self.coef["friction.dry"] != 0.0 and np.any(self.friction_mass > 0.0):
             rate = self.coef["friction.dry"] / self.speed
+        m = self.node_mass
+        if self.coef["drag.linear"] != 0.0 and m is not None and len(m):
+            trace = np.einsum("pii->p", self.S)
+            free = m > 0.0
+            if np.any(free):
+                rate = max(rate, self.coef["drag.linear"] * float(np.max(trace[free] / m[free])))
         return rate
