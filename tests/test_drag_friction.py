@@ -663,3 +663,59 @@ def test_explicit_refuses_a_step_above_the_friction_limit():
     with pytest.raises(ExperimentError, match="drag.linear"):
         integ.check_step(q, 2.5 / rate)
     s.destroy()
+
+
+def test_mass_spring_residual_parameter_derivatives(tmp_path):
+    """Mass-spring plate with all three terms: every parameter derivative of the residual
+    (node_mass includes the friction's mass) against a central difference (1e-6); with v_lin
+    the velocity terms' derivatives are those of the step linearised at v_lin."""
+    pts = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    mesh = SpringMesh(pts, np.zeros((0, 2), np.int64), np.array([[0, 1, 2], [0, 2, 3]]))
+    exp = _spring_experiment(tmp_path, mesh, {"stiffness": 10.0, "node_mass": 0.3,
+                                              "damping": 0.2},
+                             gravity={"acceleration": [0, 0, -9.81]},
+                             boundary=[{"kind": "fixed", "where": "x < 0.1 and y < 0.1"}],
+                             drag={"linear": 0.7, "quadratic": 1.3},
+                             friction={"dry": 0.9, "speed": 0.1, "where": "x > 0.5"})
+    s = _ms_system(exp)
+    names = s.parameter_names()
+    assert set(VNAMES) <= set(names)
+    rng = np.random.default_rng(4)
+
+    def vec(scale):
+        x = s.create_vec()
+        x.setArray(scale * rng.standard_normal(x.getLocalSize()))
+        return x
+    q, v, a, vl = vec(0.05), vec(1.0), vec(3.0), vec(1.0)
+
+    def residual(values):
+        s.set_parameters(values)
+        out, w = s.create_vec(), s.create_vec()
+        s.internal_gradient(q, out)
+        s.M.mult(a, w)
+        out.axpy(1.0, w)
+        out.axpy(1.0, s.damping_apply(v, w))
+        out.axpy(-1.0, s.gravity)
+        s.zero_prescribed(out)
+        return out.getArray().copy()
+    base = s.get_parameters()
+    base = {n: base[n] for n in names}
+    vecs = [x.getArray().copy() for x in s.residual_parameter_derivatives(names, q, v, a)]
+    for name, dv in zip(names, vecs, strict=True):
+        e = 1e-6 * max(abs(base[name]), 1.0)
+        fd = (residual({**base, name: base[name] + e})
+              - residual({**base, name: base[name] - e})) / (2 * e)
+        np.testing.assert_allclose(fd, dv, atol=1e-6 * max(np.abs(dv).max(), 1e-3),
+                                   err_msg=name)
+    s.set_parameters(base)
+    # linearised at v_lin: G(v_lin) + G'(v_lin)(v - v_lin), checked against the kernels
+    lin = s.residual_parameter_derivatives(VNAMES, q, v, a, v_lin=vl)
+    vt = s.velocity_terms
+    varr, larr = (x.getArray(readonly=True).reshape(-1, 3) for x in (v, vl))
+    for name, x in zip(VNAMES, lin, strict=True):
+        y = s.create_vec()
+        y.getArray().reshape(-1, 3)[:] = (vt.unit_damping(name, larr) + np.einsum(
+            "pij,pj->pi", vt.unit_blocks(name, larr), varr - larr))
+        s.zero_prescribed(y)
+        np.testing.assert_allclose(x.getArray(), y.getArray(), rtol=1e-12, atol=1e-14)
+    s.destroy()
