@@ -894,7 +894,33 @@ def experiment_from_dict(
         base_dir=base,
     )
     calibrate = _read_calibrate(top.table("calibrate"), experiment)
-    return dataclasses.replace(experiment, calibrate=calibrate)
+    experiment = dataclasses.replace(experiment, calibrate=calibrate)
+    _check_drag_surface(experiment)
+    return experiment
+
+
+def _check_drag_surface(exp: Experiment) -> None:
+    """Refuse drag (non-zero or calibrated) on a mass-spring mesh without triangles: drag acts
+    on a surface. Reads the mesh's cells (only in that case; spring meshes are small)."""
+    if exp.springs is None or exp.mesh.file is None:
+        return
+    keys = [f"drag.{k}" for k in ("linear", "quadratic")
+            if getattr(exp.drag, k) != 0.0 or f"drag.{k}" in exp.calibrate]
+    if not keys:
+        return
+    from .dynamics.mass_spring import read_spring_mesh
+
+    try:
+        mesh = read_spring_mesh(exp.mesh.file, scale=exp.mesh.scale)
+    except Exception:  # the model builder reports an unreadable mesh with its own message
+        return
+    if len(mesh.triangles) == 0:
+        where = (f"{keys[0]} = {get_parameter(exp, keys[0]):g}" if keys[0] not in exp.calibrate
+                 else f'calibrate."{keys[0]}"')
+        raise ExperimentError(
+            f"{exp.source}: {where}: drag needs a surface, and the mass-spring mesh "
+            f"{exp.mesh.file} has no triangle cells (a line-only spring network); use "
+            "[friction] dry or [damping] mass for a rope or pendulum")
 
 
 def _read_mesh(r: _Reader | None, top: _Reader, base: Path) -> MeshSpec:

@@ -20,10 +20,12 @@ Modules: petsoft.physics.drag, petsoft.physics.friction, petsoft.dynamics.veloci
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from petsoft.calibration.forward import ForwardModel
@@ -40,7 +42,7 @@ from petsoft.dynamics.mass_spring import (
 from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError
-from petsoft.experiment import experiment_from_dict, load_experiment, with_parameters
+from petsoft.experiment import DragSpec, experiment_from_dict, load_experiment, with_parameters
 from petsoft.model import build_model
 from petsoft.options import clear_options
 from petsoft.physics import drag, friction
@@ -471,11 +473,21 @@ def test_bad_input_names_file_and_key(tmp_path, text, key, what):
 
 
 def test_drag_on_a_line_only_network_is_refused(tmp_path):
-    exp = _spring_experiment(tmp_path, rope_mesh(3, 1.0), {"stiffness": 10.0, "node_mass": 0.1},
-                             boundary=[{"kind": "fixed", "where": "x < 0.1"}],
-                             drag={"quadratic": 1.0})
+    """The reader refuses drag (non-zero, or calibrated from 0) on a rope; so does the model
+    builder for a mesh handed to it."""
+    path = _mesh_file(tmp_path, rope_mesh(3, 1.0))
+    base = {"mesh": {"file": str(path)}, "springs": {"stiffness": 10.0, "node_mass": 0.1},
+            "boundary": [{"kind": "fixed", "where": "x < 0.1"}]}
+    with pytest.raises(ExperimentError, match="drag.quadratic = 1: drag needs a surface"):
+        experiment_from_dict({**base, "drag": {"quadratic": 1.0}}, source="rope.toml")
+    with pytest.raises(ExperimentError, match=r'rope.toml: calibrate."drag.linear": drag needs'):
+        experiment_from_dict({**base, "drag": {"linear": 0.0},
+                              "calibrate": {"drag.linear": [0.0, 1.0]}}, source="rope.toml")
+    exp = experiment_from_dict(base, source="rope.toml")
+    mesh = rope_mesh(3, 1.0)
+    exp = dataclasses.replace(exp, drag=DragSpec(quadratic=1.0))
     with pytest.raises(ExperimentError, match="drag needs a surface"):
-        build_mass_spring_model(exp)
+        build_mass_spring_model(exp, mesh=mesh)
     # friction is fine on a rope, and the rope offers no drag parameters
     exp = _spring_experiment(tmp_path, rope_mesh(3, 1.0), {"stiffness": 10.0, "node_mass": 0.1},
                              boundary=[{"kind": "fixed", "where": "x < 0.1"}],
@@ -628,9 +640,9 @@ def test_tao_step_equals_snes_step():
                               q1, v1).converged
         out.append(q1.getArray().copy())
         integ.destroy()
-    scale = s.comm.tompi4py().allreduce(np.abs(out[0]).max(), op=__import__("mpi4py").MPI.MAX)
+    scale = s.comm.tompi4py().allreduce(np.abs(out[0]).max(), op=MPI.MAX)
     diff = s.comm.tompi4py().allreduce(np.abs(out[0] - out[1]).max(),
-                                       op=__import__("mpi4py").MPI.MAX)
+                                       op=MPI.MAX)
     assert diff < 1e-7 * scale, diff / scale
     s.destroy()
 
@@ -653,10 +665,10 @@ def test_explicit_refuses_a_step_above_the_friction_limit():
     model = build_model(exp)
     s = DynamicSystem(model)
     vt = s.velocity_terms
-    rate = s.comm.tompi4py().allreduce(vt.rate_bound(), op=__import__("mpi4py").MPI.MAX)
+    rate = s.comm.tompi4py().allreduce(vt.rate_bound(), op=MPI.MAX)
     area = np.einsum("pii->p", vt.S)
     expected = 2e4 * s.comm.tompi4py().allreduce(float(np.max(area / vt.node_mass)),
-                                                 op=__import__("mpi4py").MPI.MAX)
+                                                 op=MPI.MAX)
     assert rate == pytest.approx(expected) and rate > 0
     q, _ = initial_state(model, s, exp)
     integ = ExplicitIntegrator(s)
