@@ -405,6 +405,26 @@ def test_gradients_taylor_with_drag_and_friction(method, light_forward_solver):
     fm.destroy()
 
 
+@pytest.mark.parametrize("method", ["be", "si"])
+def test_sensitivities_at_zero_coefficients(method, light_forward_solver):
+    """The diagnosis' score test: drag and friction absent (coefficients 0), their columns of
+    d sim / d p still exact -- sim(e d) - sim(0) - e J d falls as e^2 for d >= 0 (one-sided:
+    the terms are not defined below 0 in an experiment) -- and non-zero."""
+    exp = _bar(method, friction={"speed": 0.02})
+    fm = ForwardModel(exp, VNAMES, lambda s: MarkerObserver(s, MARKERS), FRAMES)
+    p = fm.p0.copy()
+    assert np.all(p == 0.0)
+    sim0, jac = fm.jacobian(p)
+    assert np.all(np.abs(jac).max(axis=(0, 1, 2)) > 0)
+    d = np.array([30.0, 1500.0, 2.0])
+    rem = [np.abs(fm.simulate(p + e * d) - sim0 - e * jac @ d).max()
+           for e in 2e-2 * 2.0 ** -np.arange(5)]
+    orders = _orders(rem)
+    _print(f"{method} at 0: remainders {np.array(rem)} orders {orders}")
+    assert np.all((orders > 1.8) & (orders < 2.2)), orders
+    fm.destroy()
+
+
 # -- 5. serial == 2 ranks ------------------------------------------------------------------------
 def test_serial_equals_parallel_with_all_terms():
     """Marker positions and the adjoint gradient on COMM_WORLD equal those each rank computes
