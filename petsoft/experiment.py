@@ -56,7 +56,11 @@ Decisions the format leaves open
   (``ratio`` = E_M/E >= 0, default 0 = no branch; ``relaxation_time``
   > 0 s, default 0.1): a standard linear solid, one Maxwell branch of modulus ratio ``ratio``
   and relaxation time ``relaxation_time`` beside the elastic law (continuum models only; see
-  :mod:`petsoft.physics.viscoelastic`).
+  :mod:`petsoft.physics.viscoelastic`);
+  and the velocity-dependent forces ``[drag] linear`` (Pa s/m), ``quadratic`` (kg/m^3) on the
+  boundary surface (triangles of a mass-spring model) and ``[friction] dry`` (m/s^2), ``speed``
+  (m/s, > 0, default 1e-3), ``where`` (region name or condition; default all nodes): see
+  :mod:`petsoft.dynamics.velocity`. All default to zero (absent).
 * ``format_version = 1`` is optional at the top level; other versions are refused.
 """
 
@@ -93,6 +97,8 @@ __all__ = [
     "BoxSpec",
     "ColliderSpec",
     "DampingSpec",
+    "DragSpec",
+    "FrictionSpec",
     "Experiment",
     "GravitySpec",
     "InitialSpec",
@@ -261,6 +267,26 @@ class ViscoelasticSpec:
 
     ratio: float = 0.0
     relaxation_time: float = 0.1
+
+
+@dataclass(frozen=True)
+class DragSpec:
+    """``[drag]``: surface drag per unit area, linear (Pa s/m) and quadratic (kg/m^3) in the
+    normal velocity (both >= 0; see :mod:`petsoft.physics.drag`)."""
+
+    linear: float = 0.0
+    quadratic: float = 0.0
+
+
+@dataclass(frozen=True)
+class FrictionSpec:
+    """``[friction]``: regularised dry friction ``dry`` (m/s^2, force per unit mass, >= 0) with
+    regularisation ``speed`` (m/s, > 0) on the nodes of ``where`` (None: all nodes; see
+    :mod:`petsoft.physics.friction`)."""
+
+    dry: float = 0.0
+    speed: float = 1e-3
+    where: str | Expression | None = None
 
 
 @dataclass(frozen=True)
@@ -443,6 +469,8 @@ class Experiment:
     colliders : tuple of ColliderSpec
     viscoelastic : ViscoelasticSpec
         ``[viscoelastic]`` (ratio 0, the default, is the purely elastic model).
+    drag : DragSpec
+    friction : FrictionSpec
     format_version : int
     source : str
         The name used in messages (the path as given, or ``"<embedded>"``).
@@ -467,6 +495,8 @@ class Experiment:
     masses: tuple[MassSpec, ...] = ()
     colliders: tuple[ColliderSpec, ...] = ()
     viscoelastic: ViscoelasticSpec = ViscoelasticSpec()
+    drag: DragSpec = DragSpec()
+    friction: FrictionSpec = FrictionSpec()
     format_version: int = FORMAT_VERSION
     path: Path | None = field(default=None, compare=False)
     source: str = field(default="<embedded>", compare=False)
@@ -484,6 +514,8 @@ class Experiment:
         checks once it has read the mesh."""
         used = {name for name in self.material if name != "default"}
         used |= {b.region for b in self.boundaries if b.region is not None}
+        if isinstance(self.friction.where, str):
+            used.add(self.friction.where)
         return frozenset(used - set(self.regions))
 
     def material_for(self, region: str | None = None) -> MaterialSpec:
@@ -733,6 +765,8 @@ _TOP_KEYS = (
     "mass",
     "collider",
     "viscoelastic",
+    "drag",
+    "friction",
 )
 _MATERIAL_KEYS = ("model", "youngs_modulus", "poisson_ratio", "density")
 _BOUNDARY_KEYS = {
@@ -884,6 +918,8 @@ def experiment_from_dict(
             f"{source}: [viscoelastic] ratio = {_num(viscoelastic.ratio)}: the standard linear "
             "solid acts on a continuum [material] model, not on [springs]; remove "
             "[viscoelastic] or set ratio = 0")
+    drag = _read_drag(top.table("drag"))
+    friction = _read_friction(top.table("friction"))
 
     experiment = Experiment(
         mesh=mesh,
@@ -901,13 +937,41 @@ def experiment_from_dict(
         masses=masses,
         colliders=colliders,
         viscoelastic=viscoelastic,
+        drag=drag,
+        friction=friction,
         format_version=version,
         path=Path(path) if path is not None else None,
         source=source,
         base_dir=base,
     )
     calibrate = _read_calibrate(top.table("calibrate"), experiment)
-    return dataclasses.replace(experiment, calibrate=calibrate)
+    experiment = dataclasses.replace(experiment, calibrate=calibrate)
+    _check_drag_surface(experiment)
+    return experiment
+
+
+def _check_drag_surface(exp: Experiment) -> None:
+    """Refuse drag (non-zero or calibrated) on a mass-spring mesh without triangles: drag acts
+    on a surface. Reads the mesh's cells (only in that case; spring meshes are small)."""
+    if exp.springs is None or exp.mesh.file is None:
+        return
+    keys = [f"drag.{k}" for k in ("linear", "quadratic")
+            if getattr(exp.drag, k) != 0.0 or f"drag.{k}" in exp.calibrate]
+    if not keys:
+        return
+    from .dynamics.mass_spring import read_spring_mesh
+
+    try:
+        mesh = read_spring_mesh(exp.mesh.file, scale=exp.mesh.scale)
+    except Exception:  # the model builder reports an unreadable mesh with its own message
+        return
+    if len(mesh.triangles) == 0:
+        where = (f"{keys[0]} = {get_parameter(exp, keys[0]):g}" if keys[0] not in exp.calibrate
+                 else f'calibrate."{keys[0]}"')
+        raise ExperimentError(
+            f"{exp.source}: {where}: drag needs a surface, and the mass-spring mesh "
+            f"{exp.mesh.file} has no triangle cells (a line-only spring network); use "
+            "[friction] dry or [damping] mass for a rope or pendulum")
 
 
 def _read_mesh(r: _Reader | None, top: _Reader, base: Path) -> MeshSpec:
@@ -1045,6 +1109,36 @@ def _read_viscoelastic(r: _Reader | None) -> ViscoelasticSpec:
     return ViscoelasticSpec(
         ratio=r.number("ratio", 0.0, _NONNEGATIVE, "E_M / E"),
         relaxation_time=r.number("relaxation_time", 0.1, _POSITIVE, "s"),
+    )
+
+
+def _read_drag(r: _Reader | None) -> DragSpec:
+    if r is None:
+        return DragSpec()
+    r.check_keys(("linear", "quadratic"))
+    return DragSpec(
+        linear=r.number("linear", 0.0, _NONNEGATIVE, "Pa s/m"),
+        quadratic=r.number("quadratic", 0.0, _NONNEGATIVE, "kg/m^3"),
+    )
+
+
+def _read_where(r: _Reader, k: str) -> str | Expression:
+    """A ``where``: a region name (bare identifier) or a condition of x, y, z."""
+    text = r.string(k, what='a region name or a condition of x, y, z, e.g. "x < 1e-6"')
+    if _is_region_name(text):
+        return text.strip()
+    return parse_expression(text, source=f"{r.source}: {r.key(k)}", variables=SPACE,
+                            expect="condition")
+
+
+def _read_friction(r: _Reader | None) -> FrictionSpec:
+    if r is None:
+        return FrictionSpec()
+    r.check_keys(("dry", "speed", "where"))
+    return FrictionSpec(
+        dry=r.number("dry", 0.0, _NONNEGATIVE, "m/s^2"),
+        speed=r.number("speed", 1e-3, _POSITIVE, "m/s"),
+        where=_read_where(r, "where") if "where" in r.data else None,
     )
 
 
@@ -1304,6 +1398,9 @@ def _parameter_table(exp: Experiment) -> dict[str, tuple[float, _Range]]:
                 params[f"material.{_key_part(name)}.{k}"] = (getattr(spec, k), rng)
     params["damping.mass"] = (exp.damping.mass, _NONNEGATIVE)
     params["damping.stiffness"] = (exp.damping.stiffness, _NONNEGATIVE)
+    params["drag.linear"] = (exp.drag.linear, _NONNEGATIVE)
+    params["drag.quadratic"] = (exp.drag.quadratic, _NONNEGATIVE)
+    params["friction.dry"] = (exp.friction.dry, _NONNEGATIVE)
     for i, c in enumerate(COMPONENTS):
         params[f"gravity.acceleration.{c}"] = (exp.gravity.acceleration[i], _ANY)
     compliant = [b.compliance for b in exp.boundaries if b.kind == "fixed" and b.compliance > 0]
@@ -1577,6 +1674,14 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
     d["gravity"] = {"acceleration": list(exp.gravity.acceleration)}
     if exp.viscoelastic != ViscoelasticSpec():
         d["viscoelastic"] = dataclasses.asdict(exp.viscoelastic)
+    if exp.drag != DragSpec():
+        d["drag"] = {"linear": exp.drag.linear, "quadratic": exp.drag.quadratic}
+    if exp.friction != FrictionSpec():
+        fr: dict[str, Any] = {"dry": exp.friction.dry, "speed": exp.friction.speed}
+        if exp.friction.where is not None:
+            w = exp.friction.where
+            fr["where"] = w if isinstance(w, str) else w.literal
+        d["friction"] = fr
     if exp.boundaries:
         boundaries = []
         for b in exp.boundaries:

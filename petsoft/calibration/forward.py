@@ -499,7 +499,10 @@ class ForwardModel:
                 k0x = q1.copy()
                 k0x.axpy(-1.0, branch.step_start)
                 k0x.scale(c)
-            s.assemble_combination(q1, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h + c, self.J)
+            data["v"] = v1.copy()
+            self._velocity_state(data["v"])
+            s.assemble_combination(q1, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h + c, self.J,
+                                   velocity=1.0 / h)
             deriv = self._derivatives(q1, v1, acc, k0x=k0x)
             acc.destroy()
             if k0x is not None:
@@ -511,10 +514,18 @@ class ForwardModel:
             acc = v1.copy()
             acc.axpy(-1.0, v0)
             acc.scale(1.0 / h)
-            s.assemble_combination(qp, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h, self.J)
-            deriv = self._derivatives(qp, v1, acc, w)
+            # the SI residual evaluates the damping at u = (qp - q0)/h (v0, with the supports'
+            # velocity) and its Jacobian linearises the velocity terms there
+            u = qp.copy()
+            u.axpy(-1.0, q0)
+            u.scale(1.0 / h)
+            data["v"], data["w"] = u, w
+            self._velocity_state(u)
+            s.assemble_combination(qp, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h, self.J,
+                                   velocity=1.0 / h)
+            deriv = self._derivatives(qp, v1, acc, w, v_lin=u)
             data["T"] = self._third(qp, w)
-            for x in (acc, qp, w):
+            for x in (acc, qp):
                 x.destroy()
         else:
             am, af, g, b = self.am, self.af, self.gamma, self.nbeta
@@ -527,9 +538,12 @@ class ForwardModel:
             amv.axpy(am, a1)
             c = af * g / (b * h)
             data["aJ"], data["cD"] = am / (b * h * h), c
-            s.assemble_combination(qf, data["aJ"] + s.alpha * c, af, s.beta * c, self.J)
+            data["v"] = vf
+            self._velocity_state(vf)
+            s.assemble_combination(qf, data["aJ"] + s.alpha * c, af, s.beta * c, self.J,
+                                   velocity=c)
             deriv = self._derivatives(qf, vf, amv)
-            for x in (qf, vf, amv):
+            for x in (qf, amv):
                 x.destroy()
         return deriv, data
 
@@ -538,14 +552,45 @@ class ForwardModel:
         branch = getattr(self.system, "viscoelastic", None)
         return branch if branch is not None and branch.stepping else None
 
-    def _derivatives(self, q, v, a, w=None, k0x=None):
-        """d r/d p of the system at (q, v, a) (+ d/dp [K(q) w], + d/dp [K0 k0x]):
-        ``.vectors``, ``.contract``."""
+    def _velocity_state(self, v) -> None:
+        """Linearise the system's velocity terms at v in the next Jacobian assembly."""
+        setter = getattr(self.system, "set_velocity_state", None)
+        if setter is not None:
+            setter(v)
+
+    def _damp_tangent(self, data, x, out):
+        """out = the damping term linearised at the step's velocity, applied to x: D x +
+        dG/dv x (drag and friction); D x for systems without velocity terms."""
+        tangent = getattr(self.system, "damping_tangent_apply", None)
+        if tangent is None:
+            return self.system.damping_apply(x, out)
+        return tangent(data["v"], x, out)
+
+    def _damp_second(self, data, x, out):
+        """out = d/dv [dG/dv x] along the SI step's w at its u (None when zero)."""
+        second = getattr(self.system, "damping_second_apply", None)
+        terms = getattr(self.system, "velocity_terms", None)
+        if second is None or terms is None or not terms.nonlinear or "w" not in data:
+            return None
+        return second(data["v"], data["w"], x, out)
+
+    @staticmethod
+    def _free_data(data) -> None:
+        for key in ("v", "w", "T"):
+            if data.get(key) is not None:
+                data[key].destroy()
+
+    def _derivatives(self, q, v, a, w=None, v_lin=None, k0x=None):
+        """d r/d p of the system at (q, v, a) (+ d/dp [K(q) w]; velocity terms linearised at
+        v_lin, the SI step's u; + d/dp [K0 k0x], the viscoelastic branch): ``.vectors``,
+        ``.contract``."""
         if k0x is not None:
-            return self.system.parameter_derivatives(q, v, a, w, k0x)
+            return self.system.parameter_derivatives(q, v, a, w, k0x, v_lin)
         if hasattr(self.system, "parameter_derivatives"):
+            if v_lin is not None:
+                return self.system.parameter_derivatives(q, v, a, w, v_lin=v_lin)
             return self.system.parameter_derivatives(q, v, a, w)
-        return _GenericDerivatives(self.system, q, v, a, w, self.cell_size)
+        return _GenericDerivatives(self.system, q, v, a, w, self.cell_size, v_lin)
 
     def _third(self, qp, w):
         """T_w = d/deps K(qp + eps w) as a matrix (None when zero: linear material, w = 0)."""
@@ -573,7 +618,7 @@ class ForwardModel:
         tmp = x.duplicate()
         s.M.mult(x, tmp)
         out.axpy(-data["aJ"], tmp)
-        s.damping_apply(x, tmp)
+        self._damp_tangent(data, x, tmp)
         out.axpy(-data["cD"], tmp)
         out.scale(1.0 / self.af)
         tmp.destroy()
@@ -677,7 +722,10 @@ class ForwardModel:
                 s.M.mult(tmp, rhs)
                 rhs.scale(1.0 / h**2)
                 rhs.axpy(-1.0, Rp[j])
-                rhs.axpy(1.0 / h, s.damping_apply(dq0, tmp))
+                rhs.axpy(1.0 / h, self._damp_tangent(data, dq0, tmp))
+                if self._damp_second(data, dv0, tmp) is not None:
+                    # SI: the Jacobian's velocity terms at u = v0 move with dv0
+                    rhs.axpy(-1.0 / h, tmp)
                 if data.get("T") is not None:
                     tmp.waxpy(h, dv0, dq0)
                     dqp = tmp.copy()
@@ -705,8 +753,7 @@ class ForwardModel:
                     tangents["a"][j].scale(1.0 / h)
             for x in Rp + [rhs, tmp]:
                 x.destroy()
-            if data.get("T") is not None:
-                data["T"].destroy()
+            self._free_data(data)
             observe_tangents(n + 1)
 
         states, sim = self._run(p, store=False, on_step=on_step)
@@ -740,7 +787,7 @@ class ForwardModel:
         s.M.mult(dam, rhs)
         self._K_apply(data, dqf, tmp)
         rhs.axpy(1.0, tmp)
-        rhs.axpy(1.0, s.damping_apply(dvf, tmp))
+        rhs.axpy(1.0, self._damp_tangent(data, dvf, tmp))
         rhs.axpy(1.0, Rp)
         rhs.scale(-1.0)
         s.zero_prescribed(rhs)
@@ -832,17 +879,19 @@ class ForwardModel:
                 gq0.axpy(-1.0 / h, gv)
                 tmp.copy(gv)
                 gv.scale(1.0 / h)
-                gq0.axpy(1.0 / h, s.damping_apply(mu, tmp))
+                gq0.axpy(1.0 / h, self._damp_tangent(data, mu, tmp))
+                if self._damp_second(data, mu, tmp) is not None:
+                    gv.axpy(-1.0 / h, tmp)      # the transpose of the tangent's term (symmetric)
                 if data.get("T") is not None:
                     data["T"].mult(mu, tmp)
                     gq0.axpy(-1.0, tmp)
                     gv.axpy(-h, tmp)
-                    data["T"].destroy()
                 gq0.copy(gq)
                 gq0.destroy()
                 if self.accel:
                     gv.axpy(-1.0 / h, ga)
                     ga.zeroEntries()
+            self._free_data(data)
             if n in loads:
                 (ga if self.accel else gq).axpy(1.0, loads.pop(n))
         q0, v0, a0 = states[0]
@@ -895,7 +944,7 @@ class ForwardModel:
         ym, yk, yd = s.create_vec(), s.create_vec(), s.create_vec()
         s.M.mult(mu, ym)
         self._K_apply(data, mu, yk)
-        s.damping_apply(mu, yd)
+        self._damp_tangent(data, mu, yd)
         b_dv1 = yd.copy()
         b_dv1.scale(af)
         b_da1 = ym.copy()
@@ -940,23 +989,29 @@ class _GenericDerivatives:
     """d r/d p of a system offering only ``residual_parameter_derivatives`` (e.g. mass-spring):
     the w term d/dp [K(q) w] by a central difference of the derivatives in q along w."""
 
-    def __init__(self, system, q, v, a, w, size):
+    def __init__(self, system, q, v, a, w, size, v_lin=None):
         self.system = system
         self.q, self.v, self.a = q.copy(), v.copy(), a.copy()
         self.w = w.copy() if w is not None else None
+        self.v_lin = v_lin.copy() if v_lin is not None else None
         self.size = size
 
-    def vectors(self, names) -> list:
+    def _at(self, names, q):
         s = self.system
-        out = s.residual_parameter_derivatives(names, self.q, self.v, self.a)
+        if self.v_lin is not None:
+            return s.residual_parameter_derivatives(names, q, self.v, self.a, v_lin=self.v_lin)
+        return s.residual_parameter_derivatives(names, q, self.v, self.a)
+
+    def vectors(self, names) -> list:
+        out = self._at(names, self.q)
         wmax = self.w.norm(PETSc.NormType.INFINITY) if self.w is not None else 0.0
         if wmax > 0.0:
             eps = SI_EPS * self.size / wmax
             x = self.q.copy()
             x.axpy(eps, self.w)
-            plus = s.residual_parameter_derivatives(names, x, self.v, self.a)
+            plus = self._at(names, x)
             x.axpy(-2.0 * eps, self.w)
-            minus = s.residual_parameter_derivatives(names, x, self.v, self.a)
+            minus = self._at(names, x)
             for o, hi, lo in zip(out, plus, minus, strict=True):
                 hi.axpy(-1.0, lo)
                 o.axpy(0.5 / eps, hi)

@@ -110,7 +110,7 @@ class AlphaTSIntegrator:
     def _jacobian_cb(self, ts, t, U, V, A, shift_v, shift_a, J, P):
         s = self.system
         s.assemble_combination(U, shift_a + shift_v * s.alpha, 1.0, shift_v * s.beta, P,
-                               eliminate=not self.moving)
+                               eliminate=not self.moving, velocity=shift_v)
         if self.moving:
             rows = s.prescribed_offsets(self.F) + self.F.getOwnershipRange()[0]
             P.zeroRows(rows.astype(PETSc.IntType), diag=1.0)
@@ -305,8 +305,9 @@ class GeneralizedAlpha:
         s, h = self.system, self.h
         self._update(x)
         c = self.af * self.gamma / (self.beta * h)
+        # the damping term is evaluated at v_f: dv_f/dq1 = c (velocity terms at the last v_f)
         s.assemble_combination(self.qf, self.am / (self.beta * h * h) + s.alpha * c, self.af,
-                               s.beta * c + self._branch.jacobian_coefficient(), P)
+                               s.beta * c + self._branch.jacobian_coefficient(), P, velocity=c)
 
     def _forget(self) -> None:
         if self._last is not None:

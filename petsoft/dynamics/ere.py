@@ -207,7 +207,12 @@ class EREIntegrator:
             s = self._mpi.bcast(float(x[2 * n]) if self.aug else None, root=0)
         self.K.mult(self._xq, self._t1)
         self._t1.scale(h * h)
-        self._t1.axpy(h, self.system.damping_apply(self._xv, self._t2))
+        # the damping's Jacobian: D, plus the drag and friction linearised at the step's v0
+        tangent = getattr(self.system, "damping_tangent_apply", None)
+        if tangent is not None:
+            self._t1.axpy(h, tangent(self._v_state, self._xv, self._t2))
+        else:
+            self._t1.axpy(h, self.system.damping_apply(self._xv, self._t2))
         self._inverse_mass(self._t1, self._t2)
         y = Y.getArray()
         y[:n] = x[n:2 * n]
@@ -283,6 +288,9 @@ class EREIntegrator:
             s.assemble_combination(q0, 0.0, 1.0, 0.0, self.K, eliminate=False)
             grad0 = None if self.moving else s.internal_gradient(q0, self._grad)
             self._inverse_mass(self._force(t0, q0, v0, self._f, h, grad0), self._a0)
+            if getattr(self, "_v_state", None) is None:
+                self._v_state = self._vt.duplicate()
+            self._vt.copy(self._v_state)     # v0 with the supports' velocity at t0
             if self.nonautonomous:
                 # w = dF/dt (t0, y0) by a centred difference: the v part only (F_q = v)
                 fp = self._force(t0 + h, q0, v0, self._fp, h, grad0)

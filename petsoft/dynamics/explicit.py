@@ -12,6 +12,7 @@ clear error instead of blowing up.
 from __future__ import annotations
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from ..errors import ExperimentError
@@ -70,6 +71,18 @@ class ExplicitIntegrator:
         """Estimate the stability limit at q0 and refuse h above it; returns the limit."""
         self.omega_max = largest_frequency(self.system, q0)
         limit = 2.0 / self.omega_max if self.omega_max > 0 else np.inf
+        terms = getattr(self.system, "velocity_terms", None)
+        rate = self.system.comm.tompi4py().allreduce(
+            terms.rate_bound() if terms is not None else 0.0, op=MPI.MAX)
+        if rate > 0.0 and h > 2.0 / rate:
+            # the regularised friction is viscous below friction.speed, at rate dry/speed: an
+            # explicit step above 2/rate makes a resting node oscillate with growing amplitude
+            raise ExperimentError(
+                f"{source}: step {h:g} s is above the explicit stability limit {2.0 / rate:.4g} "
+                f"s of the velocity-dependent forces (damping rate {rate:.4g} 1/s: the "
+                "regularised dry friction's friction.dry / friction.speed, or drag.linear x the "
+                "lumped area / mass of a node); use a smaller step, a larger friction.speed or "
+                "an implicit integrator (be, si, alpha, midpoint)")
         if h > limit:
             raise ExperimentError(
                 f"{source}: step {h:g} s is above the explicit stability limit {limit:.4g} s "

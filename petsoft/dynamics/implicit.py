@@ -139,7 +139,12 @@ class ImplicitIntegrator:
             self.ksp = snes.getKSP()
             linear(self.ksp)
             # The mass term keeps the step's energy convex near the old state: full Newton steps.
-            with scoped_defaults(**{prefix + "snes_linesearch_type": "basic"}):
+            # Not with dry friction or quadratic drag: their force saturates (friction: a
+            # sigmoid of width friction.speed), where full Newton steps cycle around the stop;
+            # backtracking on the residual norm converges (the step's potential is convex).
+            terms = getattr(s, "velocity_terms", None)
+            search = "bt" if terms is not None and terms.nonlinear else "basic"
+            with scoped_defaults(**{prefix + "snes_linesearch_type": search}):
                 snes.setFromOptions()
         else:
             self.tao = tao = PETSc.TAO().create(comm=s.comm)
@@ -245,7 +250,9 @@ class ImplicitIntegrator:
             state.scale(0.5)
         else:
             state = q1
-        self.system.assemble_combination(state, a, b, c, P)
+        # the damping term is evaluated at v1 (be, si) or vm = (q1 - q0)/h: dv/dq1 = 1/h either
+        # way; the velocity terms are linearised at the velocity of the last residual
+        self.system.assemble_combination(state, a, b, c, P, velocity=1.0 / self.h)
 
     # PETSc callbacks (thin)
     def _residual_cb(self, snes, x, F):
@@ -265,7 +272,13 @@ class ImplicitIntegrator:
         d.axpy(-h, self.v0)
         s.M.mult(d, self._b)
         value = 0.5 * d.dot(self._b) / h**2 + s.elastic_energy(x) - self.f1.dot(x)
-        if s.alpha or s.beta:
+        terms = getattr(s, "velocity_terms", None)
+        if terms is not None and terms.active:
+            # h psi((q - q0)/h): psi = v^T D v / 2 + the drag and friction potentials
+            d.waxpy(-1.0, self.q0, x)
+            d.scale(1.0 / h)
+            value += h * s.dissipation_potential(d)
+        elif s.alpha or s.beta:
             d.waxpy(-1.0, self.q0, x)
             damp = s.damping_apply(d, s.create_vec())
             value += 0.5 * d.dot(damp) / h

@@ -14,7 +14,10 @@ every integrator (be, si, midpoint, trapezoidal, alpha, explicit, ere) runs on i
 * D: Rayleigh damping (``[damping] mass`` alpha, ``stiffness`` beta with K_ref the spring
   stiffness at rest) plus the spring dashpots ``[springs] damping`` along the rest directions
   (:func:`petsoft.physics.springs.dashpot_blocks` says why constant), plus lagged Coulomb friction
-  of the colliders (a velocity-dependent force applied by :meth:`damping_apply`).
+  of the colliders (a velocity-dependent force applied by :meth:`damping_apply`), plus ``[drag]``
+  on the triangles (both sides count once; a network without triangles refuses drag) and
+  ``[friction]`` on the nodes (:mod:`petsoft.dynamics.velocity`), whose velocity Jacobian the
+  integrators add through ``assemble_combination(..., velocity=...)``.
 
 The integrators fold damping into their Jacobians as ``a M + b K(q) + c K0`` with ``c = beta x``
 (the velocity coefficient of their scheme). To pass the dashpots through that interface unchanged,
@@ -40,6 +43,7 @@ from petsc4py import PETSc
 
 from ..errors import ExperimentError, MeshError
 from ..physics.colliders import Collider, default_stiffness
+from ..physics.drag import face_pairs
 from ..physics.springs import (
     KINDS,
     SpringNetwork,
@@ -51,6 +55,8 @@ from ..physics.springs import (
     spring_gradient,
     spring_hessian_blocks,
 )
+from .velocity import NAMES as VELOCITY_NAMES
+from .velocity import VelocityTerms
 
 #: A ``[[mass]] at`` point closer than this (relative to the mesh's size) to a node sits on it.
 NODE_TOLERANCE = 1e-9
@@ -384,6 +390,12 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
         if not mask.any():
             raise ExperimentError(f"{src}: {key}.where: selects no node of the mesh")
         conditions.append((mask, b.component_indices, displacement))
+    if (experiment.drag.linear or experiment.drag.quadratic) and len(mesh.triangles) == 0:
+        raise ExperimentError(
+            f"{src}: drag: linear = {experiment.drag.linear:g}, quadratic = "
+            f"{experiment.drag.quadratic:g}, but the mesh {mesh.source} has no triangles: drag "
+            "needs a surface (triangle cells); use [friction] dry or [damping] mass for a "
+            "line-only spring network")
     if experiment.initial.from_ == "static":
         raise ExperimentError(f"{src}: initial.from = \"static\" is not available for mass-spring "
                               "models; give initial displacement/velocity expressions")
@@ -501,6 +513,29 @@ class MassSpringSystem:
         self.K0 = self.create_matrix()
         self._update_mass()
         self._update_reference()
+        self._velocity_setup()
+
+    def _velocity_setup(self) -> None:
+        """Drag on the triangles and friction on the owned nodes (rows lo..hi)."""
+        exp, lay = self.model.experiment, self.dmesh
+        lo, hi = self.node_range
+        n = lay.nvertices
+        node_of = np.full(n, -1, dtype=np.int64)
+        node_of[lo:hi] = np.arange(hi - lo)
+        tris = lay.mesh.triangles
+        pairs = face_pairs(self.points, tris, node_of) if len(tris) else None
+        self._friction_mask = np.ones(n, dtype=bool)
+        if exp.friction.where is not None:
+            self._friction_mask = self.model.resolver.vertex_mask(exp.friction.where,
+                                                                  "friction.where")
+        self.velocity_terms = VelocityTerms(hi - lo, pairs, self._friction_masses(),
+                                            exp.drag.linear, exp.drag.quadratic,
+                                            exp.friction.dry, exp.friction.speed,
+                                            node_mass=self.masses[lo:hi].copy())
+
+    def _friction_masses(self) -> np.ndarray:
+        lo, hi = self.node_range
+        return np.where(self._friction_mask[lo:hi], self.masses[lo:hi], 0.0)
 
     # -- pattern and matrices ---------------------------------------------------------------
     def _build_pattern(self) -> None:
@@ -590,8 +625,10 @@ class MassSpringSystem:
 
     def assemble_combination(self, q: PETSc.Vec | None, a_mass: float, b_tangent: float,
                              c_reference: float, out: PETSc.Mat,
-                             eliminate: bool = True) -> PETSc.Mat:
-        """out = a M + b K(q) + c K0; with ``eliminate`` prescribed rows/columns -> identity."""
+                             eliminate: bool = True, velocity: float = 0.0) -> PETSc.Mat:
+        """out = a M + b K(q) + c K0 + velocity dG/dv (drag and friction, at the velocity last
+        passed to :meth:`damping_apply` or :meth:`set_velocity_state`); with ``eliminate``
+        prescribed rows/columns -> identity."""
         values = np.zeros(self.nnz)
         if b_tangent != 0.0:
             values += b_tangent * self._tangent_values(self.positions(q))
@@ -607,6 +644,8 @@ class MassSpringSystem:
                 x, v = self._x_last[lo:hi], self._v_last
                 values += c_reference * self._values(
                     None, sum(c.friction_damping(x, v) for c in friction))
+        if velocity != 0.0 and self.velocity_terms.active:
+            values += velocity * self._values(None, self.velocity_terms.blocks(self._v_last))
         self._set(out, values)
         if eliminate:
             self.dirichlet.eliminate(out)
@@ -693,8 +732,8 @@ class MassSpringSystem:
             w += c.energy(x[lo:hi]).sum()
         return self.dmesh.allreduce_sum(w)
 
-    def damping_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
-        """out = D v (alpha M v + K0 v) minus the lagged friction forces."""
+    def _linear_damping_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = D v = alpha M v + K0 v."""
         out.zeroEntries()
         if self.alpha != 0.0:
             out.pointwiseMult(self.lumped, v)
@@ -702,6 +741,50 @@ class MassSpringSystem:
         if not self._k0_zero:
             self.K0.mult(v, self._work)
             out.axpy(1.0, self._work)
+        return out
+
+    def set_velocity_state(self, v: PETSc.Vec) -> None:
+        """The velocity at which :meth:`assemble_combination` linearises the velocity terms."""
+        self._v_last = v.getArray(readonly=True).reshape(-1, 3).copy()
+
+    def damping_tangent_apply(self, v_state: PETSc.Vec, x: PETSc.Vec,
+                              out: PETSc.Vec) -> PETSc.Vec:
+        """out = D x + dG/dv(v_state) x (drag and friction linearised at v_state; the colliders'
+        lagged friction is not differentiated)."""
+        self._linear_damping_apply(x, out)
+        vt = self.velocity_terms
+        if vt.active:
+            out.getArray().reshape(-1, 3)[:] += vt.tangent(
+                v_state.getArray(readonly=True).reshape(-1, 3),
+                x.getArray(readonly=True).reshape(-1, 3))
+        return out
+
+    def damping_second_apply(self, v_state: PETSc.Vec, w: PETSc.Vec, x: PETSc.Vec,
+                             out: PETSc.Vec) -> PETSc.Vec:
+        """out = d/dv [dG/dv x] along w at v_state."""
+        out.zeroEntries()
+        vt = self.velocity_terms
+        if vt.nonlinear:
+            arr = [y.getArray(readonly=True).reshape(-1, 3) for y in (v_state, w, x)]
+            out.getArray().reshape(-1, 3)[:] = vt.second(*arr)
+        return out
+
+    def dissipation_potential(self, v: PETSc.Vec) -> float:
+        """v^T D v / 2 + the drag and friction potential (collective; colliders' friction is
+        not a potential: refused by the caller)."""
+        self._linear_damping_apply(v, self._work)
+        local = self.velocity_terms.potential(v.getArray(readonly=True).reshape(-1, 3))
+        return 0.5 * v.dot(self._work) + self.dmesh.allreduce_sum(local)
+
+    def damping_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = D v (alpha M v + K0 v) minus the lagged friction forces of the colliders and the
+        drag and friction forces."""
+        self._linear_damping_apply(v, out)
+        vt = self.velocity_terms
+        if vt.active:
+            vl = v.getArray(readonly=True).reshape(-1, 3)
+            self._v_last = vl.copy()
+            out.getArray().reshape(-1, 3)[:] += vt.damping(vl)
         friction = [c for c in self.colliders if c.friction > 0.0]
         if friction:
             lo, hi = self.node_range
@@ -743,6 +826,9 @@ class MassSpringSystem:
             names.append("springs.bending")
         names += ["springs.node_mass", "damping.mass", "damping.stiffness",
                   "gravity.acceleration.x", "gravity.acceleration.y", "gravity.acceleration.z"]
+        if self.velocity_terms.has_surface:
+            names += ["drag.linear", "drag.quadratic"]
+        names.append("friction.dry")
         return names
 
     def _check_names(self, names) -> None:
@@ -761,7 +847,8 @@ class MassSpringSystem:
                 "springs.node_mass": self.node_mass, "damping.mass": self.alpha,
                 "damping.stiffness": self.damping_stiffness,
                 **{f"gravity.acceleration.{c}": float(self.acceleration[i])
-                   for i, c in enumerate("xyz")}}
+                   for i, c in enumerate("xyz")},
+                **self.velocity_terms.coef}
 
     def set_parameters(self, values: dict) -> None:
         """Change named parameters in place (no rebuild: value arrays and vectors only).
@@ -790,25 +877,39 @@ class MassSpringSystem:
             elif name == "damping.stiffness":
                 self.damping_stiffness = value
                 ref_changed = True
+            elif name in VELOCITY_NAMES:
+                # negative values are accepted here (central differences at 0); the experiment
+                # file refuses them
+                if not np.isfinite(value):
+                    raise ExperimentError(f'parameter "{name}" = {value!r} must be finite')
+                self.velocity_terms.coef[name] = value
             else:
                 self.acceleration["xyz".index(name[-1])] = value
                 mass_changed = True
         if mass_changed:
             self._update_mass()
+            if hasattr(self, "velocity_terms"):
+                lo, hi = self.node_range
+                self.velocity_terms.friction_mass = self._friction_masses()
+                self.velocity_terms.node_mass = self.masses[lo:hi].copy()
         if ref_changed:
             self._update_reference()
 
     def residual_parameter_derivatives(self, names, q: PETSc.Vec, v: PETSc.Vec, a: PETSc.Vec,
-                                       t: float = 0.0) -> list[PETSc.Vec]:
-        """d r / d p of r = M a + grad W(q) + D v - f_g - f_t(t) for each name (prescribed rows
-        zero). r is affine in every parameter, so these are exact (friction, lagged, and the
-        colliders' fixed stiffness do not depend on the parameters)."""
+                                       t: float = 0.0, v_lin=None) -> list[PETSc.Vec]:
+        """d r / d p of r = M a + grad W(q) + D v + G(v) - f_g - f_t(t) for each name
+        (prescribed rows zero). r is affine in every parameter, so these are exact (the
+        colliders' lagged friction and fixed stiffness do not depend on the parameters). With
+        ``v_lin`` the velocity terms are those of a step linearised at v_lin (semi-implicit):
+        G(v_lin) + dG/dv(v_lin) (v - v_lin)."""
         self._check_names(names)
         lo, hi = self.node_range
         bend = self.kind == KINDS.index("bending")
         x = self.positions(q)
         vl = v.getArray(readonly=True).reshape(-1, 3)
         al = a.getArray(readonly=True).reshape(-1, 3)
+        vlin = v_lin.getArray(readonly=True).reshape(-1, 3) if v_lin is not None else None
+        vt = self.velocity_terms
         out = []
         for name in names:
             d = self.create_vec()
@@ -824,6 +925,14 @@ class MassSpringSystem:
                 arr[:] = self._unit_product("damping", v)
             elif name == "springs.node_mass":
                 arr[:] = al + self.alpha * vl - self.acceleration
+                if vt.coef["friction.dry"] != 0.0:
+                    # the friction is proportional to the node masses
+                    unit = VelocityTerms(hi - lo, None, self._friction_mask[lo:hi].astype(float),
+                                         dry=1.0, speed=vt.speed)
+                    arr += vt.coef["friction.dry"] * unit.unit_linearised("friction.dry", vl,
+                                                                          vlin)
+            elif name in VELOCITY_NAMES:
+                arr[:] = vt.unit_linearised(name, vl, vlin)
             elif name == "damping.mass":
                 arr[:] = self.masses[lo:hi, None] * vl
             elif name == "damping.stiffness":

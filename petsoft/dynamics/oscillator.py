@@ -67,7 +67,9 @@ class OscillatorSystem:
         ksp.getPC().setType(PETSc.PC.Type.JACOBI)
         ksp.setTolerances(rtol=1e-14, atol=1e-50)
 
-    def assemble_combination(self, q, a_mass, b_tangent, c_reference, out, eliminate=True):
+    def assemble_combination(self, q, a_mass, b_tangent, c_reference, out, eliminate=True,
+                             velocity=0.0):
+        # no velocity-dependent forces: ``velocity`` is unused
         return self._diagonal(a_mass + (b_tangent + c_reference) * self.omega2, out)
 
     def internal_gradient(self, q: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:

@@ -26,6 +26,10 @@ Parameter names (see :meth:`ParameterMap.names`):
 * ``viscoelastic.ratio``, ``viscoelastic.relaxation_time`` (the Maxwell branch): set in place by
   :meth:`~petsoft.dynamics.system.DynamicSystem.set_parameters` but **not differentiable**
   (:class:`ParameterDerivatives` refuses them: use finite differences);
+* ``drag.linear``, ``drag.quadratic``, ``friction.dry``: r is linear in each, its derivative is
+  the term's damping G per unit coefficient (:mod:`petsoft.dynamics.velocity`) at v, also when
+  the coefficient is 0; for a step that linearises the term at v_lin (semi-implicit) it is
+  G(v_lin) + dG/dv(v_lin) (v - v_lin);
 * ``material.youngs_modulus#k``, k = 0..P-1: a *stiffness field*, a multiplier (1 at the start)
   of Young's modulus on the k-th of P cell groups. The groups are **Morton chunks**: the cells of
   the whole mesh sorted along the Morton (Z-order) curve of their centroids and cut into P
@@ -51,6 +55,7 @@ from petsc4py import PETSc
 from ..errors import ExperimentError
 from ..kernels.scatter import scatter_add_vector
 from ..ordering import morton_order
+from .velocity import NAMES as VELOCITY_NAMES
 
 MATERIAL_KEYS = ("youngs_modulus", "poisson_ratio", "density")
 #: Parameters set_parameters changes but the residual derivatives do not cover: the Maxwell
@@ -119,6 +124,8 @@ class ParameterMap:
         self.values = {n: float(self._current(n)) for n in self.cells}
         self.values["damping.mass"] = system.alpha
         self.values["damping.stiffness"] = system.beta
+        for name, value in system.velocity_terms.coef.items():
+            self.values[name] = float(value)
         for i, c in enumerate("xyz"):
             self.values[f"gravity.acceleration.{c}"] = float(exp.gravity.acceleration[i])
         # elastic supports and collider planes (petsoft.physics.support / contact)
@@ -309,7 +316,7 @@ def refuse_viscoelastic(names) -> None:
 class ParameterDerivatives:
     """Element-level evaluation of d r / d p (see the module docstring) for one state."""
 
-    def __init__(self, system, q, v, a, w=None, k0x=None):
+    def __init__(self, system, q, v, a, w=None, k0x=None, v_lin=None):
         self.system = system
         s, dm = system, system.dmesh
         pm = s.parameters
@@ -331,11 +338,18 @@ class ParameterDerivatives:
         Em = (vol / 20.0)[:, None, None] * (y + y.sum(axis=1, keepdims=True))
         g = np.asarray([pm.values[f"gravity.acceleration.{c}"] for c in "xyz"])
         Em -= (vol / 4.0)[:, None, None] * g[None, None, :]
+        vt = s.velocity_terms
+        if vt.coef["friction.dry"] != 0.0:
+            # the friction force is proportional to the lumped mass (V/4 rho per cell vertex)
+            vll = dm.to_local(v_lin) if v_lin is not None else None
+            yf = vt.coef["friction.dry"] * s.friction_unit_mass_local(vl, vll)
+            Em += (vol / 4.0)[:, None, None] * yf[dm.cells]
         self.E_rho = Em.reshape(n, 12)
         self.v = v.copy()   # the caller may destroy its state vectors
         # nodal terms: d/dp of K_s (u + w) + beta K_s v (supports), of the contact gradient
         self.u = u
         self.support_state = u + (wl if wl is not None else 0.0) + s.beta * vl
+        self.v_lin = v_lin.copy() if v_lin is not None else None
 
     def _global_vector(self, name: str, out: PETSc.Vec) -> None:
         s = self.system
@@ -354,6 +368,12 @@ class ParameterDerivatives:
             local = np.zeros((s.dmesh.nvertices, 3))
             local[contact.nodes] = contact.offset_derivative(int(name.split(".")[1]), self.u)
             s.dmesh.add_to_global(local, out)
+        elif name in VELOCITY_NAMES:
+            lin = None
+            if self.v_lin is not None:
+                lin = self.v_lin.getArray(readonly=True).reshape(-1, 3)
+            out.getArray().reshape(-1, 3)[:] = s.velocity_terms.unit_linearised(
+                name, self.v.getArray(readonly=True).reshape(-1, 3), lin)
         else:
             c = "xyz".index(name[-1])
             arr = out.getArray()

@@ -320,8 +320,9 @@ class PendulumSystem:
         serial = self.comm.size == 1
         ksp.getPC().setType(PETSc.PC.Type.LU if serial else PETSc.PC.Type.REDUNDANT)
 
-    def assemble_combination(self, q, a_mass, b_tangent, c_reference, out, eliminate=True):
-        """out = a I + b Hess W(q) + c K0."""
+    def assemble_combination(self, q, a_mass, b_tangent, c_reference, out, eliminate=True,
+                             velocity=0.0):
+        """out = a I + b Hess W(q) + c K0 (no velocity-dependent forces: ``velocity`` unused)."""
         x = self.values(q) if b_tangent != 0.0 else None
         dense = a_mass * np.eye(2) + c_reference * self._k0
         if b_tangent != 0.0:

@@ -64,6 +64,10 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
         if name != "be":
             raise ExperimentError(f"--solver local-global solves backward-Euler steps only "
                                   f"(integrator be), not {name!r}")
+        terms = getattr(system, "velocity_terms", None)
+        if terms is not None and terms.active:
+            raise ExperimentError("--solver local-global handles Rayleigh mass damping only; "
+                                  "[drag] and [friction] need --solver snes (or tao)")
         from .local_global import LocalGlobalIntegrator
 
         return LocalGlobalIntegrator(system)

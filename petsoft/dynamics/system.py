@@ -9,6 +9,10 @@
   the energy balance is well defined also for nonlinear materials),
 * f_g gravity (a potential: -f_g . q), f_t(t) surface tractions (expressions of x, y, z, t: their
   work is booked as external work),
+* velocity-dependent forces ``[drag]`` (on the whole boundary surface) and ``[friction]``
+  (:mod:`petsoft.dynamics.velocity`), added to D v by :meth:`DynamicSystem.damping_apply` (their
+  work is dissipation) with their velocity Jacobian in :meth:`~DynamicSystem.assemble_combination`
+  (``velocity``),
 * Dirichlet conditions q_D = g(t) (fixed or prescribed expressions of x, y, z, t),
 * optionally a Maxwell branch (standard linear solid, ``[viscoelastic]``): a force
   -g K0 (q - z) with an internal variable z, dz/dt = (q - z)/tau, that the implicit integrators
@@ -29,7 +33,12 @@ import numpy as np
 from petsc4py import PETSc
 
 from ..assembly import MatrixAssembler
+from ..physics.drag import face_pairs
 from ..physics.loads import consistent_mass_matrices, gravity_forces, lumped_masses, traction_forces
+from .velocity import VelocityTerms
+
+#: The assembler's element set of single nodes: the velocity terms' 3x3 diagonal blocks.
+NODE_SET = "__nodes__"
 
 
 class DynamicSystem:
@@ -53,6 +62,7 @@ class DynamicSystem:
         self.alpha, self.beta = float(damping_mass), float(damping_stiffness)
         self.lumped_kinetic = False  # explicit integrators switch to the lumped mass
         conns = dict(self.elastic.connectivities())
+        conns[NODE_SET] = np.arange(dm.nvertices, dtype=np.int64)[:, None]
         self.assembler = MatrixAssembler(dm, conns)
         # the mass shares the pattern: its element matrices go through the elastic groups' names
         self.assembler.begin()
@@ -77,6 +87,49 @@ class DynamicSystem:
         self._g = np.zeros(3 * dm.nvertices)
         self._work = dm.create_global_vec()
         self._viscoelastic_setup()
+        self._velocity_setup()
+
+    def _velocity_setup(self) -> None:
+        """The drag and friction terms on the owned nodes (rows of a global vector's array)."""
+        dm, exp = self.dmesh, self.model.experiment
+        lo, _ = self._work.getOwnershipRange()
+        self._own_local = np.flatnonzero(dm.owned)
+        self._own_pos = (dm.global_dof[self._own_local, 0] - lo) // 3
+        nown = len(self._own_local)
+        node_of = np.full(dm.nglobal_vertices, -1, dtype=np.int64)
+        node_of[dm.vertex_ids[self._own_local]] = self._own_pos
+        pairs = face_pairs(dm.mesh.points, dm.exterior[0], node_of)
+        self._friction_mask = np.ones(nown, dtype=bool)
+        self._friction_mask_local = np.ones(dm.nvertices, dtype=bool)
+        where = exp.friction.where
+        if where is not None:
+            mask = self.model.resolver.vertex_mask(where, "friction.where")
+            self._friction_mask[self._own_pos] = mask[dm.vertex_ids[self._own_local]]
+            self._friction_mask_local = mask[dm.vertex_ids]
+        self.velocity_terms = VelocityTerms(nown, pairs, self._friction_masses(),
+                                            exp.drag.linear, exp.drag.quadratic,
+                                            exp.friction.dry, exp.friction.speed,
+                                            node_mass=self._node_masses())
+        self._v_last = np.zeros((nown, 3))
+
+    def friction_unit_mass_local(self, v_local: np.ndarray, v_lin_local=None) -> np.ndarray:
+        """(nv, 3) the friction's damping per unit mass and unit ``dry`` at the local vertices
+        (linearised at v_lin like :meth:`VelocityTerms.unit_linearised`): its density
+        derivative."""
+        from ..physics import friction
+
+        m, eps = self._friction_mask_local.astype(float), self.velocity_terms.speed
+        if v_lin_local is None:
+            return friction.damping(v_local, m, eps)
+        return (friction.damping(v_lin_local, m, eps)
+                + np.einsum("pij,pj->pi", friction.damping_blocks(v_lin_local, m, eps),
+                            v_local - v_lin_local))
+
+    def _node_masses(self) -> np.ndarray:
+        return self.lumped.getArray(readonly=True).reshape(-1, 3)[:, 0].copy()
+
+    def _friction_masses(self) -> np.ndarray:
+        return np.where(self._friction_mask, self._node_masses(), 0.0)
 
     # -- matrices ---------------------------------------------------------------------------
     def _add_reference_hessian(self) -> None:
@@ -100,8 +153,11 @@ class DynamicSystem:
 
     def assemble_combination(self, q: PETSc.Vec | None, a_mass: float, b_tangent: float,
                              c_reference: float, out: PETSc.Mat,
-                             eliminate: bool = True) -> PETSc.Mat:
-        """out = a M + b K(q) + c K0 (the caller folds the Rayleigh coefficients into a and c).
+                             eliminate: bool = True, velocity: float = 0.0) -> PETSc.Mat:
+        """out = a M + b K(q) + c K0 + velocity dG/dv (the caller folds the Rayleigh
+        coefficients into a and c; ``velocity`` is dv/dq of its scheme, and dG/dv, the drag and
+        friction's velocity Jacobian, is taken at the velocity last passed to
+        :meth:`damping_apply` or :meth:`set_velocity_state`).
 
         With ``eliminate``, prescribed rows and columns become identity (symmetric).
         """
@@ -115,13 +171,18 @@ class DynamicSystem:
             asm.values += a_mass * self.mass_values
         if c_reference != 0.0:
             asm.values += c_reference * self.k0_values
+        if velocity != 0.0 and self.velocity_terms.active:
+            blocks = np.zeros((self.dmesh.nvertices, 3, 3))
+            blocks[self._own_local] = velocity * self.velocity_terms.blocks(self._v_last)[
+                self._own_pos]
+            asm.add(NODE_SET, blocks)
         asm.finish(out)
         if eliminate:
             self.dirichlet.eliminate(out)
         return out
 
-    def damping_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
-        """out = D v = alpha M v + beta K0 v."""
+    def _rayleigh_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = alpha M v + beta K0 v."""
         out.zeroEntries()
         if self.alpha == 0.0 and self.beta == 0.0:
             return out
@@ -131,6 +192,53 @@ class DynamicSystem:
             self.K0_matrix().mult(v, self._work)
             out.axpy(self.beta, self._work)
         return out
+
+    def damping_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = D v + G(v) = alpha M v + beta K0 v + (minus the drag and friction forces).
+
+        Remembers v: the velocity Jacobian of the next :meth:`assemble_combination` is taken
+        there (the Newton iterate of the step, whose residual is evaluated first).
+        """
+        self._rayleigh_apply(v, out)
+        vt = self.velocity_terms
+        if vt.active:
+            vl = v.getArray(readonly=True).reshape(-1, 3)
+            self._v_last = vl.copy()
+            out.getArray().reshape(-1, 3)[:] += vt.damping(vl)
+        return out
+
+    def set_velocity_state(self, v: PETSc.Vec) -> None:
+        """The velocity at which :meth:`assemble_combination` linearises the velocity terms."""
+        self._v_last = v.getArray(readonly=True).reshape(-1, 3).copy()
+
+    def damping_tangent_apply(self, v_state: PETSc.Vec, x: PETSc.Vec,
+                              out: PETSc.Vec) -> PETSc.Vec:
+        """out = D x + dG/dv(v_state) x: the damping term linearised at v_state, applied to a
+        tangent or adjoint vector x (equal to :meth:`damping_apply` without velocity terms)."""
+        self._rayleigh_apply(x, out)
+        vt = self.velocity_terms
+        if vt.active:
+            out.getArray().reshape(-1, 3)[:] += vt.tangent(
+                v_state.getArray(readonly=True).reshape(-1, 3),
+                x.getArray(readonly=True).reshape(-1, 3))
+        return out
+
+    def damping_second_apply(self, v_state: PETSc.Vec, w: PETSc.Vec, x: PETSc.Vec,
+                             out: PETSc.Vec) -> PETSc.Vec:
+        """out = d/dv [dG/dv x] along w at v_state (zero without nonlinear velocity terms)."""
+        out.zeroEntries()
+        vt = self.velocity_terms
+        if vt.nonlinear:
+            arr = [y.getArray(readonly=True).reshape(-1, 3) for y in (v_state, w, x)]
+            out.getArray().reshape(-1, 3)[:] = vt.second(*arr)
+        return out
+
+    def dissipation_potential(self, v: PETSc.Vec) -> float:
+        """psi(v) = v^T D v / 2 + the velocity terms' potential: grad psi = D v + G(v)
+        (collective)."""
+        self._rayleigh_apply(v, self._work)
+        local = self.velocity_terms.potential(v.getArray(readonly=True).reshape(-1, 3))
+        return 0.5 * v.dot(self._work) + self.dmesh.allreduce_sum(local)
 
     # -- the interface integrators use (an analytic system can provide the same) -----------
     def create_vec(self) -> PETSc.Vec:
@@ -245,6 +353,8 @@ class DynamicSystem:
         self.alpha = pm.values["damping.mass"]
         self.beta = pm.values["damping.stiffness"]
         self._viscoelastic_parameters(pm.values)
+        for name in self.velocity_terms.coef:
+            self.velocity_terms.coef[name] = pm.values[name]
         mu, lam = lame_parameters(pm.E(), pm.nu)
         for group in self.elastic.groups:
             group.mu[:] = mu[group.cells]
@@ -268,6 +378,8 @@ class DynamicSystem:
                          self.lumped)
         self.gravity.zeroEntries()
         dm.add_to_global(gravity_forces(dm, model.density, acc), self.gravity)
+        self.velocity_terms.friction_mass = self._friction_masses()
+        self.velocity_terms.node_mass = self._node_masses()
         # the static solver's load (gravity + tractions at t = 0) follows
         self.gravity.copy(model.external)
         model.external.axpy(1.0, self.tractions(0.0, self._work))
@@ -278,19 +390,22 @@ class DynamicSystem:
             self.K0 = self._matrix_from(self.k0_values)
         return self.K0
 
-    def parameter_derivatives(self, q, v, a, w=None, k0x=None):
+    def parameter_derivatives(self, q, v, a, w=None, k0x=None, v_lin=None):
         """Element-level d r/d p at (q, v, a) (+ d/dp [K(q) w], + d/dp [K0 k0x]) for many names
         at once: ``.vectors(names)`` gives the vectors, ``.contract(names, mu)`` their dots
-        with mu."""
+        with mu. ``v_lin``: the velocity the step linearises the velocity terms at
+        (semi-implicit)."""
         from .parameters import ParameterDerivatives
 
-        return ParameterDerivatives(self, q, v, a, w, k0x)
+        return ParameterDerivatives(self, q, v, a, w, k0x, v_lin)
 
-    def residual_parameter_derivatives(self, names, q, v, a, t: float = 0.0) -> list:
-        """d/dp of r(q, v, a; p) = M a + grad W(q) + D v - f_g - f_t(t), prescribed rows zeroed
-        (tractions do not depend on parameters, so t is unused)."""
+    def residual_parameter_derivatives(self, names, q, v, a, t: float = 0.0,
+                                       v_lin=None) -> list:
+        """d/dp of r(q, v, a; p) = M a + grad W(q) + D v + G(v) - f_g - f_t(t), prescribed rows
+        zeroed (tractions do not depend on parameters, so t is unused; ``v_lin``: see
+        :meth:`parameter_derivatives`)."""
         self.parameters.check(names)
-        return self.parameter_derivatives(q, v, a).vectors(list(names))
+        return self.parameter_derivatives(q, v, a, v_lin=v_lin).vectors(list(names))
 
     # -- the viscoelastic (Maxwell) branch -------------------------------------------------------
     def _viscoelastic_setup(self) -> None:
