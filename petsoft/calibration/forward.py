@@ -423,10 +423,10 @@ class ForwardModel:
         return out
 
     def _small_problem_defaults(self, opts: dict) -> None:
-        """A direct solve (LU; MUMPS on several ranks) for small systems unless the experiment
-        chose a linear solver: a calibration makes thousands of runs, and on a few thousand
-        dofs an algebraic-multigrid set-up per step cost 10x the factorisation (measured: 17 ms
-        vs under 2 ms per step on a 36-tet bar). The command line still overrides it."""
+        """A direct solve (LU; MUMPS on several ranks) of the sensitivity/adjoint systems of small
+        models unless the experiment chose a linear solver: a calibration makes thousands of
+        runs, and on a few thousand dofs an algebraic-multigrid set-up per solve costs more than
+        the factorisation. The command line still overrides it."""
         if any(k.startswith(("ksp_", "pc_")) for k in opts):
             return
         probe = self.system.create_vec()
@@ -438,7 +438,10 @@ class ForwardModel:
         if self.comm.getSize() > 1:
             direct["pc_factor_mat_solver_type"] = "mumps"
         db = PETSc.Options()
-        for prefix, attr in ((PREFIX, "_forward_defaults"), (GRAD_PREFIX, "_grad_defaults")):
+        # Only the sensitivity/adjoint solves: the forward Newton keeps CG + GAMG, with which
+        # Newton converged on a contact problem where it diverged with an exact LU solve
+        # (tests/test_fem_contact.py, not understood yet; see the issue note).
+        for prefix, attr in ((GRAD_PREFIX, "_grad_defaults"),):
             # a solver half-chosen on the command line (e.g. only -fm_pc_type) keeps the rest
             # of petsoft's iterative default, not a direct solver's "preonly"
             if db.hasName(prefix + "ksp_type") or db.hasName(prefix + "pc_type"):

@@ -41,6 +41,12 @@ from scipy import stats
 from ..errors import ExperimentError, PetsoftError
 from ..experiment import experiment_from_dict, get_parameter, with_parameters
 
+#: Candidates whose log10 p is within this factor of the best one's are fitted and compared by
+#: their fitted chi2 (module docstring, step 4).
+TIE = 0.9
+#: Fitted chi2 values within this of the best are statistically tied (see _run_diagnose).
+TIE_CHI2 = 2.0
+
 
 class DiagnoseError(PetsoftError):
     """``petsoft diagnose`` cannot run on these inputs; the message says what and where."""
@@ -296,6 +302,7 @@ class _Diagnosis:
         self.ident = ident
         self.held = ~ident
         self.base_experiment = experiment
+        self.model_error = {}
         if rec.noise and rec.noise.get("position_std"):
             self.sigma = float(rec.noise["position_std"])
             self.sigma_source = "given by the recording"
@@ -311,6 +318,17 @@ class _Diagnosis:
                                     "the noise with --noise") from exc
             self.sigma = float(s["std_mad"] if s["gaussian"] else s["std_rms"])
             self.sigma_source = "estimated from the data"
+
+    #: Estimated discretisation error (m, rms) of the current model per refinement kind, from
+    #: :func:`resolve_numerics` (Richardson: the change under refinement over 2^p - 1).
+    model_error: dict
+
+    @property
+    def sigma_verdict(self) -> float:
+        """The noise plus the measured discretisation error (in quadrature): the level the
+        verdict tests the residual against, since a mismatch the model's own numerics can
+        explain is no evidence of missing physics."""
+        return float(np.sqrt(self.sigma**2 + sum(e**2 for e in self.model_error.values())))
 
     def tell(self, line: str) -> None:
         if self.say is not None and self.rank0:
@@ -434,7 +452,7 @@ def _evidence(diag: _Diagnosis, fit: Fit) -> dict:
 
     rec = diag.recording
     return collect_evidence(diag.data[diag.ident], fit.sim[diag.ident], diag.times[diag.ident],
-                            rec.reference, rec.names, sigma=diag.sigma,
+                            rec.reference, rec.names, sigma=diag.sigma_verdict,
                             num_parameters=len(fit.names), alpha=diag.alpha)
 
 
@@ -480,7 +498,7 @@ def _judge(diag: _Diagnosis, current: Fit, s: dict, c) -> dict:
     ok = p_lr < diag.alpha and better
     diag.tell(f"  try {c.physics}: LR {lr:.4g} (p {p_lr:.3g}), held-out rms "
               f"{_fmt(current.heldout_rms)} -> {_fmt(new.heldout_rms)} m: "
-              f"{'added' if ok else 'rejected'}")
+              f"{'passes' if ok else 'rejected'}")
     if not ok:
         why = []
         if p_lr >= diag.alpha:
@@ -543,13 +561,29 @@ def resolve_numerics(diag: _Diagnosis, fit: Fit, ev: dict, max_rounds: int = 2,
         excess = max(fit.chi2 - dof, 0.0)
         entry = {"chi2": fit.chi2, "dof": dof, "step": exp.time.step, "options": {}}
         best = None
+        seen = np.isfinite(diag.data[diag.ident])
+        order = {"step/2": 1 if (diag.integrator or exp.time.integrator) in ("be", "si") else 2,
+                 "mesh x2": 2}
         for what, res in zip(options, fits, strict=True):
             if not res.ok:
                 entry["options"][what] = {"error": res.error}
                 continue
             gain = fit.chi2 - res.value.chi2
             matters = bool(gain > 0.1 * excess and gain > 10.0)
-            entry["options"][what] = {"chi2": res.value.chi2, "gain": gain, "matters": matters}
+            change = float(np.sqrt(np.mean((res.value.sim[diag.ident][seen]
+                                            - fit.sim[diag.ident][seen]) ** 2)))
+            k = 2.0 ** order[what]
+            # Richardson: the refined model's error ~ change / (2^p - 1), the current one's
+            # ~ change 2^p / (2^p - 1); counted only when refining brings the simulation
+            # closer to the data (else the data do not see that error)
+            if gain > 0.0:
+                diag.model_error[what] = (change / (k - 1.0) if matters
+                                          else change * k / (k - 1.0))
+            else:
+                diag.model_error.pop(what, None)
+            entry["options"][what] = {"chi2": res.value.chi2, "gain": gain, "matters": matters,
+                                      "change_rms": change,
+                                      "error_estimate": diag.model_error.get(what, 0.0)}
             diag.tell(f"numerics: {what}: chi2 {fit.chi2:.5g} -> {res.value.chi2:.5g} "
                       f"({'matters' if matters else 'resolved'})")
             if matters and (best is None or gain > best[1]):
@@ -590,7 +624,7 @@ def run_diagnose(experiment, recording_path, **kwargs) -> DiagnoseResult:
 
 
 def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fraction: float = 0.7,
-                 alpha: float = 0.01, max_additions: int = 3, max_tries: int = 3,
+                 alpha: float = 0.01, max_additions: int = 3, max_tries: int = 4,
                  method: str = "gauss-newton", gradient: str = "sensitivity",
                  integrator: str | None = None, noise: float | None = None,
                  numerics: bool = True, comm=None,
@@ -623,6 +657,7 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
     """
     from ..groups import map_on_groups
     from .candidates import build_candidates
+    from .report import PHYSICS
 
     t0 = time.perf_counter()
     diag = _Diagnosis(experiment, recording_path, fraction=fraction, alpha=alpha, method=method,
@@ -711,21 +746,73 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
             rejected.append({"physics": c.physics, "score": s["score"],
                              "reason": f"not tried: max {max_tries} tries per round"})
         accepted = None
-        # re-fit the significant candidates in batches of one per group of ranks; the first (in
-        # ranking order) that passes both tests is added, so the outcome does not depend on the
-        # number of ranks
-        batch = max(1, min(diag.comm.tompi4py().size, len(significant)))
-        for start in range(0, len(significant), batch):
-            chunk = significant[start:start + batch]
-            need = [(s, c) for s, c in chunk if "fit" not in s]
+
+        def fit_all(group, cur=current):
+            need = [(s, c) for s, c in group if "fit" not in s]
             fits = map_on_groups(
-                lambda sc, sub, cur=current: diag.calibrate(sc[1].extend(cur.experiment),
-                                                              comm=sub),
+                lambda item, sub: diag.calibrate(item[1].extend(cur.experiment), comm=sub),
                 need, diag.comm)
             gc.collect()
             for (s, _), f in zip(need, fits, strict=True):
                 s["fit"] = f.value if f.ok else None
                 s["fit_error"] = f.error
+
+        # Contenders: candidates whose score is statistically close to the best one's (within
+        # TIE of its log p). On a short record every dissipation law (viscous, drag, dry
+        # friction, a viscoelastic branch) makes nearly the same first-order change, so the
+        # score alone cannot separate them: each contender is fitted (concurrently on groups
+        # of ranks) and the best fit among those that pass both tests is added.
+        best_lp = significant[0][0]["log10_p"] if significant else 0.0
+        contenders = [sc for sc in significant if sc[0]["log10_p"] <= TIE * best_lp]
+        rest = [sc for sc in significant if sc not in contenders]
+        fit_all(contenders)
+        passed = []
+        for s, c in contenders:
+            verdict = _judge(diag, current, s, c)
+            s["fitted_chi2"] = s["fit"].chi2 if s.get("fit") is not None else None
+            if verdict["added"]:
+                passed.append((s["fit"].chi2, s["fit"].heldout_rms or 0.0, s, c, verdict))
+            else:
+                rejected.append({"physics": c.physics, "score": s["score"],
+                                 "reason": verdict["reason"]})
+        if passed:
+            # fits within TIE_CHI2 of the best are statistically equal: the better held-out
+            # prediction decides (when it differs by more than 2 %), then the vocabulary's order
+            # (the more common explanation first)
+            low = min(t[0] for t in passed)
+            tied = [t for t in passed if t[0] <= low + TIE_CHI2]
+            top = min(t[1] for t in tied)
+            close = [t for t in tied if t[1] <= 1.02 * top]
+            order = list(PHYSICS)
+            close.sort(key=lambda t: order.index(t[3].physics))
+            first = close[0]
+            passed.sort(key=lambda t: (t[0], t[1]))
+            passed.remove(first)
+            passed.insert(0, first)
+            chi2_best, _, s_best, c_best, v_best = passed[0]
+            if len(tied) > 1:
+                v_best["entry"]["evidence"] += (
+                    "; ambiguous: " + ", ".join(t[3].physics for t in tied if t is not first)
+                    + f" fitted as well (chi2 within {TIE_CHI2:g}); chosen by "
+                    + ("the held-out prediction" if len(close) == 1 else
+                       "the vocabulary's order (the held-out predictions are within 2 %)"))
+            accepted = (v_best["entry"], s_best["fit"])
+            for chi2, _, s, c, _ in passed[1:]:
+                rejected.append({"physics": c.physics, "score": s["score"],
+                                 "reason": f"fitted too, {c_best.physics} was preferred "
+                                           f"(chi2 {chi2_best:.6g} vs {chi2:.6g})"})
+            if len(passed) > 1:
+                accepted[0]["evidence"] += (
+                    "; among the close-scoring candidates it fitted best ("
+                    + ", ".join(f"{c.physics} chi2 {chi2:.6g}" for chi2, _, _, c, _ in passed)
+                    + ")")
+        # otherwise the remaining significant ones in batches of one per group of ranks; the
+        # first (in ranking order) that passes both tests is added, so the outcome does not
+        # depend on the number of ranks
+        batch = max(1, min(diag.comm.tompi4py().size, len(rest)))
+        for start in range(0, len(rest) if accepted is None else 0, batch):
+            chunk = rest[start:start + batch]
+            fit_all(chunk)
             for s, c in chunk:
                 if accepted is not None:
                     rejected.append({"physics": c.physics, "score": s["score"],
@@ -740,6 +827,24 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
                                      "reason": verdict["reason"]})
             if accepted is not None:
                 break
+        if accepted is None:
+            for s, c in rest:
+                if "fit" not in s:
+                    rejected.append({"physics": c.physics, "score": s["score"],
+                                     "reason": "not added: a better-ranked candidate was "
+                                               "added first"})
+        # the round's final ranking: fitted contenders by chi2, then the rest by score
+        ranking = sorted((sc for sc in scores if sc[0].get("fitted_chi2") is not None),
+                         key=lambda sc: sc[0]["fitted_chi2"])
+        ranking += [sc for sc in scores if sc not in ranking]
+        for i, (s, _) in enumerate(ranking, 1):
+            s["rank"] = i
+        for entry in all_scores:
+            if entry["round"] == rnd:
+                match = next(s for s, c in scores if c.physics == entry["physics"])
+                entry["rank"] = match["rank"]
+                if match.get("fitted_chi2") is not None:
+                    entry["fitted_chi2"] = match["fitted_chi2"]
         if accepted is None:
             break
         added.append(accepted[0])
@@ -756,10 +861,13 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
     num = numerics_check(diag, current) if numerics else {}
     if refinements:
         num["refinements"] = refinements
+    if diag.model_error:
+        num["model_error"] = dict(diag.model_error)
+        num["sigma_verdict"] = diag.sigma_verdict
     if num:
         diag.tell("numerics: " + "; ".join(
             f"{k}: residual change {v['change']:.3g} m ({v['change_over_noise']:.3g} x noise)"
-            for k, v in num.items() if isinstance(v, dict)))
+            for k, v in num.items() if isinstance(v, dict) and "change" in v))
     report = _build_report(diag, base, current, base_ev, ev, added, rejected)
     result = DiagnoseResult(verdict=base_ev["verdict"], final_verdict=ev["verdict"],
                             report=report, base=base, final=current, added=added,
@@ -831,8 +939,24 @@ def write_outputs(out: Path, diag: _Diagnosis, result: DiagnoseResult, base_ev: 
                      f"dof {s['dof']}, p = {s['p_value']:.3g}")
     for k, why in sorted(result.not_modelled.items()):
         notes.append(f"{k}: not modelled yet / not tried ({why})")
+    for r in result.numerics.get("refinements", []):
+        opts = "; ".join(f"{k}: chi2 {v['chi2']:.5g}" for k, v in r["options"].items()
+                         if "chi2" in v)
+        notes.append(f"numerics before blaming physics (after {r.get('after_additions', 0)} "
+                     f"additions): chi2 {r['chi2']:.5g} at step {r['step']:.4g} s; refined: "
+                     f"{opts}; " + (f"adopted {r['adopted']} (it lowered chi2 by more than 10 % "
+                                    "of the excess over the noise)" if r.get("adopted")
+                                    else "nothing adopted (refinement does not matter)"))
+    if result.numerics.get("model_error"):
+        notes.append("discretisation error estimated from the refinement check (Richardson): "
+                     + ", ".join(f"{k} {v:.3g} m" for k, v in
+                                 result.numerics["model_error"].items())
+                     + f"; the verdict tests the residual against the noise and this error in "
+                     f"quadrature ({result.numerics['sigma_verdict']:.3g} m)")
     for k, v in result.numerics.items():
-        if isinstance(v, dict):
+        if k in ("model_error", "sigma_verdict", "refinements"):
+            continue
+        if isinstance(v, dict) and "change" in v:
             notes.append(f"numerics {k}: the simulation changes by {v['change']:.3g} m rms "
                          f"({v['change_over_noise']:.3g} x the noise)" + (
                              "" if v["resolved"] else ": more than the noise, so part of the "
