@@ -174,9 +174,11 @@ def run_case(name: str, folder: Path, comm, noise: float) -> dict:
                        say=say)
     wall = time.perf_counter() - t1
     physics = case["physics"]
-    first = sorted([s for s in res.scores if s["round"] == 1],
-                   key=lambda s: (s["log10_p"], -s["score"]))
-    ranking = [s["physics"] for s in first if s["p_value"] < 0.01]
+    # the first round's final ranking: close-scoring candidates ordered by their fits, then
+    # the others by score (diagnose's "rank")
+    first = sorted([s for s in res.scores if s["round"] == 1 and s["p_value"] < 0.01],
+                   key=lambda s: s.get("rank", 1e9))
+    ranking = [s["physics"] for s in first]
     rank = (ranking.index(physics[0]) + 1 if physics and physics[0] in ranking else None)
     named = [a["physics"] for a in res.added]
     loc = None
