@@ -23,10 +23,11 @@ from petsoft.diagnosis.candidates import (
     sensitivity_region,
     sphere_condition,
 )
-from petsoft.diagnosis.diagnose import DiagnoseError, run_diagnose
+from petsoft.diagnosis.diagnose import DiagnoseError, escape_plane, run_diagnose
 from petsoft.diagnosis.report import PHYSICS, read_report
 from petsoft.diagnosis.score import ScoreError, score_test
 from petsoft.experiment import experiment_from_dict, get_parameter, load_experiment
+from petsoft.recording import read_recording
 from petsoft.synth import run_synth
 
 MODEL = """
@@ -206,9 +207,17 @@ def test_concealed_mass_damping_is_found(case):
     assert res.verdict == "missing-physics"
     assert res.final_verdict == "consistent"
     assert [a["physics"] for a in res.added] == ["damping.mass"]
-    # the score test ranked it first among the candidates of round 1
-    first = sorted(res.scores, key=lambda s: s["log10_p"])[0]
+    # every vocabulary term this model can take was ranked in round 1
+    tried = {s["physics"] for s in res.scores if s["round"] == 1}
+    assert {"damping.mass", "drag.linear", "drag.quadratic", "friction.dry",
+            "material.viscoelastic", "boundary.compliance", "material.nonlinear"} <= tried
+    # it is first in the round's final ranking; on this 0.14 s window the other dissipation
+    # laws score and fit almost as well, and the report says so rather than hiding it
+    first = next(s for s in res.scores if s["round"] == 1 and s["rank"] == 1)
     assert first["physics"] == "damping.mass" and first["p_value"] < 1e-6
+    contenders = [s for s in res.scores if s["round"] == 1 and "fitted_chi2" in s]
+    assert len(contenders) >= 2
+    assert "ambiguous" in res.added[0]["evidence"]
     alpha = res.added[0]["parameters"]["damping.mass"]
     std = res.added[0]["std"]["damping.mass"]
     assert abs(alpha - TRUE_ALPHA) < max(3 * std, 0.5), (alpha, std)
@@ -271,3 +280,54 @@ def test_user_errors_name_the_problem(case):
     from petsoft.cli import main
 
     assert main(["diagnose", str(no_cal), str(case["plain"])]) == 2
+
+
+def test_escape_plane_finds_the_side_the_simulation_passes():
+    t = np.linspace(0.0, 1.0, 80)
+    z_free = -0.01 * np.abs(np.sin(2 * np.pi * t))          # what a model without the floor does
+    sim = np.zeros((80, 2, 3))
+    sim[:, :, 2] = z_free[:, None]
+    data = sim.copy()
+    data[:, :, 2] = np.maximum(z_free, -0.004)[:, None]     # the recording stops at a floor
+    data[5, 1, :] = np.nan                                   # unseen samples are ignored
+    plane = escape_plane(data, sim, sigma=1e-4)
+    assert plane["normal"] == [0.0, 0.0, 1.0]               # pointing back into the data
+    assert plane["point"][2] == pytest.approx(-0.004)
+    assert plane["excess"] == pytest.approx(0.006, rel=1e-3)
+    # within the data (up to the noise): nothing to offer
+    assert escape_plane(sim, sim + 1e-5, sigma=1e-4) is None
+
+
+def test_every_new_term_starts_at_the_base_model(case):
+    """Each candidate's extension at its zero value simulates the base model: exactly for the
+    velocity terms and the viscoelastic branch, to the penalty's size for the elastic support
+    (1e-3 of a cell's strain), exactly for a plane the body does not reach."""
+    from petsoft.diagnosis.diagnose import _forward, model_scales
+
+    exp = load_experiment(case["user"])
+    rec = read_recording(case["plain"])
+    comm = PETSc.COMM_WORLD
+
+    def simulate(e):
+        names = list(e.calibrate)
+        fm = _forward(e, names, rec, rec.times, comm)
+        try:
+            return fm.simulate(np.array([get_parameter(e, n) for n in names]))
+        finally:
+            fm.destroy()
+
+    base = simulate(exp)
+    scales = model_scales(exp, rec.times, rec.positions)
+    assert scales["mass"] == pytest.approx(1000.0 * 0.3 * 0.04 * 0.04)
+    assert scales["area"] == pytest.approx(2 * 0.04 * 0.04 + 4 * 0.3 * 0.04)
+    far = {"point": [0.0, 0.0, -1.0], "normal": [0.0, 0.0, 1.0], "excess": 0.01}
+    cands, _ = build_candidates(exp, scales=scales, plane=far)
+    by = {c.physics: c for c in cands}
+    motion = float(np.max(np.abs(base - rec.reference[None])))
+    for physics, tol in (("drag.linear", 0.0), ("drag.quadratic", 0.0), ("friction.dry", 0.0),
+                         ("material.viscoelastic", 0.0), ("contact.plane", 0.0),
+                         ("boundary.compliance", 1e-2)):
+        ext = by[physics].extend(exp)
+        diff = float(np.max(np.abs(simulate(ext) - base)))
+        assert diff <= tol * motion + 1e-13, (physics, diff, motion)
+    assert by["contact.plane"].kind == "fit" and by["material.viscoelastic"].kind == "score-fd"
