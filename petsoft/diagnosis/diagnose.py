@@ -451,6 +451,18 @@ def _evidence(diag: _Diagnosis, fit: Fit) -> dict:
     from .evidence import collect_evidence
 
     rec = diag.recording
+    ev = _collect(diag, fit, collect_evidence, rec)
+    if diag.model_error and ev["verdict"] != "consistent" and ev["noise_test"].level_ok:
+        # a discretisation error of the size measured is smooth in time, so the residual
+        # cannot be white: with it in the budget only the chi-square level can be tested
+        ev["verdict"] = "consistent"
+        ev.setdefault("notes", []).append(
+            "verdict from the chi-square level only: the residual includes the measured "
+            "discretisation error, which is not white")
+    return ev
+
+
+def _collect(diag, fit, collect_evidence, rec) -> dict:
     return collect_evidence(diag.data[diag.ident], fit.sim[diag.ident], diag.times[diag.ident],
                             rec.reference, rec.names, sigma=diag.sigma_verdict,
                             num_parameters=len(fit.names), alpha=diag.alpha)
@@ -835,7 +847,8 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
                                                "added first"})
         # the round's final ranking: fitted contenders by chi2, then the rest by score
         ranking = sorted((sc for sc in scores if sc[0].get("fitted_chi2") is not None),
-                         key=lambda sc: sc[0]["fitted_chi2"])
+                         key=lambda sc: (accepted is None or sc[0].get("fit") is not accepted[1],
+                                         sc[0]["fitted_chi2"]))
         ranking += [sc for sc in scores if sc not in ranking]
         for i, (s, _) in enumerate(ranking, 1):
             s["rank"] = i
