@@ -2,7 +2,8 @@
 
 Every case hides one or two physics terms of the vocabulary (formats.md section 3) in a *truth*
 experiment, makes a recording from it with ``petsoft synth`` -- on a 2x refined mesh, with another
-integrator (the midpoint rule) and a smaller step, position noise, 8 random surface markers and 10 % dropped samples -- and runs
+integrator (the midpoint rule) and a smaller step, position noise, 8 random surface markers and
+10 % dropped samples -- and runs
 ``petsoft diagnose`` from the *user's* model: the truth without the hidden terms, Young's modulus
 started 10 % off, calibrating E only (plus what the case says). No petsoft command reads the
 truth (``truth.json`` beside the recording is the benchmark's only).
