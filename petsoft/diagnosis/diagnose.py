@@ -44,6 +44,9 @@ from ..experiment import experiment_from_dict, get_parameter, with_parameters
 #: Candidates whose log10 p is within this factor of the best one's are fitted and compared by
 #: their fitted chi2 (module docstring, step 4).
 TIE = 0.9
+#: The numerics check refines a box mesh only while the refined mesh has at most this many
+#: tetrahedra (6 per box cell).
+MESH_CELLS = 4000
 #: Fitted chi2 values within this of the best are statistically tied (see _run_diagnose).
 TIE_CHI2 = 2.0
 
@@ -544,7 +547,7 @@ def _refined(experiment, what: str):
     return _with_time(experiment, cells_factor=2)
 
 
-def resolve_numerics(diag: _Diagnosis, fit: Fit, ev: dict, max_rounds: int = 2,
+def resolve_numerics(diag: _Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
                      mesh_done: bool = False):
     """Rule out numerics before blaming physics (issue 6, step 5).
 
@@ -553,8 +556,9 @@ def resolve_numerics(diag: _Diagnosis, fit: Fit, ev: dict, max_rounds: int = 2,
     fit lowers chi2 by more than 10 % of the residual's excess over the noise (chi2 - dof) and by
     more than 10: part of the mismatch is then discretisation error (backward Euler's artificial
     damping looks exactly like physical damping), so the refined model replaces the base model
-    and the check is repeated, at most ``max_rounds`` times (the mesh is refined at most once
-    per diagnosis: ``mesh_done``). Returns the (possibly refined) fit, its evidence and a list
+    and the check is repeated, at most ``max_rounds`` times (a box mesh is refined while the
+    refined mesh has at most :data:`MESH_CELLS` tetrahedra; ``mesh_done`` stops it). Returns
+    the (possibly refined) fit, its evidence and a list
     of what each round measured.
     """
     from ..groups import map_on_groups
@@ -563,7 +567,8 @@ def resolve_numerics(diag: _Diagnosis, fit: Fit, ev: dict, max_rounds: int = 2,
     for _ in range(max_rounds):
         exp = fit.experiment
         options = ["step/2"]
-        if exp.mesh is not None and getattr(exp.mesh, "box", None) is not None and not mesh_done:
+        box = getattr(exp.mesh, "box", None) if exp.mesh is not None else None
+        if box is not None and not mesh_done and 8 * 6 * int(np.prod(box.cells)) <= MESH_CELLS:
             options.append("mesh x2")
         fits = map_on_groups(
             lambda what, sub, exp=exp: diag.calibrate(_refined(exp, what), comm=sub),
@@ -585,12 +590,13 @@ def resolve_numerics(diag: _Diagnosis, fit: Fit, ev: dict, max_rounds: int = 2,
             change = float(np.sqrt(np.mean((res.value.sim[diag.ident][seen]
                                             - fit.sim[diag.ident][seen]) ** 2)))
             k = 2.0 ** order[what]
-            # Richardson: the refined model's error ~ change / (2^p - 1), the current one's
-            # ~ change 2^p / (2^p - 1); counted only when refining brings the simulation
-            # closer to the data (else the data do not see that error)
-            if gain > 0.0:
-                diag.model_error[what] = (change / (k - 1.0) if matters
-                                          else change * k / (k - 1.0))
+            # Richardson: the current model's error ~ change 2^p / (2^p - 1). It is counted
+            # only when refining brings the simulation closer to the data (else the data do
+            # not see that error) and the refinement is not adopted (an adopted model's own
+            # error is unknown until the next round measures it: a coarse mesh's change is far
+            # from the asymptotic regime and would overstate it)
+            if gain > 0.0 and not matters:
+                diag.model_error[what] = change * k / (k - 1.0)
             else:
                 diag.model_error.pop(what, None)
             entry["options"][what] = {"chi2": res.value.chi2, "gain": gain, "matters": matters,
@@ -604,7 +610,6 @@ def resolve_numerics(diag: _Diagnosis, fit: Fit, ev: dict, max_rounds: int = 2,
         if best is None:
             break
         entry["adopted"] = best[0]
-        mesh_done = mesh_done or best[0] == "mesh x2"
         fit = best[2]
         ev = _evidence(diag, fit)
         diag.tell(f"numerics: adopted {best[0]} (step {fit.experiment.time.step:.4g} s); verdict "
@@ -706,8 +711,7 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
             return fit, ev
         if checked_excess is not None and excess(fit) > 0.1 * checked_excess:
             return fit, ev
-        fit, ev, rounds = resolve_numerics(diag, fit, ev, mesh_done=any(
-            r.get("adopted") == "mesh x2" for r in refinements))
+        fit, ev, rounds = resolve_numerics(diag, fit, ev)
         for r in rounds:
             r["after_additions"] = len(added)
         refinements += rounds
