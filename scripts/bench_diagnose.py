@@ -9,7 +9,7 @@ started 10 % off, calibrating E only (plus what the case says). No petsoft comma
 truth (``truth.json`` beside the recording is the benchmark's only).
 
 The body is a cantilever bar, 0.3 x 0.04 x 0.04 m (user mesh 12 x 2 x 2 box cells, generalized-
-alpha with r = 0.9 and h = 4 ms over 0.3 s), set swinging by an initial velocity. Twelve single-
+alpha with r = 0.9 and h = 2 ms over 0.3 s), set swinging by an initial velocity. Twelve single-
 effect cases (one per vocabulary term), two combined ones and two controls (nothing missing: a
 linear and a corotated body).
 
@@ -54,7 +54,7 @@ BASE = {
     # wrong by more than the noise, are barely excited
     "initial": {"velocity": ["0", "0", "6*x*x"]},
     "boundary": [{"kind": "fixed", "where": "x < 1e-9"}],
-    "time": {"end": 0.3, "step": 0.004, "integrator": "alpha", "alpha_radius": 0.9},
+    "time": {"end": 0.3, "step": 0.002, "integrator": "alpha", "alpha_radius": 0.9},
     "output": {"directory": "out"},
 }
 STIFF = {"center": [0.05, 0.02, 0.02], "radius": 0.05}
