@@ -6,8 +6,8 @@
 2. **Recording.** ``petsoft synth`` simulates the truth with another integrator (the midpoint
    rule) at half the user's step, observes 8 random surface markers, adds 0.05 mm noise and
    drops 10 % of the samples (``recording.h5``; the truth in ``truth.json`` beside it, which the
-   diagnosis never reads). The truth keeps the user's mesh so that the demo runs in a few
-   minutes: a 36-tet bar is far from mesh convergence, and with a refined truth the numerics
+   diagnosis never reads). The truth keeps the user's mesh so that the demo runs in minutes,
+   not hours: a 36-tet bar is far from mesh convergence, and with a refined truth the numerics
    check (rightly) refines the model first, which costs more than a demo should.
    ``scripts/bench_diagnose.py`` makes its recordings on refined meshes.
 3. **Diagnosis.** ``petsoft diagnose`` starts from the user's model: the truth without the effect,
