@@ -41,9 +41,6 @@ from scipy import stats
 from ..errors import ExperimentError, PetsoftError
 from ..experiment import experiment_from_dict, get_parameter, with_parameters
 
-#: Candidates whose log10 p is within this factor of the best one's are fitted and compared by
-#: their fitted chi2 (module docstring, step 4).
-TIE = 0.9
 #: The numerics check refines a box mesh only while the refined mesh has at most this many
 #: tetrahedra (6 per box cell).
 MESH_CELLS = 4000
@@ -773,21 +770,23 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
                 s["fit"] = f.value if f.ok else None
                 s["fit_error"] = f.error
 
-        # Contenders: candidates whose score is statistically close to the best one's (within
-        # TIE of its log p). On a short record every dissipation law (viscous, drag, dry
-        # friction, a viscoelastic branch) makes nearly the same first-order change, so the
-        # score alone cannot separate them: each contender is fitted (concurrently on groups
-        # of ranks) and the best fit among those that pass both tests is added.
-        best_lp = significant[0][0]["log10_p"] if significant else 0.0
-        contenders = [sc for sc in significant if sc[0]["log10_p"] <= TIE * best_lp]
-        rest = [sc for sc in significant if sc not in contenders]
+        # The max_tries best-scoring significant candidates are all fitted (concurrently on
+        # groups of ranks) and the best fit among those that pass both tests is added: on a
+        # short record every dissipation law (viscous, drag, dry friction, a viscoelastic
+        # branch) makes nearly the same first-order change, and a score's p-value favours
+        # terms of several parameters (gravity's 3 components out-scored a hidden added mass
+        # on a cantilever), so the score alone decides neither.
+        contenders = list(significant)
         fit_all(contenders)
         passed = []
         for s, c in contenders:
             verdict = _judge(diag, current, s, c)
             s["fitted_chi2"] = s["fit"].chi2 if s.get("fit") is not None else None
             if verdict["added"]:
-                passed.append((s["fit"].chi2, s["fit"].heldout_rms or 0.0, s, c, verdict))
+                # Akaike's criterion: chi2 + 2 x (new parameters), so that a term does not
+                # win by its number of parameters alone
+                aic = s["fit"].chi2 + 2.0 * max(len(c.parameters), 1)
+                passed.append((aic, s["fit"].heldout_rms or 0.0, s, c, verdict))
             else:
                 rejected.append({"physics": c.physics, "score": s["score"],
                                  "reason": verdict["reason"]})
@@ -809,47 +808,21 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
             if len(tied) > 1:
                 v_best["entry"]["evidence"] += (
                     "; ambiguous: " + ", ".join(t[3].physics for t in tied if t is not first)
-                    + f" fitted as well (chi2 within {TIE_CHI2:g}); chosen by "
+                    + f" fitted as well (chi2 + 2k within {TIE_CHI2:g}); chosen by "
                     + ("the held-out prediction" if len(close) == 1 else
                        "the vocabulary's order (the held-out predictions are within 2 %)"))
             accepted = (v_best["entry"], s_best["fit"])
             for chi2, _, s, c, _ in passed[1:]:
                 rejected.append({"physics": c.physics, "score": s["score"],
                                  "reason": f"fitted too, {c_best.physics} was preferred "
-                                           f"(chi2 {chi2_best:.6g} vs {chi2:.6g})"})
+                                           f"(chi2 + 2k {chi2_best:.6g} vs {chi2:.6g})"})
             if len(passed) > 1:
                 accepted[0]["evidence"] += (
-                    "; among the close-scoring candidates it fitted best ("
-                    + ", ".join(f"{c.physics} chi2 {chi2:.6g}" for chi2, _, _, c, _ in passed)
+                    "; among the best-scoring candidates it fitted best ("
+                    + ", ".join(f"{c.physics} chi2 + 2k {chi2:.6g}" for chi2, _, _, c, _ in passed)
                     + ")")
-        # otherwise the remaining significant ones in batches of one per group of ranks; the
-        # first (in ranking order) that passes both tests is added, so the outcome does not
-        # depend on the number of ranks
-        batch = max(1, min(diag.comm.tompi4py().size, len(rest)))
-        for start in range(0, len(rest) if accepted is None else 0, batch):
-            chunk = rest[start:start + batch]
-            fit_all(chunk)
-            for s, c in chunk:
-                if accepted is not None:
-                    rejected.append({"physics": c.physics, "score": s["score"],
-                                     "reason": "not added: a better-ranked candidate was added "
-                                               "first"})
-                    continue
-                verdict = _judge(diag, current, s, c)
-                if verdict["added"]:
-                    accepted = (verdict["entry"], s["fit"])
-                else:
-                    rejected.append({"physics": c.physics, "score": s["score"],
-                                     "reason": verdict["reason"]})
-            if accepted is not None:
-                break
-        if accepted is None:
-            for s, c in rest:
-                if "fit" not in s:
-                    rejected.append({"physics": c.physics, "score": s["score"],
-                                     "reason": "not added: a better-ranked candidate was "
-                                               "added first"})
-        # the round's final ranking: fitted contenders by chi2, then the rest by score
+        # the round's final ranking: the added term, the other fitted ones by chi2, then the
+        # rest by score
         ranking = sorted((sc for sc in scores if sc[0].get("fitted_chi2") is not None),
                          key=lambda sc: (accepted is None or sc[0].get("fit") is not accepted[1],
                                          sc[0]["fitted_chi2"]))
