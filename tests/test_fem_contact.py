@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _residuals import semi_discrete_residual as _residual
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -294,17 +295,6 @@ def test_contact_energy_gradient_hessian_taylor(sphere):
     K0.axpy(-1.0, lin)
     assert K0.norm() <= 1e-12 * lin.norm()
 
-
-def _residual(s, values, q, v, a):
-    s.set_parameters(values)
-    out, w = s.create_vec(), s.create_vec()
-    s.internal_gradient(q, out)
-    s.M.mult(a, w)
-    out.axpy(1.0, w)
-    out.axpy(1.0, s.damping_apply(v, w))
-    out.axpy(-1.0, s.gravity)
-    s.zero_prescribed(out)
-    return out
 
 
 def test_offset_derivative_taylor():

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _residuals import semi_discrete_residual as _residual
 from petsc4py import PETSc
 
 from petsoft.calibration.forward import ForwardModel
@@ -123,17 +124,6 @@ def _state(s, seed=1):
         vecs.append(x)
     return vecs
 
-
-def _residual(s, values, q, v, a):
-    s.set_parameters(values)
-    out, w = s.create_vec(), s.create_vec()
-    s.internal_gradient(q, out)
-    s.M.mult(a, w)
-    out.axpy(1.0, w)
-    out.axpy(1.0, s.damping_apply(v, w))
-    out.axpy(-1.0, s.gravity)
-    s.zero_prescribed(out)
-    return out
 
 
 def test_residual_parameter_derivatives_taylor_and_central_differences():

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _residuals import semi_discrete_residual as _residual
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -192,17 +193,6 @@ def test_support_is_in_k0_and_k():
     assert abs(diff.norm() - d.norm()) <= 1e-9 * d.norm()      # diagonal only
     assert d.min()[1] >= 0.0
 
-
-def _residual(s, values, q, v, a):
-    s.set_parameters(values)
-    out, w = s.create_vec(), s.create_vec()
-    s.internal_gradient(q, out)
-    s.M.mult(a, w)
-    out.axpy(1.0, w)
-    out.axpy(1.0, s.damping_apply(v, w))
-    out.axpy(-1.0, s.gravity)
-    s.zero_prescribed(out)
-    return out
 
 
 def test_compliance_derivative_taylor():
