@@ -82,7 +82,7 @@ from ..dynamics.system import DynamicSystem
 from ..errors import ExperimentError, SolverError
 from ..linear import linear_defaults
 from ..model import build_model
-from ..options import scoped_defaults
+from ..options import scoped_defaults, user_has
 from .observation import time_interpolation
 
 INTEGRATORS = ("be", "si", "alpha")
@@ -349,7 +349,7 @@ class ForwardModel:
         obs = {}
         self._observe(0, a if self.accel else q, obs)
         q1, v1 = q.duplicate(), v.duplicate()
-        with scoped_defaults(**self._forward_defaults):
+        with scoped_defaults(**self._solver_defaults(PREFIX, self._forward_defaults)):
             for n in range(self.nsteps):
                 t0 = n * h
                 report = self.integrator.step(t0, q, v, h, q1, v1)
@@ -423,10 +423,12 @@ class ForwardModel:
         return out
 
     def _small_problem_defaults(self, opts: dict) -> None:
-        """A direct solve (LU; MUMPS on several ranks) of the sensitivity/adjoint systems of small
-        models unless the experiment chose a linear solver: a calibration makes thousands of
-        runs, and on a few thousand dofs an algebraic-multigrid set-up per solve costs more than
-        the factorisation. The command line still overrides it."""
+        """A direct solve (LU; MUMPS on several ranks) of the forward Newton and the
+        sensitivity/adjoint systems of small models unless the experiment chose a linear solver:
+        a calibration makes thousands of runs, and on a few thousand dofs an algebraic-multigrid
+        set-up per solve costs more than the factorisation (an alpha run on 1875 dofs: 80 ms a
+        step with CG + GAMG). The command line still overrides it (:meth:`_solver_defaults`)."""
+        self._direct = None
         if any(k.startswith(("ksp_", "pc_")) for k in opts):
             return
         probe = self.system.create_vec()
@@ -434,20 +436,22 @@ class ForwardModel:
         probe.destroy()
         if size > SMALL_DOFS:
             return
-        direct = {"ksp_type": "preonly", "pc_type": "lu"}
-        if self.comm.getSize() > 1:
-            direct["pc_factor_mat_solver_type"] = "mumps"
-        db = PETSc.Options()
-        # Only the sensitivity/adjoint solves: the forward Newton keeps CG + GAMG, with which
-        # Newton converged on a contact problem where it diverged with an exact LU solve
-        # (tests/test_fem_contact.py, not understood yet; see the issue note).
-        for prefix, attr in ((GRAD_PREFIX, "_grad_defaults"),):
-            # a solver half-chosen on the command line (e.g. only -fm_pc_type) keeps the rest
-            # of petsoft's iterative default, not a direct solver's "preonly"
-            if db.hasName(prefix + "ksp_type") or db.hasName(prefix + "pc_type"):
-                continue
-            setattr(self, attr, {**{prefix + k: v for k, v in direct.items()},
-                                 **getattr(self, attr)})
+        has_mumps = PETSc.Sys.hasExternalPackage("mumps")
+        if self.comm.getSize() > 1 and not has_mumps:
+            return
+        self._direct = {"ksp_type": "preonly", "pc_type": "lu"}
+        # MUMPS also serially: on a 1875-dof bar it factors 2.5x faster than PETSc's own LU
+        # with its default nested-dissection ordering (scripts/bench_forward_solvers.py)
+        self._direct["pc_factor_mat_solver_type"] = "mumps" if has_mumps else "petsc"
+
+    def _solver_defaults(self, prefix: str, defaults: dict) -> dict:
+        """``defaults`` plus the direct solve of a small model, decided when the solver is set up:
+        a solver half-chosen on the command line (e.g. only ``-fm_pc_type jacobi``) keeps the
+        rest of petsoft's iterative default, not a direct solver's "preonly" (which would apply
+        one Jacobi sweep per Newton step)."""
+        if self._direct is None or user_has(prefix + "ksp_type") or user_has(prefix + "pc_type"):
+            return defaults
+        return {**{prefix + k: v for k, v in self._direct.items()}, **defaults}
 
     @_collects_garbage
     def simulate(self, p) -> np.ndarray:
@@ -467,7 +471,7 @@ class ForwardModel:
         ksp = PETSc.KSP().create(comm=self.comm)
         ksp.setOptionsPrefix(GRAD_PREFIX)
         (getattr(self.system, "linear_defaults", None) or linear_defaults)(ksp)
-        with scoped_defaults(**self._grad_defaults):
+        with scoped_defaults(**self._solver_defaults(GRAD_PREFIX, self._grad_defaults)):
             ksp.setFromOptions()
         ksp.setOperators(self.J)
         return ksp
