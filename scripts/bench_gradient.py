@@ -82,6 +82,8 @@ ARGS, _petsc_args = _parser.parse_known_args()
 
 import petsc4py  # noqa: E402
 
+import petsoft  # noqa: E402, F401  before petsc4py.init: one BLAS thread (petsoft/__init__.py)
+
 petsc4py.init([sys.argv[0]] + _petsc_args)
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import time  # noqa: E402

@@ -156,6 +156,8 @@ def main(argv=None) -> int:
     args, petsc_args = p.parse_known_args(argv)
     import petsc4py
 
+    import petsoft  # noqa: F401  before petsc4py.init: one BLAS thread (petsoft/__init__.py)
+
     petsc4py.init([sys.argv[0], *petsc_args])
     from mpi4py import MPI
     from petsc4py import PETSc

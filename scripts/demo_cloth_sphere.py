@@ -53,6 +53,8 @@ from pathlib import Path
 
 import petsc4py
 
+import petsoft  # noqa: F401  before petsc4py.init: one BLAS thread (petsoft/__init__.py)
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 

@@ -41,6 +41,8 @@ import numpy as np
 import petsc4py
 from mpi4py import MPI
 
+import petsoft  # noqa: F401  before petsc4py.init: one BLAS thread (petsoft/__init__.py)
+
 METHODS = ("gd", "newton", "lbfgs", "gauss-newton", "brgn", "nelder-mead")
 
 

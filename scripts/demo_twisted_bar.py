@@ -34,6 +34,8 @@ import time
 
 import petsc4py
 
+import petsoft  # noqa: F401  before petsc4py.init: one BLAS thread (petsoft/__init__.py)
+
 
 def experiment(cells, step, end, integrator, out, beta=0.0):
     from petsoft.experiment import experiment_from_dict

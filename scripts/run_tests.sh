@@ -8,6 +8,9 @@ cd "$ROOT"
 PY="$ROOT/.venv/bin/python"
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
 export MPLBACKEND=Agg
+# one BLAS thread per process (petsoft/__init__.py sets the same default; a test module may
+# load PETSc before importing petsoft)
+export OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}"
 echo "== serial =="
 "$PY" -m pytest -q --color=no -p no:cacheprovider "$@" tests
 echo "== 2 MPI ranks =="
