@@ -49,3 +49,16 @@ def test_bench_gradient_quick():
     assert [(r[0], int(r[1])) for r in rows] == [
         (m, P) for m in ("be", "si", "alpha") for P in (2, 10, 100)], proc.stdout
     assert all(float(r[-1]) < 1e-7 for r in rows), proc.stdout
+
+
+@pytest.mark.serial_only
+def test_bench_linear_solvers_quick():
+    """``bench_linear_solvers.py --quick`` exits 0 and prints one row with a time per solver, every
+    solver's trajectory matching the default's (the script says when one differs)."""
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "bench_linear_solvers.py"), "--quick"],
+        cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "cg-gamg" in proc.stdout and "differs" not in proc.stdout, proc.stdout
+    rows = [line.split() for line in proc.stdout.splitlines() if line.split()[:1] == ["144"]]
+    assert len(rows) == 1 and rows[0][-1] == "(1.00x)", proc.stdout

@@ -82,7 +82,7 @@ from ..dynamics.system import DynamicSystem
 from ..errors import ExperimentError, SolverError
 from ..linear import linear_defaults
 from ..model import build_model
-from ..options import scoped_defaults, user_has
+from ..options import scoped_defaults
 from .observation import time_interpolation
 
 INTEGRATORS = ("be", "si", "alpha")
@@ -90,9 +90,6 @@ PREFIX = "fm_"
 GRAD_PREFIX = "fm_grad_"
 #: Newton of the forward run: gradients are only as accurate as the solves (user options win).
 FORWARD_OPTIONS = {PREFIX + "snes_rtol": "1e-12"}
-#: Systems up to this many dofs are solved directly by default (:meth:`ForwardModel.
-#: _small_problem_defaults`).
-SMALL_DOFS = 6000
 #: Relative size of the SI third-derivative difference: eps |w|_inf = this x mean cell size.
 SI_EPS = 1e-4
 _GROUP = re.compile(r"#(\d+)$")
@@ -191,7 +188,6 @@ class ForwardModel:
             system = DynamicSystem(self.model, exp.damping.mass, exp.damping.stiffness)
         self.system = s = system
         self.comm = s.comm
-        self._small_problem_defaults(opts)
         self.names = list(names)
         groups = [int(m.group(1)) for n in self.names if (m := _GROUP.search(n))]
         if groups:
@@ -349,7 +345,7 @@ class ForwardModel:
         obs = {}
         self._observe(0, a if self.accel else q, obs)
         q1, v1 = q.duplicate(), v.duplicate()
-        with scoped_defaults(**self._solver_defaults(PREFIX, self._forward_defaults)):
+        with scoped_defaults(**self._forward_defaults):
             for n in range(self.nsteps):
                 t0 = n * h
                 report = self.integrator.step(t0, q, v, h, q1, v1)
@@ -422,37 +418,6 @@ class ForwardModel:
                 out[k] += w * obs[n]
         return out
 
-    def _small_problem_defaults(self, opts: dict) -> None:
-        """A direct solve (LU; MUMPS on several ranks) of the forward Newton and the
-        sensitivity/adjoint systems of small models unless the experiment chose a linear solver:
-        a calibration makes thousands of runs, and on a few thousand dofs an algebraic-multigrid
-        set-up per solve costs more than the factorisation (an alpha run on 1875 dofs: 80 ms a
-        step with CG + GAMG). The command line still overrides it (:meth:`_solver_defaults`)."""
-        self._direct = None
-        if any(k.startswith(("ksp_", "pc_")) for k in opts):
-            return
-        probe = self.system.create_vec()
-        size = probe.getSize()
-        probe.destroy()
-        if size > SMALL_DOFS:
-            return
-        has_mumps = PETSc.Sys.hasExternalPackage("mumps")
-        if self.comm.getSize() > 1 and not has_mumps:
-            return
-        self._direct = {"ksp_type": "preonly", "pc_type": "lu"}
-        # MUMPS also serially: on a 1875-dof bar it factors 2.5x faster than PETSc's own LU
-        # with its default nested-dissection ordering (scripts/bench_forward_solvers.py)
-        self._direct["pc_factor_mat_solver_type"] = "mumps" if has_mumps else "petsc"
-
-    def _solver_defaults(self, prefix: str, defaults: dict) -> dict:
-        """``defaults`` plus the direct solve of a small model, decided when the solver is set up:
-        a solver half-chosen on the command line (e.g. only ``-fm_pc_type jacobi``) keeps the
-        rest of petsoft's iterative default, not a direct solver's "preonly" (which would apply
-        one Jacobi sweep per Newton step)."""
-        if self._direct is None or user_has(prefix + "ksp_type") or user_has(prefix + "pc_type"):
-            return defaults
-        return {**{prefix + k: v for k, v in self._direct.items()}, **defaults}
-
     @_collects_garbage
     def simulate(self, p) -> np.ndarray:
         """Marker positions (K, M, 3) at the frame times (identical on every rank)."""
@@ -470,8 +435,9 @@ class ForwardModel:
     def _solver(self):
         ksp = PETSc.KSP().create(comm=self.comm)
         ksp.setOptionsPrefix(GRAD_PREFIX)
-        (getattr(self.system, "linear_defaults", None) or linear_defaults)(ksp)
-        with scoped_defaults(**self._solver_defaults(GRAD_PREFIX, self._grad_defaults)):
+        # inside the scope: the experiment's [petsc] choice of solver replaces the default whole
+        with scoped_defaults(**self._grad_defaults):
+            (getattr(self.system, "linear_defaults", None) or linear_defaults)(ksp)
             ksp.setFromOptions()
         ksp.setOperators(self.J)
         return ksp

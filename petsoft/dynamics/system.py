@@ -33,6 +33,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from ..assembly import MatrixAssembler
+from ..linear import linear_defaults
 from ..physics.drag import face_pairs
 from ..physics.loads import consistent_mass_matrices, gravity_forces, lumped_masses, traction_forces
 from .velocity import VelocityTerms
@@ -246,6 +247,15 @@ class DynamicSystem:
 
     def near_nullspace(self):
         return self.dmesh.rigid_body_modes()
+
+    def linear_defaults(self, ksp: PETSc.KSP) -> None:
+        """petsoft's default linear solver for this system's size (:func:`petsoft.linear.
+        linear_defaults`: direct when small, else CG + GAMG)."""
+        if getattr(self, "_global_size", None) is None:
+            probe = self.create_vec()
+            self._global_size = probe.getSize()
+            probe.destroy()
+        linear_defaults(ksp, dofs=self._global_size)
 
     def apply_prescribed(self, vec: PETSc.Vec, t: float) -> None:
         """Set the prescribed entries of ``vec`` to the supports' displacement at t."""
