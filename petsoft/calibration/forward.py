@@ -335,6 +335,7 @@ class ForwardModel:
         if branch is not None:
             branch.reset(q)     # every run starts with the branch relaxed
         a = None
+        self.integrator.new_run()
         if self.has_a:
             a = s.create_vec()
             if self.method == "alpha":
@@ -475,7 +476,7 @@ class ForwardModel:
             data["v"] = v1.copy()
             self._velocity_state(data["v"])
             s.assemble_combination(q1, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h + c, self.J,
-                                   velocity=1.0 / h)
+                                   velocity=1.0 / h, reuse=True)
             deriv = self._derivatives(q1, v1, acc, k0x=k0x)
             acc.destroy()
             if k0x is not None:
@@ -495,7 +496,7 @@ class ForwardModel:
             data["v"], data["w"] = u, w
             self._velocity_state(u)
             s.assemble_combination(qp, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h, self.J,
-                                   velocity=1.0 / h)
+                                   velocity=1.0 / h, reuse=True)
             deriv = self._derivatives(qp, v1, acc, w, v_lin=u)
             data["T"] = self._third(qp, w)
             for x in (acc, qp):
@@ -514,7 +515,7 @@ class ForwardModel:
             data["v"] = vf
             self._velocity_state(vf)
             s.assemble_combination(qf, data["aJ"] + s.alpha * c, af, s.beta * c, self.J,
-                                   velocity=c)
+                                   velocity=c, reuse=True)
             deriv = self._derivatives(qf, vf, amv)
             for x in (qf, amv):
                 x.destroy()

@@ -33,7 +33,7 @@ from petsc4py import PETSc
 from ..errors import InvertedElementError
 from ..linear import linear_defaults
 from ..options import scoped_defaults
-from .implicit import SNES_REASONS, StepReport, _branch_of, _NoBranch
+from .implicit import SNES_REASONS, StepReport, _branch_of, _NoBranch, keeps_solver
 
 TS_REASONS = {v: k for k, v in PETSc.TS.ConvergedReason.__dict__.items() if k.isupper()}
 
@@ -220,6 +220,11 @@ class GeneralizedAlpha:
         self.prefix = prefix
         self.snes = None
         self._new_solver()
+        self.new_run()
+
+    def new_run(self) -> None:
+        """The next step sets up a new solver (a caller's options may have changed)."""
+        self._solver_used = False
 
     def _new_solver(self) -> None:
         """A fresh SNES (with KSP and PC): see :meth:`step` for why one per step."""
@@ -307,7 +312,8 @@ class GeneralizedAlpha:
         c = self.af * self.gamma / (self.beta * h)
         # the damping term is evaluated at v_f: dv_f/dq1 = c (velocity terms at the last v_f)
         s.assemble_combination(self.qf, self.am / (self.beta * h * h) + s.alpha * c, self.af,
-                               s.beta * c + self._branch.jacobian_coefficient(), P, velocity=c)
+                               s.beta * c + self._branch.jacobian_coefficient(), P, velocity=c,
+                               reuse=True)
 
     def _forget(self) -> None:
         if self._last is not None:
@@ -373,7 +379,9 @@ class GeneralizedAlpha:
         # A fresh solver each step: algebraic multigrid keeps state between set-ups (its random
         # generator survives KSPReset), and a run restarted from a checkpoint must compute
         # bit for bit what the uninterrupted run did. Creating a SNES costs microseconds.
-        self._new_solver()
+        # Except with a constant Jacobian (keeps_solver).
+        if not keeps_solver(self):
+            self._new_solver()
         self.snes.solve(None, q1)
         report = StepReport()
         reason = self.snes.getConvergedReason()
@@ -385,6 +393,7 @@ class GeneralizedAlpha:
             report.reason += f" ({self._bad})"
         if not report.converged:
             self._forget()
+            self.new_run()
             traction_f.destroy()
             return report
         s.apply_prescribed(q1, t0 + h)

@@ -82,6 +82,22 @@ def _branch_of(system):
     return branch if branch is not None and branch.stepping else _NoBranch()
 
 
+def keeps_solver(integrator) -> bool:
+    """Whether a step keeps the previous step's SNES (and its factorised Jacobian).
+
+    True within a run (since :meth:`new_run`) of a SNES-based integrator whose system has a
+    constant Jacobian: ``assemble_combination(..., reuse=True)`` then leaves the matrix untouched
+    and PETSc keeps its factorisation (or multigrid set-up). A new SNES per step refactored the
+    same matrix every step: 70 % of a linear bar's forward run was MUMPS factoring (-log_view).
+    A run restarted from a checkpoint still computes bit for bit what the uninterrupted run did:
+    it sets the solver up once, on the same matrix, as that run did at its first step.
+    """
+    if not integrator._solver_used or getattr(integrator, "snes", None) is None:
+        integrator._solver_used = True
+        return False
+    return bool(getattr(integrator.system, "jacobian_is_constant", False))
+
+
 class ImplicitIntegrator:
     """Backward Euler, semi-implicit, (discrete-gradient) midpoint or trapezoidal steps.
 
@@ -116,6 +132,11 @@ class ImplicitIntegrator:
         self.prefix = prefix
         self.snes = self.tao = None
         self._new_solver()
+        self.new_run()
+
+    def new_run(self) -> None:
+        """The next step sets up a new solver (a caller's options may have changed)."""
+        self._solver_used = False
 
     def _new_solver(self) -> None:
         """A fresh SNES or TAO (with KSP and PC): see :meth:`step` for why one per step."""
@@ -252,7 +273,7 @@ class ImplicitIntegrator:
             state = q1
         # the damping term is evaluated at v1 (be, si) or vm = (q1 - q0)/h: dv/dq1 = 1/h either
         # way; the velocity terms are linearised at the velocity of the last residual
-        self.system.assemble_combination(state, a, b, c, P, velocity=1.0 / self.h)
+        self.system.assemble_combination(state, a, b, c, P, velocity=1.0 / self.h, reuse=True)
 
     # PETSc callbacks (thin)
     def _residual_cb(self, snes, x, F):
@@ -332,7 +353,9 @@ class ImplicitIntegrator:
         # A fresh solver each step: algebraic multigrid keeps state between set-ups (its random
         # generator survives KSPReset), and a run restarted from a checkpoint must compute
         # bit for bit what the uninterrupted run did. Creating a SNES costs microseconds.
-        self._new_solver()
+        # Except with a constant Jacobian (keeps_solver).
+        if not keeps_solver(self):
+            self._new_solver()
         if self.solver == "snes":
             self.snes.solve(None, q1)
             reason = self.snes.getConvergedReason()
@@ -352,6 +375,7 @@ class ImplicitIntegrator:
             report.converged = False
             report.reason += f" ({self._bad})"
         if not report.converged:
+            self.new_run()
             return report
         s.apply_prescribed(q1, t0 + h)
         self._velocity(q1, v1)

@@ -625,10 +625,12 @@ class MassSpringSystem:
 
     def assemble_combination(self, q: PETSc.Vec | None, a_mass: float, b_tangent: float,
                              c_reference: float, out: PETSc.Mat,
-                             eliminate: bool = True, velocity: float = 0.0) -> PETSc.Mat:
+                             eliminate: bool = True, velocity: float = 0.0,
+                             reuse: bool = False) -> PETSc.Mat:
         """out = a M + b K(q) + c K0 + velocity dG/dv (drag and friction, at the velocity last
         passed to :meth:`damping_apply` or :meth:`set_velocity_state`); with ``eliminate``
-        prescribed rows/columns -> identity."""
+        prescribed rows/columns -> identity. ``reuse`` is accepted and ignored: springs are
+        nonlinear (see :meth:`petsoft.dynamics.system.DynamicSystem.assemble_combination`)."""
         values = np.zeros(self.nnz)
         if b_tangent != 0.0:
             values += b_tangent * self._tangent_values(self.positions(q))

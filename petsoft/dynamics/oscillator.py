@@ -68,7 +68,7 @@ class OscillatorSystem:
         ksp.setTolerances(rtol=1e-14, atol=1e-50)
 
     def assemble_combination(self, q, a_mass, b_tangent, c_reference, out, eliminate=True,
-                             velocity=0.0):
+                             velocity=0.0, reuse=False):
         # no velocity-dependent forces: ``velocity`` is unused
         return self._diagonal(a_mass + (b_tangent + c_reference) * self.omega2, out)
 

@@ -321,7 +321,7 @@ class PendulumSystem:
         ksp.getPC().setType(PETSc.PC.Type.LU if serial else PETSc.PC.Type.REDUNDANT)
 
     def assemble_combination(self, q, a_mass, b_tangent, c_reference, out, eliminate=True,
-                             velocity=0.0):
+                             velocity=0.0, reuse=False):
         """out = a I + b Hess W(q) + c K0 (no velocity-dependent forces: ``velocity`` unused)."""
         x = self.values(q) if b_tangent != 0.0 else None
         dense = a_mass * np.eye(2) + c_reference * self._k0

@@ -40,6 +40,8 @@ from .velocity import VelocityTerms
 
 #: The assembler's element set of single nodes: the velocity terms' 3x3 diagonal blocks.
 NODE_SET = "__nodes__"
+#: Attribute of a matrix filled by a reusable :meth:`DynamicSystem.assemble_combination`: its key.
+_COMBINATION = "petsoft_combination"
 
 
 class DynamicSystem:
@@ -56,6 +58,7 @@ class DynamicSystem:
 
     def __init__(self, model, damping_mass: float = 0.0, damping_stiffness: float = 0.0):
         self.model = model
+        self._parameter_version = 0     # set_parameters counts: a reused Jacobian's key
         dm = self.dmesh = model.dmesh
         self.comm = dm.comm
         self.elastic = model.elastic
@@ -152,16 +155,39 @@ class DynamicSystem:
         """A new matrix with the system's pattern (for Jacobians)."""
         return self.assembler.create_matrix()
 
+    @property
+    def jacobian_is_constant(self) -> bool:
+        """Whether :meth:`assemble_combination` depends on its coefficients only: a linear
+        material, no contact, no quadratic drag or dry friction (same on every rank)."""
+        if getattr(self, "_linear_material", None) is None:
+            nonlinear = sum(g.model != "linear" for g in self.elastic.groups)
+            self._linear_material = self.dmesh.allreduce_sum(nonlinear) == 0
+        return (self._linear_material and getattr(self.elastic, "contact", None) is None
+                and not self.velocity_terms.nonlinear)
+
     def assemble_combination(self, q: PETSc.Vec | None, a_mass: float, b_tangent: float,
                              c_reference: float, out: PETSc.Mat,
-                             eliminate: bool = True, velocity: float = 0.0) -> PETSc.Mat:
+                             eliminate: bool = True, velocity: float = 0.0,
+                             reuse: bool = False) -> PETSc.Mat:
         """out = a M + b K(q) + c K0 + velocity dG/dv (the caller folds the Rayleigh
         coefficients into a and c; ``velocity`` is dv/dq of its scheme, and dG/dv, the drag and
         friction's velocity Jacobian, is taken at the velocity last passed to
         :meth:`damping_apply` or :meth:`set_velocity_state`).
 
         With ``eliminate``, prescribed rows and columns become identity (symmetric).
+
+        With ``reuse`` and a constant Jacobian (:attr:`jacobian_is_constant`), ``out`` is left
+        untouched when a ``reuse`` call with the same coefficients and parameters filled it
+        last: its state does not change, so a solver keeps its factorisation (PETSc refactors
+        only a changed matrix). The caller must not modify ``out`` itself in between; any call
+        without ``reuse`` reassembles.
         """
+        key = None
+        if reuse and self.jacobian_is_constant:
+            key = (a_mass, b_tangent, c_reference, velocity, eliminate, self._parameter_version)
+            if out.getAttr(_COMBINATION) == key:
+                return out
+        out.setAttr(_COMBINATION, None)
         asm = self.assembler
         asm.begin()
         if b_tangent != 0.0:
@@ -180,6 +206,7 @@ class DynamicSystem:
         asm.finish(out)
         if eliminate:
             self.dirichlet.eliminate(out)
+        out.setAttr(_COMBINATION, key)
         return out
 
     def _rayleigh_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
@@ -360,6 +387,7 @@ class DynamicSystem:
 
         pm = self.parameters
         pm.update(values)
+        self._parameter_version += 1
         self.alpha = pm.values["damping.mass"]
         self.beta = pm.values["damping.stiffness"]
         self._viscoelastic_parameters(pm.values)
