@@ -20,11 +20,14 @@ after / noise, relative error of the effect's main parameter, runtime. Then the 
 ranked first in >= 90 % of the single cases, both effects found in the combined cases, nothing
 added in the controls, held-out rms after within 1.5 x the noise.
 
-Run (about 30 minutes serially on a quiet 2-core machine; cases run one after another, each on all
-ranks)::
+Run (cases run one after another, each on all ranks; 5-10 minutes a case on one core)::
 
     .venv/bin/python scripts/bench_diagnose.py --dir out/bench_diagnose [--cases damping,control]
     mpiexec -n 2 .venv/bin/python scripts/bench_diagnose.py --dir out/bench_diagnose
+    .venv/bin/python scripts/bench_diagnose.py --dir out/bench_diagnose --collect
+
+(the last prints the table of every case run so far in that directory, e.g. by two processes
+given half the cases each).
 
 Things to try: ``--noise 2e-4`` (a noisier recording: weaker effects stop being significant);
 ``--cases`` with a subset; each case's ``diagnose/report.md`` says why each term was added or not.
@@ -239,8 +242,17 @@ def main() -> int:
     ap.add_argument("--cases", default=",".join(CASES),
                     help=f"comma-separated subset of {', '.join(CASES)}")
     ap.add_argument("--noise", type=float, default=NOISE, help="position noise std (m)")
+    ap.add_argument("--collect", action="store_true",
+                    help="run nothing: print the table of the cases already run in --dir (each "
+                         "case leaves row.json in its folder; e.g. two processes ran halves)")
     args = ap.parse_args()
     comm = MPI.COMM_WORLD
+    if args.collect:
+        if comm.rank == 0:
+            rows = [json.loads((Path(args.dir) / n / "row.json").read_text())
+                    for n in CASES if (Path(args.dir) / n / "row.json").exists()]
+            print_table(rows, rows[0]["ranks"] if rows else comm.size, args.noise)
+        return 0
     names = args.cases.split(",")
     unknown = [n for n in names if n not in CASES]
     if unknown:
@@ -264,6 +276,10 @@ def main() -> int:
                          "single": len(CASES[name]["physics"]) == 1,
                          "control": not CASES[name]["physics"], "ranking": []})
         if comm.rank == 0:
+            rows[-1]["ranks"] = comm.size
+            (Path(args.dir) / name).mkdir(parents=True, exist_ok=True)
+            (Path(args.dir) / name / "row.json").write_text(
+                json.dumps(rows[-1], indent=1, default=str))
             print_table(rows[-1:], comm.size, args.noise)
     if comm.rank == 0:
         print_table(rows, comm.size, args.noise)
