@@ -56,7 +56,7 @@ from ..physics.springs import (
     spring_hessian_blocks,
 )
 from .velocity import NAMES as VELOCITY_NAMES
-from .velocity import VelocityTerms
+from .velocity import VelocityDamping, VelocityTerms
 
 #: A ``[[mass]] at`` point closer than this (relative to the mesh's size) to a node sits on it.
 NODE_TOLERANCE = 1e-9
@@ -442,7 +442,7 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
 # The dynamic system
 
 
-class MassSpringSystem:
+class MassSpringSystem(VelocityDamping):
     """The semi-discrete system of a :class:`MassSpringModel` (DynamicSystem's interface).
 
     Parameters
@@ -748,35 +748,6 @@ class MassSpringSystem:
     def set_velocity_state(self, v: PETSc.Vec) -> None:
         """The velocity at which :meth:`assemble_combination` linearises the velocity terms."""
         self._v_last = v.getArray(readonly=True).reshape(-1, 3).copy()
-
-    def damping_tangent_apply(self, v_state: PETSc.Vec, x: PETSc.Vec,
-                              out: PETSc.Vec) -> PETSc.Vec:
-        """out = D x + dG/dv(v_state) x (drag and friction linearised at v_state; the colliders'
-        lagged friction is not differentiated)."""
-        self._linear_damping_apply(x, out)
-        vt = self.velocity_terms
-        if vt.active:
-            out.getArray().reshape(-1, 3)[:] += vt.tangent(
-                v_state.getArray(readonly=True).reshape(-1, 3),
-                x.getArray(readonly=True).reshape(-1, 3))
-        return out
-
-    def damping_second_apply(self, v_state: PETSc.Vec, w: PETSc.Vec, x: PETSc.Vec,
-                             out: PETSc.Vec) -> PETSc.Vec:
-        """out = d/dv [dG/dv x] along w at v_state."""
-        out.zeroEntries()
-        vt = self.velocity_terms
-        if vt.nonlinear:
-            arr = [y.getArray(readonly=True).reshape(-1, 3) for y in (v_state, w, x)]
-            out.getArray().reshape(-1, 3)[:] = vt.second(*arr)
-        return out
-
-    def dissipation_potential(self, v: PETSc.Vec) -> float:
-        """v^T D v / 2 + the drag and friction potential (collective; colliders' friction is
-        not a potential: refused by the caller)."""
-        self._linear_damping_apply(v, self._work)
-        local = self.velocity_terms.potential(v.getArray(readonly=True).reshape(-1, 3))
-        return 0.5 * v.dot(self._work) + self.dmesh.allreduce_sum(local)
 
     def damping_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
         """out = D v (alpha M v + K0 v) minus the lagged friction forces of the colliders and the

@@ -36,7 +36,7 @@ from ..assembly import MatrixAssembler
 from ..linear import linear_defaults
 from ..physics.drag import face_pairs
 from ..physics.loads import consistent_mass_matrices, gravity_forces, lumped_masses, traction_forces
-from .velocity import VelocityTerms
+from .velocity import VelocityDamping, VelocityTerms
 
 #: The assembler's element set of single nodes: the velocity terms' 3x3 diagonal blocks.
 NODE_SET = "__nodes__"
@@ -44,7 +44,7 @@ NODE_SET = "__nodes__"
 _COMBINATION = "petsoft_combination"
 
 
-class DynamicSystem:
+class DynamicSystem(VelocityDamping):
     """Owns the matrices and work vectors of the dynamic problem of a :class:`Model`.
 
     Parameters
@@ -209,7 +209,7 @@ class DynamicSystem:
         out.setAttr(_COMBINATION, key)
         return out
 
-    def _rayleigh_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+    def _linear_damping_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
         """out = alpha M v + beta K0 v."""
         out.zeroEntries()
         if self.alpha == 0.0 and self.beta == 0.0:
@@ -227,7 +227,7 @@ class DynamicSystem:
         Remembers v: the velocity Jacobian of the next :meth:`assemble_combination` is taken
         there (the Newton iterate of the step, whose residual is evaluated first).
         """
-        self._rayleigh_apply(v, out)
+        self._linear_damping_apply(v, out)
         vt = self.velocity_terms
         if vt.active:
             vl = v.getArray(readonly=True).reshape(-1, 3)
@@ -238,35 +238,6 @@ class DynamicSystem:
     def set_velocity_state(self, v: PETSc.Vec) -> None:
         """The velocity at which :meth:`assemble_combination` linearises the velocity terms."""
         self._v_last = v.getArray(readonly=True).reshape(-1, 3).copy()
-
-    def damping_tangent_apply(self, v_state: PETSc.Vec, x: PETSc.Vec,
-                              out: PETSc.Vec) -> PETSc.Vec:
-        """out = D x + dG/dv(v_state) x: the damping term linearised at v_state, applied to a
-        tangent or adjoint vector x (equal to :meth:`damping_apply` without velocity terms)."""
-        self._rayleigh_apply(x, out)
-        vt = self.velocity_terms
-        if vt.active:
-            out.getArray().reshape(-1, 3)[:] += vt.tangent(
-                v_state.getArray(readonly=True).reshape(-1, 3),
-                x.getArray(readonly=True).reshape(-1, 3))
-        return out
-
-    def damping_second_apply(self, v_state: PETSc.Vec, w: PETSc.Vec, x: PETSc.Vec,
-                             out: PETSc.Vec) -> PETSc.Vec:
-        """out = d/dv [dG/dv x] along w at v_state (zero without nonlinear velocity terms)."""
-        out.zeroEntries()
-        vt = self.velocity_terms
-        if vt.nonlinear:
-            arr = [y.getArray(readonly=True).reshape(-1, 3) for y in (v_state, w, x)]
-            out.getArray().reshape(-1, 3)[:] = vt.second(*arr)
-        return out
-
-    def dissipation_potential(self, v: PETSc.Vec) -> float:
-        """psi(v) = v^T D v / 2 + the velocity terms' potential: grad psi = D v + G(v)
-        (collective)."""
-        self._rayleigh_apply(v, self._work)
-        local = self.velocity_terms.potential(v.getArray(readonly=True).reshape(-1, 3))
-        return 0.5 * v.dot(self._work) + self.dmesh.allreduce_sum(local)
 
     # -- the interface integrators use (an analytic system can provide the same) -----------
     def create_vec(self) -> PETSc.Vec:

@@ -151,3 +151,42 @@ class VelocityTerms:
             if np.any(free):
                 rate = max(rate, self.coef["drag.linear"] * float(np.max(trace[free] / m[free])))
         return rate
+
+
+class VelocityDamping:
+    """The damping interface of a system with velocity terms, shared by the FEM and the
+    mass-spring systems: the tangent, second derivative and potential of D v + G(v).
+
+    The system provides ``velocity_terms`` (:class:`VelocityTerms`), ``dmesh`` (its
+    ``allreduce_sum``), a work vector ``_work`` and ``_linear_damping_apply(x, out)``: out = D x,
+    its velocity-linear damping (Rayleigh; plus the springs' dashpots).
+    """
+
+    def damping_tangent_apply(self, v_state, x, out):
+        """out = D x + dG/dv(v_state) x: the damping term linearised at v_state, applied to a
+        tangent or adjoint vector x (a mass-spring system's colliders' lagged friction is not
+        differentiated)."""
+        self._linear_damping_apply(x, out)
+        vt = self.velocity_terms
+        if vt.active:
+            out.getArray().reshape(-1, 3)[:] += vt.tangent(
+                v_state.getArray(readonly=True).reshape(-1, 3),
+                x.getArray(readonly=True).reshape(-1, 3))
+        return out
+
+    def damping_second_apply(self, v_state, w, x, out):
+        """out = d/dv [dG/dv x] along w at v_state (zero without nonlinear velocity terms)."""
+        out.zeroEntries()
+        vt = self.velocity_terms
+        if vt.nonlinear:
+            arr = [y.getArray(readonly=True).reshape(-1, 3) for y in (v_state, w, x)]
+            out.getArray().reshape(-1, 3)[:] = vt.second(*arr)
+        return out
+
+    def dissipation_potential(self, v) -> float:
+        """psi(v) = v^T D v / 2 + the velocity terms' potential: grad psi = D v + G(v)
+        (collective; a mass-spring system's colliders' friction is not a potential: refused by
+        the caller)."""
+        self._linear_damping_apply(v, self._work)
+        local = self.velocity_terms.potential(v.getArray(readonly=True).reshape(-1, 3))
+        return 0.5 * v.dot(self._work) + self.dmesh.allreduce_sum(local)
