@@ -330,4 +330,4 @@ def test_every_new_term_starts_at_the_base_model(case):
         ext = by[physics].extend(exp)
         diff = float(np.max(np.abs(simulate(ext) - base)))
         assert diff <= tol * motion + 1e-13, (physics, diff, motion)
-    assert by["contact.plane"].kind == "fit" and by["material.viscoelastic"].kind == "score-fd"
+    assert by["contact.plane"].kind == "switch" and by["material.viscoelastic"].kind == "score-fd"

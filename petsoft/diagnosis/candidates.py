@@ -11,9 +11,11 @@ ranked (``Candidate.kind``):
   the forward model's exact sensitivities;
 * ``"score-fd"``: the same test with the new parameters' columns by one-sided finite differences
   (terms the sensitivities do not cover, e.g. the viscoelastic branch's internal variable);
-* ``"fit"``: no derivative at the zero value says anything (a model switch, a contact that is not
-  touched at zero), so the extended model is fitted and its likelihood-ratio statistic is the
-  score.
+* ``"switch"``: no derivative at a zero value exists (a model switch, a contact placed where the
+  simulation leaves the data), so the column of the test is the whole change the switch makes
+  (the derivative at t = 0 of base + t (switch - base), exact when the change is linear in t):
+  one more simulation instead of a fit. Like every candidate, it is fitted only if it ranks
+  among the best.
 
 The terms and how each is placed and bounded (``scales`` are the model's size, mass, surface, the
 data's speed and dominant frequency, :func:`petsoft.diagnosis.diagnose.model_scales`):
@@ -52,7 +54,7 @@ NOT_APPLICABLE = "not applicable to this model"
 REGION = {"material.heterogeneous": "diag_stiffness", "mass.added": "diag_mass"}
 
 #: Ranking methods (module docstring).
-KINDS = ("score", "score-fd", "fit")
+KINDS = ("score", "score-fd", "switch")
 
 
 def _merge(data: dict, settings: dict) -> None:
@@ -82,7 +84,7 @@ class Candidate:
         Why it was placed there / what it means (for the report).
     regions : dict
         ``{name: where}`` regions the extension adds.
-    kind : {"score", "score-fd", "fit"}
+    kind : {"score", "score-fd", "switch"}
         How it is ranked (module docstring).
     settings : dict
         Nested experiment keys the extension sets (deep-merged), e.g. ``{"drag": {"linear":
@@ -308,7 +310,7 @@ def build_candidates(experiment, *, evidence_region: dict | None = None,
         depth = float(plane["excess"])
         index = len(experiment.colliders)
         offer(Candidate("contact.plane", [f"collider.{index}.offset"], [(-depth, depth)],
-                        kind="fit", colliders=[{"kind": "plane",
+                        kind="switch", colliders=[{"kind": "plane",
                                                 "point": [float(c) for c in plane["point"]],
                                                 "normal": n.tolist()}],
                         reason=f"{PHYSICS['contact.plane']}: the simulation passes the data's "
@@ -381,7 +383,7 @@ def _continuum_candidates(experiment, cal, sc, offer, skipped, evidence_region,
         for name in linear:
             if name != "default":
                 settings["material"][name] = {"model": "corotated"}
-        offer(Candidate("material.nonlinear", [], [], kind="fit", settings=settings,
+        offer(Candidate("material.nonlinear", [], [], kind="switch", settings=settings,
                         reason=f"{PHYSICS['material.nonlinear']} (linear -> corotated)"))
     else:
         skipped["material.nonlinear"] = "the material law is already nonlinear"

@@ -372,24 +372,49 @@ class _Diagnosis:
             fm.destroy()
 
     def score(self, fit: Fit, candidate, comm=None) -> dict:
-        """Rank ``candidate`` at ``fit`` (identification window): its score-test statistic, or
-        for a ``"fit"`` candidate the likelihood ratio of its fitted extension (then the fit is
-        returned too, under ``"fit"``)."""
+        """Rank ``candidate`` at ``fit`` (identification window) by its score-test statistic;
+        a ``"switch"`` candidate's column is the change the switch makes (see
+        :mod:`petsoft.diagnosis.candidates`)."""
         from .score import ScoreError, score_test
 
         comm = self.comm if comm is None else _petsc_comm(comm)
         entry = {"physics": candidate.physics, "parameters": candidate.parameters,
                  "region": candidate.region, "kind": candidate.kind}
         ext = candidate.extend(fit.experiment)
-        if candidate.kind == "fit":
-            new = self.calibrate(ext, comm=comm)
-            lr = fit.chi2 - new.chi2
-            # a model switch adds no parameter; count it as one (conservative)
-            k = max(len(candidate.parameters), 1)
-            return {**entry, "score": float(lr), "dof": k,
-                    "p_value": float(stats.chi2.sf(max(lr, 0.0), k)),
-                    "log10_p": float(stats.chi2.logsf(max(lr, 0.0), k) / np.log(10.0)),
-                    "fit": new}
+        if candidate.kind == "switch":
+            # before: the extended model was fitted here, two calibrations per round that took
+            # most of a bench case's scoring time
+            t = self.times[self.ident]
+            fm = _forward(fit.experiment, fit.names, self.recording, t, comm, self.integrator)
+            try:
+                sim, dsim = fm.jacobian(fit.values)
+            finally:
+                fm.destroy()
+                gc.collect()                # every rank, same point (see run_diagnose)
+            switched = self.simulate(ext, comm=comm, times=t)
+            gc.collect()
+            cols = {n: dsim[..., i] for i, n in enumerate(fit.names)}
+            cols["switch"] = switched - sim
+            tested = ["switch"]
+        else:
+            sim, cols = self._columns(ext, candidate, comm)
+            tested = candidate.tested_parameters
+        data = self.data[self.ident]
+        seen = np.isfinite(data)
+        r = (sim[seen] - data[seen]) / self.sigma
+        base_cols = np.stack([cols[n][seen] for n in fit.names], axis=1) / self.sigma
+        cand_cols = np.stack([cols[n][seen] for n in tested], axis=1) / self.sigma
+        try:
+            s = score_test(r, base_cols, cand_cols)
+        except ScoreError as exc:
+            return {**entry, "score": 0.0, "dof": len(tested), "p_value": 1.0, "log10_p": 0.0,
+                    "note": str(exc)}
+        return {**entry, "score": s.statistic, "dof": s.dof, "p_value": s.p_value,
+                "log10_p": s.log10_p, "gradient": s.gradient.tolist()}
+
+    def _columns(self, ext, candidate, comm) -> tuple[np.ndarray, dict]:
+        """Simulation and sensitivity columns of the extended model at its current values:
+        exact forward sensitivities, one-sided differences for ``"score-fd"`` parameters."""
         names = list(ext.calibrate)
         p = np.array([get_parameter(ext, n) for n in names])
         fd = [n for n in candidate.parameters if candidate.kind == "score-fd"]
@@ -407,19 +432,7 @@ class _Diagnosis:
             moved = with_parameters(ext, {n: get_parameter(ext, n) + step})
             cols[n] = (self.simulate(moved, comm=comm, times=t) - sim) / step
             gc.collect()
-        data = self.data[self.ident]
-        seen = np.isfinite(data)
-        r = (sim[seen] - data[seen]) / self.sigma
-        base_cols = np.stack([cols[n][seen] for n in fit.names], axis=1) / self.sigma
-        tested = candidate.tested_parameters
-        cand_cols = np.stack([cols[n][seen] for n in tested], axis=1) / self.sigma
-        try:
-            s = score_test(r, base_cols, cand_cols)
-        except ScoreError as exc:
-            return {**entry, "score": 0.0, "dof": len(tested), "p_value": 1.0, "log10_p": 0.0,
-                    "note": str(exc)}
-        return {**entry, "score": s.statistic, "dof": s.dof, "p_value": s.p_value,
-                "log10_p": s.log10_p, "gradient": s.gradient.tolist()}
+        return sim, cols
 
     def stiffness_map_region(self, fit: Fit) -> dict | None:
         """The sphere where the misfit is most sensitive to the local Young's modulus."""
@@ -528,7 +541,7 @@ def _judge(diag: _Diagnosis, current: Fit, s: dict, c) -> dict:
                        f"{_fmt(new.heldout_rms)} m)")
         return {"added": False, "reason": "; ".join(why)}
     idx = [new.names.index(n) for n in c.parameters]
-    what = "fitted" if c.kind == "fit" else "score test"
+    what = "switch score test" if c.kind == "switch" else "score test"
     entry = {"physics": c.physics,
              "parameters": {n: float(new.values[i]) for n, i in zip(c.parameters, idx,
                                                                      strict=True)},
@@ -750,7 +763,7 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
                                           "log10_p": 0.0, "note": res.error}
             s["round"] = rnd
             scores.append((s, c))
-            diag.tell(f"  {'fit' if c.kind == 'fit' else 'score'} {c.physics:<24} "
+            diag.tell(f"  {'switch' if c.kind == 'switch' else 'score'} {c.physics:<24} "
                       f"S = {s['score']:10.4g}  dof {s['dof']}  p = {s['p_value']:.3g}"
                       + (f"  ({s['note']})" if s.get("note") else ""))
         all_scores += [{k: v for k, v in s.items() if k != "fit"} for s, _ in scores]
