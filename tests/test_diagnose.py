@@ -331,3 +331,19 @@ def test_every_new_term_starts_at_the_base_model(case):
         diff = float(np.max(np.abs(simulate(ext) - base)))
         assert diff <= tol * motion + 1e-13, (physics, diff, motion)
     assert by["contact.plane"].kind == "switch" and by["material.viscoelastic"].kind == "score-fd"
+
+
+@pytest.mark.serial_only
+def test_candidates_are_scored_with_a_viscoelastic_branch_in_the_model(case):
+    """A model that already has a viscoelastic branch (as after a round that added one) cannot
+    use alpha's exact sensitivities: every column is then differenced, and the candidates still
+    get a score (before, each one failed with the sensitivities' refusal and round 2 ended)."""
+    text = (MODEL.format(E=1.8e7, alpha=0.0, calibrate=CALIBRATE)
+            + "\n[viscoelastic]\nratio = 0.02\nrelaxation_time = 0.001\n")
+    user = _write(case["dir"] / "user_visco.toml", text)
+    res = run_diagnose(load_experiment(user), case["damped"], out=None, comm=PETSc.COMM_WORLD,
+                       numerics=False, max_additions=1, max_tries=1)
+    first = {s["physics"]: s for s in res.scores if s["round"] == 1}
+    assert "damping.mass" in first
+    assert not any("viscoelastic" in (s.get("note") or "") for s in first.values()), first
+    assert first["damping.mass"]["score"] > 0.0 and first["damping.mass"]["p_value"] < 0.01
