@@ -347,3 +347,26 @@ def test_candidates_are_scored_with_a_viscoelastic_branch_in_the_model(case):
     assert "damping.mass" in first
     assert not any("viscoelastic" in (s.get("note") or "") for s in first.values()), first
     assert first["damping.mass"]["score"] > 0.0 and first["damping.mass"]["p_value"] < 0.01
+
+
+def test_a_candidate_at_its_lower_bound_scores_only_inward():
+    """One-sided score: a damping starting at its bound 0 whose misfit gradient is positive
+    (the misfit falls only for negative damping) cannot be fitted, so it scores 0; the same
+    gradient sign away from the bound, or a negative gradient at it, keeps the score."""
+    from petsoft.diagnosis.candidates import Candidate
+    from petsoft.diagnosis.diagnose import outward_only
+    from petsoft.experiment import with_parameters
+
+    exp = load_experiment_text(MODEL.format(E=TRUE_E, alpha=0.0, calibrate=CALIBRATE))
+    cand = Candidate("damping.mass", ["damping.mass"], [(0.0, 100.0)])
+    ext = cand.extend(exp)
+    assert "below its lower bound" in outward_only(cand, ext, ["damping.mass"], [2.5])
+    assert outward_only(cand, ext, ["damping.mass"], [-2.5]) is None
+    inside = with_parameters(ext, {"damping.mass": 1.0})
+    assert outward_only(cand, inside, ["damping.mass"], [2.5]) is None
+
+
+def load_experiment_text(text: str):
+    import tomllib
+
+    return experiment_from_dict(tomllib.loads(text), source="test_diagnose")
