@@ -62,6 +62,9 @@ class DynamicSystem(VelocityDamping):
         dm = self.dmesh = model.dmesh
         self.comm = dm.comm
         self.elastic = model.elastic
+        # the material part of jacobian_is_constant (fixed for the system's life; collective)
+        self._linear_material = dm.allreduce_sum(
+            sum(g.model != "linear" for g in self.elastic.groups)) == 0
         self.dirichlet = model.dirichlet
         self.alpha, self.beta = float(damping_mass), float(damping_stiffness)
         self.lumped_kinetic = False  # explicit integrators switch to the lumped mass
@@ -159,9 +162,6 @@ class DynamicSystem(VelocityDamping):
     def jacobian_is_constant(self) -> bool:
         """Whether :meth:`assemble_combination` depends on its coefficients only: a linear
         material, no contact, no quadratic drag or dry friction (same on every rank)."""
-        if getattr(self, "_linear_material", None) is None:
-            nonlinear = sum(g.model != "linear" for g in self.elastic.groups)
-            self._linear_material = self.dmesh.allreduce_sum(nonlinear) == 0
         return (self._linear_material and getattr(self.elastic, "contact", None) is None
                 and not self.velocity_terms.nonlinear)
 
@@ -249,11 +249,7 @@ class DynamicSystem(VelocityDamping):
     def linear_defaults(self, ksp: PETSc.KSP) -> None:
         """petsoft's default linear solver for this system's size (:func:`petsoft.linear.
         linear_defaults`: direct when small, else CG + GAMG)."""
-        if getattr(self, "_global_size", None) is None:
-            probe = self.create_vec()
-            self._global_size = probe.getSize()
-            probe.destroy()
-        linear_defaults(ksp, dofs=self._global_size)
+        linear_defaults(ksp, dofs=3 * self.dmesh.nglobal_vertices)
 
     def apply_prescribed(self, vec: PETSc.Vec, t: float) -> None:
         """Set the prescribed entries of ``vec`` to the supports' displacement at t."""
