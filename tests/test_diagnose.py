@@ -164,6 +164,14 @@ def test_sensitivity_region_finds_the_hot_cells():
     assert np.linalg.norm(np.array(reg["center"]) - hot) < 0.03
     assert 0.08 < reg["radius"] < 0.25                     # |g| >= max/2 within 0.125
     assert sensitivity_region(centroids, np.zeros(4000), volumes) is None
+    # inward (a value that may only grow): a stronger positive lobe elsewhere is ignored
+    other = np.array([0.2, 0.8, 0.5])
+    two = cell_map + 3.0 * np.exp(-(np.linalg.norm(centroids - other, axis=1) / 0.15) ** 2)
+    assert np.linalg.norm(np.array(sensitivity_region(centroids, two, volumes)["center"])
+                          - other) < 0.03
+    inward = sensitivity_region(centroids, two, volumes, inward=True)
+    assert np.linalg.norm(np.array(inward["center"]) - hot) < 0.03
+    assert sensitivity_region(centroids, np.abs(two), volumes, inward=True) is None
 
 
 def test_candidates_extend_the_experiment_at_the_zero_value(case):

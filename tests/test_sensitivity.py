@@ -297,15 +297,22 @@ def test_interface_only_system_gives_the_same_gradient(method, light_forward_sol
 
 @pytest.mark.parametrize("method", ["be", "si", "alpha"])
 def test_cell_sensitivity_map_sums_to_the_gradients(method, light_forward_solver):
-    """d phi / d E_cell from the adjoint sweep: its sum is d phi / d material.youngs_modulus and
-    its sums over the Morton groups times E are the stiffness-field gradients (1e-10)."""
+    """d phi / d E_cell and d phi / d rho_cell from the adjoint sweep: their sums are
+    d phi / d material.youngs_modulus and d phi / d material.density, and the E map's sums over
+    the Morton groups times E are the stiffness-field gradients (1e-10)."""
     fm = _forward(method, "corotated")
     dphi = _misfit(MARKERS[None] + 0.01)
-    value, grad, cells = fm.cell_gradient(fm.p0, dphi)
+    value, grad, maps = fm.cell_gradient(fm.p0, dphi)
     assert value == pytest.approx(dphi(fm.simulate(fm.p0))[0], rel=1e-14)
-    assert cells.shape == (len(fm.system.dmesh.mesh.tets),)
+    cells = maps["youngs_modulus"]
+    assert cells.shape == maps["density"].shape == (len(fm.system.dmesh.mesh.tets),)
     E = NAMES.index("material.youngs_modulus")
     assert cells.sum() == pytest.approx(grad[E], rel=1e-10)
+    rho = NAMES.index("material.density")
+    assert abs(grad[rho]) > 0.0
+    assert maps["density"].sum() == pytest.approx(grad[rho], rel=1e-10)
+    # the maps are not uniform: they say where
+    assert np.ptp(maps["density"]) > 0.1 * np.abs(maps["density"]).max()
     from petsoft.dynamics.parameters import morton_groups
 
     mesh = fm.system.dmesh.mesh

@@ -53,9 +53,9 @@ The adjoint (:meth:`~ForwardModel.gradient`, :meth:`~ForwardModel.cell_gradient`
 alpha sensitivities do not include z: they raise an ExperimentError pointing to
 ``--gradient fd`` (or ``sensitivity`` with be).
 
-Also: :meth:`ForwardModel.cell_gradient` (the adjoint gradient plus d value/d E of every cell,
-a sensitivity map, from the same sweep), :meth:`ForwardModel.fd_jacobian` (central differences),
-and ``observe="acceleration"`` (marker accelerations instead of positions).
+Also: :meth:`ForwardModel.cell_gradient` (the adjoint gradient plus d value/d E and d value/d rho
+of every cell, sensitivity maps, from the same sweep), :meth:`ForwardModel.fd_jacobian` (central
+differences), and ``observe="acceleration"`` (marker accelerations instead of positions).
 
 Memory: the adjoint keeps every step's state, (N + 1) x (2 vectors, 3 for alpha) x ndof x 8 bytes
 (e.g. 1000 steps of a 30 000-dof mesh: 0.7 GB for alpha); checkpointing is future work.
@@ -787,18 +787,24 @@ class ForwardModel:
 
     @_collects_garbage
     def cell_gradient(self, p, dphi):
-        """(value, grad (P,), d value / d E_cell (ncells,)): the gradient and the sensitivity
-        map to the Young's modulus of every cell (file numbering, on every rank), from the same
-        adjoint sweep (the map costs one contraction per step)."""
+        """The gradient and the per-cell sensitivity maps, from the same adjoint sweep.
+
+        Returns
+        -------
+        (float, ndarray (P,), dict)
+            value, its gradient, and ``{"youngs_modulus": d value / d E_cell, "density":
+            d value / d rho_cell}``, each (ncells,) in file numbering on every rank (the maps
+            cost one contraction per step).
+        """
         if not hasattr(self.system, "parameter_derivatives"):
             raise ExperimentError("per-cell sensitivity maps need a continuum (FEM) system")
         value, grad, local = self._adjoint(p, dphi, cell_map=True)
         dm = self.system.dmesh
         parts = dm.comm.tompi4py().allgather((dm.cell_ids, local))
-        out = np.zeros(len(dm.mesh.tets))
+        out = np.zeros((len(dm.mesh.tets), 2))
         for ids, vals in parts:
             out[ids] = vals
-        return value, grad, out
+        return value, grad, {"youngs_modulus": out[:, 0], "density": out[:, 1]}
 
     def _adjoint(self, p, dphi, cell_map: bool):
         self._refuse_derivatives(p)
@@ -807,7 +813,7 @@ class ForwardModel:
         value, wsim = dphi(sim)
         wsim = np.asarray(wsim, dtype=float).reshape(sim.shape)
         grad = np.zeros(P)
-        cells = np.zeros(len(s.dmesh.cells)) if cell_map else None
+        cells = np.zeros((len(s.dmesh.cells), 2)) if cell_map else None
 
         def contract(deriv, mu):
             nonlocal grad

@@ -25,7 +25,9 @@ data's speed and dominant frequency, :func:`petsoft.diagnosis.diagnose.model_sca
 * ``material.heterogeneous``: a spherical ``[region]`` whose Young's modulus starts at the
   surrounding modulus, placed where the adjoint per-cell map of d misfit/d E is largest;
 * ``mass.added``: a spherical region whose density starts at the surrounding one (extra mass =
-  a denser region), placed at the residual's ``mismatch.region`` (else the sensitivity map's);
+  a denser region, so the density can only grow), placed where the adjoint per-cell map of
+  d misfit/d rho is most negative, i.e. where added mass lowers the misfit most (else at the
+  residual's ``mismatch.region``, else the Young's-modulus map's sphere);
 * ``drag.linear`` / ``drag.quadratic``: ``[drag]`` on the body's surface, from 0;
 * ``friction.dry``: ``[friction] dry`` from 0, regularised at 1 % of the data's rms speed;
 * ``boundary.compliance``: the fixed supports made elastic, from a compliance 1e-3 x (cell size
@@ -158,26 +160,31 @@ def sphere_condition(center, radius) -> str:
 
 
 def sensitivity_region(centroids: np.ndarray, cell_map: np.ndarray, volumes: np.ndarray,
-                       share: float = 0.5) -> dict | None:
-    """Where the misfit is most sensitive to the local Young's modulus.
+                       share: float = 0.5, inward: bool = False) -> dict | None:
+    """Where the misfit is most sensitive to a local material value.
 
     Parameters
     ----------
     centroids : ndarray (E, 3)
     cell_map : ndarray (E,)
-        d misfit / d E_cell (adjoint), any sign.
+        d misfit / d value_cell (adjoint), any sign.
     volumes : ndarray (E,)
         Cell volumes: the map is divided by them so that large cells do not win by size.
     share : float
         Cells with at least this share of the largest density |g| / V form the region.
+    inward : bool
+        Count only cells where the misfit falls as the value grows (g < 0): for a value that
+        may only increase (added mass), cells where it would have to fall cannot help.
 
     Returns
     -------
     dict or None
         ``{"center", "radius", "cells"}`` (the density-weighted centroid of those cells and the
-        radius that contains their centroids plus half a cell), None for an all-zero map.
+        radius that contains their centroids plus half a cell), None for an all-zero map (or,
+        inward, one without a negative entry).
     """
-    dens = np.abs(np.asarray(cell_map, dtype=float)) / np.asarray(volumes, dtype=float)
+    g = np.asarray(cell_map, dtype=float)
+    dens = (np.maximum(-g, 0.0) if inward else np.abs(g)) / np.asarray(volumes, dtype=float)
     top = dens.max(initial=0.0)
     if not np.isfinite(top) or top <= 0.0:
         return None
@@ -217,7 +224,7 @@ def _off(experiment, name: str, cal: set) -> bool:
 
 
 def build_candidates(experiment, *, evidence_region: dict | None = None,
-                     stiffness_region: dict | None = None,
+                     stiffness_region: dict | None = None, density_region: dict | None = None,
                      centroids: np.ndarray | None = None, scales: dict | None = None,
                      plane: dict | None = None) -> tuple[list[Candidate], dict]:
     """The candidates that can be modelled for ``experiment``, and the rest with the reason.
@@ -230,6 +237,8 @@ def build_candidates(experiment, *, evidence_region: dict | None = None,
         The residual's ``mismatch.region`` (:func:`petsoft.diagnosis.locate.mismatch_region`).
     stiffness_region : dict, optional
         :func:`sensitivity_region` of the adjoint Young's-modulus map.
+    density_region : dict, optional
+        :func:`sensitivity_region` (inward) of the adjoint density map.
     centroids : ndarray (E, 3), optional
         Cell centroids, to drop a spatial candidate whose sphere holds no cell.
     scales : dict, optional
@@ -300,8 +309,13 @@ def build_candidates(experiment, *, evidence_region: dict | None = None,
                         "material.viscoelastic", "boundary.compliance"):
             skipped[physics] = f"{NOT_APPLICABLE}: a mass-spring model has no continuum material"
     else:
-        _continuum_candidates(experiment, cal, sc, offer, skipped, evidence_region,
-                              stiffness_region, centroids)
+        stiffness = (stiffness_region, "the adjoint Young's-modulus map")
+        mass = [(density_region, "the adjoint density map (where added mass lowers the misfit "
+                                 "most)"),
+                (evidence_region, "the residual's mismatch region"), stiffness]
+        _continuum_candidates(experiment, cal, sc, offer, skipped, centroids, {
+            "material.heterogeneous": stiffness,
+            "mass.added": next((m for m in mass if m[0] is not None), (None, ""))})
     if plane is None:
         skipped["contact.plane"] = ("the simulation stays within the extent of the data "
                                     "(no side where a plane could stop it)")
@@ -318,13 +332,13 @@ def build_candidates(experiment, *, evidence_region: dict | None = None,
     return cands, skipped
 
 
-def _continuum_candidates(experiment, cal, sc, offer, skipped, evidence_region,
-                          stiffness_region, centroids) -> None:
-    """The FEM-only terms: spatial ones, supports, viscoelasticity, the nonlinear law."""
+def _continuum_candidates(experiment, cal, sc, offer, skipped, centroids, placed) -> None:
+    """The FEM-only terms: spatial ones (``placed``: physics -> (sphere or None, where it comes
+    from)), supports, viscoelasticity, the nonlinear law."""
     regions = experiment.regions or {}
-    for physics, key, where_from in (
-            ("material.heterogeneous", "youngs_modulus", stiffness_region),
-            ("mass.added", "density", evidence_region or stiffness_region)):
+    for physics, key in (("material.heterogeneous", "youngs_modulus"),
+                         ("mass.added", "density")):
+        where_from, origin = placed[physics]
         name = REGION[physics]
         if name in regions:
             skipped[physics] = "already in the model"
@@ -344,8 +358,6 @@ def _continuum_candidates(experiment, cal, sc, offer, skipped, evidence_region,
         lo = value if key == "density" else value / 5.0
         region = {"center": [float(c) for c in where_from["center"]],
                   "radius": float(where_from["radius"])}
-        origin = ("the residual's mismatch region" if physics == "mass.added" and evidence_region
-                  else "the adjoint Young's-modulus sensitivity map")
         offer(Candidate(
             physics, [f"material.{name}.{key}"], [(lo, hi)], region=region,
             regions={name: sphere_condition(region["center"], region["radius"])},

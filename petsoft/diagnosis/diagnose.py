@@ -12,7 +12,7 @@ The loop (issue 6, first increment):
    (:mod:`petsoft.diagnosis.candidates`) is scored at the base fit by the efficient score test
    (:mod:`petsoft.diagnosis.score`) from forward sensitivities of the base and the candidate's
    parameters (candidate at its zero value). Spatial candidates are placed with the adjoint
-   per-cell Young's-modulus sensitivity map.
+   per-cell sensitivity maps (Young's modulus: largest |g|; added mass: most negative g).
 4. **Model it.** Candidates with a significant score are tried in the order of their p-value
    (then S): the extended model is re-calibrated (all parameters), and kept only if the
    likelihood-ratio statistic chi2_old - chi2_new is significant (chi-square with k dof at
@@ -446,8 +446,15 @@ class _Diagnosis:
             gc.collect()
         return sim, cols
 
-    def stiffness_map_region(self, fit: Fit) -> dict | None:
-        """The sphere where the misfit is most sensitive to the local Young's modulus."""
+    def sensitivity_regions(self, fit: Fit) -> dict:
+        """Spheres from the adjoint per-cell maps of the misfit (one sweep).
+
+        Returns
+        -------
+        dict
+            ``{"stiffness": sphere where |d misfit/d E_cell| is largest, "density": sphere
+            where d misfit/d rho_cell is most negative}``, each None when it cannot be made.
+        """
         from .candidates import sensitivity_region
 
         names = fit.names
@@ -462,14 +469,16 @@ class _Diagnosis:
             return 0.5 * float(np.sum(diff * diff)), diff / sigma
 
         try:
-            _, _, cells = fm.cell_gradient(fit.values, dphi)
+            _, _, maps = fm.cell_gradient(fit.values, dphi)
             centroids, volumes = _cell_geometry(fm.system.dmesh.mesh)
         except ExperimentError:
-            return None
+            return {"stiffness": None, "density": None}
         finally:
             fm.destroy()
         self.centroids = centroids
-        return sensitivity_region(centroids, cells, volumes)
+        return {"stiffness": sensitivity_region(centroids, maps["youngs_modulus"], volumes),
+                "density": sensitivity_region(centroids, maps["density"], volumes,
+                                              inward=True)}
 
 
 def outward_only(candidate, ext, tested: list[str], gradient) -> str | None:
@@ -776,11 +785,12 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
             current, ev = numerics_first(current, ev)
             if ev["verdict"] == "consistent":
                 break
-        stiff = (diag.stiffness_map_region(current)
-                 if not current.experiment.is_mass_spring else None)
+        maps = (diag.sensitivity_regions(current) if not current.experiment.is_mass_spring
+                else {"stiffness": None, "density": None})
         plane = escape_plane(diag.data[diag.ident], current.sim[diag.ident], diag.sigma)
         cands, not_modelled = build_candidates(
-            current.experiment, evidence_region=ev["region"], stiffness_region=stiff,
+            current.experiment, evidence_region=ev["region"], stiffness_region=maps["stiffness"],
+            density_region=maps["density"],
             centroids=getattr(diag, "centroids", None), scales=diag.scales, plane=plane)
         diag.tell(f"round {rnd}: ranking {len(cands)} candidates "
                   f"({', '.join(c.physics for c in cands)})")

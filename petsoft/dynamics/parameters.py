@@ -445,11 +445,15 @@ class ParameterDerivatives:
         return result
 
     def cell_sensitivity(self, mu: PETSc.Vec) -> np.ndarray:
-        """(local cells,) d r / d E_cell . mu: one term of a per-cell sensitivity map."""
+        """(local cells, 2): d r / d E_cell . mu and d r / d rho_cell . mu, one term of the
+        per-cell sensitivity maps to Young's modulus and to the density."""
         s, dm = self.system, self.system.dmesh
         pm = s.parameters
         mul = dm.to_local(mu)[dm.cells].reshape(-1, 12)
         nu = pm.nu
         dmu, dlam = 1.0 / (2.0 * (1.0 + nu)), nu / ((1 + nu) * (1 - 2 * nu))
-        return (dmu * np.einsum("ni,ni->n", self.E_mu, mul)
-                + dlam * np.einsum("ni,ni->n", self.E_lam, mul))
+        out = np.empty((len(mul), 2))
+        out[:, 0] = (dmu * np.einsum("ni,ni->n", self.E_mu, mul)
+                     + dlam * np.einsum("ni,ni->n", self.E_lam, mul))
+        out[:, 1] = np.einsum("ni,ni->n", self.E_rho, mul)
+        return out
