@@ -183,3 +183,25 @@ def test_recovery_demo_quick(tmp_path):
         if case == "regions":
             assert abs(err) < 0.15, (name, err)
     assert (tmp_path / "bar" / "calibrated" / "calibrated.toml").is_file()
+
+
+def test_residual_plot_axis_survives_an_exactly_zero_frame(tmp_path, monkeypatch):
+    """A noise-free recording matches the simulation exactly at t = 0; the log axis of the
+    residual-over-time panel must still show the residual's decades, not 1e-300..1e-4."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from petsoft.calibration import plots
+
+    t = np.linspace(0.0, 0.1, 51)
+    data = np.zeros((51, 3, 3))
+    after = 1e-5 * np.sin(40 * t)[:, None, None] * np.ones((1, 3, 3))
+    after[0] = 0.0
+    limits = []
+    monkeypatch.setattr(plt.Figure, "savefig",
+                        lambda fig, *a, **k: limits.append(fig.axes[0].get_ylim()))
+    plots.plot_residuals(tmp_path / "r.png", t, data, 10 * after, after, ["a", "b", "c"], 2e-6)
+    low, high = limits[0]
+    assert high / low < 1e6, (low, high)

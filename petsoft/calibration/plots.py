@@ -51,16 +51,23 @@ def plot_residuals(path: Path, times, data, before, after, names, sigma: float) 
     plt = _pyplot()
     seen = np.isfinite(data)
     fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(9, 6.5))
+    curves = []
     for sim, label, color in ((before, "before", "tab:red"), (after, "calibrated", "tab:blue")):
         if sim is None:
             continue
         d = np.where(seen, sim - np.where(seen, data, 0.0), 0.0)
         per_time = np.sqrt((d * d).sum(axis=(1, 2)) / np.maximum(seen.sum(axis=(1, 2)), 1))
         per_marker = np.sqrt((d * d).sum(axis=(0, 2)) / np.maximum(seen.sum(axis=(0, 2)), 1))
-        ax1.semilogy(times, np.maximum(per_time, 1e-300), color=color, lw=1, label=label)
+        curves.append((per_time, label, color))
         x = np.arange(len(names))
         offset = -0.2 if label == "before" else 0.2
         ax2.bar(x + offset, per_marker, width=0.4, color=color, label=label)
+    # an exact zero (the first frame of a noise-free recording) would stretch the log axis over
+    # hundreds of decades: clip at a hundredth of the smallest curve's median
+    positive = [np.median(c[c > 0]) for c, _, _ in curves if np.any(c > 0)]
+    floor = 1e-2 * min(positive) if positive else 1e-300
+    for per_time, label, color in curves:
+        ax1.semilogy(times, np.maximum(per_time, floor), color=color, lw=1, label=label)
     if sigma and sigma != 1.0:
         ax1.axhline(sigma, color="0.4", ls="--", lw=1, label="noise level")
         ax2.axhline(sigma, color="0.4", ls="--", lw=1)
