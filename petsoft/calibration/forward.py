@@ -288,7 +288,7 @@ class ForwardModel:
             raise ExperimentError(
                 f"{self.experiment.source}: {what}: the adjoint gradient (and the forward "
                 "sensitivities of si and alpha) do not include the viscoelastic branch's "
-                "internal variable; use --gradient fd (ForwardModel.fd_jacobian), --gradient "
+                "internal variable; use --gradient fd (finite differences), --gradient "
                 "sensitivity with integrator be, or ratio = 0")
 
     def _initial(self):

@@ -309,8 +309,8 @@ def refuse_viscoelastic(names) -> None:
     if bad:
         raise ExperimentError(
             f'"{bad[0]}" is not differentiable: the viscoelastic branch\'s internal variable is '
-            "not part of the sensitivities; use finite differences (--gradient fd, "
-            "ForwardModel.fd_jacobian)")
+            "not part of the sensitivities; use finite differences (--gradient fd in petsoft "
+            "calibrate, ForwardModel.fd_jacobian in Python)")
 
 
 class ParameterDerivatives:
