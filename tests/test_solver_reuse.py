@@ -1,4 +1,4 @@
-"""A constant Jacobian is factored once per run (petsoft.dynamics.implicit.keeps_solver).
+"""A constant Jacobian is factored once per run (petsoft.dynamics.implicit.SolverReuse).
 
 A linear material without contact, quadratic drag or dry friction has a step matrix that
 depends on the step and the parameters only; the integrators then keep their SNES (and its

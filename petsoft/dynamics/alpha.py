@@ -33,7 +33,7 @@ from petsc4py import PETSc
 from ..errors import InvertedElementError
 from ..linear import linear_defaults
 from ..options import scoped_defaults
-from .implicit import SNES_REASONS, StepReport, _branch_of, _NoBranch, keeps_solver
+from .implicit import SNES_REASONS, SolverReuse, StepReport, _branch_of, _NoBranch
 
 TS_REASONS = {v: k for k, v in PETSc.TS.ConvergedReason.__dict__.items() if k.isupper()}
 
@@ -192,7 +192,7 @@ def alpha_parameters(radius: float) -> tuple[float, float, float, float]:
     return am, af, 0.5 + am - af, 0.25 * (1.0 + am - af) ** 2
 
 
-class GeneralizedAlpha:
+class GeneralizedAlpha(SolverReuse):
     """Generalized-alpha steps solved for q1 with SNES, started from the consistent a0.
 
     With a1 = (q1 - q0 - h v0 - h^2 (1/2 - beta) a0) / (beta h^2) and
@@ -221,10 +221,6 @@ class GeneralizedAlpha:
         self.snes = None
         self._new_solver()
         self.new_run()
-
-    def new_run(self) -> None:
-        """The next step sets up a new solver (a caller's options may have changed)."""
-        self._solver_used = False
 
     def _new_solver(self) -> None:
         """A fresh SNES (with KSP and PC): see :meth:`step` for why one per step."""
@@ -380,7 +376,7 @@ class GeneralizedAlpha:
         # generator survives KSPReset), and a run restarted from a checkpoint must compute
         # bit for bit what the uninterrupted run did. Creating a SNES costs microseconds.
         # Except with a constant Jacobian (keeps_solver).
-        if not keeps_solver(self):
+        if not self.keeps_solver():
             self._new_solver()
         self.snes.solve(None, q1)
         report = StepReport()

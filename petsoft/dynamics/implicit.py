@@ -82,23 +82,36 @@ def _branch_of(system):
     return branch if branch is not None and branch.stepping else _NoBranch()
 
 
-def keeps_solver(integrator) -> bool:
-    """Whether a step keeps the previous step's SNES (and its factorised Jacobian).
+class SolverReuse:
+    """Mixin of the SNES-based integrators: whether a step keeps the previous step's SNES.
 
-    True within a run (since :meth:`new_run`) of a SNES-based integrator whose system has a
-    constant Jacobian: ``assemble_combination(..., reuse=True)`` then leaves the matrix untouched
-    and PETSc keeps its factorisation (or multigrid set-up). A new SNES per step refactored the
-    same matrix every step: 70 % of a linear bar's forward run was MUMPS factoring (-log_view).
-    A run restarted from a checkpoint still computes bit for bit what the uninterrupted run did:
-    it sets the solver up once, on the same matrix, as that run did at its first step.
+    The integrator sets ``self.snes`` and ``self.system``, calls :meth:`new_run` when a run
+    starts or a step fails, and asks :meth:`keeps_solver` before each step.
     """
-    if not integrator._solver_used or getattr(integrator, "snes", None) is None:
-        integrator._solver_used = True
-        return False
-    return bool(getattr(integrator.system, "jacobian_is_constant", False))
+
+    _solver_used = False
+
+    def new_run(self) -> None:
+        """The next step sets up a new solver (a caller's options may have changed)."""
+        self._solver_used = False
+
+    def keeps_solver(self) -> bool:
+        """Whether this step keeps the previous step's SNES (and its factorised Jacobian).
+
+        True within a run (since :meth:`new_run`) when the system has a constant Jacobian:
+        ``assemble_combination(..., reuse=True)`` then leaves the matrix untouched and PETSc
+        keeps its factorisation (or multigrid set-up). A new SNES per step refactored the same
+        matrix every step: 70 % of a linear bar's forward run was MUMPS factoring (-log_view).
+        A run restarted from a checkpoint still computes bit for bit what the uninterrupted run
+        did: it sets the solver up once, on the same matrix, as that run did at its first step.
+        """
+        if not self._solver_used or getattr(self, "snes", None) is None:
+            self._solver_used = True
+            return False
+        return bool(getattr(self.system, "jacobian_is_constant", False))
 
 
-class ImplicitIntegrator:
+class ImplicitIntegrator(SolverReuse):
     """Backward Euler, semi-implicit, (discrete-gradient) midpoint or trapezoidal steps.
 
     Parameters
@@ -133,10 +146,6 @@ class ImplicitIntegrator:
         self.snes = self.tao = None
         self._new_solver()
         self.new_run()
-
-    def new_run(self) -> None:
-        """The next step sets up a new solver (a caller's options may have changed)."""
-        self._solver_used = False
 
     def _new_solver(self) -> None:
         """A fresh SNES or TAO (with KSP and PC): see :meth:`step` for why one per step."""
@@ -354,7 +363,7 @@ class ImplicitIntegrator:
         # generator survives KSPReset), and a run restarted from a checkpoint must compute
         # bit for bit what the uninterrupted run did. Creating a SNES costs microseconds.
         # Except with a constant Jacobian (keeps_solver).
-        if not keeps_solver(self):
+        if not self.keeps_solver():
             self._new_solver()
         if self.solver == "snes":
             self.snes.solve(None, q1)
