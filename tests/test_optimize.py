@@ -60,6 +60,24 @@ def test_scaling_map_bounds_and_derivative():
     np.testing.assert_allclose(sc.dp_dz(z), fd, rtol=1e-8)
 
 
+def test_scaled_bounds_map_back_to_the_bounds_exactly():
+    """An optimizer stopped on a bound of z returns exactly the physical bound: seen in a
+    diagnosis, exp(log(lo / ref)) * ref came out one ulp below lo and the calibrated experiment
+    was refused ("outside the bounds")."""
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        lo = rng.uniform(1e-5, 1e-3)
+        hi = lo * rng.uniform(10.0, 1e4)
+        ref = rng.uniform(lo, hi)
+        sc = ParameterScaling(["tau", "nu"], [ref, 0.3], [lo, 0.05], [hi, 0.45])
+        zl, zu = sc.bounds()
+        for z, want in ((zl, [lo, 0.05]), (zu, [hi, 0.45])):
+            p = sc.to_physical(z)
+            assert np.all(p >= [lo, 0.05]) and np.all(p <= [hi, 0.45]), (p, want)
+            np.testing.assert_allclose(p, want, rtol=1e-14)
+            assert p.tolist() == sc.to_physical(z[None])[0].tolist()
+
+
 @pytest.mark.parametrize("kwargs, match", [
     ({"start": [1.0, 5.0], "lower": [0.1, 0.0], "upper": [2.0, 1.0]}, "'b'.*outside"),
     ({"start": [1.0], "lower": None, "upper": None}, "1 values for 2 parameters"),

@@ -130,7 +130,10 @@ class ParameterScaling:
         with np.errstate(over="ignore"):
             pl = self.reference * np.exp(np.where(self.is_log, z, 0.0))
         pa = self.reference + self.width * z
-        return np.where(self.is_log, pl, pa)
+        # z at its bound maps back to the physical bound, not to a rounding of it one ulp
+        # outside (exp(log(lo / ref)) * ref): the calibrated value must pass the bounds check
+        # of the experiment it is written into
+        return np.clip(np.where(self.is_log, pl, pa), self.lower, self.upper)
 
     def dp_dz(self, z) -> np.ndarray:
         """The diagonal of the Jacobian dp/dz at z, shape (n,) (the map is componentwise)."""
