@@ -22,8 +22,11 @@ def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None
     """A direct solve for up to :data:`DIRECT_DOFS` dofs, else CG + algebraic multigrid (the
     caller attaches the rigid-body near-nullspace).
 
-    The direct solve is MUMPS when PETSc has it (serially too: on a 1875-dof bar it factors 2.5x
-    faster than PETSc's own LU), else PETSc's LU on one rank. Set before ``setFromOptions()``,
+    The direct solve is MUMPS when PETSc has it (on a 1875-dof bar it factors 2.5x faster than
+    PETSc's own LU), else PETSc's LU, and only on one rank: MUMPS's dynamic scheduling across
+    ranks depends on message timing, so two identical 2-rank runs on a loaded machine differed in
+    the last bits (tests/test_restart.py's bitwise restart failed), while CG + GAMG repeats
+    itself exactly. Set before ``setFromOptions()``,
     so ``-ksp_type``/``-pc_type`` (with the object's prefix) replace them: SOR (Gauss-Seidel),
     Jacobi, CG + GAMG, or a direct solve. A solver half-chosen by options (only ``-pc_type
     jacobi``) gets the iterative default for the other half, never "preonly".
@@ -37,13 +40,12 @@ def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None
     dofs :
         Global size of the system; ``None`` keeps the iterative default.
     """
-    has_mumps = PETSc.Sys.hasExternalPackage("mumps")
     if (dofs is not None and dofs <= DIRECT_DOFS and not solver_chosen(ksp)
-            and (has_mumps or ksp.getComm().getSize() == 1)):
+            and ksp.getComm().getSize() == 1):
         ksp.setType(PETSc.KSP.Type.PREONLY)
         pc = ksp.getPC()
         pc.setType(PETSc.PC.Type.LU)
-        pc.setFactorSolverType("mumps" if has_mumps else "petsc")
+        pc.setFactorSolverType("mumps" if PETSc.Sys.hasExternalPackage("mumps") else "petsc")
         return
     ksp.setType(PETSc.KSP.Type.CG)
     ksp.getPC().setType(PETSc.PC.Type.GAMG)
