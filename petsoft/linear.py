@@ -23,10 +23,11 @@ def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None
     caller attaches the rigid-body near-nullspace).
 
     The direct solve is MUMPS when PETSc has it (on a 1875-dof bar it factors 2.5x faster than
-    PETSc's own LU), else PETSc's LU, and only on one rank: MUMPS's dynamic scheduling across
-    ranks depends on message timing, so two identical 2-rank runs on a loaded machine differed in
-    the last bits (tests/test_restart.py's bitwise restart failed), while CG + GAMG repeats
-    itself exactly. Set before ``setFromOptions()``,
+    PETSc's own LU), else PETSc's LU, and only on one rank: across ranks MUMPS schedules
+    dynamically and asynchronously, and two identical 2-rank runs on a loaded machine differed
+    in the last bits (tests/test_restart.py's bitwise restart failed once; not reproduced on a
+    quiet machine, so the scheduling is the likely, unproven cause), while the iterative
+    default has always repeated itself exactly there. Set before ``setFromOptions()``,
     so ``-ksp_type``/``-pc_type`` (with the object's prefix) replace them: SOR (Gauss-Seidel),
     Jacobi, CG + GAMG, or a direct solve. A solver half-chosen by options (only ``-pc_type
     jacobi``) gets the iterative default for the other half, never "preonly".
