@@ -20,8 +20,9 @@ after / noise, relative error of the effect's main parameter, runtime. Then the 
 ranked first in >= 90 % of the single cases, both effects found in the combined cases, nothing
 added in the controls, held-out rms after within 1.5 x the noise.
 
-Run (cases run one after another, each on all ranks; 2-18 minutes a case on one core of a busy
-2-core machine: the numerics check adopts the 2x mesh, 2304 tets, in every case)::
+Run (cases run one after another, each on all ranks; 4-80 minutes a case, 7 CPU-hours for 15
+cases, measured serially with 3-5 processes sharing a 2-core machine: the numerics check adopts
+the 2x mesh, 2304 tets, in every case, and a halved step in some)::
 
     .venv/bin/python scripts/bench_diagnose.py --dir out/bench_diagnose [--cases damping,control]
     mpiexec -n 2 .venv/bin/python scripts/bench_diagnose.py --dir out/bench_diagnose
