@@ -475,13 +475,17 @@ class _Diagnosis:
             _, _, maps = fm.cell_gradient(fit.values, dphi)
             centroids, volumes = _cell_geometry(fm.system.dmesh.mesh)
         except ExperimentError:
-            return {"stiffness": None, "density": None}
+            return dict(NO_REGIONS)
         finally:
             fm.destroy()
         self.centroids = centroids
         return {"stiffness": sensitivity_region(centroids, maps["youngs_modulus"], volumes),
                 "density": sensitivity_region(centroids, maps["density"], volumes,
                                               inward=True)}
+
+
+#: What :meth:`_Diagnosis.sensitivity_regions` returns when no map can be made.
+NO_REGIONS = {"stiffness": None, "density": None}
 
 
 def outward_only(candidate, ext, tested: list[str], gradient) -> str | None:
@@ -767,14 +771,21 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
         # Rule out numerics before blaming physics, again whenever the mismatch has shrunk
         # tenfold since the last check: a large physical misfit hides a discretisation error
         # that dominates once the physics is fixed.
-        nonlocal checked_excess, refinements
         if not numerics or ev["verdict"] == "consistent":
             return fit, ev
         if checked_excess is not None and excess(fit) > 0.1 * checked_excess:
             return fit, ev
+        return refine(fit, ev)
+
+    def refine(fit: Fit, ev: dict, final: bool = False):
+        # resolve_numerics, its rounds recorded, and the excess it leaves remembered so that
+        # the next round's numerics_first does not repeat it at once
+        nonlocal checked_excess, refinements
         fit, ev, rounds = resolve_numerics(diag, fit, ev)
         for r in rounds:
             r["after_additions"] = len(added)
+            if final:
+                r["final_check"] = True
         refinements += rounds
         checked_excess = excess(fit)
         return fit, ev
@@ -785,17 +796,13 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
         # final model, the refinement may now matter: seen, a corotated bar's step error, 2.8 x
         # the noise over the record, was counted as model error and its held-out prediction
         # stayed 2.2 x the noise. Returns whether the verdict is now open again.
-        nonlocal current, ev, refinements
+        nonlocal current, ev
         if not (numerics and diag.model_error and ev["verdict"] == "consistent"):
             return False
         diag.tell("numerics: the verdict counts an estimated discretisation error ("
                   + ", ".join(f"{k} {v:.3g} m" for k, v in diag.model_error.items())
                   + "); measuring it again on the final model")
-        current, ev, rounds = resolve_numerics(diag, current, ev)
-        for r in rounds:
-            r["after_additions"] = len(added)
-            r["final_check"] = True
-        refinements += rounds
+        current, ev = refine(current, ev, final=True)
         return ev["verdict"] != "consistent" and len(added) < max_additions
 
     current, ev = numerics_first(current, ev)
@@ -815,7 +822,7 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
             if ev["verdict"] == "consistent":
                 break
         maps = (diag.sensitivity_regions(current) if not current.experiment.is_mass_spring
-                else {"stiffness": None, "density": None})
+                else dict(NO_REGIONS))
         plane = escape_plane(diag.data[diag.ident], current.sim[diag.ident], diag.sigma)
         cands, not_modelled = build_candidates(
             current.experiment, evidence_region=ev["region"], stiffness_region=maps["stiffness"],

@@ -1,0 +1,46 @@
+"""Default linear solvers (petsoft.linear.linear_defaults): direct on one rank for small
+systems, CG + GAMG above DIRECT_DOFS and on several ranks (bit-reproducible runs there)."""
+
+from petsc4py import PETSc
+
+from petsoft.linear import DIRECT_DOFS, linear_defaults
+
+
+def _ksp(comm, prefix):
+    ksp = PETSc.KSP().create(comm=comm)
+    ksp.setOptionsPrefix(prefix)
+    return ksp
+
+
+def test_small_systems_are_direct_on_one_rank_only():
+    world = PETSc.COMM_WORLD
+    ksp = _ksp(world, "ld_small_")
+    linear_defaults(ksp, dofs=100)
+    if world.getSize() == 1:
+        assert ksp.getType() == PETSc.KSP.Type.PREONLY
+        assert ksp.getPC().getType() == PETSc.PC.Type.LU
+    else:
+        assert ksp.getType() == PETSc.KSP.Type.CG
+        assert ksp.getPC().getType() == PETSc.PC.Type.GAMG
+    ksp.destroy()
+    # a one-rank sub-communicator (a candidate fit on its own rank) is direct whatever the world
+    own = _ksp(PETSc.COMM_SELF, "ld_self_")
+    linear_defaults(own, dofs=100)
+    assert own.getType() == PETSc.KSP.Type.PREONLY
+    own.destroy()
+
+
+def test_large_or_user_chosen_systems_keep_their_solver():
+    ksp = _ksp(PETSc.COMM_SELF, "ld_large_")
+    linear_defaults(ksp, dofs=DIRECT_DOFS + 1)
+    assert ksp.getType() == PETSc.KSP.Type.CG
+    ksp.destroy()
+    opts = PETSc.Options()
+    opts["ld_user_pc_type"] = "jacobi"
+    try:
+        ksp = _ksp(PETSc.COMM_SELF, "ld_user_")
+        linear_defaults(ksp, dofs=100)
+        assert ksp.getType() == PETSc.KSP.Type.CG      # the other half stays iterative
+        ksp.destroy()
+    finally:
+        opts.delValue("ld_user_pc_type")
