@@ -75,7 +75,7 @@ FLAT = {"mesh": {"box": {"size": [0.3, 0.04, 0.02], "cells": [12, 2, 2]}},
 #: energy-conserving midpoint rule, and the recording shows the truth's integrator more than any
 #: contact: measured, a model with the truth's own mesh, step and penalty, stepping
 #: generalized-alpha, fitted that recording to only 6 x the noise on the held-out window; with
-#: this damping, at twice the truth's step (half its penalty), to 1.5 x.
+#: this damping, at twice the truth's step (a quarter of its penalty), to 1.5 x.
 IMPACT = {"damping": {"stiffness": 2e-4}, "initial": {"velocity": ["0", "0", "-18*x*x"]}}
 
 
