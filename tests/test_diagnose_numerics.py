@@ -81,12 +81,14 @@ def test_a_consistent_verdict_resting_on_an_estimated_step_error_is_rechecked(hi
     # its error was estimated and the base step kept
     first = refinements[0]
     assert first["after_additions"] == 0 and "adopted" not in first
+    assert first["why"].startswith("first")
     assert first["options"]["step/2"]["error_estimate"] > 0.0
     # with gravity: the verdict leant on that estimate and was measured again
     if MPI.COMM_WORLD.rank == 0:                   # progress is said on rank 0
         assert any("measuring it again on the final model" in line for line in lines)
     final = [r for r in refinements if r.get("final_check")]
     assert final and final[0]["after_additions"] == 1
+    assert final[0]["why"].startswith("again on the final model")
     assert final[0]["adopted"] == "step/2"
     assert res.final.experiment.time.step < 0.004
     assert res.final_verdict == "consistent"

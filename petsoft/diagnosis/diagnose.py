@@ -777,18 +777,24 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
         # swing's: seen, a contact case fitted E 24 % low at the base step)
         if not numerics or ev["verdict"] == "consistent":
             return fit, ev
-        if (checked_excess is not None and excess(fit) > 0.1 * checked_excess
-                and not switched_since_check):
-            return fit, ev
-        return refine(fit, ev)
+        if checked_excess is None:
+            return refine(fit, ev, "first, before any physics is added")
+        if switched_since_check:
+            return refine(fit, ev, f"because {added[-1]['physics']}, a switch of the model's kind, "
+                                   "was added")
+        if excess(fit) <= 0.1 * checked_excess:
+            return refine(fit, ev, "because the misfit's excess over the noise shrank "
+                                   "tenfold since the last check")
+        return fit, ev
 
-    def refine(fit: Fit, ev: dict, final: bool = False):
+    def refine(fit: Fit, ev: dict, why: str, final: bool = False):
         # resolve_numerics, its rounds recorded, and the excess it leaves remembered so that
         # the next round's numerics_first does not repeat it at once
         nonlocal checked_excess, refinements, switched_since_check
         fit, ev, rounds = resolve_numerics(diag, fit, ev)
         for r in rounds:
             r["after_additions"] = len(added)
+            r["why"] = why
             if final:
                 r["final_check"] = True
         refinements += rounds
@@ -808,7 +814,8 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
         diag.tell("numerics: the verdict counts an estimated discretisation error ("
                   + ", ".join(f"{k} {v:.3g} m" for k, v in diag.model_error.items())
                   + "); measuring it again on the final model")
-        current, ev = refine(current, ev, final=True)
+        current, ev = refine(current, ev, "again on the final model: its consistent verdict "
+                             "counted an estimated discretisation error", final=True)
         return ev["verdict"] != "consistent" and len(added) < max_additions
 
     current, ev = numerics_first(current, ev)
@@ -1048,7 +1055,8 @@ def write_outputs(out: Path, diag: _Diagnosis, result: DiagnoseResult, base_ev: 
         opts = "; ".join(f"{k}: chi2 {v['chi2']:.5g}" for k, v in r["options"].items()
                          if "chi2" in v)
         notes.append(f"numerics before blaming physics (after {r.get('after_additions', 0)} "
-                     f"additions): chi2 {r['chi2']:.5g} at step {r['step']:.4g} s; refined: "
+                     f"additions; checked {r['why']}): chi2 {r['chi2']:.5g} at step "
+                     f"{r['step']:.4g} s; refined: "
                      f"{opts}; " + (f"adopted {r['adopted']} (it lowered chi2 by more than 10 % "
                                     "of the excess over the noise)" if r.get("adopted")
                                     else "nothing adopted (refinement does not matter)"))
