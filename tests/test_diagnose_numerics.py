@@ -7,6 +7,7 @@ excess, so the step error is only *estimated* (Richardson) and counted in the ve
 budget; with gravity added the verdict is then "consistent" while the held-out prediction is
 still 3 x the noise. The final re-check must measure the step again on the final model, find that
 it now matters, adopt the smaller step and end within 1.5 x the noise on the held-out window.
+Also: when a check is due between rounds (``numerics_due``).
 """
 
 from argparse import Namespace
@@ -16,7 +17,7 @@ import pytest
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.diagnosis.diagnose import run_diagnose
+from petsoft.diagnosis.diagnose import numerics_due, run_diagnose
 from petsoft.experiment import load_experiment
 from petsoft.synth import run_synth
 
@@ -50,6 +51,15 @@ directory = "out"
 {calibrate}
 """
 NOISE = 5e-5
+
+
+def test_numerics_are_checked_first_after_a_switch_and_when_the_misfit_shrank_tenfold():
+    assert numerics_due(None, 5e4, None).startswith("first")
+    # the misfit shrank only 5x: no new check ...
+    assert numerics_due(1e5, 2e4, None) is None
+    # ... unless a switch changed the model's kind (a contact's impact needs its own step)
+    assert "contact.plane" in numerics_due(1e5, 2e4, "contact.plane")
+    assert "tenfold" in numerics_due(1e5, 9e3, None)
 
 
 @pytest.fixture(scope="module")

@@ -612,6 +612,29 @@ def _refined(experiment, what: str):
     return _with_time(experiment, cells_factor=2)
 
 
+def numerics_due(checked_excess: float | None, excess: float,
+                 switch_added: str | None) -> str | None:
+    """Why the numerics must be checked (again) before the next round, or None.
+
+    Parameters
+    ----------
+    checked_excess : float or None
+        chi2 - dof the last check left (None: never checked).
+    excess : float
+        chi2 - dof of the current model.
+    switch_added : str or None
+        The switch (contact, nonlinear law) added since the last check, if any: a model of
+        another kind needs its own resolution.
+    """
+    if checked_excess is None:
+        return "first, before any physics is added"
+    if switch_added:
+        return f"because {switch_added}, a switch of the model's kind, was added"
+    if excess <= 0.1 * checked_excess:
+        return "because the misfit's excess over the noise shrank tenfold since the last check"
+    return None
+
+
 def resolve_numerics(diag: _Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
                      mesh_done: bool = False):
     """Rule out numerics before blaming physics (issue 6, step 5).
@@ -762,7 +785,7 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
     not_modelled: dict = {}
     refinements: list[dict] = []
     checked_excess = None
-    switched_since_check = False
+    switch_since_check = None
 
     def excess(fit: Fit) -> float:
         dof = max(int(np.isfinite(diag.data[diag.ident]).sum()) - len(fit.names), 1)
@@ -777,20 +800,13 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
         # swing's: seen, a contact case fitted E 24 % low at the base step)
         if not numerics or ev["verdict"] == "consistent":
             return fit, ev
-        if checked_excess is None:
-            return refine(fit, ev, "first, before any physics is added")
-        if switched_since_check:
-            return refine(fit, ev, f"because {added[-1]['physics']}, a switch of the model's kind, "
-                                   "was added")
-        if excess(fit) <= 0.1 * checked_excess:
-            return refine(fit, ev, "because the misfit's excess over the noise shrank "
-                                   "tenfold since the last check")
-        return fit, ev
+        why = numerics_due(checked_excess, excess(fit), switch_since_check)
+        return refine(fit, ev, why) if why else (fit, ev)
 
     def refine(fit: Fit, ev: dict, why: str, final: bool = False):
         # resolve_numerics, its rounds recorded, and the excess it leaves remembered so that
         # the next round's numerics_first does not repeat it at once
-        nonlocal checked_excess, refinements, switched_since_check
+        nonlocal checked_excess, refinements, switch_since_check
         fit, ev, rounds = resolve_numerics(diag, fit, ev)
         for r in rounds:
             r["after_additions"] = len(added)
@@ -799,7 +815,7 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
                 r["final_check"] = True
         refinements += rounds
         checked_excess = excess(fit)
-        switched_since_check = False
+        switch_since_check = None
         return fit, ev
 
     def recheck_final() -> bool:
@@ -930,7 +946,8 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
                     + f" predicted and fitted as well (held-out rms within 2 %, chi2 + k ln n "
                     f"within {TIE_CHI2:g}); chosen by the vocabulary's order")
             accepted = (v_best["entry"], s_best["fit"])
-            switched_since_check = switched_since_check or c_best.kind == "switch"
+            if c_best.kind == "switch":
+                switch_since_check = c_best.physics
             for chi2, _, s, c, _ in passed[1:]:
                 rejected.append({"physics": c.physics, "score": s["score"],
                                  "reason": f"fitted too, {c_best.physics} was preferred "
