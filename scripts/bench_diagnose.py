@@ -15,8 +15,9 @@ linear and a corotated body).
 
 Printed per case: true effect(s), named (added) effect(s), rank of the (first) truth in the first
 round's ranking, localisation error of a spatial term (distance between the added sphere's centre
-and the true one, m), rms on the held-out window (last 30 % of the record) before and after, and
-after / noise, relative error of the effect's main parameter, runtime. Then the targets: truth
+and the true one, or between the added plane and the true one, m), rms on the held-out window
+(last 30 % of the record) before and after, and after / noise, relative error of the effect's
+main parameter, runtime. Then the targets: truth
 ranked first in >= 90 % of the single cases, both effects found in the combined cases, nothing
 added in the controls, held-out rms after within 1.5 x the noise.
 
@@ -89,6 +90,7 @@ def _region(name: str, where: dict, key: str, value: float) -> dict:
 
 
 #: name -> truth edits, user edits, true physics, (parameter, true value) | None, locate
+#: (a sphere) or plane (the true plane's level along z)
 CASES: dict[str, dict] = {
     "damping": dict(truth={"damping": {"mass": 4.0}}, physics=["damping.mass"],
                     param=("damping.mass", 4.0)),
@@ -119,7 +121,7 @@ CASES: dict[str, dict] = {
                          physics=["friction.dry"], param=("friction.dry", 1.0)),
     "contact": dict(truth={"collider": [{"kind": "plane", "point": [0.0, 0.0, -0.012],
                                          "normal": [0.0, 0.0, 1.0]}], **IMPACT},
-                    user=IMPACT, physics=["contact.plane"], param=("collider.0.offset", None)),
+                    user=IMPACT, physics=["contact.plane"], plane=-0.012),
     "damping+mass": dict(truth={"damping": {"mass": 4.0},
                                 **_region("heavy", HEAVY, "density", 4 * RHO)},
                          physics=["damping.mass", "mass.added"], param=("damping.mass", 4.0),
@@ -199,6 +201,8 @@ def run_case(name: str, folder: Path, comm, noise: float) -> dict:
             if a.get("region"):
                 loc = float(np.linalg.norm(np.subtract(a["region"]["center"],
                                                        case["locate"]["center"])))
+    if case.get("plane") is not None and "contact.plane" in named:
+        loc = plane_error(res.final.experiment, case["plane"])
     perr = None
     param = case.get("param")
     if param is not None and param[1] is not None and param[0] in res.final.names:
@@ -211,6 +215,15 @@ def run_case(name: str, folder: Path, comm, noise: float) -> dict:
             "rms_after": val.get("final_rms"), "param_err": perr, "wall": wall,
             "synth": t1 - t0, "single": len(physics) == 1, "control": not physics,
             "ranking": ranking[:4]}
+
+
+def plane_error(experiment, level: float) -> float:
+    """Distance (m) between the last collider plane of ``experiment`` (the one diagnose added)
+    and the true plane ``n . x = level``, along the added plane's normal."""
+    c = experiment.colliders[-1]
+    n = np.asarray(c.normal, dtype=float)
+    n /= np.linalg.norm(n)
+    return abs(float(np.dot(c.point, n)) + c.offset - level)
 
 
 def _f(x, fmt):
