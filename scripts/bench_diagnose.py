@@ -237,7 +237,7 @@ def print_table(rows: list[dict], size: int, noise: float) -> None:
     for r in rows:
         after = r["rms_after"]
         print(f"{r['case']:<18} {r['truth']:<32} {r['named']:<32} {_f(r['rank'], 'd'):>4} "
-              f"{_f(r['loc_err'], '.3f'):>7} {_f(r['rms_before'], '.3g'):>10} "
+              f"{_f(r['loc_err'], '.2g'):>7} {_f(r['rms_before'], '.3g'):>10} "
               f"{_f(after, '.3g'):>9} {_f(after / noise if after else None, '.2f'):>6} "
               f"{_f(r['param_err'], '.1%'):>8} {r['wall']:>7.1f}")
     singles = [r for r in rows if r["single"]]
