@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _cantilever import CALIBRATE, cantilever
 from mpi4py import MPI
 from petsc4py import PETSc
 from scipy import stats
@@ -30,38 +31,12 @@ from petsoft.experiment import experiment_from_dict, get_parameter, load_experim
 from petsoft.recording import read_recording
 from petsoft.synth import run_synth
 
-MODEL = """
-[mesh]
-box = {{ size = [0.3, 0.04, 0.04], cells = [6, 1, 1] }}
-
-[material]
-model = "linear"
-youngs_modulus = {E}
-poisson_ratio = 0.3
-density = 1000.0
-
-[damping]
-mass = {alpha}
-
-[gravity]
-acceleration = [0.0, 0.0, -9.81]
-
-[[boundary]]
-kind = "fixed"
-where = "x < 1e-9"
-
-[time]
-end = 0.2
-step = 0.004
-integrator = "alpha"
-alpha_radius = 0.9
-
-[output]
-directory = "out"
-{calibrate}
-"""
-CALIBRATE = '[calibrate]\n"material.youngs_modulus" = [1e6, 1e8]\n'
 TRUE_E, TRUE_ALPHA, NOISE = 2.0e7, 4.0, 5e-5
+
+
+def _model(E: float, alpha: float, calibrate: str) -> str:
+    """The cantilever with mass-proportional damping ``alpha`` (generalized-alpha, 4 ms)."""
+    return cantilever(E, extra=f"\n[damping]\nmass = {alpha}\n", calibrate=calibrate)
 
 
 def _shared_dir(tmp_path_factory, name):
@@ -87,9 +62,9 @@ def _synth(exp: Path, out: Path, seed: int) -> Path:
 def case(tmp_path_factory):
     """Recordings (damped truth, undamped control) and the user's model (E off by 10 %)."""
     d = _shared_dir(tmp_path_factory, "diagnose")
-    damped = _write(d / "damped.toml", MODEL.format(E=TRUE_E, alpha=TRUE_ALPHA, calibrate=""))
-    plain = _write(d / "plain.toml", MODEL.format(E=TRUE_E, alpha=0.0, calibrate=""))
-    user = _write(d / "user.toml", MODEL.format(E=1.8e7, alpha=0.0, calibrate=CALIBRATE))
+    damped = _write(d / "damped.toml", _model(TRUE_E, TRUE_ALPHA, ""))
+    plain = _write(d / "plain.toml", _model(TRUE_E, 0.0, ""))
+    user = _write(d / "user.toml", _model(1.8e7, 0.0, CALIBRATE))
     return {"dir": d, "user": user, "damped": _synth(damped, d / "damped.h5", seed=3),
             "plain": _synth(plain, d / "plain.h5", seed=5), "results": {}}
 
@@ -279,7 +254,7 @@ def test_two_ranks_agree_with_one(case):
 
 
 def test_user_errors_name_the_problem(case):
-    no_cal = _write(case["dir"] / "nocal.toml", MODEL.format(E=1.8e7, alpha=0.0, calibrate=""))
+    no_cal = _write(case["dir"] / "nocal.toml", _model(1.8e7, 0.0, ""))
     with pytest.raises(DiagnoseError, match=r"nocal.toml.*\[calibrate\]"):
         run_diagnose(load_experiment(no_cal), case["plain"], comm=PETSc.COMM_WORLD)
     with pytest.raises(DiagnoseError, match="--fraction"):
@@ -346,7 +321,7 @@ def test_candidates_are_scored_with_a_viscoelastic_branch_in_the_model(case):
     """A model that already has a viscoelastic branch (as after a round that added one) cannot
     use alpha's exact sensitivities: every column is then differenced, and the candidates still
     get a score (before, each one failed with the sensitivities' refusal and round 2 ended)."""
-    text = (MODEL.format(E=1.8e7, alpha=0.0, calibrate=CALIBRATE)
+    text = (_model(1.8e7, 0.0, CALIBRATE)
             + "\n[viscoelastic]\nratio = 0.02\nrelaxation_time = 0.001\n")
     user = _write(case["dir"] / "user_visco.toml", text)
     res = run_diagnose(load_experiment(user), case["damped"], out=None, comm=PETSc.COMM_WORLD,
@@ -365,7 +340,7 @@ def test_a_candidate_at_its_lower_bound_scores_only_inward():
     from petsoft.diagnosis.diagnose import outward_only
     from petsoft.experiment import with_parameters
 
-    exp = load_experiment_text(MODEL.format(E=TRUE_E, alpha=0.0, calibrate=CALIBRATE))
+    exp = load_experiment_text(_model(TRUE_E, 0.0, CALIBRATE))
     cand = Candidate("damping.mass", ["damping.mass"], [(0.0, 100.0)])
     ext = cand.extend(exp)
     assert "below its lower bound" in outward_only(cand, ext, ["damping.mass"], [2.5])

@@ -14,6 +14,7 @@ from argparse import Namespace
 from pathlib import Path
 
 import pytest
+from _cantilever import CALIBRATE, cantilever
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -21,36 +22,14 @@ from petsoft.diagnosis.diagnose import numerics_due, run_diagnose
 from petsoft.experiment import load_experiment
 from petsoft.synth import run_synth
 
-BAR = """
-[mesh]
-box = {{ size = [0.3, 0.04, 0.04], cells = [6, 1, 1] }}
-
-[material]
-model = "linear"
-youngs_modulus = {E}
-poisson_ratio = 0.3
-density = 1000.0
-
-[initial]
-velocity = ["0", "0", "6*x*x"]
-
-[gravity]
-acceleration = [0.0, 0.0, {g}]
-
-[[boundary]]
-kind = "fixed"
-where = "x < 1e-9"
-
-[time]
-end = 0.1
-step = {step}
-integrator = "{integrator}"
-
-[output]
-directory = "out"
-{calibrate}
-"""
 NOISE = 5e-5
+
+
+def _bar(E: float, gravity: float, step: float, integrator: str, calibrate: str) -> str:
+    """The cantilever swung up (no damping) over 0.1 s; the integrator's default radius."""
+    return cantilever(E, extra='\n[initial]\nvelocity = ["0", "0", "6*x*x"]\n',
+                      gravity=gravity, end=0.1, step=step, integrator=integrator,
+                      alpha_radius=None, calibrate=calibrate)
 
 
 def test_numerics_are_checked_first_after_a_switch_and_when_the_misfit_shrank_tenfold():
@@ -67,11 +46,8 @@ def hidden_step_error(tmp_path_factory):
     comm = MPI.COMM_WORLD
     d = Path(comm.bcast(str(tmp_path_factory.mktemp("recheck")) if comm.rank == 0 else None))
     if comm.rank == 0:
-        (d / "truth.toml").write_text(BAR.format(E=2e7, g=-9.81, step=0.001,
-                                                 integrator="midpoint", calibrate=""))
-        (d / "user.toml").write_text(BAR.format(
-            E=1.8e7, g=0.0, step=0.004, integrator="alpha",
-            calibrate='[calibrate]\n"material.youngs_modulus" = [1e6, 1e8]\n'))
+        (d / "truth.toml").write_text(_bar(2e7, -9.81, 0.001, "midpoint", ""))
+        (d / "user.toml").write_text(_bar(1.8e7, 0.0, 0.004, "alpha", CALIBRATE))
     comm.Barrier()
     run_synth(Namespace(experiment=str(d / "truth.toml"), out=str(d / "rec.h5"), noise=NOISE,
                         markers=8, markers_file=None, dropout=0.1, refine=1, integrator=None,
