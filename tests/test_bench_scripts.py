@@ -62,3 +62,25 @@ def test_bench_linear_solvers_quick():
     assert "cg-gamg" in proc.stdout and "differs" not in proc.stdout, proc.stdout
     rows = [line.split() for line in proc.stdout.splitlines() if line.split()[:1] == ["144"]]
     assert len(rows) == 1 and rows[0][-1] == "(1.00x)", proc.stdout
+
+
+def test_bench_diagnose_plane_error_is_the_distance_between_the_planes():
+    """The contact case's localisation error: the added plane (point + offset along a non-unit
+    normal) against the true level, not the offset alone."""
+    import importlib.util
+
+    from petsoft.experiment import experiment_from_dict
+
+    spec = importlib.util.spec_from_file_location("bench_diagnose",
+                                                  ROOT / "scripts" / "bench_diagnose.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    data = {"mesh": {"box": {"size": [0.3, 0.04, 0.04], "cells": [2, 1, 1]}},
+            "material": {"model": "linear", "youngs_modulus": 1e6, "poisson_ratio": 0.3,
+                         "density": 1000.0},
+            "boundary": [{"kind": "fixed", "where": "x < 1e-9"}],
+            "collider": [{"kind": "plane", "point": [0.3, 0.04, -0.0128],
+                          "normal": [0.0, 0.0, 2.0], "offset": 0.0008}]}
+    exp = experiment_from_dict(data, source="plane", base_dir=ROOT)
+    assert bench.plane_error(exp, -0.012) == pytest.approx(0.0, abs=1e-15)
+    assert bench.plane_error(exp, -0.0125) == pytest.approx(0.0005, rel=1e-12)
