@@ -216,7 +216,7 @@ def compare(args, title: str, stiffness_scale=None, colour=None) -> int:
     from petsc4py import PETSc
 
     from petsoft.errors import PetsoftError
-    from petsoft.options import set_default_option
+    from petsoft.solvers.options import set_default_option
 
     if args.quick:
         args.nodes, args.end = 7, 0.3

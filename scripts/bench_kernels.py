@@ -17,8 +17,8 @@ import time
 
 import numpy as np
 
-from petsoft.kernels import elastic
-from petsoft.kernels.tet import shape_gradients
+from petsoft.fem.kernels import elastic
+from petsoft.fem.kernels.tet import shape_gradients
 
 
 def make_elements(n: int, seed: int = 0):

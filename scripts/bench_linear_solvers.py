@@ -10,7 +10,7 @@ the forward Newton's linear solvers chosen by PETSc options:
 * ``mumps``: ``-fm_ksp_type preonly -fm_pc_type lu -fm_pc_factor_mat_solver_type mumps``;
 * ``petsc-lu``: PETSc's own LU (its default nested-dissection ordering), serial only;
 * ``cg-gamg``: CG + algebraic multigrid (rtol 1e-12, the rigid-body near-nullspace);
-* ``default``: what petsoft picks with no options (:func:`petsoft.linear.linear_defaults`:
+* ``default``: what petsoft picks with no options (:func:`petsoft.solvers.linear.linear_defaults`:
   direct up to ``DIRECT_DOFS`` dofs).
 
 The table gives milliseconds per time step (best of ``--repeat``, interleaved so a slow phase of
@@ -54,10 +54,10 @@ import numpy as np  # noqa: E402
 from _bench_common import NRANKS, progress, say, timed_interleaved  # noqa: E402
 from petsc4py import PETSc  # noqa: E402
 
-from petsoft.calibration.forward import ForwardModel  # noqa: E402
-from petsoft.calibration.observation import MarkerObserver  # noqa: E402
-from petsoft.experiment import experiment_from_dict  # noqa: E402
-from petsoft.linear import DIRECT_DOFS  # noqa: E402
+from petsoft.calibration.forward import ForwardModel
+from petsoft.calibration.observation import MarkerObserver
+from petsoft.experiment import experiment_from_dict
+from petsoft.solvers.linear import DIRECT_DOFS
 
 SOLVERS = {
     "default": {},

@@ -147,12 +147,12 @@ from _bench_common import (  # noqa: E402
 )
 from petsc4py import PETSc  # noqa: E402
 
-from petsoft.dynamics.implicit import ImplicitIntegrator  # noqa: E402
-from petsoft.dynamics.system import DynamicSystem  # noqa: E402
-from petsoft.experiment import experiment_from_dict  # noqa: E402
-from petsoft.kernels.materials import lame_parameters  # noqa: E402
-from petsoft.model import build_model  # noqa: E402
-from petsoft.options import clear_options  # noqa: E402
+from petsoft.dynamics.implicit import ImplicitIntegrator
+from petsoft.dynamics.system import DynamicSystem
+from petsoft.experiment import experiment_from_dict
+from petsoft.fem.kernels.materials import lame_parameters
+from petsoft.physics.model import build_model
+from petsoft.solvers.options import clear_options
 
 LENGTH, WIDTH = 0.4, 0.04
 E_MOD, NU, RHO = 1e6, 0.45, 1100.0
@@ -160,7 +160,7 @@ GRAVITY = (0.0, 0.0, -9.81)
 H = 1.0 / 60.0
 MU, LAM = (float(v) for v in lame_parameters(E_MOD, NU))
 NEWTON_RTOL, NEWTON_ATOL, NEWTON_MAXIT = 1e-10, 1e-12, 25   # petsoft's ImplicitIntegrator
-KSP_RTOL, KSP_ATOL, KSP_MAXIT = 1e-12, 1e-50, 2000          # petsoft.linear.linear_defaults
+KSP_RTOL, KSP_ATOL, KSP_MAXIT = 1e-12, 1e-50, 2000          # petsoft.solvers.linear.linear_defaults
 
 PETSc.Log.begin()  # per-stage event times for the phase breakdown
 

@@ -166,7 +166,7 @@ def main(argv=None) -> int:
 
     from petsoft.calibration.calibrate import run_calibration
     from petsoft.experiment import load_experiment
-    from petsoft.recording import read_recording
+    from petsoft.io.recording import read_recording
 
     comm = PETSc.COMM_WORLD
     rank0 = comm.rank == 0

@@ -29,7 +29,7 @@ absorbs by damping it differently. Measured with noise-free recordings started a
   beta +6.3 %. Two errors add up there: the step's (h against h/2 shifts mode 3 by about
   (omega h)^2 / 16 = 0.9 % at 0.5 ms, an estimate) and the section's (the mode-3 frequency of
   the 20x4x4 mesh is 0.44 % above the 40x8x8 one, 40x4x4 0.21 % above 80x8x8, computed with
-  ``petsoft.modes``). Refining the mesh alone did not help (40x4x4 above).
+  ``petsoft.solvers.modes``). Refining the mesh alone did not help (40x4x4 above).
 
 So the bar is damped like the soft solid it is (alpha = 20 1/s, beta = 2e-4 s: damping ratios
 6.5 % and 8.8 % in modes 1 and 3, so mode 3 decays before its phase drifts far) and is calibrated
@@ -200,9 +200,9 @@ def main(argv=None) -> int:
 
     from petsoft.calibration.calibrate import run_calibration
     from petsoft.experiment import load_experiment
-    from petsoft.options import apply_experiment_options
-    from petsoft.recording import read_recording
-    from petsoft.synth import run_synth
+    from petsoft.solvers.options import apply_experiment_options
+    from petsoft.io.recording import read_recording
+    from petsoft.calibration.synth import run_synth
 
     comm = MPI.COMM_WORLD
     rank0 = comm.rank == 0

@@ -77,7 +77,7 @@ def main(argv=None) -> int:
 
     from petsoft.dynamics.simulate import AVAILABLE, Simulation
     from petsoft.errors import PetsoftError
-    from petsoft.model import build_model
+    from petsoft.physics.model import build_model
 
     if args.quick:
         args.end, args.cells = 6 * args.step, [6, 1, 1]

@@ -98,7 +98,7 @@ def main(argv=None) -> int:
     from petsoft.diagnosis.diagnose import run_diagnose
     from petsoft.errors import SolverError
     from petsoft.experiment import get_parameter, load_experiment
-    from petsoft.recording import read_recording
+    from petsoft.io.recording import read_recording
 
     comm = PETSc.COMM_WORLD
     rank0 = comm.rank == 0

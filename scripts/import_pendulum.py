@@ -203,7 +203,7 @@ def main(argv=None) -> int:
         ap.error("--every must be >= 1 and --length > 0")
     import meshio
 
-    from petsoft.recording import write_recording
+    from petsoft.io.recording import write_recording
 
     out = args.out
     out.mkdir(parents=True, exist_ok=True)

@@ -5,7 +5,7 @@ Run line (from the repository root; rewrites the files, byte-for-byte the same e
     .venv/bin/python scripts/make_meshes.py            # writes into meshes/
     .venv/bin/python scripts/make_meshes.py /tmp/out   # or anywhere else
 
-The meshes are structured (``petsoft.mesh.box_mesh``: hexahedra split into 6 tetrahedra) with
+The meshes are structured (``petsoft.mesh.serial.box_mesh``: hexahedra split into 6 tetrahedra) with
 physical groups attached by position, and written by meshio in gmsh 2.2 ASCII format, which every
 gmsh-reading tool understands. gmsh itself is not needed.
 
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from petsoft.mesh import Mesh, boundary_facets, box_mesh
+from petsoft.mesh.serial import Mesh, boundary_facets, box_mesh
 
 
 def _faces_on(mesh: Mesh, axis: int, value: float, tol: float) -> np.ndarray:
@@ -44,7 +44,7 @@ def tagged_box(
     Parameters
     ----------
     size, cells
-        As for :func:`petsoft.mesh.box_mesh`.
+        As for :func:`petsoft.mesh.serial.box_mesh`.
     regions : dict
         Name -> (tag, boolean mask over tetrahedra) for 3D groups (every tetrahedron in one).
     facets : dict

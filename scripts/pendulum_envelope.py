@@ -132,7 +132,7 @@ def main(argv=None) -> int:
     ap.add_argument("--dir", type=Path, default=Path("out/pendulum"))
     ap.add_argument("--out", type=Path, default=Path("out/pendulum-envelope"))
     args = ap.parse_args(argv)
-    from petsoft.recording import read_recording
+    from petsoft.io.recording import read_recording
 
     if not (args.dir / "identification.h5").exists():
         import import_pendulum

@@ -13,8 +13,8 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from petsoft.experiment import experiment_from_dict
-from petsoft.mesh import box_mesh
-from petsoft.static import StaticSolver
+from petsoft.mesh.serial import box_mesh
+from petsoft.solvers.static import StaticSolver
 
 BOUNDARY_OF_UNIT_CUBE = " or ".join(
     f"{c} < 1e-9 or {c} > 1 - 1e-9" for c in ("x", "y", "z"))
@@ -80,7 +80,7 @@ def solve(model, method: str = "snes", load_steps: int = 1, x0=None, options=Non
         result = solver.solve(x0)
         u = bcast_gathered(model, result.displacement)
     finally:
-        from petsoft.options import clear_options
+        from petsoft.solvers.options import clear_options
         clear_options(keys)
         if solver is not None:
             solver.destroy()

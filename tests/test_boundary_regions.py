@@ -8,8 +8,8 @@ import pytest
 from mpi4py import MPI
 
 from petsoft.experiment import experiment_from_dict
-from petsoft.model import build_model
-from petsoft.static import StaticSolver
+from petsoft.physics.model import build_model
+from petsoft.solvers.static import StaticSolver
 
 MESHES = Path(__file__).resolve().parents[1] / "meshes"
 

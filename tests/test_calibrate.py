@@ -20,7 +20,7 @@ from mpi4py import MPI
 from petsoft.calibration.calibrate import run_calibration
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, load_experiment
-from petsoft.synth import run_synth
+from petsoft.calibration.synth import run_synth
 
 TRUTH = {"material.youngs_modulus": 1.0e6, "damping.mass": 3.0}
 
@@ -134,7 +134,7 @@ def test_nothing_to_calibrate_and_frames_before_zero(case, tmp_path_factory):
     exp = load_experiment(d / "truth.toml")
     with pytest.raises(ExperimentError, match=r"nothing to calibrate.*\[calibrate\]"):
         run_calibration(exp, rec)
-    from petsoft.recording import read_recording
+    from petsoft.io.recording import read_recording
     r = read_recording(rec)
     shifted = _shared_dir(tmp_path_factory, "shifted") / "rec.h5"
     if MPI.COMM_WORLD.rank == 0:
@@ -150,7 +150,7 @@ def test_command_line_one_and_two_ranks_agree(case):
     d, rec, start = case
     out = {}
     for n in (1, 2):
-        cmd = [sys.executable, "-m", "petsoft.cli", "calibrate", str(start), str(rec),
+        cmd = [sys.executable, "-m", "petsoft.cli.main", "calibrate", str(start), str(rec),
                "--out", str(d / f"cli{n}")]
         if n == 2:
             cmd = [shutil.which("mpiexec") or "mpiexec", "-n", "2"] + cmd
@@ -161,7 +161,7 @@ def test_command_line_one_and_two_ranks_agree(case):
     assert out[2]["ranks"] == 2
     for name in TRUTH:
         assert out[2]["parameters"][name] == pytest.approx(out[1]["parameters"][name], rel=1e-6)
-    bad = subprocess.run([sys.executable, "-m", "petsoft.cli", "calibrate", str(start),
+    bad = subprocess.run([sys.executable, "-m", "petsoft.cli.main", "calibrate", str(start),
                           str(d / "missing.h5")], capture_output=True, text=True, env=child_env())
     assert bad.returncode == 2 and "missing.h5" in bad.stderr and "Traceback" not in bad.stderr
 

@@ -23,7 +23,7 @@ from petsc4py import PETSc
 from petsoft.calibration.calibrate import build_forward, run_calibration
 from petsoft.dynamics.mass_spring import write_spring_mesh
 from petsoft.experiment import load_experiment
-from petsoft.recording import read_recording, write_recording
+from petsoft.io.recording import read_recording, write_recording
 
 L, G, C = 0.2, 9.81, 0.5           # length (m), gravity (m/s^2), damping.mass (1/s)
 PHI0, END, FRAME = 1.0, 1.0, 0.02  # release angle (rad from hanging), span (s), frame spacing
@@ -166,7 +166,7 @@ def test_cli_two_ranks_equal_serial(tmp_path):
     toml, rec = _write_case(d, end=0.1)
     serial = run_calibration(load_experiment(toml), rec)
     out = d / "out2"
-    cmd = [shutil.which("mpiexec") or "mpiexec", "-n", "2", sys.executable, "-m", "petsoft.cli",
+    cmd = [shutil.which("mpiexec") or "mpiexec", "-n", "2", sys.executable, "-m", "petsoft.cli.main",
            "calibrate", str(toml), str(rec), "--out", str(out)]
     run = subprocess.run(cmd, cwd=d, capture_output=True, text=True, env=child_env(), timeout=600)
     assert run.returncode == 0, run.stdout + run.stderr

@@ -11,10 +11,10 @@ import pytest
 from child_process import child_env  # tests/child_process.py
 from mpi4py import MPI
 
-from petsoft.cli import split_arguments
+from petsoft.cli.main import split_arguments
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
-PETSOFT = [sys.executable, "-m", "petsoft.cli"]
+PETSOFT = [sys.executable, "-m", "petsoft.cli.main"]
 
 EXPERIMENT = """
 [mesh]
@@ -162,7 +162,7 @@ def test_demo_runs_and_plots(tmp_path):
 
 def test_static_command_in_process_on_all_ranks(tmp_path_factory):
     """The command's driver runs collectively (here on however many ranks pytest runs)."""
-    from petsoft.commands import solve_static
+    from petsoft.cli.commands import solve_static
     from petsoft.experiment import load_experiment
 
     comm = MPI.COMM_WORLD

@@ -1,4 +1,4 @@
-"""Artificial damping (petsoft.damping, `petsoft damping`).
+"""Artificial damping (petsoft.dynamics.damping_analysis, `petsoft damping`).
 
 1. Analytic: the BE/SI propagator's spectral radius against the lecture's closed form
    d/w = ln(1 + (tau w)^2)/(tau w); generalized alpha's rho -> 1 (tau w -> 0) and -> r
@@ -25,10 +25,10 @@ from child_process import child_env  # tests/child_process.py
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft import damping as D
+from petsoft.dynamics import damping_analysis as D
 from petsoft.dynamics.alpha import alpha_parameters
 from petsoft.experiment import experiment_from_dict
-from petsoft.model import build_model
+from petsoft.physics.model import build_model
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 RADII = (0.0, 0.25, 0.5, 0.75, 1.0)
@@ -177,7 +177,7 @@ def test_fem_mode_damping_of_a_linear_bar():
 
 @serial_only
 def test_cli_writes_plot_tables_and_summary(tmp_path):
-    cmd = [sys.executable, "-m", "petsoft.cli", "damping", "--out", "d"]
+    cmd = [sys.executable, "-m", "petsoft.cli.main", "damping", "--out", "d"]
     proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, env=child_env(),
                           timeout=300)
     assert proc.returncode == 0, proc.stderr
@@ -194,6 +194,6 @@ def test_cli_writes_plot_tables_and_summary(tmp_path):
     assert (out / "damping.md").read_text().count("\n| alpha r=0.5 |") == 3
     assert len((out / "damping_scalar.csv").read_text().splitlines()) == 1 + 11 * 17
 
-    bad = subprocess.run([sys.executable, "-m", "petsoft.cli", "damping", "--radii", "0,2"],
+    bad = subprocess.run([sys.executable, "-m", "petsoft.cli.main", "damping", "--radii", "0,2"],
                          cwd=tmp_path, capture_output=True, text=True, env=child_env(), timeout=60)
     assert bad.returncode == 2 and "radii must lie in [0, 1]" in bad.stderr

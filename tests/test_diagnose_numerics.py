@@ -20,7 +20,7 @@ from petsc4py import PETSc
 
 from petsoft.diagnosis.diagnose import numerics_due, run_diagnose
 from petsoft.experiment import load_experiment
-from petsoft.synth import run_synth
+from petsoft.calibration.synth import run_synth
 
 NOISE = 5e-5
 

@@ -44,8 +44,8 @@ from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError
 from petsoft.experiment import DragSpec, experiment_from_dict, load_experiment, with_parameters
-from petsoft.model import build_model
-from petsoft.options import clear_options
+from petsoft.physics.model import build_model
+from petsoft.solvers.options import clear_options
 from petsoft.physics import drag, friction
 
 MARKERS = np.array([[0.3, 0.04, 0.04], [0.3, 0.0, 0.0], [0.15, 0.02, 0.04]])

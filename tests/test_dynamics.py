@@ -12,7 +12,7 @@ from petsoft.dynamics.oscillator import OscillatorSystem
 from petsoft.dynamics.simulate import Simulation
 from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict
-from petsoft.model import build_model
+from petsoft.physics.model import build_model
 
 
 def _integrator(system, name):
@@ -227,7 +227,7 @@ def test_order_on_nonlinear_bar(method, order):
     """
     from petsoft.dynamics.simulate import make_integrator
     from petsoft.dynamics.system import DynamicSystem
-    from petsoft.options import clear_options, set_default_option
+    from petsoft.solvers.options import clear_options, set_default_option
 
     direct = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
     for key, value in direct.items():   # 168 dofs: a direct solve beats multigrid set-up

@@ -22,7 +22,7 @@ from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict
-from petsoft.model import build_model
+from petsoft.physics.model import build_model
 
 
 def _run(integrator, q0, v0, h, nsteps, ledger=None, system=None):

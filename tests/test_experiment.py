@@ -21,7 +21,7 @@ from petsoft.experiment import (
     with_parameters,
     write_toml,
 )
-from petsoft.expressions import Expression
+from petsoft.experiment.expressions import Expression
 
 # The full example of formats.md section 1, verbatim.
 SPEC_EXAMPLE = """\

@@ -1,4 +1,4 @@
-"""Tests of the safe expression language (petsoft.expressions)."""
+"""Tests of the safe expression language (petsoft.experiment.expressions)."""
 
 import inspect
 import pickle
@@ -7,9 +7,9 @@ import time
 import numpy as np
 import pytest
 
-from petsoft import expressions
+from petsoft.experiment import expressions
 from petsoft.errors import ExperimentError, ExpressionError, PetsoftError
-from petsoft.expressions import MAX_DEPTH, MAX_LENGTH, parse_expression
+from petsoft.experiment.expressions import MAX_DEPTH, MAX_LENGTH, parse_expression
 
 SOURCE = "exp.toml: boundary[0].where"
 

@@ -38,10 +38,10 @@ from petsoft.experiment import (
     with_plane_collider,
     write_toml,
 )
-from petsoft.model import build_model
-from petsoft.modes import compute_modes
-from petsoft.options import clear_options
-from petsoft.static import StaticSolver
+from petsoft.physics.model import build_model
+from petsoft.solvers.modes import compute_modes
+from petsoft.solvers.options import clear_options
+from petsoft.solvers.static import StaticSolver
 
 L, A, RHO, G = 0.3, 0.04, 1000.0, 9.81
 WEIGHT = RHO * L * A * A * G

@@ -4,7 +4,7 @@ import pytest
 from mpi4py import MPI
 
 from petsoft.errors import PetsoftError
-from petsoft.groups import map_on_groups
+from petsoft.calibration.groups import map_on_groups
 
 
 def _task(item, sub):

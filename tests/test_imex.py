@@ -289,7 +289,7 @@ def test_modal_imex_keeps_slow_modes_of_a_fem_bar():
     from petsoft.dynamics.simulate import initial_state
     from petsoft.dynamics.system import DynamicSystem
     from petsoft.experiment import experiment_from_dict
-    from petsoft.model import build_model
+    from petsoft.physics.model import build_model
 
     exp = experiment_from_dict({
         "mesh": {"box": {"size": [0.3, 0.04, 0.04], "cells": [6, 1, 1]}},

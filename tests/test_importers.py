@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from _c3d_writer import write_c3d
 
-from petsoft.importers import ImportFileError, import_file
-from petsoft.importers.c3d import read_c3d
-from petsoft.importers.csv import read_csv
-from petsoft.recording import read_recording
+from petsoft.io.importers import ImportFileError, import_file
+from petsoft.io.importers.c3d import read_c3d
+from petsoft.io.importers.csv import read_csv
+from petsoft.io.recording import read_recording
 
 pytestmark = pytest.mark.serial_only  # rank-local files and a subprocess
 
@@ -107,7 +107,7 @@ def test_import_command(tmp_path):
     pos[3, 2] = np.nan
     c3d = write_c3d(tmp_path / "walk.c3d", ["a", "b", "c"], 100.0, pos)
     out = tmp_path / "rec.h5"
-    run = subprocess.run([sys.executable, "-m", "petsoft.cli", "import", str(c3d), "--out",
+    run = subprocess.run([sys.executable, "-m", "petsoft.cli.main", "import", str(c3d), "--out",
                           str(out)], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert "3 markers, 6 frames" in run.stdout
@@ -117,7 +117,7 @@ def test_import_command(tmp_path):
     assert import_file(c3d).names == rec.names
     bad = tmp_path / "bad.txt"
     bad.write_text("time,a_x\n")
-    run = subprocess.run([sys.executable, "-m", "petsoft.cli", "import", str(bad), "--out",
+    run = subprocess.run([sys.executable, "-m", "petsoft.cli.main", "import", str(bad), "--out",
                           str(out), "--format", "csv"], capture_output=True, text=True)
     assert run.returncode == 2
     assert run.stderr.startswith("petsoft: error: ") and "expected three per marker" in run.stderr

@@ -10,7 +10,7 @@ from mpi4py import MPI
 from petsoft.dynamics.simulate import Simulation
 from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict
-from petsoft.model import build_model
+from petsoft.physics.model import build_model
 
 
 def _experiment(support, end=0.05):

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from petsoft.errors import InvertedElementError, MeshError, PetsoftError
-from petsoft.kernels import compiled, elastic, reference
-from petsoft.kernels.materials import MODELS
-from petsoft.kernels.tet import shape_gradients
+from petsoft.fem.kernels import compiled, elastic, reference
+from petsoft.fem.kernels.materials import MODELS
+from petsoft.fem.kernels.tet import shape_gradients
 
 BACKENDS = ("numpy", "c")
 REF_TET = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])

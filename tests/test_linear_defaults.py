@@ -1,9 +1,9 @@
-"""Default linear solvers (petsoft.linear.linear_defaults): direct on one rank for small
+"""Default linear solvers (petsoft.solvers.linear.linear_defaults): direct on one rank for small
 systems, CG + GAMG above DIRECT_DOFS and on several ranks (bit-reproducible runs there)."""
 
 from petsc4py import PETSc
 
-from petsoft.linear import DIRECT_DOFS, linear_defaults
+from petsoft.solvers.linear import DIRECT_DOFS, linear_defaults
 
 
 def _ksp(comm, prefix):

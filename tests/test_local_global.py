@@ -20,7 +20,7 @@ from petsoft.dynamics.local_global import (
     PlaneCollider,
     SphereCollider,
 )
-from petsoft.options import clear_options
+from petsoft.solvers.options import clear_options
 
 G = np.array([0.0, 0.0, -9.81])
 
@@ -440,7 +440,7 @@ def test_cli_simulate_solver_local_global(tmp_path):
     env = {k: v for k, v in os.environ.items()
            if not k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess"))}
     toml = str(root / "scripts" / "stiff_spring_pendulum.toml")
-    cli = [sys.executable, "-m", "petsoft.cli", "simulate", toml]
+    cli = [sys.executable, "-m", "petsoft.cli.main", "simulate", toml]
     runs = {}
     for solver in ("snes", "local-global"):
         r = subprocess.run(cli + ["--out", str(tmp_path / solver), "--solver", solver,

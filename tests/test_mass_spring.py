@@ -348,7 +348,7 @@ def test_petsoft_simulate_command_on_the_pendulum(tmp_path):
     traj = []
     for ranks in (1, 2):
         out = tmp_path / f"out{ranks}"
-        cmd = [sys.executable, "-m", "petsoft.cli", "simulate", "p.toml", "--out", str(out),
+        cmd = [sys.executable, "-m", "petsoft.cli.main", "simulate", "p.toml", "--out", str(out),
                "--integrator", "si", "--spd"]
         if ranks > 1:
             cmd = [shutil.which("mpiexec") or "mpiexec", "-n", str(ranks)] + cmd

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from petsoft.errors import InvertedElementError, PetsoftError
-from petsoft.kernels import compiled, materials
-from petsoft.kernels.materials import MODELS, lame_parameters, material_response, project_spd
+from petsoft.fem.kernels import compiled, materials
+from petsoft.fem.kernels.materials import MODELS, lame_parameters, material_response, project_spd
 
 NONLINEAR = ("stvk", "corotated", "neohookean")
 # The C constitutive law (exposed for testing) next to the numpy reference.

@@ -1,4 +1,4 @@
-"""Tests of petsoft.mesh: reading every supported format, the box generator, and every error and
+"""Tests of petsoft.mesh.serial: reading every supported format, the box generator, and every error and
 warning a broken mesh file triggers (each crafted as a small file in tmp_path).
 
 No MPI here: under ``mpiexec -n 2`` each rank runs these independently in its own tmp_path.
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from petsoft.errors import MeshError, PetsoftError
-from petsoft.mesh import (
+from petsoft.mesh.serial import (
     Mesh,
     MeshWarning,
     boundary_facets,
@@ -654,7 +654,7 @@ def test_boundary_facets_fast_enough():
 
 
 def test_unique_rows_matches_numpy():
-    from petsoft.topology import unique_rows
+    from petsoft.mesh.topology import unique_rows
 
     rows = np.random.default_rng(0).integers(0, 4, size=(500, 3))
     keys, inverse, counts = unique_rows(rows)

@@ -1,4 +1,4 @@
-"""Natural frequencies and mode shapes (petsoft.modes, `petsoft modes`).
+"""Natural frequencies and mode shapes (petsoft.solvers.modes, `petsoft modes`).
 
 1. Cantilever bending modes against Euler-Bernoulli, with a Timoshenko beam (1D FE) reference to
    show convergence under refinement.
@@ -24,11 +24,11 @@ from child_process import child_env  # tests/child_process.py
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.cli import split_arguments
+from petsoft.cli.main import split_arguments
 from petsoft.errors import PetsoftError
-from petsoft.model import build_model
-from petsoft.modes import assemble_operators, compute_modes
-from petsoft.options import clear_options
+from petsoft.physics.model import build_model
+from petsoft.solvers.modes import assemble_operators, compute_modes
+from petsoft.solvers.options import clear_options
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 
@@ -339,7 +339,7 @@ def test_cli_writes_frequencies_and_mode_shapes(tmp_path):
     import meshio
 
     (tmp_path / "exp.toml").write_text(EXPERIMENT)
-    cmd = [sys.executable, "-m", "petsoft.cli", "modes", "exp.toml", "-eps_tol", "1e-9",
+    cmd = [sys.executable, "-m", "petsoft.cli.main", "modes", "exp.toml", "-eps_tol", "1e-9",
            "-n", "4", "--out", "d"]
     proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, env=child_env(),
                           timeout=300)
@@ -358,6 +358,6 @@ def test_cli_writes_frequencies_and_mode_shapes(tmp_path):
             assert t == k + 1 and point_data["mode"].shape == points.shape
             assert np.abs(point_data["mode"][points[:, 0] < 1e-6]).max() == 0.0
 
-    bad = subprocess.run([sys.executable, "-m", "petsoft.cli", "modes", "exp.toml", "-n", "0"],
+    bad = subprocess.run([sys.executable, "-m", "petsoft.cli.main", "modes", "exp.toml", "-n", "0"],
                          cwd=tmp_path, capture_output=True, text=True, env=child_env(), timeout=60)
     assert bad.returncode == 2 and "must be >= 1" in bad.stderr

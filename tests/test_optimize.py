@@ -34,7 +34,7 @@ from petsoft.calibration.testproblems import (
 )
 from petsoft.calibration.uncertainty import UnidentifiableError, uncertainty
 from petsoft.errors import InvertedElementError, PetsoftError
-from petsoft.options import clear_options
+from petsoft.solvers.options import clear_options
 
 WORLD = MPI.COMM_WORLD
 ROOT = Path(__file__).resolve().parents[1]

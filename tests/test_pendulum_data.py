@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from petsoft.experiment import load_experiment
-from petsoft.recording import read_recording
+from petsoft.io.recording import read_recording
 
 pytestmark = pytest.mark.serial_only   # runs a script in a subprocess
 

@@ -7,7 +7,7 @@ import h5py
 import numpy as np
 import pytest
 
-from petsoft.recording import (
+from petsoft.io.recording import (
     Recording,
     RecordingError,
     RecordingWarning,

@@ -18,7 +18,7 @@ from mpi4py import MPI
 from petsoft.dynamics.checkpoint import checkpoint_files
 from petsoft.dynamics.simulate import Simulation
 from petsoft.experiment import experiment_from_dict
-from petsoft.model import build_model
+from petsoft.physics.model import build_model
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 
@@ -94,7 +94,7 @@ def test_restart_is_bitwise_on_the_same_ranks(tmp_path_factory, integrator):
 
 
 def _cli(args, cwd, ranks=1, env=None, wait=True):
-    cmd = [sys.executable, "-m", "petsoft.cli", *args]
+    cmd = [sys.executable, "-m", "petsoft.cli.main", *args]
     if ranks > 1:
         cmd = [shutil.which("mpiexec") or "mpiexec", "-n", str(ranks)] + cmd
     if not wait:

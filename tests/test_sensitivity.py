@@ -29,10 +29,10 @@ from petsoft.calibration.observation import MarkerObserver
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, SolverError
 from petsoft.experiment import experiment_from_dict
-from petsoft.kernels import elastic as kernels
-from petsoft.kernels.tet import shape_gradients
-from petsoft.model import build_model
-from petsoft.options import clear_options
+from petsoft.fem.kernels import elastic as kernels
+from petsoft.fem.kernels.tet import shape_gradients
+from petsoft.physics.model import build_model
+from petsoft.solvers.options import clear_options
 
 NAMES = ["material.youngs_modulus", "material.poisson_ratio", "material.density",
          "damping.mass", "damping.stiffness", "gravity.acceleration.z",

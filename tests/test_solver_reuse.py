@@ -62,7 +62,7 @@ def test_reused_factorisation_gives_the_same_trajectory(method, monkeypatch):
 @pytest.mark.parametrize("model, kept", [("linear", True), ("corotated", False)])
 def test_snes_is_kept_only_for_a_constant_jacobian(model, kept):
     from petsoft.dynamics.alpha import GeneralizedAlpha
-    from petsoft.model import build_model
+    from petsoft.physics.model import build_model
 
     exp = _experiment("alpha", model)
     system = DynamicSystem(build_model(exp), exp.damping.mass, exp.damping.stiffness)

@@ -5,9 +5,9 @@ import pytest
 from mpi4py import MPI
 
 from petsoft.experiment import experiment_from_dict
-from petsoft.model import build_model
-from petsoft.options import clear_options, set_default_option
-from petsoft.static import StaticSolver
+from petsoft.physics.model import build_model
+from petsoft.solvers.options import clear_options, set_default_option
+from petsoft.solvers.static import StaticSolver
 
 
 # Known issue: under `mpiexec -n 2` this test deadlocked once in three full-suite runs (rank 1 in

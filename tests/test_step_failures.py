@@ -13,7 +13,7 @@ from petsoft.dynamics.checkpoint import checkpoint_files
 from petsoft.dynamics.simulate import Simulation
 from petsoft.errors import SolverError
 from petsoft.experiment import experiment_from_dict
-from petsoft.model import build_model
+from petsoft.physics.model import build_model
 
 # A soft neo-Hookean bar released from a strong bend: at h = 0.02 s the first backward-Euler
 # Jacobian is indefinite, and CG breaks down on it (this 42-dof bar would get a direct solve by

@@ -35,10 +35,10 @@ from petsoft.experiment import (
     with_parameters,
     write_toml,
 )
-from petsoft.model import build_model
-from petsoft.modes import compute_modes
-from petsoft.options import clear_options
-from petsoft.static import StaticSolver
+from petsoft.physics.model import build_model
+from petsoft.solvers.modes import compute_modes
+from petsoft.solvers.options import clear_options
+from petsoft.solvers.static import StaticSolver
 
 L, A, E, T = 0.3, 0.04, 1e6, 1e3
 

@@ -14,11 +14,11 @@ from mpi4py import MPI
 from petsoft.calibration.observation import MarkerObserver
 from petsoft.dynamics.simulate import Simulation
 from petsoft.experiment import load_experiment
-from petsoft.mesh import box_mesh, read_mesh, signed_volumes
-from petsoft.model import build_model
-from petsoft.recording import read_recording
-from petsoft.synth import SynthError, refine_mesh, run_synth, surface_nodes
-from petsoft.topology import exterior_faces
+from petsoft.mesh.serial import box_mesh, read_mesh, signed_volumes
+from petsoft.physics.model import build_model
+from petsoft.io.recording import read_recording
+from petsoft.calibration.synth import SynthError, refine_mesh, run_synth, surface_nodes
+from petsoft.mesh.topology import exterior_faces
 
 EXPERIMENT = """
 [mesh]
@@ -175,13 +175,13 @@ def test_synth_file_mesh_refinement_and_errors(tmp_path_factory):
 @pytest.mark.serial_only
 def test_synth_command_line(tmp_path):
     exp = _experiment(tmp_path)
-    run = subprocess.run([sys.executable, "-m", "petsoft.cli", "synth", str(exp), "--out",
+    run = subprocess.run([sys.executable, "-m", "petsoft.cli.main", "synth", str(exp), "--out",
                           str(tmp_path / "o" / "r.h5"), "--markers", "3", "--noise", "1e-4"],
                          capture_output=True, text=True)
     assert run.returncode == 0, run.stderr
     assert "wrote" in run.stdout and "truth.json" in run.stdout
     assert read_recording(tmp_path / "o" / "r.h5").num_markers == 3
-    run = subprocess.run([sys.executable, "-m", "petsoft.cli", "synth", str(exp), "--out",
+    run = subprocess.run([sys.executable, "-m", "petsoft.cli.main", "synth", str(exp), "--out",
                           str(tmp_path / "o" / "r.h5"), "--dropout", "2"],
                          capture_output=True, text=True)
     assert run.returncode == 2 and run.stderr.startswith("petsoft: error: --dropout = 2")

@@ -1,4 +1,4 @@
-"""Verification of the quasistatic solver (petsoft.static) against exact and reference solutions.
+"""Verification of the quasistatic solver (petsoft.solvers.static) against exact and reference solutions.
 
 1. Patch test: a homogeneous deformation prescribed on the whole boundary of a distorted mesh is
    reproduced exactly inside, for every material model and both solution methods.
@@ -29,7 +29,7 @@ from _static_cases import (
 )
 from petsc4py import PETSc
 
-from petsoft.model import build_model
+from petsoft.physics.model import build_model
 
 MATERIALS = ("linear", "stvk", "corotated", "neohookean")
 MUMPS = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}

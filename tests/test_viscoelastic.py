@@ -23,7 +23,7 @@ from petsoft.dynamics.simulate import Simulation, make_integrator
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
-from petsoft.model import build_model
+from petsoft.physics.model import build_model
 
 L, A = 0.3, 0.04
 
@@ -57,7 +57,7 @@ def test_first_mode_matches_the_sls_roots(method, order):
     tau s^3 + s^2 + (1 + g) omega^2 tau s + omega^2 = 0 (be: 1/(1 - h s), midpoint:
     (1 + h s/2)/(1 - h s/2); 1e-8), and the fitted decay rate and frequency of the complex pair
     converge to the roots at the integrator's order."""
-    from petsoft.modes import compute_modes
+    from petsoft.solvers.modes import compute_modes
 
     g = 0.5
     model = build_model(_experiment(viscoelastic={"ratio": g}))

@@ -1,4 +1,4 @@
-"""Tests of petsoft.xdmf: what meshio reads back, and that a crash never leaves a .xdmf that
+"""Tests of petsoft.io.xdmf: what meshio reads back, and that a crash never leaves a .xdmf that
 references incomplete data.
 
 No MPI here: under ``mpiexec -n 2`` each rank runs these independently in its own tmp_path.
@@ -18,9 +18,9 @@ import meshio
 import numpy as np
 import pytest
 
-from petsoft import xdmf as xdmf_mod
-from petsoft.mesh import box_mesh
-from petsoft.xdmf import XdmfWriter, write_xdmf
+from petsoft.io import xdmf as xdmf_mod
+from petsoft.mesh.serial import box_mesh
+from petsoft.io.xdmf import XdmfWriter, write_xdmf
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -291,8 +291,8 @@ def test_killed_process_leaves_consistent_prefix(tmp_path):
         """
         import os, sys
         import numpy as np
-        from petsoft.mesh import box_mesh
-        from petsoft.xdmf import XdmfWriter
+        from petsoft.mesh.serial import box_mesh
+        from petsoft.io.xdmf import XdmfWriter
         m = box_mesh([1, 1, 1], [2, 2, 2])
         out = XdmfWriter(sys.argv[1], m.points, m.tets, fsync=True)
         for k in range(3):

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
-from ..errors import ExperimentError
-from ..experiment import get_parameter, with_parameters
+from petsoft.errors import ExperimentError
+from petsoft.experiment import get_parameter, with_parameters
 
 METHODS = ("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead")
 GRADIENTS = ("adjoint", "sensitivity", "fd")
@@ -111,9 +111,9 @@ def write_outputs(out: Path, experiment, recording_path, result: CalibrationResu
                   times: np.ndarray, data: np.ndarray, marker_names: list[str],
                   method: str, gradient: str, wall_time: float, comm) -> None:
     """calibrated.toml, summary.json, trajectories.png, residuals.png (rank 0 writes)."""
-    from ..experiment import write_toml
-    from ..summary import write_summary
-    from .plots import plot_residuals, plot_trajectories
+    from petsoft.experiment import write_toml
+    from petsoft.io.summary import write_summary
+    from petsoft.calibration.plots import plot_residuals, plot_trajectories
 
     if comm.rank != 0:
         return
@@ -157,8 +157,8 @@ def _petsc_comm(comm):
 
 def build_forward(experiment, names, recording, frame_times, comm, integrator=None):
     """The forward model of ``experiment`` observing the recording's markers on ``comm``."""
-    from .forward import ForwardModel
-    from .observation import MarkerObserver
+    from petsoft.calibration.forward import ForwardModel
+    from petsoft.calibration.observation import MarkerObserver
 
     def observer(system):
         return MarkerObserver(system, recording.reference, recording.names,
@@ -178,8 +178,8 @@ def mass_spring_system(experiment, comm):
     ``[initial]`` displacement and velocity expressions, which do not depend on the calibrated
     parameters (a static initial state is rejected by the mass-spring model builder).
     """
-    from ..dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
-    from ..dynamics.simulate import initial_state
+    from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
+    from petsoft.dynamics.simulate import initial_state
 
     model = build_mass_spring_model(experiment, comm)
     system = MassSpringSystem(model, experiment.damping.mass, experiment.damping.stiffness)
@@ -210,13 +210,13 @@ def run_calibration(experiment, recording_path, *, method: str = "gauss-newton",
     say : callable(str), optional
         Progress lines (called on rank 0 only).
     """
-    from ..model import on_root
-    from ..recording import read_recording
-    from .multistart import multistart, random_starts
-    from .objective import MarkerMisfit
-    from .optimize import minimize
-    from .scaling import ParameterScaling
-    from .uncertainty import UnidentifiableError, uncertainty
+    from petsoft.physics.model import on_root
+    from petsoft.io.recording import read_recording
+    from petsoft.calibration.multistart import multistart, random_starts
+    from petsoft.calibration.objective import MarkerMisfit
+    from petsoft.calibration.optimize import minimize
+    from petsoft.calibration.scaling import ParameterScaling
+    from petsoft.calibration.uncertainty import UnidentifiableError, uncertainty
 
     t_start = time.perf_counter()
     comm = _petsc_comm(comm if comm is not None else PETSc.COMM_WORLD)

@@ -75,15 +75,15 @@ import re
 import numpy as np
 from petsc4py import PETSc
 
-from ..dynamics.alpha import GeneralizedAlpha, alpha_parameters
-from ..dynamics.implicit import ImplicitIntegrator
-from ..dynamics.simulate import initial_state
-from ..dynamics.system import DynamicSystem
-from ..errors import ExperimentError, SolverError
-from ..linear import linear_defaults
-from ..model import build_model
-from ..options import scoped_defaults
-from .observation import time_interpolation
+from petsoft.dynamics.alpha import GeneralizedAlpha, alpha_parameters
+from petsoft.dynamics.implicit import ImplicitIntegrator
+from petsoft.dynamics.simulate import initial_state
+from petsoft.dynamics.system import DynamicSystem
+from petsoft.errors import ExperimentError, SolverError
+from petsoft.solvers.linear import linear_defaults
+from petsoft.physics.model import build_model
+from petsoft.solvers.options import scoped_defaults
+from petsoft.calibration.observation import time_interpolation
 
 INTEGRATORS = ("be", "si", "alpha")
 PREFIX = "fm_"
@@ -179,7 +179,7 @@ class ForwardModel:
         elif exp.is_mass_spring:
             # the mass-spring system offers the same interface (parameter names, in-place
             # set_parameters, residual_parameter_derivatives): the generic derivative path
-            from ..dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
+            from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
 
             self.model = build_mass_spring_model(exp, comm)
             system = MassSpringSystem(self.model, exp.damping.mass, exp.damping.stiffness)
@@ -194,7 +194,7 @@ class ForwardModel:
             s.define_stiffness_groups(max(groups) + 1)
         pnames = s.parameter_names()
         if getattr(s, "viscoelastic", None) is not None:
-            from ..dynamics.parameters import VISCOELASTIC
+            from petsoft.dynamics.parameters import VISCOELASTIC
 
             pnames = pnames + list(VISCOELASTIC)   # simulate / fd only (see the docstring)
         bad = [n for n in self.names if n not in pnames]
@@ -207,7 +207,7 @@ class ForwardModel:
         if hasattr(s, "parameters"):
             self.p0 = np.array([s.parameters.values[n] for n in self.names])
         else:
-            from ..experiment import get_parameter
+            from petsoft.experiment import get_parameter
 
             self.p0 = np.array([get_parameter(exp, n) for n in self.names])
         self._own_observer = not hasattr(observer, "observe")
@@ -263,7 +263,7 @@ class ForwardModel:
             raise ExperimentError(f"{self.experiment.source}: non-finite parameter values "
                                   f"{dict(zip(self.names, p.tolist(), strict=True))}")
         self.system.set_parameters(dict(zip(self.names, p.tolist(), strict=True)))
-        from ..physics.viscoelastic import check_integrator
+        from petsoft.physics.viscoelastic import check_integrator
 
         check_integrator(getattr(self.system, "viscoelastic", None), self.method,
                          where=f"{self.experiment.source}: the forward model's integrator")
@@ -274,7 +274,7 @@ class ForwardModel:
         the branch's internal variable; backward Euler's forward sensitivities do."""
         if sensitivities and self.method == "be":
             return
-        from ..dynamics.parameters import VISCOELASTIC
+        from petsoft.dynamics.parameters import VISCOELASTIC
 
         asked = [n for n in self.names if n in VISCOELASTIC]
         branch = getattr(self.system, "viscoelastic", None)
@@ -297,7 +297,7 @@ class ForwardModel:
             return s.initial_state()
         if not self.static:
             return initial_state(self.model, s, self.experiment)
-        from ..static import StaticSolver
+        from petsoft.solvers.static import StaticSolver
 
         # the static equilibrium under the current parameters, solved tightly: its derivative
         # K(q0) dq0/dp = -d r_static/dp holds at the exact solution
@@ -627,7 +627,7 @@ class ForwardModel:
             x.zeroEntries()
         ksp = self._solver()
         # backward Euler with a viscoelastic branch: z is one more state (dz0 = dq0: z0 = q0)
-        from ..dynamics.parameters import VISCOELASTIC
+        from petsoft.dynamics.parameters import VISCOELASTIC
 
         visco = [j for j, n in enumerate(self.names) if n in VISCOELASTIC]
         others = [j for j in range(P) if j not in visco]

@@ -18,7 +18,7 @@ import numpy as np
 from mpi4py import MPI
 
 from petsoft.calibration.optimize import OptimizationError, OptimizeResult, minimize
-from petsoft.groups import map_on_groups
+from petsoft.calibration.groups import map_on_groups
 
 
 @dataclass

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
-from ..errors import PetsoftError
+from petsoft.errors import PetsoftError
 
 
 class ObservationError(PetsoftError):
@@ -66,7 +66,7 @@ def _locate_in_tets(points, tets, reference, names, source, tol=1e-9):
         worst = bary.min(axis=1)
         best = int(np.argmax(worst))
         if worst[best] < -tol:
-            from ..topology import exterior_faces
+            from petsoft.mesh.topology import exterior_faces
 
             faces, _ = exterior_faces(tets)
             dist = distance_to_surface(p, points, faces)
@@ -87,7 +87,7 @@ class MarkerObserver:
     Parameters
     ----------
     system : DynamicSystem or mass-spring system
-        A continuum system (``system.dmesh``: a :class:`~petsoft.distributed.DistributedMesh`)
+        A continuum system (``system.dmesh``: a :class:`~petsoft.mesh.distributed.DistributedMesh`)
         or a mass-spring system exposing ``vertex_points`` (N, 3) and
         ``vertex_global_dofs(ids) -> (len(ids), 3)``, and ``create_vec()``.
     reference : (M, 3) array
@@ -149,7 +149,7 @@ class MarkerObserver:
 
     @classmethod
     def from_recording(cls, system, recording, **kw) -> MarkerObserver:
-        """The observer of a :class:`~petsoft.recording.Recording`'s markers."""
+        """The observer of a :class:`~petsoft.io.recording.Recording`'s markers."""
         return cls(system, recording.reference, recording.names, source=recording.source, **kw)
 
     # -- embedding -----------------------------------------------------------------------------

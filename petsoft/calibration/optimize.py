@@ -72,7 +72,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.errors import InvertedElementError, SolverError
-from petsoft.options import scoped_defaults
+from petsoft.solvers.options import scoped_defaults
 
 METHODS = ("gd", "newton", "lbfgs", "gauss-newton", "brgn", "nelder-mead")
 

@@ -41,8 +41,8 @@ import numpy as np
 from petsc4py import PETSc
 from scipy import stats
 
-from ..errors import ExperimentError, PetsoftError
-from ..experiment import experiment_from_dict, get_parameter, with_parameters
+from petsoft.errors import ExperimentError, PetsoftError
+from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
 
 #: The numerics check refines a box mesh only while the refined mesh has at most this many
 #: tetrahedra (6 per box cell).
@@ -110,8 +110,8 @@ def _with_time(experiment, end: float | None = None, step: float | None = None,
 
 
 def _forward(experiment, names, recording, times, comm, integrator=None, h=None):
-    from ..calibration.forward import ForwardModel
-    from ..calibration.observation import MarkerObserver
+    from petsoft.calibration.forward import ForwardModel
+    from petsoft.calibration.observation import MarkerObserver
 
     def observer(system):
         return MarkerObserver(system, recording.reference, recording.names,
@@ -141,11 +141,11 @@ def model_scales(experiment, times: np.ndarray, data: np.ndarray,
     diagonal, m), ``cell`` (mean cell size, m) of the model; ``speed``/``speed_max`` (rms and
     largest marker speed, m/s, by differences of the seen samples) and ``frequency`` (the data's
     dominant modal frequency, Hz, when the evidence found one)."""
-    from ..topology import exterior_faces
+    from petsoft.mesh.topology import exterior_faces
 
     out: dict = {}
     if experiment.is_mass_spring:
-        from ..dynamics.mass_spring import load_spring_mesh
+        from petsoft.dynamics.mass_spring import load_spring_mesh
 
         mesh = load_spring_mesh(experiment)
         pts = mesh.points
@@ -164,7 +164,7 @@ def model_scales(experiment, times: np.ndarray, data: np.ndarray,
         out["cell"] = float(np.mean(np.linalg.norm(pts[edges[:, 0]] - pts[edges[:, 1]],
                                                    axis=1))) if len(edges) else 1.0
     else:
-        from ..model import load_mesh
+        from petsoft.physics.model import load_mesh
 
         mesh = load_mesh(experiment)
         pts = mesh.points
@@ -259,9 +259,9 @@ class _Diagnosis:
 
     def __init__(self, experiment, recording_path, *, fraction, alpha, method, gradient,
                  integrator, noise, comm, say):
-        from ..model import on_root
-        from ..recording import read_recording
-        from .noise import NoiseError, noise_summary
+        from petsoft.physics.model import on_root
+        from petsoft.io.recording import read_recording
+        from petsoft.diagnosis.noise import NoiseError, noise_summary
 
         self.comm = _petsc_comm(comm)
         self.rank0 = self.comm.tompi4py().rank == 0
@@ -342,8 +342,8 @@ class _Diagnosis:
         """Calibrate ``experiment`` on the identification window; predict the held-out one.
 
         ``comm`` (default: the diagnosis' communicator) lets candidate fits run on groups of
-        ranks (:func:`petsoft.groups.map_on_groups`)."""
-        from ..calibration.calibrate import calibration_parameters, run_calibration
+        ranks (:func:`petsoft.calibration.groups.map_on_groups`)."""
+        from petsoft.calibration.calibrate import calibration_parameters, run_calibration
 
         comm = self.comm if comm is None else _petsc_comm(comm)
         ident_exp = _with_time(experiment, end=self.cut)
@@ -378,7 +378,7 @@ class _Diagnosis:
         """Rank ``candidate`` at ``fit`` (identification window) by its score-test statistic;
         a ``"switch"`` candidate's column is the change the switch makes (see
         :mod:`petsoft.diagnosis.candidates`)."""
-        from .score import ScoreError, score_test
+        from petsoft.diagnosis.score import ScoreError, score_test
 
         comm = self.comm if comm is None else _petsc_comm(comm)
         entry = {"physics": candidate.physics, "parameters": candidate.parameters,
@@ -414,7 +414,7 @@ class _Diagnosis:
     def _columns(self, ext, candidate, comm) -> tuple[np.ndarray, dict]:
         """Simulation and sensitivity columns of the extended model at its current values:
         exact forward sensitivities, one-sided differences for ``"score-fd"`` parameters."""
-        from ..dynamics.parameters import VISCOELASTIC
+        from petsoft.dynamics.parameters import VISCOELASTIC
 
         names = list(ext.calibrate)
         p = np.array([get_parameter(ext, n) for n in names])
@@ -458,7 +458,7 @@ class _Diagnosis:
             ``{"stiffness": sphere where |d misfit/d E_cell| is largest, "density": sphere
             where d misfit/d rho_cell is most negative}``, each None when it cannot be made.
         """
-        from .candidates import sensitivity_region
+        from petsoft.diagnosis.candidates import sensitivity_region
 
         names = fit.names
         data = self.data[self.ident]
@@ -509,7 +509,7 @@ def outward_only(candidate, ext, tested: list[str], gradient) -> str | None:
 
 
 def _evidence(diag: _Diagnosis, fit: Fit) -> dict:
-    from .evidence import collect_evidence
+    from petsoft.diagnosis.evidence import collect_evidence
 
     rec = diag.recording
     ev = _collect(diag, fit, collect_evidence, rec)
@@ -656,7 +656,7 @@ def resolve_numerics(diag: _Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
     the (possibly refined) fit, its evidence and a list
     of what each round measured.
     """
-    from ..groups import map_on_groups
+    from petsoft.calibration.groups import map_on_groups
 
     rounds: list[dict] = []
     for _ in range(max_rounds):
@@ -767,9 +767,9 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
     say : callable(str), optional
         Progress lines (rank 0).
     """
-    from ..groups import map_on_groups
-    from .candidates import build_candidates
-    from .report import PHYSICS
+    from petsoft.calibration.groups import map_on_groups
+    from petsoft.diagnosis.candidates import build_candidates
+    from petsoft.diagnosis.report import PHYSICS
 
     t0 = time.perf_counter()
     diag = _Diagnosis(experiment, recording_path, fraction=fraction, alpha=alpha, method=method,
@@ -1016,7 +1016,7 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
 
 
 def _build_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict, added, rejected) -> dict:
-    from .report import build_report, fit_summary
+    from petsoft.diagnosis.report import build_report, fit_summary
 
     d = diag.data[diag.ident]
     validation = None
@@ -1042,18 +1042,18 @@ def _build_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict, added, r
 def write_outputs(out: Path, diag: _Diagnosis, result: DiagnoseResult, base_ev: dict,
                   wall_time: float) -> None:
     """report.json, report.md, figures, diagnosed.toml, summary.json (rank 0 writes)."""
-    from ..experiment import write_toml
-    from ..summary import write_summary
-    from .evidence import write_figures
-    from .report import write_report, write_report_md
+    from petsoft.experiment import write_toml
+    from petsoft.io.summary import write_summary
+    from petsoft.diagnosis.evidence import write_figures
+    from petsoft.diagnosis.report import write_report, write_report_md
 
     if not diag.rank0:
         return
     out.mkdir(parents=True, exist_ok=True)
     if not result.base.experiment.is_mass_spring and base_ev.get("markers") is not None:
         # where on the body: the base fit's per-marker residual spread over the mesh (ParaView)
-        from ..model import load_mesh
-        from .locate import write_residual_field
+        from petsoft.physics.model import load_mesh
+        from petsoft.diagnosis.locate import write_residual_field
 
         mesh = load_mesh(result.base.experiment)
         write_residual_field(out / "residual_field.xdmf", mesh.points, mesh.tets,

@@ -6,7 +6,7 @@ This module owns the localisation of a residual ``data - sim`` (arrays only, no 
 * :func:`mismatch_region` -- the residual-weighted centre and radius of the flagged markers in
   the reference configuration (formats.md ``mismatch.region``);
 * :func:`nodal_residual_field` / :func:`write_residual_field` -- the marker residuals spread
-  onto the mesh nodes (Gaussian kernel) and written with :mod:`petsoft.xdmf` for ParaView;
+  onto the mesh nodes (Gaussian kernel) and written with :mod:`petsoft.io.xdmf` for ParaView;
 * :func:`mismatch_time_windows` -- the time intervals where the windowed chi2/dof exceeds what
   noise allows.
 
@@ -220,7 +220,7 @@ def write_residual_field(path: str | Path, points: np.ndarray, tets: np.ndarray,
                          reference: np.ndarray, res: MarkerResiduals,
                          length: float | None = None) -> Path:
     """Write the nodal residual field (and distance to the nearest marker) as XDMF + HDF5."""
-    from petsoft.xdmf import write_xdmf
+    from petsoft.io.xdmf import write_xdmf
 
     pts = np.asarray(points, dtype=float)
     field = nodal_residual_field(pts, reference, res.rms, length)

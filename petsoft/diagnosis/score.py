@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from ..errors import PetsoftError
+from petsoft.errors import PetsoftError
 
 
 class ScoreError(PetsoftError):

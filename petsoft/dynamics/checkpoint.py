@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
-from ..errors import PetsoftError
+from petsoft.version import __version__
+from petsoft.errors import PetsoftError
 
 FORMAT = "petsoft-checkpoint"
 VERSION = 1

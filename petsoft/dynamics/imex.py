@@ -62,7 +62,7 @@ is the point ("we don't want to conserve total energy").
     the fixed fast subspace and their forces enter the explicit slow update, which then goes
     unstable (shown on the Cartesian pendulum in the tests) -- the lecture's "it's hard to
     generalize". Cost per step: one BE solve and one more internal-force evaluation; the modes
-    are computed once (SLEPc via :func:`petsoft.modes.compute_modes` for a model-backed system, a
+    are computed once (SLEPc via :func:`petsoft.solvers.modes.compute_modes` for a model-backed system, a
     dense eigensolver at the first step's state for small analytic systems).
 """
 
@@ -72,9 +72,9 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from ..errors import ExperimentError
-from .alpha import alpha_parameters
-from .implicit import ImplicitIntegrator, StepReport
+from petsoft.errors import ExperimentError
+from petsoft.dynamics.alpha import alpha_parameters
+from petsoft.dynamics.implicit import ImplicitIntegrator, StepReport
 
 FAST_METHODS = ("be", "si", "midpoint", "alpha")
 SPLITTINGS = ("strang", "lie")
@@ -292,7 +292,7 @@ class ModalImexIntegrator:
     def _compute_modes(self, q0: PETSc.Vec) -> None:
         s = self.system
         if hasattr(s, "model"):
-            from ..modes import compute_modes
+            from petsoft.solvers.modes import compute_modes
 
             res = compute_modes(s.model, self.count, prefix="imex_")
             values = np.asarray(res.eigenvalues, float)

@@ -34,9 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 from petsc4py import PETSc
 
-from ..errors import InvertedElementError
-from ..linear import linear_defaults
-from ..options import scoped_defaults
+from petsoft.errors import InvertedElementError
+from petsoft.solvers.linear import linear_defaults
+from petsoft.solvers.options import scoped_defaults
 
 METHODS = ("be", "si", "midpoint", "trapezoidal")
 # The discrete-gradient correction is applied when its defect exceeds this many ulps of the

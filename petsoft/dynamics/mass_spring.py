@@ -26,7 +26,7 @@ this system reports ``beta = 1`` and ``K0 = beta_user K_ref + D_dashpots``, so t
 
 Parallel layout: node i has the dofs 3i, 3i+1, 3i+2 (file numbering); PETSc splits the nodes in
 contiguous ranges over the ranks. Every rank keeps the replicated node and spring arrays (like
-:class:`~petsoft.distributed.DistributedMesh` keeps the serial mesh), gathers the whole state
+:class:`~petsoft.mesh.distributed.DistributedMesh` keeps the serial mesh), gathers the whole state
 vector (one ``VecScatter`` to all) and computes the springs touching its nodes, so forces and the
 rows of the matrix it owns need no further communication. The matrix pattern is preallocated once.
 """
@@ -41,10 +41,10 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from ..errors import ExperimentError, MeshError
-from ..physics.colliders import Collider, default_stiffness
-from ..physics.drag import face_pairs
-from ..physics.springs import (
+from petsoft.errors import ExperimentError, MeshError
+from petsoft.physics.colliders import Collider, default_stiffness
+from petsoft.physics.drag import face_pairs
+from petsoft.physics.springs import (
     KINDS,
     SpringNetwork,
     dashpot_blocks,
@@ -55,8 +55,8 @@ from ..physics.springs import (
     spring_gradient,
     spring_hessian_blocks,
 )
-from .velocity import NAMES as VELOCITY_NAMES
-from .velocity import VelocityDamping, VelocityTerms
+from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
+from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
 
 #: A ``[[mass]] at`` point closer than this (relative to the mesh's size) to a node sits on it.
 NODE_TOLERANCE = 1e-9
@@ -159,7 +159,7 @@ class NodeLayout:
     """Nodes split in contiguous ranges over the ranks, 3 dofs each (block size 3).
 
     Offers what :class:`~petsoft.dynamics.simulate.Simulation` uses of a
-    :class:`~petsoft.distributed.DistributedMesh`: ``mesh``, ``comm``, ``create_global_vec``,
+    :class:`~petsoft.mesh.distributed.DistributedMesh`: ``mesh``, ``comm``, ``create_global_vec``,
     ``gather_global``, ``from_file_field``, ``allreduce_sum``.
     """
 
@@ -211,7 +211,7 @@ class NodeLayout:
 class NodeConditions:
     """Fixed and prescribed node components of a mass-spring model (``[[boundary]]``).
 
-    Provides what integrators use of :class:`~petsoft.boundary.DirichletConditions`
+    Provides what integrators use of :class:`~petsoft.fem.boundary.DirichletConditions`
     (``eliminate``, ``conditions``, ``count``).
     """
 
@@ -320,8 +320,8 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
         Pairs naming missing nodes, springs of zero rest length, ``[[mass]]`` off the nodes, free
         nodes without mass, tractions, fixed nodes inside a collider, a static initial state.
     """
-    from ..model import on_root
-    from ..regions import RegionResolver
+    from petsoft.physics.model import on_root
+    from petsoft.mesh.regions import RegionResolver
 
     comm = comm if comm is not None else PETSc.COMM_WORLD
     src = experiment.source
@@ -383,7 +383,7 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
                 raise ExperimentError(
                     f"{src}: {key}.series = {b.series!r}: a measured input needs its recording "
                     "(petsoft simulate ... --recording RECORDING.h5)")
-            from ..recording import read_input_series
+            from petsoft.io.recording import read_input_series
 
             displacement = read_input_series(recording, b.series)
         mask = resolver.vertex_mask(b.where, f"{key}.where")

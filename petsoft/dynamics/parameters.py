@@ -52,10 +52,10 @@ import re
 import numpy as np
 from petsc4py import PETSc
 
-from ..errors import ExperimentError
-from ..kernels.scatter import scatter_add_vector
-from ..ordering import morton_order
-from .velocity import NAMES as VELOCITY_NAMES
+from petsoft.errors import ExperimentError
+from petsoft.fem.kernels.scatter import scatter_add_vector
+from petsoft.mesh.ordering import morton_order
+from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 
 MATERIAL_KEYS = ("youngs_modulus", "poisson_ratio", "density")
 #: Parameters set_parameters changes but the residual derivatives do not cover: the Maxwell
@@ -83,8 +83,8 @@ class ParameterMap:
     """
 
     def __init__(self, system):
-        from ..experiment import _key_part
-        from ..model import cell_materials
+        from petsoft.experiment import _key_part
+        from petsoft.physics.model import cell_materials
 
         self.system = system
         model = system.model
@@ -133,7 +133,7 @@ class ParameterMap:
         self.contact = getattr(system.elastic, "contact", None)
         self._compliance_error = None
         if self.support is not None:
-            from ..physics.support import shared_compliance
+            from petsoft.physics.support import shared_compliance
 
             try:
                 shared_compliance(exp)
@@ -297,7 +297,7 @@ class ParameterMap:
 
 
 def get_default(system, name: str) -> float:
-    from ..experiment import get_parameter
+    from petsoft.experiment import get_parameter
 
     return float(get_parameter(system.model.experiment, name))
 

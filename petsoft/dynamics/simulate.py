@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
-from ..errors import ExperimentError, SolverError
-from ..probes import interpolate, locate
-from .alpha import AlphaTSIntegrator, GeneralizedAlpha
-from .energy import FIELDS, EnergyLedger
-from .explicit import ExplicitIntegrator
-from .implicit import METHODS as IMPLICIT_METHODS
-from .implicit import ImplicitIntegrator
-from .system import DynamicSystem
+from petsoft.errors import ExperimentError, SolverError
+from petsoft.mesh.probes import interpolate, locate
+from petsoft.dynamics.alpha import AlphaTSIntegrator, GeneralizedAlpha
+from petsoft.dynamics.energy import FIELDS, EnergyLedger
+from petsoft.dynamics.explicit import ExplicitIntegrator
+from petsoft.dynamics.implicit import METHODS as IMPLICIT_METHODS
+from petsoft.dynamics.implicit import ImplicitIntegrator
+from petsoft.dynamics.system import DynamicSystem
 
 INTEGRATORS = ("be", "si", "alpha", "midpoint", "trapezoidal", "ere", "explicit", "imex")
 AVAILABLE = IMPLICIT_METHODS + ("explicit", "alpha", "imex", "ere")
@@ -50,7 +50,7 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
                     alpha_radius: float = 0.5, alpha_backend: str = "petsoft",
                     imex_slow_modes: int = 6):
     """The integrator object for a name of ``[time] integrator``."""
-    from ..physics.viscoelastic import check_integrator
+    from petsoft.physics.viscoelastic import check_integrator
 
     branch = getattr(system, "viscoelastic", None)
     check_integrator(branch, name)
@@ -68,7 +68,7 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
         if terms is not None and terms.active:
             raise ExperimentError("--solver local-global handles Rayleigh mass damping only; "
                                   "[drag] and [friction] need --solver snes (or tao)")
-        from .local_global import LocalGlobalIntegrator
+        from petsoft.dynamics.local_global import LocalGlobalIntegrator
 
         return LocalGlobalIntegrator(system)
     if name in IMPLICIT_METHODS:
@@ -80,11 +80,11 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
             return AlphaTSIntegrator(system, alpha_radius)
         return GeneralizedAlpha(system, alpha_radius)
     if name == "ere":
-        from .ere import EREIntegrator
+        from petsoft.dynamics.ere import EREIntegrator
 
         return EREIntegrator(system)
     if name == "imex":
-        from .imex import ModalImexIntegrator
+        from petsoft.dynamics.imex import ModalImexIntegrator
 
         return ModalImexIntegrator(system, slow_modes=imex_slow_modes, fast="be")
     raise ExperimentError(
@@ -98,7 +98,7 @@ def initial_state(model, system, experiment, monitor=None):
     pts = dm.mesh.points
     init = experiment.initial
     if init.from_ == "static":
-        from ..static import StaticSolver
+        from petsoft.solvers.static import StaticSolver
 
         solver = StaticSolver(model, monitor=monitor)
         q0 = solver.solve().displacement.copy()
@@ -116,7 +116,7 @@ class Simulation:
 
     Parameters
     ----------
-    model : petsoft.model.Model
+    model : petsoft.physics.model.Model
     experiment : Experiment
         Needs ``[time]``.
     integrator : str, optional
@@ -143,7 +143,7 @@ class Simulation:
             raise ExperimentError(f"integrator {self.name!r} is unknown; valid: "
                                   f"{', '.join(INTEGRATORS)}")
         if experiment.is_mass_spring:
-            from .mass_spring import MassSpringSystem
+            from petsoft.dynamics.mass_spring import MassSpringSystem
 
             if self.name == "imex":
                 raise ExperimentError(
@@ -168,7 +168,7 @@ class Simulation:
         self.probe_connectivity = mesh.tets
         if self.probes and experiment.is_mass_spring:
             # mass-spring probes sit on nodes: "cells" of one node each, weight 1
-            from .mass_spring import locate_nodes
+            from petsoft.dynamics.mass_spring import locate_nodes
 
             self.probe_connectivity = np.arange(len(mesh.points))[:, None]
             self.probe_cells = locate_nodes(mesh.points, self.probes,
@@ -224,7 +224,7 @@ class Simulation:
         writer = None
         every = exp.output.every
         if self.out is not None and rank0:
-            from ..xdmf import XdmfWriter
+            from petsoft.io.xdmf import XdmfWriter
 
             self.out.mkdir(parents=True, exist_ok=True)
             if restart:
@@ -279,7 +279,7 @@ class Simulation:
 
     # -- checkpoints ------------------------------------------------------------------------------
     def _checkpoint(self, n, t, q, v, ledger, result) -> None:
-        from .checkpoint import write_checkpoint
+        from petsoft.dynamics.checkpoint import write_checkpoint
 
         dm = self.model.dmesh
         state = getattr(self.integrator, "state", dict)()
@@ -304,8 +304,8 @@ class Simulation:
 
     def _restore(self, ledger):
         """State, first step and result so far from the latest checkpoint (all ranks)."""
-        from ..errors import PetsoftError
-        from .checkpoint import read_latest
+        from petsoft.errors import PetsoftError
+        from petsoft.dynamics.checkpoint import read_latest
 
         dm = self.model.dmesh
         mpi = dm.comm.tompi4py()
@@ -392,8 +392,8 @@ class Simulation:
                 interpolate(u, self.probe_connectivity, self.probe_cells, self.probe_weights))
 
     def _write_outputs(self, result: SimulationResult) -> None:
-        from ..recording import write_recording
-        from ..summary import write_summary
+        from petsoft.io.recording import write_recording
+        from petsoft.io.summary import write_summary
 
         dm = self.model.dmesh
         u = dm.gather_global(result.q)

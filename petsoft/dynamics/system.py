@@ -32,11 +32,16 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
-from ..assembly import MatrixAssembler
-from ..linear import linear_defaults
-from ..physics.drag import face_pairs
-from ..physics.loads import consistent_mass_matrices, gravity_forces, lumped_masses, traction_forces
-from .velocity import VelocityDamping, VelocityTerms
+from petsoft.fem.assembly import MatrixAssembler
+from petsoft.solvers.linear import linear_defaults
+from petsoft.physics.drag import face_pairs
+from petsoft.physics.loads import (
+    consistent_mass_matrices,
+    gravity_forces,
+    lumped_masses,
+    traction_forces,
+)
+from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
 
 #: The assembler's element set of single nodes: the velocity terms' 3x3 diagonal blocks.
 NODE_SET = "__nodes__"
@@ -49,8 +54,8 @@ class DynamicSystem(VelocityDamping):
 
     Parameters
     ----------
-    model : petsoft.model.Model
-        Built by :func:`petsoft.model.build_model` (its ``external`` vector is not used: loads are
+    model : petsoft.physics.model.Model
+        Built by :func:`petsoft.physics.model.build_model` (its ``external`` vector is not used: loads are
         rebuilt here split into gravity and time-dependent tractions).
     damping_mass, damping_stiffness : float
         Rayleigh alpha (1/s) and beta (s).
@@ -123,7 +128,7 @@ class DynamicSystem(VelocityDamping):
         """(nv, 3) the friction's damping per unit mass and unit ``dry`` at the local vertices
         (linearised at v_lin like :meth:`VelocityTerms.unit_linearised`): its density
         derivative."""
-        from ..physics import friction
+        from petsoft.physics import friction
 
         m, eps = self._friction_mask_local.astype(float), self.velocity_terms.speed
         if v_lin_local is None:
@@ -247,7 +252,7 @@ class DynamicSystem(VelocityDamping):
         return self.dmesh.rigid_body_modes()
 
     def linear_defaults(self, ksp: PETSc.KSP) -> None:
-        """petsoft's default linear solver for this system's size (:func:`petsoft.linear.
+        """petsoft's default linear solver for this system's size (:func:`petsoft.solvers.linear.
         linear_defaults`: direct when small, else CG + GAMG)."""
         linear_defaults(ksp, dofs=3 * self.dmesh.nglobal_vertices)
 
@@ -331,7 +336,7 @@ class DynamicSystem(VelocityDamping):
     def parameters(self):
         """The :class:`~petsoft.dynamics.parameters.ParameterMap` (built on first use)."""
         if getattr(self, "_parameters", None) is None:
-            from .parameters import ParameterMap
+            from petsoft.dynamics.parameters import ParameterMap
 
             self._parameters = ParameterMap(self)
         return self._parameters
@@ -350,7 +355,7 @@ class DynamicSystem(VelocityDamping):
     def set_parameters(self, values: dict) -> None:
         """Change named parameters in place (no mesh rebuild): per-cell Lame parameters and
         density, then M, K0, the lumped masses and gravity; Rayleigh coefficients."""
-        from ..kernels.materials import lame_parameters
+        from petsoft.fem.kernels.materials import lame_parameters
 
         pm = self.parameters
         pm.update(values)
@@ -400,7 +405,7 @@ class DynamicSystem(VelocityDamping):
         at once: ``.vectors(names)`` gives the vectors, ``.contract(names, mu)`` their dots
         with mu. ``v_lin``: the velocity the step linearises the velocity terms at
         (semi-implicit)."""
-        from .parameters import ParameterDerivatives
+        from petsoft.dynamics.parameters import ParameterDerivatives
 
         return ParameterDerivatives(self, q, v, a, w, k0x, v_lin)
 
@@ -414,7 +419,7 @@ class DynamicSystem(VelocityDamping):
 
     # -- the viscoelastic (Maxwell) branch -------------------------------------------------------
     def _viscoelastic_setup(self) -> None:
-        from ..physics.viscoelastic import MaxwellBranch
+        from petsoft.physics.viscoelastic import MaxwellBranch
 
         spec = self.model.experiment.viscoelastic
         #: the :class:`~petsoft.physics.viscoelastic.MaxwellBranch` (inactive for ratio 0)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..physics import drag, friction
+from petsoft.physics import drag, friction
 
 #: Parameter names of the velocity terms (calibratable; all >= 0).
 NAMES = ("drag.linear", "drag.quadratic", "friction.dry")

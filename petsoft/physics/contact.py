@@ -33,10 +33,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ExperimentError
-from ..kernels.tet import shape_gradients
-from ..topology import exterior_faces
-from .colliders import DEFAULT_STEP_FACTOR, Collider
+from petsoft.errors import ExperimentError
+from petsoft.fem.kernels.tet import shape_gradients
+from petsoft.mesh.topology import exterior_faces
+from petsoft.physics.colliders import DEFAULT_STEP_FACTOR, Collider
 
 #: Without a time step: k = this x E_max x mean exterior edge length.
 DEFAULT_STATIC_FACTOR = 1000.0

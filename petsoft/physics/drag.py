@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..topology import triangle_areas_normals
+from petsoft.mesh.topology import triangle_areas_normals
 
 
 def face_pairs(points: np.ndarray, faces: np.ndarray, node_of: np.ndarray):

@@ -6,11 +6,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..assembly import CHUNK, MatrixAssembler
-from ..errors import InvertedElementError
-from ..kernels import elastic as kernels
-from ..kernels.scatter import scatter_add_vector
-from ..kernels.tet import shape_gradients
+from petsoft.fem.assembly import CHUNK, MatrixAssembler
+from petsoft.errors import InvertedElementError
+from petsoft.fem.kernels import elastic as kernels
+from petsoft.fem.kernels.scatter import scatter_add_vector
+from petsoft.fem.kernels.tet import shape_gradients
 
 
 @dataclass
@@ -34,7 +34,7 @@ class ElasticTerm:
     ----------
     dmesh : DistributedMesh
     models : sequence of str, one per local cell
-        Material model of each local cell (see :data:`petsoft.kernels.elastic.MODELS`).
+        Material model of each local cell (see :data:`petsoft.fem.kernels.elastic.MODELS`).
     youngs_modulus, poisson_ratio : ndarray (ne,)
         Per local cell.
     project_spd : bool

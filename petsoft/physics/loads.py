@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..kernels.scatter import scatter_add_vector
-from ..topology import face_cells, triangle_areas_normals
+from petsoft.fem.kernels.scatter import scatter_add_vector
+from petsoft.mesh.topology import face_cells, triangle_areas_normals
 
 
 def gravity_forces(dmesh, density: np.ndarray, acceleration) -> np.ndarray:

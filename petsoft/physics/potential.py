@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .elastic import ElasticTerm
+from petsoft.physics.elastic import ElasticTerm
 
 
 class ModelPotential:

@@ -25,8 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import ExperimentError
-from ..topology import triangle_areas_normals
+from petsoft.errors import ExperimentError
+from petsoft.mesh.topology import triangle_areas_normals
 
 
 def lumped_face_areas(points: np.ndarray, faces: np.ndarray, nvertices: int) -> np.ndarray:

@@ -46,7 +46,7 @@ from __future__ import annotations
 
 from petsc4py import PETSc
 
-from ..errors import ExperimentError
+from petsoft.errors import ExperimentError
 
 #: Integrators whose step equations include the branch.
 SUPPORTED = ("be", "si", "midpoint", "trapezoidal", "alpha")

@@ -1,0 +1,225 @@
+"""`petsoft synth`: a synthetic recording from a simulation, with its ground truth beside it.
+
+To avoid the "inverse crime" (fitting data made by the very discretisation that fits it), the
+data are simulated on a refined mesh with a smaller step: ``--refine K`` divides the mesh size
+and the time step by K. Box meshes get K times the cells along each axis; file meshes are refined
+by uniform 1 -> 8 tetrahedron subdivision, which halves the mesh size, so for them K must be a
+power of two (log2 K subdivisions), regions and boundary facet groups carried over. The markers
+are nodes of the *original* mesh's surface (or given), hence also nodes of the refined mesh, and
+are sampled at the original step's times. Noise and dropout come from a seeded generator.
+
+The ground truth (the experiment's parameter values, noise, seed, refinement, integrator and step
+actually used) goes to ``truth.json`` beside the recording, which no calibration reads.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+from petsc4py import PETSc
+
+from petsoft.errors import PetsoftError
+from petsoft.mesh.serial import Mesh, validate
+from petsoft.mesh.topology import exterior_faces
+
+
+class SynthError(PetsoftError):
+    """Bad options of `petsoft synth` (noise, dropout, markers, refinement)."""
+
+
+# The inner octahedron of a 1 -> 8 subdivision split along the diagonal m02-m13 (Bey 1995).
+# Local numbering: 0..3 corners, 4 m01, 5 m02, 6 m03, 7 m12, 8 m13, 9 m23.
+_CHILDREN = np.array([
+    [0, 4, 5, 6], [4, 1, 7, 8], [5, 7, 2, 9], [6, 8, 9, 3],
+    [4, 5, 6, 8], [4, 5, 7, 8], [5, 6, 8, 9], [5, 7, 8, 9],
+])
+_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
+
+
+def refine_mesh(mesh: Mesh) -> Mesh:
+    """Uniform 1 -> 8 subdivision of every tetrahedron (edge midpoints as new nodes).
+
+    Cell tags follow their parent; facet-group triangles are split 1 -> 4 with the same
+    midpoints, keeping their orientation. Children are positively oriented.
+    """
+    tets = mesh.tets
+    n = len(mesh.points)
+    edges = np.sort(tets[:, _EDGES].reshape(-1, 2), axis=1)
+    keys = edges[:, 0] * n + edges[:, 1]
+    unique_keys, inverse = np.unique(keys, return_inverse=True)
+    a, b = unique_keys // n, unique_keys % n
+    points = np.concatenate([mesh.points, 0.5 * (mesh.points[a] + mesh.points[b])])
+    local = np.concatenate([tets, n + inverse.reshape(-1, 6)], axis=1)     # (E, 10)
+    children = local[:, _CHILDREN].reshape(-1, 4)
+    X = points[children]
+    vol = np.einsum("ij,ij->i", np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]), X[:, 3] - X[:, 0])
+    flip = vol < 0
+    children[flip] = children[flip][:, [0, 1, 3, 2]]
+
+    def midpoint(u, v):
+        k = np.minimum(u, v) * n + np.maximum(u, v)
+        pos = np.searchsorted(unique_keys, k)
+        if np.any(pos >= len(unique_keys)) or np.any(unique_keys[np.minimum(
+                pos, len(unique_keys) - 1)] != k):
+            raise SynthError(f"{mesh.source}: a facet-group triangle edge is not an edge of "
+                             "any tetrahedron; cannot refine its group")
+        return n + pos
+
+    groups = {}
+    for name, tri in mesh.facet_groups.items():
+        tri = np.asarray(tri, dtype=np.int64)
+        p, q, r = tri[:, 0], tri[:, 1], tri[:, 2]
+        mpq, mqr, mrp = midpoint(p, q), midpoint(q, r), midpoint(r, p)
+        groups[name] = np.stack([np.column_stack([p, mpq, mrp]), np.column_stack([mpq, q, mqr]),
+                                 np.column_stack([mrp, mqr, r]),
+                                 np.column_stack([mpq, mqr, mrp])], axis=1).reshape(-1, 3)
+    return validate(Mesh(points=points, tets=children, cell_tags=np.repeat(mesh.cell_tags, 8),
+                         regions=dict(mesh.regions), facet_groups=groups,
+                         source=f"{mesh.source} refined 1->8"))
+
+
+def surface_nodes(mesh: Mesh) -> np.ndarray:
+    """Sorted node numbers on the exterior surface of a tet mesh."""
+    faces, _ = exterior_faces(mesh.tets)
+    return np.unique(faces)
+
+
+def _read_markers_file(path: Path) -> np.ndarray:
+    if not path.is_file():
+        raise SynthError(f"{path}: markers file not found")
+    text = path.read_text().replace(",", " ")
+    try:
+        rows = [[float(v) for v in line.split()] for line in text.splitlines()
+                if line.strip() and not line.lstrip().startswith("#")]
+    except ValueError as exc:
+        raise SynthError(f"{path}: not numbers ({exc}); expected x y z (m) per line") from None
+    bad = [i for i, r in enumerate(rows) if len(r) != 3]
+    if not rows or bad:
+        raise SynthError(f"{path}: line {bad[0] + 1 if bad else 1}: expected 3 numbers x y z "
+                         "(m) per line")
+    return np.array(rows)
+
+
+def _check_options(args) -> None:
+    if not (math.isfinite(args.noise) and args.noise >= 0):
+        raise SynthError(f"--noise = {args.noise}: the noise standard deviation (m) must be "
+                         ">= 0")
+    if not (0.0 <= args.dropout < 1.0):
+        raise SynthError(f"--dropout = {args.dropout}: the fraction of dropped samples must be "
+                         "in [0, 1)")
+
+
+def run_synth(args) -> int:
+    """`petsoft synth EXPERIMENT.toml --out RECORDING.h5 ...` (all ranks call)."""
+    from petsoft.calibration.observation import time_interpolation
+    from petsoft.dynamics.simulate import Simulation
+    from petsoft.experiment import (
+        experiment_from_dict,
+        get_parameter,
+        load_experiment,
+        parameter_names,
+    )
+    from petsoft.physics.model import build_model, load_mesh
+    from petsoft.solvers.options import apply_experiment_options
+    from petsoft.io.recording import write_recording
+    from petsoft.io.summary import write_summary
+
+    t0 = time.perf_counter()
+    comm = PETSc.COMM_WORLD
+    rank0 = comm.rank == 0
+
+    def say(line):
+        if rank0:
+            print(line, flush=True)
+
+    _check_options(args)
+    exp = load_experiment(args.experiment)
+    if exp.time is None:
+        raise SynthError(f"{exp.source}: [time] is missing: synth needs end and step")
+    K = int(args.refine)
+    mesh0 = load_mesh(exp)                     # every rank: marker choice must agree
+    if args.markers_file:
+        markers = _read_markers_file(Path(args.markers_file))
+        node_ids = None
+    else:
+        nodes = surface_nodes(mesh0)
+        if args.markers > len(nodes):
+            raise SynthError(f"--markers {args.markers}: the mesh has only {len(nodes)} surface "
+                             "nodes")
+        rng_pick = np.random.default_rng([args.seed, 1])
+        node_ids = np.sort(rng_pick.choice(nodes, size=args.markers, replace=False))
+        markers = mesh0.points[node_ids]
+    names = [f"m{i:02d}" for i in range(len(markers))]
+    data = exp.to_dict()
+    step = exp.time.step / K
+    data["time"]["step"] = step
+    if args.integrator:
+        data["time"]["integrator"] = args.integrator
+    data["output"]["probes"] = markers.tolist()
+    data["output"]["every"] = 1
+    data["output"]["checkpoint_every"] = 0
+    mesh = None
+    if exp.mesh.box is not None:
+        data["mesh"]["box"]["cells"] = [K * c for c in exp.mesh.box.cells]
+    elif K > 1:
+        levels = int(round(math.log2(K)))
+        if 2 ** levels != K:
+            raise SynthError(f"--refine {K}: a file mesh is refined by 1->8 subdivision, which "
+                             "halves its size; use a power of two (2, 4, 8)")
+        mesh = mesh0
+        for _ in range(levels):
+            mesh = refine_mesh(mesh)
+    sim_exp = experiment_from_dict(data, source=exp.source, base_dir=exp.base_dir, path=exp.path)
+    apply_experiment_options(sim_exp.petsc)
+    model = build_model(sim_exp, comm, mesh=mesh)
+    say(f"petsoft synth: {len(markers)} markers; simulating on {len(model.dmesh.mesh.tets)} tets "
+        f"(refine {K}, original {len(mesh0.tets)}) with step {step:g} s")
+    sim = Simulation(model, sim_exp, monitor=say)
+    result = sim.run()
+    integrator = sim.name
+    sim.destroy()
+    summary = {}
+    if rank0:
+        t_sim = np.array(result.probe_times)
+        u_sim = np.array(result.probe_displacements)              # (S, M, 3)
+        n_frames = exp.time.num_steps
+        frame_times = np.arange(n_frames + 1) * exp.time.step
+        frame_times = frame_times[frame_times <= t_sim[-1] * (1 + 1e-12)]
+        idx, w = time_interpolation(frame_times, t_sim, source="synth")
+        clean = markers[None] + np.einsum("kj,kjmc->kmc", w, u_sim[idx])
+        rng = np.random.default_rng([args.seed, 2])
+        noisy = clean + (rng.normal(0.0, args.noise, clean.shape) if args.noise > 0 else 0.0)
+        dropped = rng.random(clean.shape[:2]) < args.dropout
+        noisy[dropped] = np.nan
+        out = Path(args.out)
+        cmd = (f"petsoft synth {args.experiment} --noise {args.noise:g} --dropout "
+               f"{args.dropout:g} --refine {K} --seed {args.seed}")
+        write_recording(out, markers, frame_times, noisy, names=names,
+                        attrs={"source": cmd}, noise={"position_std": float(args.noise)})
+        truth = {
+            "experiment": str(exp.path or exp.source),
+            "parameters": {p: get_parameter(exp, p) for p in parameter_names(exp)},
+            "noise": {"position_std": float(args.noise), "dropout": float(args.dropout),
+                      "dropped_samples": int(dropped.sum())},
+            "seed": int(args.seed), "refine": K, "integrator": integrator,
+            "step": step, "recording_step": exp.time.step,
+            "tets": {"simulated": int(len(model.dmesh.mesh.tets)),
+                     "original": int(len(mesh0.tets))},
+            "markers": {"names": names, "reference": markers.tolist(),
+                        "nodes": None if node_ids is None else node_ids.tolist()},
+        }
+        truth_path = out.parent / "truth.json"
+        truth_path.write_text(json.dumps(truth, indent=2) + "\n")
+        summary = {"recording": str(out), "truth": str(truth_path), "markers": len(markers),
+                   "frames": int(len(frame_times)), "dropped_samples": int(dropped.sum()),
+                   "max_displacement_markers": float(np.abs(clean - markers).max())}
+        say(f"wrote {out} ({len(frame_times)} frames, {len(markers)} markers, noise "
+            f"{args.noise:g} m, {int(dropped.sum())} samples dropped) and {truth_path}")
+    stats = {"newton_iterations": result.newton_iterations,
+             "linear_iterations": result.linear_iterations, "retries": result.retries}
+    write_summary(Path(args.out).parent, "synth", summary, stats, time.perf_counter() - t0, comm)
+    return 0

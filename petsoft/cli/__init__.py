@@ -1,0 +1,1 @@
+"""The ``petsoft`` console command."""

@@ -1,0 +1,271 @@
+"""The subcommands behind the `petsoft` console command (PETSc is initialised by then)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+from petsc4py import PETSc
+
+from petsoft.experiment import experiment_from_dict, load_experiment
+from petsoft.physics.model import build_model
+from petsoft.solvers.options import apply_experiment_options
+from petsoft.mesh.probes import interpolate, locate
+from petsoft.solvers.static import StaticSolver
+from petsoft.io.summary import write_summary
+from petsoft.io.xdmf import write_xdmf
+
+# The embedded default of `petsoft demo`: a soft neo-Hookean cantilever (silicone-like) clamped
+# at x = 0, sagging under gravity with a downward end load large enough to bend it visibly.
+DEMO_EXPERIMENT = {
+    "mesh": {"box": {"size": [0.40, 0.04, 0.04], "cells": [40, 4, 4]}},
+    "material": {"model": "neohookean", "youngs_modulus": 1.0e6, "poisson_ratio": 0.45,
+                 "density": 1100.0},
+    "gravity": {"acceleration": [0.0, 0.0, -9.81]},
+    "boundary": [
+        {"kind": "fixed", "where": "x < 1e-6"},
+        {"kind": "traction", "where": "x > 0.4 - 1e-6", "value": [0.0, 0.0, -2000.0]},
+    ],
+    "output": {"directory": "petsoft-demo", "probes": [[0.4, 0.02, 0.02], [0.2, 0.02, 0.02]]},
+}
+
+
+def _print(line: str) -> None:
+    if PETSc.COMM_WORLD.rank == 0:
+        print(line, flush=True)
+
+
+def run(args) -> int:
+    if args.command == "static":
+        experiment = load_experiment(args.experiment)
+        out = Path(args.out) if args.out else experiment.output.directory
+        solve_static(experiment, out, args.method, args.load_steps, args.spd)
+        return 0
+    if args.command == "simulate":
+        experiment = load_experiment(args.experiment)
+        out = Path(args.out) if args.out else experiment.output.directory
+        run_simulation(experiment, out, args)
+        return 0
+    if args.command == "modes":
+        return run_modes(args)
+    if args.command == "damping":
+        return run_damping(args)
+    if args.command == "import":
+        from petsoft.io.importers import run_import
+
+        return run_import(args)
+    if args.command == "synth":
+        from petsoft.calibration.synth import run_synth
+
+        return run_synth(args)
+    if args.command == "calibrate":
+        from petsoft.calibration.calibrate import run_calibration
+
+        experiment = load_experiment(args.experiment)
+        apply_experiment_options(experiment.petsc)
+        out = Path(args.out) if args.out else experiment.output.directory
+        run_calibration(experiment, args.recording, method=args.method, gradient=args.gradient,
+                        integrator=args.integrator, starts=args.multistart, seed=args.seed,
+                        regularization=args.regularization, noise=args.noise, out=out,
+                        say=_print)
+        return 0
+    if args.command == "diagnose":
+        from petsoft.diagnosis.diagnose import run_diagnose
+
+        experiment = load_experiment(args.experiment)
+        apply_experiment_options(experiment.petsc)
+        out = Path(args.out) if args.out else experiment.output.directory
+        run_diagnose(experiment, args.recording, out=out, fraction=args.fraction,
+                     alpha=args.alpha, max_additions=args.max_additions, method=args.method,
+                     integrator=args.integrator, noise=args.noise,
+                     numerics=not args.no_numerics, say=_print)
+        return 0
+    if args.command == "demo":
+        out = Path(args.out)
+        if args.part in ("all", "static"):
+            experiment = experiment_from_dict(DEMO_EXPERIMENT, source="<embedded demo>")
+            summary = solve_static(experiment, out, args.method, args.load_steps, False,
+                                   command="demo")
+            if PETSc.COMM_WORLD.rank == 0:
+                png = plot_deflection(summary["_mesh"], summary["_u"], out / "deflection.png")
+                _print(f"plot: {png}   (open displacement.xdmf in ParaView for the 3D field)")
+        if args.part in ("all", "diagnose"):
+            from petsoft.diagnosis.demo import run_diagnosis_demo
+
+            _print("\n== the whole loop: a recording with a hidden effect, diagnosed ==")
+            run_diagnosis_demo(out / "diagnose", say=_print)
+        return 0
+    raise AssertionError(args.command)
+
+
+def solve_static(experiment, out: Path, method: str, load_steps: int, spd: bool,
+                 command: str = "static") -> dict:
+    """Solve an experiment's quasistatic problem and write its outputs (all ranks call)."""
+    t0 = time.perf_counter()
+    comm = PETSc.COMM_WORLD
+    apply_experiment_options(experiment.petsc)
+    model = build_model(experiment, comm, project_spd=spd)
+    mesh = model.dmesh.mesh
+    probe_cells, probe_weights = (
+        locate(mesh.points, mesh.tets, experiment.output.probes,
+               source=f"{experiment.source}: output.probes")
+        if experiment.output.probes else (None, None))
+    _print(f"petsoft {command}: {len(mesh.tets)} tets, {len(mesh.points)} nodes, "
+           f"{3 * len(mesh.points)} dofs on {comm.size} rank(s); {method.upper()}, "
+           f"{load_steps} load step(s)")
+    solver = StaticSolver(model, method=method, load_steps=load_steps, monitor=_print)
+    result = solver.solve()
+    u = model.dmesh.gather_global(result.displacement)
+    summary = {}
+    if comm.rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+        write_xdmf(out / "displacement.xdmf", mesh.points, mesh.tets,
+                   point_data={"displacement": u})
+        magnitude = np.linalg.norm(u, axis=1)
+        probes = []
+        if probe_cells is not None:
+            values = interpolate(u, mesh.tets, probe_cells, probe_weights)
+            probes = [{"point": list(map(float, p)), "displacement": list(map(float, v))}
+                      for p, v in zip(experiment.output.probes, values, strict=True)]
+        summary = {"max_displacement": float(magnitude.max()), "probes": probes}
+        stats = {"method": method, "load_steps": result.load_steps,
+                 "newton_iterations": result.newton_iterations,
+                 "linear_iterations": result.linear_iterations, "retries": result.retries,
+                 "ksp_type": solver.ksp.getType(), "pc_type": solver.ksp.getPC().getType()}
+        path = write_summary(out, command, summary, stats, time.perf_counter() - t0, comm)
+        _print(f"max displacement {summary['max_displacement']:.6g} m after "
+               f"{result.newton_iterations} Newton / {result.linear_iterations} linear "
+               f"iterations ({stats['ksp_type']}+{stats['pc_type']}); wrote {path.parent}/")
+        summary["_mesh"], summary["_u"] = mesh, u
+    solver.destroy()
+    return summary
+
+
+def plot_deflection(mesh, u: np.ndarray, path: Path) -> Path:
+    """Side view (x-z) of the reference and deformed body, coloured by displacement."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    p, q = mesh.points, mesh.points + u
+    ax.scatter(p[:, 0], p[:, 2], s=2, c="0.8", label="reference")
+    sc = ax.scatter(q[:, 0], q[:, 2], s=3, c=np.linalg.norm(u, axis=1), cmap="viridis",
+                    label="deformed")
+    fig.colorbar(sc, ax=ax, label="|u| (m)")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("z (m)")
+    ax.set_aspect("equal")
+    ax.legend(loc="lower left")
+    ax.set_title("petsoft demo: neo-Hookean cantilever, side view")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def run_simulation(experiment, out: Path, args) -> None:
+    """`petsoft simulate`: build, run and write a dynamic simulation (all ranks call)."""
+    from petsoft.dynamics.simulate import Simulation
+
+    apply_experiment_options(experiment.petsc)
+    if experiment.is_mass_spring:
+        from petsoft.dynamics.mass_spring import build_mass_spring_model
+
+        model = build_mass_spring_model(experiment, PETSc.COMM_WORLD, recording=args.recording)
+    else:
+        model = build_model(experiment, PETSc.COMM_WORLD, recording=args.recording)
+    sim = Simulation(model, experiment, integrator=args.integrator, solver=args.solver,
+                     out=out, monitor=_print, explicit_scheme=args.explicit_scheme,
+                     alpha_backend=args.alpha_backend, spd=getattr(args, "spd", False))
+    result = sim.run(restart=args.restart)
+    _print(f"t = {result.time:g} s after {result.steps} steps ({result.retries} retried), "
+           f"{result.newton_iterations} Newton / {result.linear_iterations} linear iterations, "
+           f"{result.wall_time:.3g} s; wrote {out}/")
+    sim.destroy()
+
+
+def run_modes(args) -> int:
+    """`petsoft modes`: natural frequencies and mode shapes of an experiment (all ranks call).
+
+    Prints a table, writes ``summary.json`` (``frequencies_hz``, ``eigenvalues``, solver
+    statistics) and ``modes.xdmf``/``.h5``: one frame per mode with time = mode number (1, 2,
+    ...) and the M-normalised shape as the point field ``mode``, so ParaView's time control steps
+    through the modes under one Warp By Vector.
+    """
+    from petsoft.solvers.modes import compute_modes
+    from petsoft.io.xdmf import XdmfWriter
+
+    t0 = time.perf_counter()
+    comm = PETSc.COMM_WORLD
+    experiment = load_experiment(args.experiment)
+    out = Path(args.out) if args.out else experiment.output.directory
+    apply_experiment_options(experiment.petsc)
+    model = build_model(experiment, comm)
+    mesh = model.dmesh.mesh
+    _print(f"petsoft modes: {len(mesh.tets)} tets, {len(mesh.points)} nodes, "
+           f"{3 * len(mesh.points)} dofs ({model.dirichlet.count} constrained) on {comm.size} "
+           f"rank(s); {args.num_modes} mode(s)")
+    result = compute_modes(model, args.num_modes)
+    writer = XdmfWriter(out / "modes.xdmf", mesh.points, mesh.tets) if comm.rank == 0 else None
+    for k, x in enumerate(result.modes):
+        shape = model.dmesh.gather_global(x)       # collective; None off rank 0
+        if writer is not None:
+            writer.write(float(k + 1), {"mode": shape})
+    if writer is not None:
+        writer.close()
+    _print(f"{'mode':>5} {'frequency (Hz)':>16} {'omega^2 (rad/s)^2':>19} {'rel. residual':>14}")
+    for k, (f, lam, err) in enumerate(zip(result.frequencies_hz, result.eigenvalues,
+                                          result.relative_errors, strict=True)):
+        note = "  rigid body" if k < result.rigid_modes else ""
+        _print(f"{k + 1:>5} {f:>16.8g} {lam:>19.8g} {err:>14.2e}{note}")
+    solver = {**result.solver, "shift": result.shift, "converged": result.converged,
+              "iterations": result.iterations,
+              "max_relative_residual": float(result.relative_errors.max())}
+    results = {"frequencies_hz": [float(f) for f in result.frequencies_hz],
+               "eigenvalues": [float(v) for v in result.eigenvalues],
+               "rigid_body_modes": result.rigid_modes,
+               "mode_shapes": {"file": "modes.xdmf", "field": "mode", "normalisation": "mass"}}
+    path = write_summary(out, "modes", results, solver, time.perf_counter() - t0, comm)
+    factor = result.solver.get("factor_solver_type", result.solver["pc_type"])
+    _print(f"{len(result.modes)} modes, {result.frequencies_hz[0]:.6g} to "
+           f"{result.frequencies_hz[-1]:.6g} Hz ({result.rigid_modes} rigid body), "
+           f"{result.iterations} iteration(s) of {result.solver['eps_type']} + "
+           f"{result.solver['st_type']} ({factor}); wrote {path.parent if path else out}/")
+    result.destroy()
+    return 0
+
+
+def run_damping(args) -> int:
+    """`petsoft damping`: artificial damping of the integrators (all ranks call).
+
+    Always the scalar analysis (analytic curves, measured on oscillators); with an experiment also
+    the per-mode table of its body at ``[time] step`` (see :mod:`petsoft.dynamics.damping_analysis`).
+    """
+    from petsoft.dynamics import damping_analysis as damping
+    from petsoft.errors import ExperimentError
+
+    t0 = time.perf_counter()
+    comm = PETSc.COMM_WORLD
+    schemes = damping.default_schemes(args.radii)
+    experiment = load_experiment(args.experiment) if args.experiment else None
+    out = Path(args.out) if args.out else (
+        experiment.output.directory if experiment else Path("petsoft-damping"))
+    _print(f"petsoft damping: {len(schemes)} integrators on {len(damping.MEASURED_TAU_OMEGA)} "
+           f"oscillators (tau*w = 1e-2 .. 1e2) on {comm.size} rank(s)")
+    rows = damping.scalar_analysis(schemes, comm=comm)
+    fem = None
+    if experiment is not None:
+        if experiment.time is None:
+            raise ExperimentError(f"{experiment.source}: petsoft damping needs [time] step")
+        apply_experiment_options(experiment.petsc)
+        model = build_model(experiment, comm)
+        _print(f"{experiment.source}: {args.modes} lowest modes at step "
+               f"{experiment.time.step:g} s, {args.steps} steps per run")
+        fem = damping.fem_mode_damping(model, experiment.time.step, schemes, args.modes,
+                                       args.steps, args.amplitude, monitor=_print)
+    damping.report(out, schemes, fem, rows, comm, t0, printer=_print,
+                   source=experiment.source if experiment else None)
+    return 0

@@ -1,0 +1,296 @@
+"""The `petsoft` console command: parses petsoft's own arguments, hands the rest to PETSc.
+
+PETSc options (single dash, e.g. ``-ksp_type cg -pc_type gamg``) go after the experiment file;
+petsoft's own options use two dashes and may stand anywhere. PETSc is initialised with those
+options before any module that imports it, so the command line always wins over defaults.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+
+_PETSC_OPTION = re.compile(r"^-[A-Za-z][A-Za-z0-9_]+")
+_FLAGS_WITHOUT_VALUE = {"--restart", "--spd", "--quiet", "--help"}
+# `modes -n K` (also -n=K, -nK): the one single-dash option of petsoft's own. The PETSc pattern
+# above needs two characters after the dash, so "-n" alone would otherwise pass as the value of a
+# preceding PETSc option.
+_OUR_SHORT_OPTION = re.compile(r"^-n(=?\d+)?$")
+
+
+def split_arguments(argv: list[str]) -> tuple[list[str], list[str]]:
+    """Split argv into petsoft's arguments and PETSc options (in their order)."""
+    ours, petsc, i = [], [], 0
+    in_petsc = False
+    while i < len(argv):
+        tok = argv[i]
+        if tok.startswith("--") or _OUR_SHORT_OPTION.match(tok):
+            ours.append(tok)
+            takes_value = tok == "-n" or (tok.startswith("--") and "=" not in tok
+                                          and tok not in _FLAGS_WITHOUT_VALUE)
+            if (takes_value and in_petsc
+                    and i + 1 < len(argv) and not argv[i + 1].startswith("-")):
+                ours.append(argv[i + 1])
+                i += 1
+        elif _PETSC_OPTION.match(tok):
+            in_petsc = True
+            petsc.append(tok)
+        elif in_petsc:
+            petsc.append(tok)           # the value of the preceding PETSc option
+        else:
+            ours.append(tok)
+        i += 1
+    return ours, petsc
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="petsoft",
+        description="Simulate soft deformable objects with PETSc. PETSc options (e.g. "
+                    "-ksp_type cg -pc_type gamg) go after the experiment file.")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    s = sub.add_parser("static", help="quasistatic equilibrium of an experiment",
+                       description="Solve the quasistatic problem of EXPERIMENT.toml; writes "
+                                   "displacement.xdmf/.h5 and summary.json.")
+    s.add_argument("experiment", help="experiment file (TOML, see the formats spec)")
+    _static_options(s)
+    _add_simulate_parser(sub)
+    _add_modes_parser(sub)
+    _add_damping_parser(sub)
+    _add_calibrate_parser(sub)
+    _add_diagnose_parser(sub)
+    _add_recording_parsers(sub)
+    d = sub.add_parser("demo", help="run the embedded example (no input needed)",
+                       description="The embedded example: (static) solve a neo-Hookean "
+                                   "cantilever under gravity and an end load; (diagnose) "
+                                   "synthesise a recording of a bar with an effect its model "
+                                   "lacks, and let `petsoft diagnose` find it. Writes results, "
+                                   "plots and the diagnosis report to --out.")
+    d.add_argument("--out", default="petsoft-demo", help="output directory (default %(default)s)")
+    d.add_argument("--part", choices=("all", "static", "diagnose"), default="all",
+                   help="which part to run (default %(default)s)")
+    d.add_argument("--method", choices=("snes", "tao"), default="snes")
+    d.add_argument("--load-steps", type=int, default=4)
+    return p
+
+
+def _add_simulate_parser(sub) -> None:
+    s = sub.add_parser(
+        "simulate", help="elastodynamics of an experiment over [time]",
+        description="Integrate M q'' = f_el(q) + f_d(v) + f_ext(t) over [time]; writes "
+                    "trajectory.xdmf/.h5, probes.h5 (a recording), energies.csv, summary.json.")
+    s.add_argument("experiment", help="experiment file (TOML) with a [time] section")
+    s.add_argument("--out", help="output directory (default: [output] directory)")
+    s.add_argument("--integrator", help="override [time] integrator "
+                   "(be, si, midpoint, trapezoidal, explicit, ...)")
+    s.add_argument("--solver", choices=("snes", "tao", "local-global"), default="snes",
+                   help="Newton on the step equations, or (be) minimise the incremental "
+                        "potential with TAO, or (be, mass-spring models) the local/global "
+                        "iteration of Liu et al. 2013 (options -lg_rtol, -lg_max_it, "
+                        "-lg_anderson, -lg_ksp_type...)")
+    s.add_argument("--explicit-scheme", choices=("verlet", "euler"), default="verlet",
+                   help="explicit integrator: velocity Verlet or symplectic Euler")
+    s.add_argument("--recording", help="recording (HDF5) whose /inputs drive `series` supports")
+    s.add_argument("--restart", action="store_true",
+                   help="continue from the latest checkpoint in the output directory")
+    s.add_argument("--alpha-backend", choices=("petsoft", "ts"), default="petsoft",
+                   help="generalized-alpha: petsoft's step (second order) or PETSc TS alpha2 "
+                        "(first order for r < 1 in PETSc 3.18, see README)")
+    s.add_argument("--spd", action="store_true",
+                   help="mass-spring models: clamped (positive semi-definite) spring and contact "
+                        "Hessians in the Jacobians")
+
+
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, not {value}")
+    return value
+
+
+def _add_modes_parser(sub) -> None:
+    m = sub.add_parser(
+        "modes", help="natural frequencies and mode shapes of an experiment",
+        description="Solve K x = omega^2 M x (stiffness at the unloaded reference state, "
+                    "consistent mass, the experiment's supports; loads are ignored) with SLEPc "
+                    "for the lowest modes; writes summary.json (frequencies_hz) and modes.xdmf/.h5 "
+                    "(one frame per mode, time = mode number, M-normalised shapes). Eigensolver "
+                    "options: -eps_type, -eps_tol, -eps_ncv, -eps_target (in (rad/s)^2), "
+                    "-st_pc_factor_mat_solver_type ...")
+    m.add_argument("experiment", help="experiment file (TOML, see the formats spec)")
+    m.add_argument("-n", "--num-modes", type=_positive_int, default=6, dest="num_modes",
+                   metavar="K", help="number of modes (default %(default)s)")
+    m.add_argument("--out", help="output directory (default: [output] directory)")
+
+
+def _radii(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"not a comma-separated list of numbers: {text!r}") from None
+    if not values or any(not 0.0 <= r <= 1.0 for r in values):
+        raise argparse.ArgumentTypeError(f"radii must lie in [0, 1], not {text!r}")
+    return values
+
+
+def _add_damping_parser(sub) -> None:
+    d = sub.add_parser(
+        "damping", help="artificial damping of the integrators (analytic and measured)",
+        description="Artificial damping ratio d/w = -2 ln(rho)/(tau w) of BE/SI, generalized "
+                    "alpha, midpoint/trapezoidal and the explicit schemes against tau*w: analytic "
+                    "(amplification matrices) and measured (petsoft's integrators on undamped "
+                    "oscillators). With an experiment, also per mode of its body at its [time] "
+                    "step. Writes damping.png, damping.md, CSV tables and summary.json.")
+    d.add_argument("experiment", nargs="?", help="experiment file (TOML) with a [time] step")
+    d.add_argument("--out", help="output directory (default: [output] directory, or "
+                                 "petsoft-damping without an experiment)")
+    d.add_argument("--modes", type=_positive_int, default=6, metavar="K",
+                   help="lowest modes of the body (default %(default)s)")
+    d.add_argument("--radii", type=_radii, default=(0.0, 0.25, 0.5, 0.75, 1.0),
+                   help="generalized-alpha spectral radii (default 0,0.25,0.5,0.75,1)")
+    d.add_argument("--steps", type=_positive_int, default=16, metavar="N",
+                   help="steps per integrator run on each mode (default %(default)s)")
+    d.add_argument("--amplitude", type=float, default=1e-3, metavar="A",
+                   help="initial max displacement / body size of each mode run (default "
+                        "%(default)s; smaller for nonlinear materials approaches the linear "
+                        "values, but stalls the midpoint rule's Newton on round-off)")
+
+
+def _add_recording_parsers(sub) -> None:
+    i = sub.add_parser(
+        "import", help="convert a CSV or C3D marker file into a recording (HDF5)",
+        description="Read marker trajectories from CSV (time, <name>_x, <name>_y, <name>_z, ...; "
+                    "empty or NaN cells = not seen) or C3D (POINT data; residual < 0 = not seen) "
+                    "and write a petsoft recording. Reference positions: the first frame in "
+                    "which every marker is seen, or --rest-frame.")
+    i.add_argument("file", help="the file to import (.csv or .c3d)")
+    i.add_argument("--out", required=True, help="recording to write (HDF5)")
+    i.add_argument("--format", choices=("csv", "c3d"), help="default: from the extension")
+    i.add_argument("--units", choices=("m", "cm", "mm"),
+                   help="length unit of the file (CSV default m; C3D default POINT:UNITS)")
+    i.add_argument("--scale", type=float, help="factor to metres instead of --units")
+    i.add_argument("--rest-frame", type=int, help="frame giving the reference positions")
+    i.add_argument("--position-std", type=float,
+                   help="measurement noise (m) to write into /noise, when known")
+    y = sub.add_parser(
+        "synth", help="a synthetic recording from a simulation (with truth.json beside it)",
+        description="Simulate EXPERIMENT.toml on a K-times refined mesh with step/K (no inverse "
+                    "crime), observe N markers on surface nodes of the original mesh at the "
+                    "original step's times, add Gaussian noise and drop a fraction of samples; "
+                    "writes the recording, truth.json beside it and summary.json.")
+    y.add_argument("experiment", help="experiment file (TOML) with a [time] section")
+    y.add_argument("--out", required=True, help="recording to write (HDF5)")
+    y.add_argument("--noise", type=float, default=0.0, metavar="STD",
+                   help="Gaussian position noise, m (default 0)")
+    y.add_argument("--markers", type=_positive_int, default=8, metavar="N",
+                   help="number of random surface-node markers (default %(default)s)")
+    y.add_argument("--markers-file", help="marker reference positions instead: CSV or text "
+                                          "with x y z per line (m)")
+    y.add_argument("--dropout", type=float, default=0.0, metavar="P",
+                   help="fraction of samples dropped (NaN), 0 <= P < 1")
+    y.add_argument("--refine", type=_positive_int, default=1, metavar="K",
+                   help="simulate on a K-times refined mesh with step/K (default 1)")
+    y.add_argument("--integrator", help="override [time] integrator for the simulation")
+    y.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+
+
+def _add_calibrate_parser(sub) -> None:
+    c = sub.add_parser(
+        "calibrate", help="fit the [calibrate] parameters of an experiment to a recording",
+        description="Minimise the misfit between simulated and recorded marker positions over "
+                    "the parameters of the experiment's [calibrate] table (bounds there, start "
+                    "values from the experiment). Prints progress per iteration and a result "
+                    "table with Gauss-Newton standard deviations; writes calibrated.toml, "
+                    "summary.json, trajectories.png and residuals.png. TAO options take the "
+                    "prefix cal_ (e.g. -cal_tao_gatol 1e-10), the forward Newton fm_ and the "
+                    "gradient solves fm_grad_.")
+    c.add_argument("experiment", help="experiment file (TOML) with [time] and [calibrate]")
+    c.add_argument("recording", help="recording (HDF5, formats spec section 2)")
+    c.add_argument("--method", default="gauss-newton",
+                   choices=("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead"),
+                   help="optimizer (default %(default)s)")
+    c.add_argument("--gradient", default="adjoint", choices=("adjoint", "sensitivity", "fd"),
+                   help="gradients by discrete adjoint, forward sensitivities or finite "
+                        "differences (Jacobians always by sensitivities unless fd)")
+    c.add_argument("--integrator", choices=("be", "si", "alpha"),
+                   help="override [time] integrator for the forward model")
+    c.add_argument("--multistart", type=int, default=0, metavar="K",
+                   help="also K random starts in the bounds, run on groups of ranks")
+    c.add_argument("--seed", type=int, default=0, help="seed of the random starts")
+    c.add_argument("--noise", type=float, help="position noise std (m) when the recording "
+                                                "has no /noise")
+    c.add_argument("--regularization", type=float, default=0.0, metavar="LAMBDA",
+                   help="Tikhonov weight on the scaled parameters' distance from the start")
+    c.add_argument("--out", help="output directory (default: [output] directory)")
+
+
+def _add_diagnose_parser(sub) -> None:
+    c = sub.add_parser(
+        "diagnose", help="calibrate, test the residual against the noise, add missing physics",
+        description="Calibrate the experiment's [calibrate] parameters on the first --fraction "
+                    "of the recording, test whether the residual is noise (chi-square + "
+                    "whiteness), and if not rank the candidate physics by a score test, add the "
+                    "best, re-calibrate and keep it when the likelihood ratio is significant and "
+                    "the held-out rms improves (repeat). Checks the final model with the step "
+                    "halved and a box mesh refined. Writes report.json, report.md, figures, "
+                    "diagnosed.toml (the calibrated extended experiment) and summary.json.")
+    c.add_argument("experiment", help="experiment file (TOML) with [time] and [calibrate]")
+    c.add_argument("recording", help="recording (HDF5, formats spec section 2)")
+    c.add_argument("--out", help="output directory (default: [output] directory)")
+    c.add_argument("--fraction", type=float, default=0.7,
+                   help="share of the record's span used to identify parameters; the rest is "
+                        "held out for prediction (default %(default)s)")
+    c.add_argument("--alpha", type=float, default=0.01,
+                   help="significance level of all tests (default %(default)s)")
+    c.add_argument("--max-additions", type=_positive_int, default=3,
+                   help="at most this many physics terms are added (default %(default)s)")
+    c.add_argument("--method", default="gauss-newton",
+                   choices=("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead"),
+                   help="optimizer of every calibration (default %(default)s)")
+    c.add_argument("--integrator", choices=("be", "si", "alpha"),
+                   help="override [time] integrator for the forward model")
+    c.add_argument("--noise", type=float, help="position noise std (m) when the recording "
+                                                "has no /noise (default: estimated from it)")
+    c.add_argument("--no-numerics", action="store_true",
+                   help="skip the step/mesh refinement check")
+
+
+def _static_options(s) -> None:
+    s.add_argument("--out", help="output directory (default: [output] directory)")
+    s.add_argument("--method", choices=("snes", "tao"), default="snes",
+                   help="Newton on the residual (snes) or energy minimisation (tao)")
+    s.add_argument("--load-steps", type=int, default=1, help="equal load increments (>= 1)")
+    s.add_argument("--spd", action="store_true",
+                   help="project element tangents to positive semi-definite")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``petsoft`` command."""
+    argv = sys.argv[1:] if argv is None else argv
+    ours, petsc_args = split_arguments(argv)
+    args = _parser().parse_args(ours)
+    if getattr(args, "load_steps", 1) < 1:
+        _parser().error("--load-steps must be >= 1")
+    import petsc4py
+
+    petsc4py.init(["petsoft", *petsc_args])
+    from petsc4py import PETSc
+
+    from petsoft.errors import PetsoftError
+
+    try:
+        from petsoft.cli import commands
+
+        return commands.run(args)
+    except PetsoftError as exc:
+        if PETSc.COMM_WORLD.rank == 0:
+            print(f"petsoft: error: {exc}", file=sys.stderr, flush=True)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":  # python -m petsoft.cli.main
+    raise SystemExit(main())

@@ -1,0 +1,1 @@
+"""Finite elements: the compiled element kernels, matrix assembly and Dirichlet conditions."""

@@ -1,0 +1,218 @@
+"""ctypes bindings of the compiled element kernels (``csrc/elastic.c``).
+
+This module owns the boundary between numpy arrays and the C functions: it validates shapes,
+converts inputs to C-contiguous float64 once (a no-op for arrays that already are), calls one C
+function for all elements, and turns the C status into :class:`InvertedElementError`. The
+signatures mirror :mod:`petsoft.fem.kernels.reference`; the results agree with it to rounding.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib
+
+import numpy as np
+
+from petsoft.errors import InvertedElementError, PetsoftError
+from petsoft.fem.kernels.materials import MODELS, check_model
+from petsoft.fem.kernels.reference import check_volumes
+
+_lib = ctypes.CDLL(importlib.import_module("petsoft.fem.kernels._ckernels").__file__)
+
+_ptr = ctypes.c_void_p
+_i32, _i64 = ctypes.c_int32, ctypes.c_int64
+_lib.petsoft_elastic_energy.argtypes = [_i32, _i64] + [_ptr] * 7
+_lib.petsoft_elastic_energy.restype = _i64
+_lib.petsoft_elastic_gradient_hessian.argtypes = [_i32, _i64] + [_ptr] * 5 + [_i32] + [_ptr] * 3
+_lib.petsoft_elastic_gradient_hessian.restype = _i64
+_lib.petsoft_material_response.argtypes = [_i32, _i64] + [_ptr] * 7
+_lib.petsoft_material_response.restype = _i64
+_lib.petsoft_project_spd9.argtypes = [_i64, _ptr]
+_lib.petsoft_project_spd9.restype = None
+
+_BAD_MODEL = -2
+
+__all__ = [
+    "MODELS",
+    "element_energy",
+    "element_gradient_hessian",
+    "element_gradient_hessian_into",
+    "material_response",
+    "project_spd",
+]
+
+
+def _addr(a: np.ndarray) -> int:
+    """The address of ``a``'s data.
+
+    Not ``a.ctypes.data``: numpy builds that from a ``ctypes.cast`` result, which references
+    itself, so every call leaves a reference cycle that keeps the array alive until Python's
+    cyclic collector runs -- gigabytes over a calibration run with the collector paused (as
+    ``petsoft diagnose`` does on several ranks).
+    """
+    return a.__array_interface__["data"][0]
+
+
+def _ptr_of(a: np.ndarray | None) -> int | None:
+    return None if a is None else _addr(a)
+
+
+def _c_array(a, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """``a`` as a C-contiguous float64 array of ``shape`` (copying only if needed)."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    if a.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {a.shape}")
+    return a
+
+
+def _per_element(a, n: int, name: str) -> np.ndarray:
+    """A scalar or (n,) parameter as a contiguous (n,) float64 array."""
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim == 0:
+        return np.full(n, float(a))
+    return _c_array(a, (n,), name)
+
+
+def _inputs(dN, volume, u, mu, lam):
+    dN = np.asarray(dN)
+    if dN.ndim != 3 or dN.shape[1:] != (4, 3):
+        raise ValueError(f"dN must have shape (n, 4, 3), got {dN.shape}")
+    n = dN.shape[0]
+    dN = _c_array(dN, (n, 4, 3), "dN")
+    volume = _c_array(volume, (n,), "volume")
+    check_volumes(volume)
+    u = np.asarray(u)
+    if u.shape == (n, 12):
+        u = u.reshape(n, 4, 3)
+    u = _c_array(u, (n, 4, 3), "u")
+    return n, dN, volume, u, _per_element(mu, n, "mu"), _per_element(lam, n, "lam")
+
+
+def _check_status(status: int, bad_J: ctypes.c_double) -> None:
+    if status == -1:
+        return
+    if status == _BAD_MODEL:  # unreachable after check_model; kept for a C/Python mismatch
+        raise PetsoftError("the compiled kernels do not know this material model")
+    raise InvertedElementError(status, bad_J.value)
+
+
+def _check_output(a: np.ndarray, shape: tuple[int, ...], name: str) -> None:
+    if not isinstance(a, np.ndarray) or a.dtype != np.float64 or a.shape != shape:
+        raise ValueError(f"{name} must be a float64 array of shape {shape}")
+    if not a.flags.c_contiguous or not a.flags.writeable:
+        raise ValueError(f"{name} must be C-contiguous and writeable")
+
+
+def element_energy(model: str, dN, volume, u, mu, lam) -> np.ndarray:
+    """Element energies ``volume * psi(F)``, shape (n,).
+
+    Same parameters, result and errors as :func:`petsoft.fem.kernels.reference.element_energy`.
+    """
+    code = check_model(model)
+    n, dN, volume, u, mu, lam = _inputs(dN, volume, u, mu, lam)
+    W = np.empty(n)
+    bad_J = ctypes.c_double(0.0)
+    status = _lib.petsoft_elastic_energy(
+        code, n, _addr(dN), _addr(volume), _addr(u), _addr(mu),
+        _addr(lam), _addr(W), ctypes.addressof(bad_J),
+    )  # fmt: skip
+    _check_status(status, bad_J)
+    return W
+
+
+def element_gradient_hessian_into(
+    model: str,
+    dN,
+    volume,
+    u,
+    mu,
+    lam,
+    g_out: np.ndarray | None,
+    H_out: np.ndarray | None,
+    project_spd: bool = False,
+) -> None:
+    """Element gradients and Hessians written into preallocated arrays.
+
+    Parameters
+    ----------
+    model, dN, volume, u, mu, lam
+        As :func:`petsoft.fem.kernels.reference.element_gradient_hessian`.
+    g_out : ndarray, shape (n, 12), float64, C-contiguous, or None
+        Receives ``dW_e/du``; None skips the gradient.
+    H_out : ndarray, shape (n, 12, 12), float64, C-contiguous, or None
+        Receives ``d^2 W_e/du^2``; None skips the Hessian.
+    project_spd : bool
+        Build H from the PSD projection of dP/dF.
+
+    Raises
+    ------
+    InvertedElementError
+        neo-Hookean with det F <= 0 (the first such element; outputs are then partly written).
+    """
+    code = check_model(model)
+    n, dN, volume, u, mu, lam = _inputs(dN, volume, u, mu, lam)
+    if g_out is not None:
+        _check_output(g_out, (n, 12), "g_out")
+    if H_out is not None:
+        _check_output(H_out, (n, 12, 12), "H_out")
+    bad_J = ctypes.c_double(0.0)
+    status = _lib.petsoft_elastic_gradient_hessian(
+        code, n, _addr(dN), _addr(volume), _addr(u), _addr(mu),
+        _addr(lam), int(bool(project_spd)), _ptr_of(g_out), _ptr_of(H_out),
+        ctypes.addressof(bad_J),
+    )  # fmt: skip
+    _check_status(status, bad_J)
+
+
+def element_gradient_hessian(
+    model: str,
+    dN,
+    volume,
+    u,
+    mu,
+    lam,
+    project_spd: bool = False,
+    hessian: bool = True,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Element gradients (n, 12) and Hessians (n, 12, 12) (None if ``hessian`` is False).
+
+    Same parameters, results and errors as
+    :func:`petsoft.fem.kernels.reference.element_gradient_hessian`.
+    """
+    n = np.shape(dN)[0]
+    g = np.empty((n, 12))
+    H = np.empty((n, 12, 12)) if hessian else None
+    element_gradient_hessian_into(model, dN, volume, u, mu, lam, g, H, project_spd)
+    return g, H
+
+
+def material_response(model: str, F, mu, lam) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The C constitutive law at given F: ``(psi (n,), P (n,3,3), dPdF (n,3,3,3,3))``.
+
+    Same contract as :func:`petsoft.fem.kernels.materials.material_response`; exposed so the C
+    material models can be tested pointwise.
+    """
+    code = check_model(model)
+    F = np.asarray(F)
+    n = F.shape[0] if F.ndim == 3 else -1
+    F = _c_array(F, (n, 3, 3), "F")
+    mu, lam = _per_element(mu, n, "mu"), _per_element(lam, n, "lam")
+    psi, P, dPdF = np.empty(n), np.empty((n, 3, 3)), np.empty((n, 3, 3, 3, 3))
+    bad_J = ctypes.c_double(0.0)
+    status = _lib.petsoft_material_response(
+        code, n, _addr(F), _addr(mu), _addr(lam), _addr(psi), _addr(P),
+        _addr(dPdF), ctypes.addressof(bad_J),
+    )  # fmt: skip
+    _check_status(status, bad_J)
+    return psi, P, dPdF
+
+
+def project_spd(dPdF) -> np.ndarray:
+    """The C positive semi-definite projection; same contract as
+    :func:`petsoft.fem.kernels.materials.project_spd`."""
+    A = np.array(dPdF, dtype=np.float64, order="C")  # always a copy: projected in place
+    shape = A.shape
+    if A.ndim < 1 or A.size != shape[0] * 81:
+        raise ValueError(f"dPdF must have shape (n, 3, 3, 3, 3) or (n, 9, 9), got {shape}")
+    _lib.petsoft_project_spd9(shape[0], _addr(A))
+    return A

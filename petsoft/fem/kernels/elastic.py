@@ -1,0 +1,150 @@
+"""Public entry point of the elastic element kernels, used by the assembly.
+
+This module owns the choice of backend: ``"c"`` (default, :mod:`petsoft.fem.kernels.compiled`) or
+``"numpy"`` (:mod:`petsoft.fem.kernels.reference`, the specification). Both compute, for P1
+tetrahedra, the element energy ``W_e = volume * psi(F)``, its gradient ``g = dW_e/du`` (the
+internal force is ``-g``) and Hessian ``H = d^2 W_e/du^2``, dof order ``3 * node + component``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from petsoft.errors import PetsoftError
+from petsoft.fem.kernels import reference
+from petsoft.fem.kernels.materials import MODELS, lame_parameters
+
+__all__ = [
+    "BACKENDS",
+    "MODELS",
+    "element_energy",
+    "element_gradient_hessian",
+    "element_gradient_hessian_into",
+    "lame_parameters",
+]
+
+BACKENDS = ("c", "numpy")
+
+
+def _backend(name: str):
+    if name == "c":
+        # Imported on first use so that the numpy backend works without the compiled library.
+        from petsoft.fem.kernels import compiled
+
+        return compiled
+    if name == "numpy":
+        return reference
+    raise PetsoftError(f"unknown kernel backend {name!r}; valid backends are {', '.join(BACKENDS)}")
+
+
+def element_energy(model: str, dN, volume, u, mu, lam, *, backend: str = "c") -> np.ndarray:
+    """Elastic energy of each element.
+
+    Parameters
+    ----------
+    model : str
+        One of :data:`MODELS`.
+    dN : ndarray, shape (n, 4, 3)
+        Shape-function gradients from :func:`petsoft.fem.kernels.tet.shape_gradients`.
+    volume : ndarray, shape (n,)
+        Reference volumes (> 0).
+    u : ndarray, shape (n, 4, 3) or (n, 12)
+        Element nodal displacements.
+    mu, lam : float or ndarray, shape (n,)
+        Lamé parameters (see :func:`lame_parameters`).
+    backend : {"c", "numpy"}
+
+    Returns
+    -------
+    ndarray, shape (n,)
+
+    Raises
+    ------
+    InvertedElementError
+        neo-Hookean with det F <= 0, naming the first such element (in this array's numbering).
+    MeshError
+        A volume <= 0.
+    PetsoftError
+        Unknown model or backend.
+    """
+    return _backend(backend).element_energy(model, dN, volume, u, mu, lam)
+
+
+def element_gradient_hessian(
+    model: str,
+    dN,
+    volume,
+    u,
+    mu,
+    lam,
+    project_spd: bool = False,
+    hessian: bool = True,
+    *,
+    backend: str = "c",
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Gradient (n, 12) and Hessian (n, 12, 12) of each element energy.
+
+    Parameters
+    ----------
+    model, dN, volume, u, mu, lam, backend
+        As :func:`element_energy`.
+    project_spd : bool
+        Build H from the positive semi-definite projection of dP/dF, so each H is PSD (for
+        Newton on non-convex energies). The gradient is unaffected.
+    hessian : bool
+        If False only the gradient is computed and H is None.
+
+    Returns
+    -------
+    g : ndarray, shape (n, 12)
+    H : ndarray, shape (n, 12, 12), or None
+
+    Raises
+    ------
+    InvertedElementError, MeshError, PetsoftError
+        As :func:`element_energy`.
+    """
+    return _backend(backend).element_gradient_hessian(
+        model, dN, volume, u, mu, lam, project_spd=project_spd, hessian=hessian
+    )
+
+
+def element_gradient_hessian_into(
+    model: str,
+    dN,
+    volume,
+    u,
+    mu,
+    lam,
+    g_out: np.ndarray | None,
+    H_out: np.ndarray | None,
+    project_spd: bool = False,
+    *,
+    backend: str = "c",
+) -> None:
+    """As :func:`element_gradient_hessian`, writing into preallocated arrays.
+
+    The assembly calls this every Newton step with the same buffers, so no (n, 12, 12) array is
+    allocated per step (with the C backend nothing of size n*144 is allocated at all).
+
+    Parameters
+    ----------
+    g_out : ndarray, shape (n, 12), float64, C-contiguous, or None
+        Receives the gradients; None skips them.
+    H_out : ndarray, shape (n, 12, 12), float64, C-contiguous, or None
+        Receives the Hessians; None skips them.
+    others
+        As :func:`element_gradient_hessian`.
+    """
+    if backend == "numpy":
+        g, H = reference.element_gradient_hessian(
+            model, dN, volume, u, mu, lam, project_spd=project_spd, hessian=H_out is not None
+        )
+        if g_out is not None:
+            g_out[...] = g
+        if H_out is not None:
+            H_out[...] = H
+        return
+    _backend(backend).element_gradient_hessian_into(
+        model, dN, volume, u, mu, lam, g_out, H_out, project_spd=project_spd
+    )

@@ -1,0 +1,154 @@
+"""Scatter-add of element vectors and matrices into local arrays (compiled, with numpy reference).
+
+The matrix side works on a :class:`BlockPattern`: the 3x3-block sparsity of the local vertex
+graph of a set of elements, computed once, with the position of every element block in it. Adding
+element matrices is then a search-free scatter whose result is the value array of a scalar CSR
+matrix that PETSc takes in one call (``Mat.setValuesLocalCSR``).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import importlib
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from petsoft.fem.kernels.compiled import _addr
+
+# Arrays go in as plain addresses (checked contiguous and typed by the callers below): numpy's
+# ndpointer/``.ctypes`` conversion leaves a self-referencing ctypes object per call that keeps the
+# array alive until the cyclic collector runs (see petsoft.fem.kernels.compiled._addr).
+_i64p = _f64p = ctypes.c_void_p
+
+
+@lru_cache(maxsize=1)
+def _library() -> ctypes.CDLL:
+    lib = ctypes.CDLL(importlib.import_module("petsoft.fem.kernels._ckernels").__file__)
+    lib.petsoft_scatter_add_matrix.argtypes = [
+        ctypes.c_int64, ctypes.c_int32, _i64p, _i64p, _i64p, _f64p, _f64p]
+    lib.petsoft_scatter_add_matrix.restype = None
+    lib.petsoft_scatter_add_vector.argtypes = [ctypes.c_int64, ctypes.c_int32, _i64p, _f64p, _f64p]
+    lib.petsoft_scatter_add_vector.restype = None
+    return lib
+
+
+@dataclass(frozen=True)
+class BlockPattern:
+    """Sparsity of the 3x3-block vertex graph of local elements, in scalar-CSR layout.
+
+    Attributes
+    ----------
+    nvertices : int
+        Number of local vertices (rows of blocks).
+    bptr : ndarray, int64, (nvertices + 1,)
+        Block-row pointers.
+    bcol : ndarray, int64, (nblocks,)
+        Block column (local vertex) of every block, sorted within a row.
+    indptr, indices : ndarray, PETSc int type
+        The scalar CSR (rows = local dofs 3*v+i, columns = local dofs) matching the value layout.
+    """
+
+    nvertices: int
+    bptr: np.ndarray
+    bcol: np.ndarray
+    indptr: np.ndarray
+    indices: np.ndarray
+
+    @property
+    def nvalues(self) -> int:
+        return 9 * int(self.bptr[-1])
+
+
+def block_pattern(nvertices: int, connectivities: list[np.ndarray], index_dtype=np.int32):
+    """Build the block pattern of several element sets and each set's block positions.
+
+    Parameters
+    ----------
+    nvertices : int
+        Number of local vertices.
+    connectivities : list of ndarray (ne, npe)
+        Local vertex indices of each element set (all sets share the pattern).
+    index_dtype : dtype
+        Integer type of the CSR arrays handed to PETSc (``PETSc.IntType``).
+
+    Returns
+    -------
+    pattern : BlockPattern
+    positions : list of ndarray, int64, (ne, npe, npe)
+        For each element set, the index into ``bcol`` of the block (a, b) of each element.
+    """
+    keys = []
+    for conn in connectivities:
+        conn = np.asarray(conn, dtype=np.int64)
+        npe = conn.shape[1]
+        rows = np.repeat(conn, npe, axis=1)
+        cols = np.tile(conn, (1, npe))
+        keys.append((rows * nvertices + cols).ravel())
+    all_keys = np.concatenate(keys) if keys else np.zeros(0, np.int64)
+    unique_keys, inverse = np.unique(all_keys, return_inverse=True)
+    brow = unique_keys // nvertices
+    bcol = unique_keys % nvertices
+    bptr = np.zeros(nvertices + 1, dtype=np.int64)
+    np.cumsum(np.bincount(brow, minlength=nvertices), out=bptr[1:])
+    nb = np.diff(bptr)
+    # scalar rows 3r+i start at 9*bptr[r] + 3*nb[r]*i
+    indptr = np.empty(3 * nvertices + 1, dtype=np.int64)
+    indptr[:-1] = (9 * bptr[:-1, None] + 3 * nb[:, None] * np.arange(3)[None, :]).ravel()
+    indptr[-1] = 9 * bptr[-1]
+    k_in_row = np.arange(len(bcol)) - bptr[brow]
+    indices = np.empty(9 * len(bcol), dtype=np.int64)
+    base = 9 * bptr[brow] + 3 * k_in_row
+    for i in range(3):  # three scalar rows per block row, three columns per block
+        for j in range(3):
+            indices[base + 3 * nb[brow] * i + j] = 3 * bcol + j
+    positions, start = [], 0
+    for conn in connectivities:
+        npe = conn.shape[1]
+        n = conn.shape[0] * npe * npe
+        positions.append(inverse[start:start + n].reshape(conn.shape[0], npe, npe).astype(np.int64))
+        start += n
+    pattern = BlockPattern(nvertices, bptr, bcol, indptr.astype(index_dtype),
+                           indices.astype(index_dtype))
+    return pattern, positions
+
+
+def scatter_add_matrix(pattern: BlockPattern, conn: np.ndarray, positions: np.ndarray,
+                       element_matrices: np.ndarray, values: np.ndarray, backend: str = "c"):
+    """Add element matrices ``(ne, 3npe, 3npe)`` into the CSR ``values`` of ``pattern``."""
+    conn = np.ascontiguousarray(conn, dtype=np.int64)
+    ne, npe = conn.shape
+    ke = np.ascontiguousarray(element_matrices, dtype=np.float64)
+    if ke.shape != (ne, 3 * npe, 3 * npe):
+        raise ValueError(f"element matrices have shape {ke.shape}, expected {(ne, 3*npe, 3*npe)}")
+    if values.shape != (pattern.nvalues,) or not values.flags.c_contiguous:
+        raise ValueError("values must be a contiguous array of the pattern's size")
+    if backend == "c" and values.dtype == np.float64:
+        pos = np.ascontiguousarray(positions, dtype=np.int64)
+        bptr = np.ascontiguousarray(pattern.bptr, dtype=np.int64)
+        _library().petsoft_scatter_add_matrix(ne, npe, _addr(conn), _addr(pos), _addr(bptr),
+                                              _addr(ke), _addr(values))
+        return
+    r = conn[:, :, None]                                   # (ne, a, 1)
+    row0 = pattern.bptr[r]
+    stride = 3 * (pattern.bptr[r + 1] - row0)              # (ne, a, 1)
+    base = 9 * row0 + 3 * (positions - row0)               # (ne, a, b)
+    i = np.arange(3)[None, None, :, None, None]
+    j = np.arange(3)[None, None, None, None, :]
+    dest = base[:, :, None, :, None] + i * stride[:, :, :, None, None] + j
+    values += np.bincount(dest.ravel(), weights=ke.reshape(ne, npe, 3, npe, 3).ravel(),
+                          minlength=values.size)
+
+
+def scatter_add_vector(conn: np.ndarray, element_vectors: np.ndarray, out: np.ndarray,
+                       backend: str = "c"):
+    """Add element vectors ``(ne, 3npe)`` (node-major) into the local dof array ``out``."""
+    conn = np.ascontiguousarray(conn, dtype=np.int64)
+    ne, npe = conn.shape
+    fe = np.ascontiguousarray(element_vectors, dtype=np.float64).reshape(ne, 3 * npe)
+    if backend == "c" and out.flags.c_contiguous and out.dtype == np.float64:
+        _library().petsoft_scatter_add_vector(ne, npe, _addr(conn), _addr(fe), _addr(out))
+        return
+    dofs = (3 * conn[:, :, None] + np.arange(3)).ravel()
+    out += np.bincount(dofs, weights=fe.ravel(), minlength=out.size)

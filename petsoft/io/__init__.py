@@ -1,0 +1,1 @@
+"""Files: recordings, XDMF output, summaries and importers of other tools' files."""

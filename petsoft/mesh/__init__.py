@@ -1,0 +1,1 @@
+"""Meshes: reading and validating serial meshes, regions, probes, and the distributed mesh."""

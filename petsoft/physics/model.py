@@ -1,0 +1,145 @@
+"""Building a discrete model from an experiment: mesh, regions, materials, loads, conditions."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from petsc4py import PETSc
+
+from petsoft.fem.boundary import DirichletConditions
+from petsoft.mesh.distributed import DistributedMesh
+from petsoft.errors import ExperimentError, PetsoftError
+from petsoft.mesh.serial import box_mesh, read_mesh
+from petsoft.physics.contact import build_contact
+from petsoft.physics.elastic import ElasticTerm
+from petsoft.physics.loads import gravity_forces, traction_forces
+from petsoft.physics.potential import ModelPotential
+from petsoft.physics.support import build_support
+from petsoft.mesh.regions import RegionResolver
+
+
+def on_root(comm: PETSc.Comm, fn, *args):
+    """Run ``fn`` on rank 0 and share its result; a user error there is raised on every rank."""
+    mpi = comm.tompi4py()
+    result, error = None, None
+    if mpi.rank == 0:
+        try:
+            result = fn(*args)
+        except PetsoftError as exc:
+            error = exc
+    error = mpi.bcast(error, root=0)
+    if error is not None:
+        raise error
+    return result
+
+
+def load_mesh(experiment):
+    """The experiment's mesh (read or generated), validated; call on rank 0."""
+    spec = experiment.mesh
+    if spec.box is not None:
+        size = [s * spec.scale for s in spec.box.size]
+        return box_mesh(size, spec.box.cells)
+    return read_mesh(spec.file, scale=spec.scale)
+
+
+@dataclass
+class Model:
+    """The discrete quasistatic model of an experiment on a distributed mesh.
+
+    Attributes
+    ----------
+    dmesh : DistributedMesh
+    resolver : RegionResolver
+    elastic : ModelPotential
+        The potential terms: the elastic term (``elastic.term``), elastic supports
+        (``elastic.support``) and collider contact (``elastic.contact``).
+    density : ndarray (ne,)
+        Density of each local cell.
+    external : PETSc.Vec
+        Global nodal external forces (gravity + tractions) at full load.
+    dirichlet : DirichletConditions
+    """
+
+    experiment: object
+    dmesh: DistributedMesh
+    resolver: RegionResolver
+    elastic: ElasticTerm
+    density: np.ndarray
+    external: PETSc.Vec
+    dirichlet: DirichletConditions
+
+
+def cell_materials(experiment, resolver: RegionResolver):
+    """Per-cell (file numbering) model, E, nu, density: the default, then region overrides."""
+    ncell = len(resolver.mesh.tets)
+    default = experiment.material_for(None)
+    model = np.full(ncell, default.model, dtype=object)
+    E = np.full(ncell, default.youngs_modulus)
+    nu = np.full(ncell, default.poisson_ratio)
+    rho = np.full(ncell, default.density)
+    for name, spec in experiment.material.items():
+        if name == "default":
+            continue
+        cells = resolver.cell_mask(name, key=f"material.{name}")
+        if not cells.any():
+            raise ExperimentError(f"{experiment.source}: material.{name}: region {name!r} "
+                                  "contains no cell of the mesh")
+        model[cells], E[cells], nu[cells], rho[cells] = (
+            spec.model, spec.youngs_modulus, spec.poisson_ratio, spec.density)
+    return model, E, nu, rho
+
+
+def build_model(experiment, comm: PETSc.Comm | None = None, *, project_spd: bool = False,
+                mesh=None, recording=None) -> Model:
+    """Distribute the experiment's mesh and assemble its model (all ranks call).
+
+    ``recording`` is the HDF5 recording whose ``/inputs`` drive ``series`` supports.
+    """
+    comm = comm if comm is not None else PETSc.COMM_WORLD
+    if experiment.is_mass_spring:
+        raise ExperimentError(f"{experiment.source}: [springs] models are not supported by this "
+                              "command yet; give a [material]")
+    if mesh is None:
+        mesh = on_root(comm, load_mesh, experiment)
+    dmesh = DistributedMesh(mesh, comm)
+    resolver = RegionResolver(dmesh.mesh, experiment.regions, experiment.source)
+    models, E, nu, rho = cell_materials(experiment, resolver)
+    local = dmesh.cell_ids
+    elastic = ElasticTerm(dmesh, models[local], E[local], nu[local], project_spd=project_spd)
+
+    forces = gravity_forces(dmesh, rho[local], experiment.gravity.acceleration)
+    conditions = []
+    for i, b in enumerate(experiment.boundaries):
+        key = f"boundary[{i}].where"
+        if b.kind == "traction":
+            faces = resolver.faces(b.where, key)
+            if dmesh.comm.tompi4py().allreduce(len(faces)) == 0:
+                raise ExperimentError(f"{experiment.source}: {key}: the traction selects no "
+                                      "boundary face (a face belongs when all its vertices do)")
+            pts = dmesh.mesh.points[faces].reshape(-1, 3)
+            t = np.stack([e.evaluate_at(pts, t=0.0) for e in b.value], axis=1).reshape(-1, 3, 3)
+            forces += traction_forces(dmesh, faces, t)
+            continue
+        displacement = b.displacement if b.kind == "prescribed" else None
+        if b.kind == "prescribed" and b.series is not None:
+            if recording is None:
+                raise ExperimentError(
+                    f"{experiment.source}: boundary[{i}].series = {b.series!r}: a measured input "
+                    "needs its recording (petsoft simulate ... --recording RECORDING.h5)")
+            from petsoft.io.recording import read_input_series
+
+            displacement = read_input_series(recording, b.series)
+        mask = resolver.vertex_mask(b.where, key)
+        if not mask.any():
+            raise ExperimentError(f"{experiment.source}: {key}: selects no vertex of the mesh")
+        if b.kind == "fixed" and b.compliance > 0.0:
+            continue   # an elastic support: penalty springs (build_support), no Dirichlet rows
+        conditions.append((mask, b.component_indices, displacement))
+    external = dmesh.create_global_vec()
+    external.zeroEntries()
+    dmesh.add_to_global(forces, external)
+    dirichlet = DirichletConditions(dmesh, conditions)
+    potential = ModelPotential(elastic, build_support(experiment, dmesh, resolver, dirichlet),
+                               build_contact(experiment, dmesh, rho, E))
+    return Model(experiment, dmesh, resolver, potential, rho[local], external, dirichlet)

@@ -1,0 +1,1 @@
+"""PETSc solver plumbing and the time-independent solvers (static equilibrium, modes)."""
