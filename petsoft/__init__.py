@@ -8,4 +8,4 @@ import os
 # run 37.7 s with the default threads, 4.9 s with one). The user's own setting wins.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-from petsoft.version import __version__  # noqa: E402
+from petsoft.version import __version__ as __version__  # noqa: E402

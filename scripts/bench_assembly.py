@@ -90,11 +90,11 @@ petsc4py.init([sys.argv[0]] + _petsc_args)
 from mpi4py import MPI  # noqa: E402
 from petsc4py import PETSc  # noqa: E402
 
-from petsoft.fem.assembly import MatrixAssembler
-from petsoft.mesh.distributed import DistributedMesh
-from petsoft.fem.kernels.materials import lame_parameters
-from petsoft.mesh.serial import box_mesh
-from petsoft.physics.elastic import ElasticTerm
+from petsoft.fem.assembly import MatrixAssembler  # noqa: E402
+from petsoft.fem.kernels.materials import lame_parameters  # noqa: E402
+from petsoft.mesh.distributed import DistributedMesh  # noqa: E402
+from petsoft.mesh.serial import box_mesh  # noqa: E402
+from petsoft.physics.elastic import ElasticTerm  # noqa: E402
 
 COMM = MPI.COMM_WORLD
 RANK, NRANKS = COMM.rank, COMM.size

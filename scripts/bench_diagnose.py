@@ -164,9 +164,9 @@ def write_case(name: str, d: Path) -> None:
 
 
 def run_case(name: str, folder: Path, comm, noise: float) -> dict:
+    from petsoft.calibration.synth import run_synth
     from petsoft.diagnosis.diagnose import run_diagnose
     from petsoft.experiment import load_experiment
-    from petsoft.calibration.synth import run_synth
 
     case = CASES[name]
     d = folder / name

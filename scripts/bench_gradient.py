@@ -90,9 +90,9 @@ import time  # noqa: E402
 
 from _bench_common import COMM, NRANKS, progress, say, wall  # noqa: E402
 
-from petsoft.calibration.forward import ForwardModel
-from petsoft.calibration.observation import MarkerObserver
-from petsoft.experiment import experiment_from_dict
+from petsoft.calibration.forward import ForwardModel  # noqa: E402
+from petsoft.calibration.observation import MarkerObserver  # noqa: E402
+from petsoft.experiment import experiment_from_dict  # noqa: E402
 
 if ARGS.quick:
     ARGS.cells, ARGS.steps, ARGS.repeat, ARGS.frames = [10, 2, 2], 4, 1, 3

@@ -54,10 +54,10 @@ import numpy as np  # noqa: E402
 from _bench_common import NRANKS, progress, say, timed_interleaved  # noqa: E402
 from petsc4py import PETSc  # noqa: E402
 
-from petsoft.calibration.forward import ForwardModel
-from petsoft.calibration.observation import MarkerObserver
-from petsoft.experiment import experiment_from_dict
-from petsoft.solvers.linear import DIRECT_DOFS
+from petsoft.calibration.forward import ForwardModel  # noqa: E402
+from petsoft.calibration.observation import MarkerObserver  # noqa: E402
+from petsoft.experiment import experiment_from_dict  # noqa: E402
+from petsoft.solvers.linear import DIRECT_DOFS  # noqa: E402
 
 SOLVERS = {
     "default": {},

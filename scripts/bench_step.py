@@ -147,12 +147,12 @@ from _bench_common import (  # noqa: E402
 )
 from petsc4py import PETSc  # noqa: E402
 
-from petsoft.dynamics.implicit import ImplicitIntegrator
-from petsoft.dynamics.system import DynamicSystem
-from petsoft.experiment import experiment_from_dict
-from petsoft.fem.kernels.materials import lame_parameters
-from petsoft.physics.model import build_model
-from petsoft.solvers.options import clear_options
+from petsoft.dynamics.implicit import ImplicitIntegrator  # noqa: E402
+from petsoft.dynamics.system import DynamicSystem  # noqa: E402
+from petsoft.experiment import experiment_from_dict  # noqa: E402
+from petsoft.fem.kernels.materials import lame_parameters  # noqa: E402
+from petsoft.physics.model import build_model  # noqa: E402
+from petsoft.solvers.options import clear_options  # noqa: E402
 
 LENGTH, WIDTH = 0.4, 0.04
 E_MOD, NU, RHO = 1e6, 0.45, 1100.0

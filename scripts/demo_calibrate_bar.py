@@ -199,10 +199,10 @@ def main(argv=None) -> int:
     from petsc4py import PETSc
 
     from petsoft.calibration.calibrate import run_calibration
-    from petsoft.experiment import load_experiment
-    from petsoft.solvers.options import apply_experiment_options
-    from petsoft.io.recording import read_recording
     from petsoft.calibration.synth import run_synth
+    from petsoft.experiment import load_experiment
+    from petsoft.io.recording import read_recording
+    from petsoft.solvers.options import apply_experiment_options
 
     comm = MPI.COMM_WORLD
     rank0 = comm.rank == 0

@@ -6,8 +6,8 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from petsoft.fem.assembly import MatrixAssembler
-from petsoft.mesh.distributed import DistributedMesh
 from petsoft.fem.kernels.scatter import block_pattern, scatter_add_matrix, scatter_add_vector
+from petsoft.mesh.distributed import DistributedMesh
 from petsoft.mesh.serial import box_mesh
 from petsoft.physics.loads import consistent_mass_matrices, gravity_forces, lumped_masses
 

@@ -18,9 +18,9 @@ from child_process import child_env  # tests/child_process.py
 from mpi4py import MPI
 
 from petsoft.calibration.calibrate import run_calibration
+from petsoft.calibration.synth import run_synth
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, load_experiment
-from petsoft.calibration.synth import run_synth
 
 TRUTH = {"material.youngs_modulus": 1.0e6, "damping.mass": 3.0}
 

@@ -166,7 +166,8 @@ def test_cli_two_ranks_equal_serial(tmp_path):
     toml, rec = _write_case(d, end=0.1)
     serial = run_calibration(load_experiment(toml), rec)
     out = d / "out2"
-    cmd = [shutil.which("mpiexec") or "mpiexec", "-n", "2", sys.executable, "-m", "petsoft.cli.main",
+    cmd = [shutil.which("mpiexec") or "mpiexec", "-n", "2", sys.executable, "-m",
+           "petsoft.cli.main",
            "calibrate", str(toml), str(rec), "--out", str(out)]
     run = subprocess.run(cmd, cwd=d, capture_output=True, text=True, env=child_env(), timeout=600)
     assert run.returncode == 0, run.stdout + run.stderr

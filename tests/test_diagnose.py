@@ -19,13 +19,13 @@ from mpi4py import MPI
 from petsc4py import PETSc
 from scipy import stats
 
+from petsoft.calibration.synth import run_synth
 from petsoft.diagnosis.candidates import build_candidates, sensitivity_region, sphere_condition
 from petsoft.diagnosis.diagnose import DiagnoseError, escape_plane, run_diagnose
 from petsoft.diagnosis.report import PHYSICS, read_report
 from petsoft.diagnosis.score import ScoreError, score_test
 from petsoft.experiment import experiment_from_dict, get_parameter, load_experiment
 from petsoft.io.recording import read_recording
-from petsoft.calibration.synth import run_synth
 
 TRUE_E, TRUE_ALPHA, NOISE = 2.0e7, 4.0, 5e-5
 

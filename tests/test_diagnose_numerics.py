@@ -18,9 +18,9 @@ from _cantilever import CALIBRATE, cantilever
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from petsoft.calibration.synth import run_synth
 from petsoft.diagnosis.diagnose import numerics_due, run_diagnose
 from petsoft.experiment import load_experiment
-from petsoft.calibration.synth import run_synth
 
 NOISE = 5e-5
 

@@ -44,9 +44,9 @@ from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError
 from petsoft.experiment import DragSpec, experiment_from_dict, load_experiment, with_parameters
+from petsoft.physics import drag, friction
 from petsoft.physics.model import build_model
 from petsoft.solvers.options import clear_options
-from petsoft.physics import drag, friction
 
 MARKERS = np.array([[0.3, 0.04, 0.04], [0.3, 0.0, 0.0], [0.15, 0.02, 0.04]])
 FRAMES = [0.003, 0.0075, 0.01]

@@ -7,8 +7,8 @@ import time
 import numpy as np
 import pytest
 
-from petsoft.experiment import expressions
 from petsoft.errors import ExperimentError, ExpressionError, PetsoftError
+from petsoft.experiment import expressions
 from petsoft.experiment.expressions import MAX_DEPTH, MAX_LENGTH, parse_expression
 
 SOURCE = "exp.toml: boundary[0].where"

@@ -3,8 +3,8 @@
 import pytest
 from mpi4py import MPI
 
-from petsoft.errors import PetsoftError
 from petsoft.calibration.groups import map_on_groups
+from petsoft.errors import PetsoftError
 
 
 def _task(item, sub):

@@ -1,4 +1,5 @@
-"""Tests of petsoft.mesh.serial: reading every supported format, the box generator, and every error and
+"""Tests of petsoft.mesh.serial: reading every supported format, the box generator, and every
+error and
 warning a broken mesh file triggers (each crafted as a small file in tmp_path).
 
 No MPI here: under ``mpiexec -n 2`` each rank runs these independently in its own tmp_path.

@@ -13,9 +13,9 @@ from petsoft.calibration.observation import (
 )
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.experiment import experiment_from_dict
-from petsoft.physics.model import build_model
-from petsoft.mesh.probes import interpolate, locate
 from petsoft.io.recording import Recording
+from petsoft.mesh.probes import interpolate, locate
+from petsoft.physics.model import build_model
 
 SIZE = [0.3, 0.04, 0.04]
 

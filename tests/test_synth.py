@@ -12,13 +12,13 @@ import pytest
 from mpi4py import MPI
 
 from petsoft.calibration.observation import MarkerObserver
+from petsoft.calibration.synth import SynthError, refine_mesh, run_synth, surface_nodes
 from petsoft.dynamics.simulate import Simulation
 from petsoft.experiment import load_experiment
-from petsoft.mesh.serial import box_mesh, read_mesh, signed_volumes
-from petsoft.physics.model import build_model
 from petsoft.io.recording import read_recording
-from petsoft.calibration.synth import SynthError, refine_mesh, run_synth, surface_nodes
+from petsoft.mesh.serial import box_mesh, read_mesh, signed_volumes
 from petsoft.mesh.topology import exterior_faces
+from petsoft.physics.model import build_model
 
 EXPERIMENT = """
 [mesh]

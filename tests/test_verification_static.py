@@ -1,4 +1,5 @@
-"""Verification of the quasistatic solver (petsoft.solvers.static) against exact and reference solutions.
+"""Verification of the quasistatic solver (petsoft.solvers.static) against exact and reference
+solutions.
 
 1. Patch test: a homogeneous deformation prescribed on the whole boundary of a distorted mesh is
    reproduced exactly inside, for every material model and both solution methods.

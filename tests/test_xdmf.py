@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 from petsoft.io import xdmf as xdmf_mod
-from petsoft.mesh.serial import box_mesh
 from petsoft.io.xdmf import XdmfWriter, write_xdmf
+from petsoft.mesh.serial import box_mesh
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -111,9 +111,9 @@ def write_outputs(out: Path, experiment, recording_path, result: CalibrationResu
                   times: np.ndarray, data: np.ndarray, marker_names: list[str],
                   method: str, gradient: str, wall_time: float, comm) -> None:
     """calibrated.toml, summary.json, trajectories.png, residuals.png (rank 0 writes)."""
+    from petsoft.calibration.plots import plot_residuals, plot_trajectories
     from petsoft.experiment import write_toml
     from petsoft.io.summary import write_summary
-    from petsoft.calibration.plots import plot_residuals, plot_trajectories
 
     if comm.rank != 0:
         return
@@ -210,13 +210,13 @@ def run_calibration(experiment, recording_path, *, method: str = "gauss-newton",
     say : callable(str), optional
         Progress lines (called on rank 0 only).
     """
-    from petsoft.physics.model import on_root
-    from petsoft.io.recording import read_recording
     from petsoft.calibration.multistart import multistart, random_starts
     from petsoft.calibration.objective import MarkerMisfit
     from petsoft.calibration.optimize import minimize
     from petsoft.calibration.scaling import ParameterScaling
     from petsoft.calibration.uncertainty import UnidentifiableError, uncertainty
+    from petsoft.io.recording import read_recording
+    from petsoft.physics.model import on_root
 
     t_start = time.perf_counter()
     comm = _petsc_comm(comm if comm is not None else PETSc.COMM_WORLD)

@@ -75,15 +75,15 @@ import re
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.calibration.observation import time_interpolation
 from petsoft.dynamics.alpha import GeneralizedAlpha, alpha_parameters
 from petsoft.dynamics.implicit import ImplicitIntegrator
 from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, SolverError
-from petsoft.solvers.linear import linear_defaults
 from petsoft.physics.model import build_model
+from petsoft.solvers.linear import linear_defaults
 from petsoft.solvers.options import scoped_defaults
-from petsoft.calibration.observation import time_interpolation
 
 INTEGRATORS = ("be", "si", "alpha")
 PREFIX = "fm_"

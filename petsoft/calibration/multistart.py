@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from mpi4py import MPI
 
-from petsoft.calibration.optimize import OptimizationError, OptimizeResult, minimize
 from petsoft.calibration.groups import map_on_groups
+from petsoft.calibration.optimize import OptimizationError, OptimizeResult, minimize
 
 
 @dataclass

@@ -123,10 +123,10 @@ def run_synth(args) -> int:
         load_experiment,
         parameter_names,
     )
-    from petsoft.physics.model import build_model, load_mesh
-    from petsoft.solvers.options import apply_experiment_options
     from petsoft.io.recording import write_recording
     from petsoft.io.summary import write_summary
+    from petsoft.physics.model import build_model, load_mesh
+    from petsoft.solvers.options import apply_experiment_options
 
     t0 = time.perf_counter()
     comm = PETSc.COMM_WORLD

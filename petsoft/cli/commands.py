@@ -9,12 +9,12 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.experiment import experiment_from_dict, load_experiment
-from petsoft.physics.model import build_model
-from petsoft.solvers.options import apply_experiment_options
-from petsoft.mesh.probes import interpolate, locate
-from petsoft.solvers.static import StaticSolver
 from petsoft.io.summary import write_summary
 from petsoft.io.xdmf import write_xdmf
+from petsoft.mesh.probes import interpolate, locate
+from petsoft.physics.model import build_model
+from petsoft.solvers.options import apply_experiment_options
+from petsoft.solvers.static import StaticSolver
 
 # The embedded default of `petsoft demo`: a soft neo-Hookean cantilever (silicone-like) clamped
 # at x = 0, sagging under gravity with a downward end load large enough to bend it visibly.
@@ -195,8 +195,8 @@ def run_modes(args) -> int:
     ...) and the M-normalised shape as the point field ``mode``, so ParaView's time control steps
     through the modes under one Warp By Vector.
     """
-    from petsoft.solvers.modes import compute_modes
     from petsoft.io.xdmf import XdmfWriter
+    from petsoft.solvers.modes import compute_modes
 
     t0 = time.perf_counter()
     comm = PETSc.COMM_WORLD
@@ -242,7 +242,8 @@ def run_damping(args) -> int:
     """`petsoft damping`: artificial damping of the integrators (all ranks call).
 
     Always the scalar analysis (analytic curves, measured on oscillators); with an experiment also
-    the per-mode table of its body at ``[time] step`` (see :mod:`petsoft.dynamics.damping_analysis`).
+    the per-mode table of its body at ``[time] step`` (see
+    :mod:`petsoft.dynamics.damping_analysis`).
     """
     from petsoft.dynamics import damping_analysis as damping
     from petsoft.errors import ExperimentError

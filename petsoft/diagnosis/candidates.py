@@ -45,9 +45,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from petsoft.diagnosis.report import PHYSICS
 from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict, get_parameter
-from petsoft.diagnosis.report import PHYSICS
 
 #: Why a vocabulary term may not be tried (the reasons are filled in by build_candidates).
 NOT_APPLICABLE = "not applicable to this model"

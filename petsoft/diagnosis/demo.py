@@ -59,9 +59,9 @@ def run_diagnosis_demo(out: Path, say=print) -> dict:
         ``hidden``, ``named`` (added physics), ``verdict``, ``parameter`` (name, true, found),
         ``validation`` (held-out rms before/after) and ``noise``.
     """
-    from petsoft.experiment import dumps_toml, load_experiment
     from petsoft.calibration.synth import run_synth
     from petsoft.diagnosis.diagnose import run_diagnose
+    from petsoft.experiment import dumps_toml, load_experiment
 
     comm = MPI.COMM_WORLD
     out = Path(out)

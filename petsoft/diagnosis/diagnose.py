@@ -259,9 +259,9 @@ class _Diagnosis:
 
     def __init__(self, experiment, recording_path, *, fraction, alpha, method, gradient,
                  integrator, noise, comm, say):
-        from petsoft.physics.model import on_root
-        from petsoft.io.recording import read_recording
         from petsoft.diagnosis.noise import NoiseError, noise_summary
+        from petsoft.io.recording import read_recording
+        from petsoft.physics.model import on_root
 
         self.comm = _petsc_comm(comm)
         self.rank0 = self.comm.tompi4py().rank == 0
@@ -1042,18 +1042,18 @@ def _build_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict, added, r
 def write_outputs(out: Path, diag: _Diagnosis, result: DiagnoseResult, base_ev: dict,
                   wall_time: float) -> None:
     """report.json, report.md, figures, diagnosed.toml, summary.json (rank 0 writes)."""
-    from petsoft.experiment import write_toml
-    from petsoft.io.summary import write_summary
     from petsoft.diagnosis.evidence import write_figures
     from petsoft.diagnosis.report import write_report, write_report_md
+    from petsoft.experiment import write_toml
+    from petsoft.io.summary import write_summary
 
     if not diag.rank0:
         return
     out.mkdir(parents=True, exist_ok=True)
     if not result.base.experiment.is_mass_spring and base_ev.get("markers") is not None:
         # where on the body: the base fit's per-marker residual spread over the mesh (ParaView)
-        from petsoft.physics.model import load_mesh
         from petsoft.diagnosis.locate import write_residual_field
+        from petsoft.physics.model import load_mesh
 
         mesh = load_mesh(result.base.experiment)
         write_residual_field(out / "residual_field.xdmf", mesh.points, mesh.tets,

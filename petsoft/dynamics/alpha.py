@@ -30,10 +30,10 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.dynamics.implicit import SNES_REASONS, SolverReuse, StepReport, _branch_of, _NoBranch
 from petsoft.errors import InvertedElementError
 from petsoft.solvers.linear import linear_defaults
 from petsoft.solvers.options import scoped_defaults
-from petsoft.dynamics.implicit import SNES_REASONS, SolverReuse, StepReport, _branch_of, _NoBranch
 
 TS_REASONS = {v: k for k, v in PETSc.TS.ConvergedReason.__dict__.items() if k.isupper()}
 

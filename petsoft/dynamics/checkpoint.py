@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from petsoft.version import __version__
 from petsoft.errors import PetsoftError
+from petsoft.version import __version__
 
 FORMAT = "petsoft-checkpoint"
 VERSION = 1

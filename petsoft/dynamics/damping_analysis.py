@@ -431,7 +431,8 @@ def fem_mode_damping(model, step: float, schemes, nmodes: int = 6, nsteps: int =
         The time step tau (s), e.g. the experiment's ``[time] step``.
     schemes : list of Scheme
     nmodes : int
-        Modes from :func:`petsoft.solvers.modes.compute_modes`; rigid-body modes (w = 0) are skipped.
+        Modes from :func:`petsoft.solvers.modes.compute_modes`; rigid-body modes (w = 0) are
+        skipped.
     nsteps : int
         Steps per run (>= 6).
     amplitude : float

@@ -73,8 +73,8 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
-from petsoft.errors import InvertedElementError
 from petsoft.dynamics.implicit import StepReport
+from petsoft.errors import InvertedElementError
 
 MASSES = ("lumped", "consistent")
 NCV = 10

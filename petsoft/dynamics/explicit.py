@@ -15,8 +15,8 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.errors import ExperimentError
 from petsoft.dynamics.implicit import StepReport
+from petsoft.errors import ExperimentError
 
 SCHEMES = ("euler", "verlet")
 

@@ -62,7 +62,8 @@ is the point ("we don't want to conserve total energy").
     the fixed fast subspace and their forces enter the explicit slow update, which then goes
     unstable (shown on the Cartesian pendulum in the tests) -- the lecture's "it's hard to
     generalize". Cost per step: one BE solve and one more internal-force evaluation; the modes
-    are computed once (SLEPc via :func:`petsoft.solvers.modes.compute_modes` for a model-backed system, a
+    are computed once (SLEPc via :func:`petsoft.solvers.modes.compute_modes` for a model-backed
+    system, a
     dense eigensolver at the first step's state for small analytic systems).
 """
 
@@ -72,9 +73,9 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.errors import ExperimentError
 from petsoft.dynamics.alpha import alpha_parameters
 from petsoft.dynamics.implicit import ImplicitIntegrator, StepReport
+from petsoft.errors import ExperimentError
 
 FAST_METHODS = ("be", "si", "midpoint", "alpha")
 SPLITTINGS = ("strang", "lie")

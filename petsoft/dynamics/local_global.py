@@ -65,9 +65,9 @@ import numpy as np
 import scipy.sparse as sp
 from petsc4py import PETSc
 
+from petsoft.dynamics.implicit import ImplicitIntegrator, StepReport
 from petsoft.errors import PetsoftError, SolverError
 from petsoft.solvers.options import scoped_defaults
-from petsoft.dynamics.implicit import ImplicitIntegrator, StepReport
 
 #: |R| below this many ulps of |rhs| is round-off: the step is converged (a tolerance below
 #: that level would otherwise fail after max_it iterations and halve the step)

@@ -41,6 +41,8 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
+from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
 from petsoft.errors import ExperimentError, MeshError
 from petsoft.physics.colliders import Collider, default_stiffness
 from petsoft.physics.drag import face_pairs
@@ -55,8 +57,6 @@ from petsoft.physics.springs import (
     spring_gradient,
     spring_hessian_blocks,
 )
-from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
-from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
 
 #: A ``[[mass]] at`` point closer than this (relative to the mesh's size) to a node sits on it.
 NODE_TOLERANCE = 1e-9
@@ -320,8 +320,8 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
         Pairs naming missing nodes, springs of zero rest length, ``[[mass]]`` off the nodes, free
         nodes without mass, tractions, fixed nodes inside a collider, a static initial state.
     """
-    from petsoft.physics.model import on_root
     from petsoft.mesh.regions import RegionResolver
+    from petsoft.physics.model import on_root
 
     comm = comm if comm is not None else PETSc.COMM_WORLD
     src = experiment.source

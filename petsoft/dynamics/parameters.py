@@ -52,10 +52,10 @@ import re
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.errors import ExperimentError
 from petsoft.fem.kernels.scatter import scatter_add_vector
 from petsoft.mesh.ordering import morton_order
-from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 
 MATERIAL_KEYS = ("youngs_modulus", "poisson_ratio", "density")
 #: Parameters set_parameters changes but the residual derivatives do not cover: the Maxwell

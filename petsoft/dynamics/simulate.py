@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
-from petsoft.errors import ExperimentError, SolverError
-from petsoft.mesh.probes import interpolate, locate
 from petsoft.dynamics.alpha import AlphaTSIntegrator, GeneralizedAlpha
 from petsoft.dynamics.energy import FIELDS, EnergyLedger
 from petsoft.dynamics.explicit import ExplicitIntegrator
 from petsoft.dynamics.implicit import METHODS as IMPLICIT_METHODS
 from petsoft.dynamics.implicit import ImplicitIntegrator
 from petsoft.dynamics.system import DynamicSystem
+from petsoft.errors import ExperimentError, SolverError
+from petsoft.mesh.probes import interpolate, locate
 
 INTEGRATORS = ("be", "si", "alpha", "midpoint", "trapezoidal", "ere", "explicit", "imex")
 AVAILABLE = IMPLICIT_METHODS + ("explicit", "alpha", "imex", "ere")
@@ -304,8 +304,8 @@ class Simulation:
 
     def _restore(self, ledger):
         """State, first step and result so far from the latest checkpoint (all ranks)."""
-        from petsoft.errors import PetsoftError
         from petsoft.dynamics.checkpoint import read_latest
+        from petsoft.errors import PetsoftError
 
         dm = self.model.dmesh
         mpi = dm.comm.tompi4py()

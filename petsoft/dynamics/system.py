@@ -32,8 +32,8 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
 from petsoft.fem.assembly import MatrixAssembler
-from petsoft.solvers.linear import linear_defaults
 from petsoft.physics.drag import face_pairs
 from petsoft.physics.loads import (
     consistent_mass_matrices,
@@ -41,7 +41,7 @@ from petsoft.physics.loads import (
     lumped_masses,
     traction_forces,
 )
-from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
+from petsoft.solvers.linear import linear_defaults
 
 #: The assembler's element set of single nodes: the velocity terms' 3x3 diagonal blocks.
 NODE_SET = "__nodes__"
@@ -55,7 +55,8 @@ class DynamicSystem(VelocityDamping):
     Parameters
     ----------
     model : petsoft.physics.model.Model
-        Built by :func:`petsoft.physics.model.build_model` (its ``external`` vector is not used: loads are
+        Built by :func:`petsoft.physics.model.build_model` (its ``external`` vector is not used:
+        loads are
         rebuilt here split into gravity and time-dependent tractions).
     damping_mass, damping_stiffness : float
         Rayleigh alpha (1/s) and beta (s).

@@ -6,8 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from petsoft.fem.assembly import CHUNK, MatrixAssembler
 from petsoft.errors import InvertedElementError
+from petsoft.fem.assembly import CHUNK, MatrixAssembler
 from petsoft.fem.kernels import elastic as kernels
 from petsoft.fem.kernels.scatter import scatter_add_vector
 from petsoft.fem.kernels.tet import shape_gradients

@@ -7,16 +7,16 @@ from dataclasses import dataclass
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.fem.boundary import DirichletConditions
 from petsoft.mesh.distributed import DistributedMesh
-from petsoft.errors import ExperimentError, PetsoftError
+from petsoft.mesh.regions import RegionResolver
 from petsoft.mesh.serial import box_mesh, read_mesh
 from petsoft.physics.contact import build_contact
 from petsoft.physics.elastic import ElasticTerm
 from petsoft.physics.loads import gravity_forces, traction_forces
 from petsoft.physics.potential import ModelPotential
 from petsoft.physics.support import build_support
-from petsoft.mesh.regions import RegionResolver
 
 
 def on_root(comm: PETSc.Comm, fn, *args):

@@ -36,8 +36,8 @@ import numpy as np
 from petsc4py import PETSc
 from slepc4py import SLEPc
 
-from petsoft.fem.assembly import CHUNK, MatrixAssembler
 from petsoft.errors import PetsoftError, SolverError
+from petsoft.fem.assembly import CHUNK, MatrixAssembler
 from petsoft.physics.loads import consistent_mass_matrices
 
 # Shift (as a fraction of trace(K)/trace(M), an upper-end eigenvalue scale ~ c^2/h^2) used when

@@ -17,8 +17,8 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.fem.assembly import MatrixAssembler
 from petsoft.errors import InvertedElementError, SolverError
+from petsoft.fem.assembly import MatrixAssembler
 from petsoft.solvers.linear import linear_defaults
 from petsoft.solvers.options import scoped_defaults, user_has
 

@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from petsoft.io.recording import Recording
 from petsoft.io.importers import UNITS, ImportFileError, reference_positions, unit_scale
+from petsoft.io.recording import Recording
 
 BLOCK = 512
 _KEY = 0x50

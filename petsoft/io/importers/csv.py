@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from petsoft.io.recording import Recording
 from petsoft.io.importers import ImportFileError, reference_positions, unit_scale
+from petsoft.io.recording import Recording
 
 
 def _header(row: list[str], source: str) -> list[str]:
