@@ -42,7 +42,6 @@ import argparse
 import copy
 import json
 import time
-from argparse import Namespace
 from pathlib import Path
 
 import numpy as np
@@ -164,7 +163,7 @@ def write_case(name: str, d: Path) -> None:
 
 
 def run_case(name: str, folder: Path, comm, noise: float) -> dict:
-    from petsoft.calibration.synth import run_synth
+    from petsoft.calibration.synth import SynthOptions, synth
     from petsoft.diagnosis.diagnose import run_diagnose
     from petsoft.experiment import load_experiment
 
@@ -174,9 +173,9 @@ def run_case(name: str, folder: Path, comm, noise: float) -> dict:
         write_case(name, d)
     comm.Barrier()
     t0 = time.perf_counter()
-    run_synth(Namespace(experiment=str(d / "truth.toml"), out=str(d / "rec.h5"), noise=noise,
-                        markers=8, markers_file=None, dropout=0.1, refine=2, integrator=None,
-                        seed=11 + sorted(CASES).index(name)))
+    synth(load_experiment(d / "truth.toml"), SynthOptions(out=d / "rec.h5", noise=noise, markers=8,
+                                                          dropout=0.1, refine=2,
+                                                          seed=11 + sorted(CASES).index(name)))
     comm.Barrier()
     t1 = time.perf_counter()
 

@@ -56,7 +56,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from argparse import Namespace
 from pathlib import Path
 
 import numpy as np
@@ -199,7 +198,7 @@ def main(argv=None) -> int:
     from petsc4py import PETSc
 
     from petsoft.calibration.calibrate import run_calibration
-    from petsoft.calibration.synth import run_synth
+    from petsoft.calibration.synth import SynthOptions, synth
     from petsoft.experiment import load_experiment
     from petsoft.io.recording import read_recording
     from petsoft.solvers.options import apply_experiment_options
@@ -227,16 +226,17 @@ def main(argv=None) -> int:
                                                           True))
         comm.Barrier()
         # the clean amplitude sets the 0.5 % noise: a noise-free run first (cheap, unrefined)
-        run_synth(Namespace(experiment=str(d / "truth.toml"), out=str(d / "clean.h5"), noise=0.0,
-                            markers=markers, markers_file=None, dropout=0.0, refine=1,
-                            integrator=None, seed=11))
+        synth(load_experiment(d / "truth.toml"), SynthOptions(out=d / "clean.h5", noise=0.0,
+                                                              markers=markers, dropout=0.0,
+                                                              refine=1, seed=11))
         clean = read_recording(d / "clean.h5")
         motion = float(np.max(np.abs(clean.positions - clean.reference[None])))
         noise = 0.005 * motion
         say(f"== {name}: largest marker motion {motion:.3g} m, noise {noise:.3g} m (0.5 %)")
-        run_synth(Namespace(experiment=str(d / "truth.toml"), out=str(d / "recording.h5"),
-                            noise=noise, markers=markers, markers_file=None, dropout=0.1,
-                            refine=2, integrator="midpoint", seed=11))
+        synth(load_experiment(d / "truth.toml"), SynthOptions(out=d / "recording.h5", noise=noise,
+                                                              markers=markers, dropout=0.1,
+                                                              refine=2, integrator="midpoint",
+                                                              seed=11))
         exp = load_experiment(d / "start.toml")
         apply_experiment_options(exp.petsc)
         res = run_calibration(exp, d / "recording.h5", method=args.method, out=d / "calibrated",

@@ -9,7 +9,6 @@ import json
 import shutil
 import subprocess
 import sys
-from argparse import Namespace
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +17,7 @@ from child_process import child_env  # tests/child_process.py
 from mpi4py import MPI
 
 from petsoft.calibration.calibrate import run_calibration
-from petsoft.calibration.synth import run_synth
+from petsoft.calibration.synth import SynthOptions, synth
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, load_experiment
 
@@ -83,8 +82,8 @@ def case(tmp_path_factory):
     truth = _write(d / "truth.toml", EXPERIMENT.format(E=TRUTH["material.youngs_modulus"],
                                                       alpha=TRUTH["damping.mass"], calibrate=""))
     rec = d / "rec.h5"
-    run_synth(Namespace(experiment=str(truth), out=str(rec), noise=NOISE, markers=6,
-                        markers_file=None, dropout=0.1, refine=1, integrator=None, seed=5))
+    synth(load_experiment(truth), SynthOptions(out=rec, noise=NOISE, markers=6, dropout=0.1,
+                                               refine=1, seed=5))
     start = _write(d / "start.toml", EXPERIMENT.format(E=1.15e6, alpha=1.0, calibrate=CALIBRATE))
     return d, rec, start
 

@@ -9,7 +9,6 @@ is also run rank-locally (COMM_SELF) and must agree with the 2-rank run.
 """
 
 import gc
-from argparse import Namespace
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +18,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 from scipy import stats
 
-from petsoft.calibration.synth import run_synth
+from petsoft.calibration.synth import SynthOptions, synth
 from petsoft.diagnosis.candidates import build_candidates, sensitivity_region, sphere_condition
 from petsoft.diagnosis.diagnose import DiagnoseError, escape_plane, run_diagnose
 from petsoft.diagnosis.report import PHYSICS, read_report
@@ -48,8 +47,8 @@ def _write(path: Path, text: str) -> Path:
 
 
 def _synth(exp: Path, out: Path, seed: int) -> Path:
-    run_synth(Namespace(experiment=str(exp), out=str(out), noise=NOISE, markers=8,
-                        markers_file=None, dropout=0.1, refine=1, integrator=None, seed=seed))
+    synth(load_experiment(exp), SynthOptions(out=out, noise=NOISE, markers=8, dropout=0.1, refine=1,
+                                             seed=seed))
     MPI.COMM_WORLD.Barrier()
     return out
 

@@ -10,7 +10,6 @@ it now matters, adopt the smaller step and end within 1.5 x the noise on the hel
 Also: when a check is due between rounds (``numerics_due``).
 """
 
-from argparse import Namespace
 from pathlib import Path
 
 import pytest
@@ -18,7 +17,7 @@ from _cantilever import CALIBRATE, cantilever
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.calibration.synth import run_synth
+from petsoft.calibration.synth import SynthOptions, synth
 from petsoft.diagnosis.diagnose import numerics_due, run_diagnose
 from petsoft.experiment import load_experiment
 
@@ -49,9 +48,8 @@ def hidden_step_error(tmp_path_factory):
         (d / "truth.toml").write_text(_bar(2e7, -9.81, 0.001, "midpoint", ""))
         (d / "user.toml").write_text(_bar(1.8e7, 0.0, 0.004, "alpha", CALIBRATE))
     comm.Barrier()
-    run_synth(Namespace(experiment=str(d / "truth.toml"), out=str(d / "rec.h5"), noise=NOISE,
-                        markers=8, markers_file=None, dropout=0.1, refine=1, integrator=None,
-                        seed=3))
+    synth(load_experiment(d / "truth.toml"), SynthOptions(out=d / "rec.h5", noise=NOISE, markers=8,
+                                                          dropout=0.1, refine=1, seed=3))
     comm.Barrier()
     lines: list[str] = []
     res = run_diagnose(load_experiment(d / "user.toml"), d / "rec.h5", out=None, max_tries=1,

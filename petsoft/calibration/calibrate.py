@@ -18,6 +18,7 @@ from petsc4py import PETSc
 
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, with_parameters
+from petsoft.io.recording import Recording, read_recording
 
 METHODS = ("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead")
 GRADIENTS = ("adjoint", "sensitivity", "fd")
@@ -155,8 +156,14 @@ def _petsc_comm(comm):
     return comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm)
 
 
-def build_forward(experiment, names, recording, frame_times, comm, integrator=None):
-    """The forward model of ``experiment`` observing the recording's markers on ``comm``."""
+def build_forward(experiment, names, recording, frame_times, comm, integrator=None, h=None):
+    """The forward model of ``experiment`` observing the recording's markers on ``comm``.
+
+    The one factory of calibration's forward models (calibrate, diagnose's fits and scoring
+    runs): the experiment's ``[petsc]`` solver options, the recording's measured inputs for
+    ``series`` supports, a mass-spring system for ``[springs]`` models. ``h`` overrides
+    ``[time] step`` (the numerics check's refined step).
+    """
     from petsoft.calibration.forward import ForwardModel
     from petsoft.calibration.observation import MarkerObserver
 
@@ -165,13 +172,15 @@ def build_forward(experiment, names, recording, frame_times, comm, integrator=No
                               source=str(recording.source))
 
     comm = _petsc_comm(comm)
-    system = mass_spring_system(experiment, comm) if experiment.is_mass_spring else None
+    system = (mass_spring_system(experiment, comm, recording) if experiment.is_mass_spring
+              else None)
     # the experiment's [petsc] solver choice also for the forward model's own solvers
     return ForwardModel(experiment, names, observer, frame_times, comm=comm,
-                        integrator=integrator, system=system, solver_options=experiment.petsc)
+                        integrator=integrator, h=h, system=system,
+                        solver_options=experiment.petsc, recording=recording)
 
 
-def mass_spring_system(experiment, comm):
+def mass_spring_system(experiment, comm, recording=None):
     """The MassSpringSystem of a ``[springs]`` experiment, as :class:`ForwardModel` takes it.
 
     ForwardModel's generic path takes the initial state from ``system.initial_state()``: here
@@ -181,13 +190,13 @@ def mass_spring_system(experiment, comm):
     from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
     from petsoft.dynamics.simulate import initial_state
 
-    model = build_mass_spring_model(experiment, comm)
+    model = build_mass_spring_model(experiment, comm, recording=recording)
     system = MassSpringSystem(model, experiment.damping.mass, experiment.damping.stiffness)
     system.initial_state = lambda: initial_state(model, system, experiment)
     return system
 
 
-def run_calibration(experiment, recording_path, *, method: str = "gauss-newton",
+def run_calibration(experiment, recording, *, method: str = "gauss-newton",
                     gradient: str = "adjoint", integrator: str | None = None, starts: int = 0,
                     seed: int = 0, regularization: float = 0.0, noise: float | None = None,
                     out: Path | None = None, comm=None, say=None) -> CalibrationResult:
@@ -195,6 +204,11 @@ def run_calibration(experiment, recording_path, *, method: str = "gauss-newton",
 
     Parameters
     ----------
+    experiment : Experiment
+        The model, with ``[time]`` and ``[calibrate]``.
+    recording : Recording or path
+        The data: a :class:`~petsoft.io.recording.Recording` already read (every rank holds
+        it), or the path of one (read once here, on rank 0, and shared).
     method : one of :data:`METHODS`
     gradient : one of :data:`GRADIENTS`
     integrator : {"be", "si", "alpha"}, optional
@@ -215,7 +229,6 @@ def run_calibration(experiment, recording_path, *, method: str = "gauss-newton",
     from petsoft.calibration.optimize import minimize
     from petsoft.calibration.scaling import ParameterScaling
     from petsoft.calibration.uncertainty import UnidentifiableError, uncertainty
-    from petsoft.io.recording import read_recording
     from petsoft.physics.model import on_root
 
     t_start = time.perf_counter()
@@ -232,8 +245,10 @@ def run_calibration(experiment, recording_path, *, method: str = "gauss-newton",
     if gradient not in GRADIENTS:
         raise ExperimentError(f"unknown gradient method {gradient!r}; valid: "
                               f"{', '.join(GRADIENTS)}")
-    # on_root returns the result on rank 0 only: every rank needs the frames
-    recording = mpi.bcast(on_root(comm, read_recording, Path(recording_path)), root=0)
+    if not isinstance(recording, Recording):
+        # on_root returns the result on rank 0 only: every rank needs the frames
+        recording = mpi.bcast(on_root(comm, read_recording, Path(recording)), root=0)
+    recording_path = recording.source
     names, start, bounds = calibration_parameters(experiment)
     if recording.positions is None:
         raise ExperimentError(f"{recording_path}: the recording has no /frames/position; "

@@ -139,6 +139,9 @@ class ForwardModel:
         ``ksp_type``/``pc_type``), applied under the forward run's prefix ``fm_`` and the gradient
         solves' ``fm_grad_`` only while this model runs (never left in the options database);
         options given with those prefixes win.
+    recording : Recording or path, optional
+        The recording whose ``/inputs`` drive ``series`` supports (a model driven by a measured
+        input is fitted to the recording that holds that input).
     system : optional
         A prebuilt system offering the same interface (e.g. a mass-spring system); then
         ``initial_state`` is taken from ``system.initial_state()``.
@@ -150,7 +153,7 @@ class ForwardModel:
 
     def __init__(self, experiment, names, observer, frame_times, comm=None, integrator=None,
                  h=None, system=None, observe: str = "position",
-                 solver_options: dict | None = None):
+                 solver_options: dict | None = None, recording=None):
         exp = self.experiment = experiment
         if observe not in ("position", "acceleration"):
             raise ExperimentError(f"observe = {observe!r}: valid are position, acceleration")
@@ -181,10 +184,10 @@ class ForwardModel:
             # set_parameters, residual_parameter_derivatives): the generic derivative path
             from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
 
-            self.model = build_mass_spring_model(exp, comm)
+            self.model = build_mass_spring_model(exp, comm, recording=recording)
             system = MassSpringSystem(self.model, exp.damping.mass, exp.damping.stiffness)
         else:
-            self.model = build_model(exp, comm)
+            self.model = build_model(exp, comm, recording=recording)
             system = DynamicSystem(self.model, exp.damping.mass, exp.damping.stiffness)
         self.system = s = system
         self.comm = s.comm

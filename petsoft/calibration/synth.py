@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -104,25 +105,91 @@ def _read_markers_file(path: Path) -> np.ndarray:
     return np.array(rows)
 
 
-def _check_options(args) -> None:
-    if not (math.isfinite(args.noise) and args.noise >= 0):
-        raise SynthError(f"--noise = {args.noise}: the noise standard deviation (m) must be "
-                         ">= 0")
-    if not (0.0 <= args.dropout < 1.0):
-        raise SynthError(f"--dropout = {args.dropout}: the fraction of dropped samples must be "
-                         "in [0, 1)")
+@dataclass(frozen=True)
+class SynthOptions:
+    """How :func:`synth` turns a simulation into a recording (the ``petsoft synth`` options).
+
+    Parameters
+    ----------
+    out : Path
+        The recording to write (HDF5); ``truth.json`` and ``summary.json`` go beside it.
+    noise : float
+        Standard deviation (m) of the Gaussian position noise, >= 0.
+    markers : int
+        Number of random surface-node markers (ignored when ``markers_file`` is given).
+    markers_file : Path, optional
+        Marker reference positions instead: a CSV or text file of x y z (m) per line.
+    dropout : float
+        Fraction of marker samples dropped (NaN, "not seen"), in [0, 1).
+    refine : int
+        Divide the mesh size and the time step by this (box meshes: cells x K; file meshes:
+        1 -> 8 subdivision, K a power of two).
+    integrator : str, optional
+        Override ``[time] integrator`` for the simulation.
+    seed : int
+        Seed of the marker choice, the noise and the dropout.
+    """
+
+    out: Path
+    noise: float = 0.0
+    markers: int = 8
+    markers_file: Path | None = None
+    dropout: float = 0.0
+    refine: int = 1
+    integrator: str | None = None
+    seed: int = 0
+
+    def __post_init__(self):
+        object.__setattr__(self, "out", Path(self.out))
+        if self.markers_file is not None:
+            object.__setattr__(self, "markers_file", Path(self.markers_file))
+        if not (math.isfinite(self.noise) and self.noise >= 0):
+            raise SynthError(f"--noise = {self.noise}: the noise standard deviation (m) must "
+                             "be >= 0")
+        if not (0.0 <= self.dropout < 1.0):
+            raise SynthError(f"--dropout = {self.dropout}: the fraction of dropped samples must "
+                             "be in [0, 1)")
+
+
+@dataclass(frozen=True)
+class SynthResult:
+    """What :func:`synth` wrote: the recording, its ground truth and the marker count."""
+
+    recording: Path
+    truth: Path
+    markers: int
+    frames: int
 
 
 def run_synth(args) -> int:
     """`petsoft synth EXPERIMENT.toml --out RECORDING.h5 ...` (all ranks call)."""
+    from petsoft.experiment import load_experiment
+
+    options = SynthOptions(out=args.out, noise=args.noise, markers=args.markers,
+                           markers_file=args.markers_file, dropout=args.dropout,
+                           refine=args.refine, integrator=args.integrator, seed=args.seed)
+    synth(load_experiment(args.experiment), options)
+    return 0
+
+
+def synth(experiment, options: SynthOptions, *, say=None) -> SynthResult:
+    """Simulate ``experiment`` refined and record its markers with noise (all ranks call).
+
+    Parameters
+    ----------
+    experiment : Experiment
+        The truth, with ``[time]``.
+    options : SynthOptions
+    say : callable(str), optional
+        Progress lines (rank 0); default: print.
+
+    Returns
+    -------
+    SynthResult
+    """
     from petsoft.calibration.observation import time_interpolation
     from petsoft.dynamics.simulate import Simulation
-    from petsoft.experiment import (
-        experiment_from_dict,
-        get_parameter,
-        load_experiment,
-        parameter_names,
-    )
+    from petsoft.experiment import experiment_from_dict, get_parameter, parameter_names
     from petsoft.io.recording import write_recording
     from petsoft.io.summary import write_summary
     from petsoft.physics.model import build_model, load_mesh
@@ -132,33 +199,32 @@ def run_synth(args) -> int:
     comm = PETSc.COMM_WORLD
     rank0 = comm.rank == 0
 
-    def say(line):
+    def tell(line):
         if rank0:
-            print(line, flush=True)
+            (say or _print)(line)
 
-    _check_options(args)
-    exp = load_experiment(args.experiment)
+    exp = experiment
     if exp.time is None:
         raise SynthError(f"{exp.source}: [time] is missing: synth needs end and step")
-    K = int(args.refine)
+    K = int(options.refine)
     mesh0 = load_mesh(exp)                     # every rank: marker choice must agree
-    if args.markers_file:
-        markers = _read_markers_file(Path(args.markers_file))
+    if options.markers_file:
+        markers = _read_markers_file(options.markers_file)
         node_ids = None
     else:
         nodes = surface_nodes(mesh0)
-        if args.markers > len(nodes):
-            raise SynthError(f"--markers {args.markers}: the mesh has only {len(nodes)} surface "
+        if options.markers > len(nodes):
+            raise SynthError(f"--markers {options.markers}: the mesh has only {len(nodes)} surface "
                              "nodes")
-        rng_pick = np.random.default_rng([args.seed, 1])
-        node_ids = np.sort(rng_pick.choice(nodes, size=args.markers, replace=False))
+        rng_pick = np.random.default_rng([options.seed, 1])
+        node_ids = np.sort(rng_pick.choice(nodes, size=options.markers, replace=False))
         markers = mesh0.points[node_ids]
     names = [f"m{i:02d}" for i in range(len(markers))]
     data = exp.to_dict()
     step = exp.time.step / K
     data["time"]["step"] = step
-    if args.integrator:
-        data["time"]["integrator"] = args.integrator
+    if options.integrator:
+        data["time"]["integrator"] = options.integrator
     data["output"]["probes"] = markers.tolist()
     data["output"]["every"] = 1
     data["output"]["checkpoint_every"] = 0
@@ -176,9 +242,9 @@ def run_synth(args) -> int:
     sim_exp = experiment_from_dict(data, source=exp.source, base_dir=exp.base_dir, path=exp.path)
     apply_experiment_options(sim_exp.petsc)
     model = build_model(sim_exp, comm, mesh=mesh)
-    say(f"petsoft synth: {len(markers)} markers; simulating on {len(model.dmesh.mesh.tets)} tets "
+    tell(f"petsoft synth: {len(markers)} markers; simulating on {len(model.dmesh.mesh.tets)} tets "
         f"(refine {K}, original {len(mesh0.tets)}) with step {step:g} s")
-    sim = Simulation(model, sim_exp, monitor=say)
+    sim = Simulation(model, sim_exp, monitor=tell)
     result = sim.run()
     integrator = sim.name
     sim.destroy()
@@ -191,21 +257,21 @@ def run_synth(args) -> int:
         frame_times = frame_times[frame_times <= t_sim[-1] * (1 + 1e-12)]
         idx, w = time_interpolation(frame_times, t_sim, source="synth")
         clean = markers[None] + np.einsum("kj,kjmc->kmc", w, u_sim[idx])
-        rng = np.random.default_rng([args.seed, 2])
-        noisy = clean + (rng.normal(0.0, args.noise, clean.shape) if args.noise > 0 else 0.0)
-        dropped = rng.random(clean.shape[:2]) < args.dropout
+        rng = np.random.default_rng([options.seed, 2])
+        noisy = clean + (rng.normal(0.0, options.noise, clean.shape) if options.noise > 0 else 0.0)
+        dropped = rng.random(clean.shape[:2]) < options.dropout
         noisy[dropped] = np.nan
-        out = Path(args.out)
-        cmd = (f"petsoft synth {args.experiment} --noise {args.noise:g} --dropout "
-               f"{args.dropout:g} --refine {K} --seed {args.seed}")
+        out = options.out
+        cmd = (f"petsoft synth {exp.path or exp.source} --noise {options.noise:g} --dropout "
+               f"{options.dropout:g} --refine {K} --seed {options.seed}")
         write_recording(out, markers, frame_times, noisy, names=names,
-                        attrs={"source": cmd}, noise={"position_std": float(args.noise)})
+                        attrs={"source": cmd}, noise={"position_std": float(options.noise)})
         truth = {
             "experiment": str(exp.path or exp.source),
             "parameters": {p: get_parameter(exp, p) for p in parameter_names(exp)},
-            "noise": {"position_std": float(args.noise), "dropout": float(args.dropout),
+            "noise": {"position_std": float(options.noise), "dropout": float(options.dropout),
                       "dropped_samples": int(dropped.sum())},
-            "seed": int(args.seed), "refine": K, "integrator": integrator,
+            "seed": int(options.seed), "refine": K, "integrator": integrator,
             "step": step, "recording_step": exp.time.step,
             "tets": {"simulated": int(len(model.dmesh.mesh.tets)),
                      "original": int(len(mesh0.tets))},
@@ -217,9 +283,15 @@ def run_synth(args) -> int:
         summary = {"recording": str(out), "truth": str(truth_path), "markers": len(markers),
                    "frames": int(len(frame_times)), "dropped_samples": int(dropped.sum()),
                    "max_displacement_markers": float(np.abs(clean - markers).max())}
-        say(f"wrote {out} ({len(frame_times)} frames, {len(markers)} markers, noise "
-            f"{args.noise:g} m, {int(dropped.sum())} samples dropped) and {truth_path}")
+        tell(f"wrote {out} ({len(frame_times)} frames, {len(markers)} markers, noise "
+            f"{options.noise:g} m, {int(dropped.sum())} samples dropped) and {truth_path}")
     stats = {"newton_iterations": result.newton_iterations,
              "linear_iterations": result.linear_iterations, "retries": result.retries}
-    write_summary(Path(args.out).parent, "synth", summary, stats, time.perf_counter() - t0, comm)
-    return 0
+    write_summary(options.out.parent, "synth", summary, stats, time.perf_counter() - t0, comm)
+    return SynthResult(recording=options.out, truth=options.out.parent / "truth.json",
+                       markers=len(markers), frames=int(comm.tompi4py().bcast(
+                           len(frame_times) if rank0 else None, root=0)))
+
+
+def _print(line: str) -> None:
+    print(line, flush=True)

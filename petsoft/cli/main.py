@@ -10,9 +10,13 @@ from __future__ import annotations
 import argparse
 import re
 import sys
+from pathlib import Path
+
+#: The user's reference of the experiment, recording and report formats (installed with petsoft).
+FORMATS = Path(__file__).resolve().parents[1] / "formats.md"
 
 _PETSC_OPTION = re.compile(r"^-[A-Za-z][A-Za-z0-9_]+")
-_FLAGS_WITHOUT_VALUE = {"--restart", "--spd", "--quiet", "--help"}
+_FLAGS_WITHOUT_VALUE = {"--restart", "--spd", "--quiet", "--help", "--version"}
 # `modes -n K` (also -n=K, -nK): the one single-dash option of petsoft's own. The PETSc pattern
 # above needs two characters after the dash, so "-n" alone would otherwise pass as the value of a
 # preceding PETSc option.
@@ -44,16 +48,34 @@ def split_arguments(argv: list[str]) -> tuple[list[str], list[str]]:
     return ours, petsc
 
 
+class _VersionAction(argparse.Action):
+    """``petsoft --version``: petsoft's version and the PETSc it runs on."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        import petsc4py
+
+        from petsoft.version import __version__
+
+        petsc4py.init([])
+        from petsc4py import PETSc  # after init: the version query must not read argv
+
+        petsc = ".".join(str(v) for v in PETSc.Sys.getVersion())
+        print(f"petsoft {__version__} (PETSc {petsc}, petsc4py {petsc4py.__version__})")
+        parser.exit()
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="petsoft",
         description="Simulate soft deformable objects with PETSc. PETSc options (e.g. "
                     "-ksp_type cg -pc_type gamg) go after the experiment file.")
+    p.add_argument("--version", action=_VersionAction, nargs=0,
+                   help="print the versions of petsoft, PETSc and petsc4py and exit")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     s = sub.add_parser("static", help="quasistatic equilibrium of an experiment",
                        description="Solve the quasistatic problem of EXPERIMENT.toml; writes "
                                    "displacement.xdmf/.h5 and summary.json.")
-    s.add_argument("experiment", help="experiment file (TOML, see the formats spec)")
+    s.add_argument("experiment", help=f"experiment file (TOML; the keys: {FORMATS})")
     _static_options(s)
     _add_simulate_parser(sub)
     _add_modes_parser(sub)
@@ -118,7 +140,7 @@ def _add_modes_parser(sub) -> None:
                     "(one frame per mode, time = mode number, M-normalised shapes). Eigensolver "
                     "options: -eps_type, -eps_tol, -eps_ncv, -eps_target (in (rad/s)^2), "
                     "-st_pc_factor_mat_solver_type ...")
-    m.add_argument("experiment", help="experiment file (TOML, see the formats spec)")
+    m.add_argument("experiment", help=f"experiment file (TOML; the keys: {FORMATS})")
     m.add_argument("-n", "--num-modes", type=_positive_int, default=6, dest="num_modes",
                    metavar="K", help="number of modes (default %(default)s)")
     m.add_argument("--out", help="output directory (default: [output] directory)")
@@ -207,7 +229,7 @@ def _add_calibrate_parser(sub) -> None:
                     "prefix cal_ (e.g. -cal_tao_gatol 1e-10), the forward Newton fm_ and the "
                     "gradient solves fm_grad_.")
     c.add_argument("experiment", help="experiment file (TOML) with [time] and [calibrate]")
-    c.add_argument("recording", help="recording (HDF5, formats spec section 2)")
+    c.add_argument("recording", help=f"recording (HDF5; the layout: {FORMATS}, section 2)")
     c.add_argument("--method", default="gauss-newton",
                    choices=("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead"),
                    help="optimizer (default %(default)s)")
@@ -237,7 +259,7 @@ def _add_diagnose_parser(sub) -> None:
                     "halved and a box mesh refined. Writes report.json, report.md, figures, "
                     "diagnosed.toml (the calibrated extended experiment) and summary.json.")
     c.add_argument("experiment", help="experiment file (TOML) with [time] and [calibrate]")
-    c.add_argument("recording", help="recording (HDF5, formats spec section 2)")
+    c.add_argument("recording", help=f"recording (HDF5; the layout: {FORMATS}, section 2)")
     c.add_argument("--out", help="output directory (default: [output] directory)")
     c.add_argument("--fraction", type=float, default=0.7,
                    help="share of the record's span used to identify parameters; the rest is "

@@ -21,7 +21,6 @@ Everything lands in ``OUT/diagnosis/``: ``report.md`` (the evidence in words), `
 
 from __future__ import annotations
 
-from argparse import Namespace
 from pathlib import Path
 
 from mpi4py import MPI
@@ -59,7 +58,7 @@ def run_diagnosis_demo(out: Path, say=print) -> dict:
         ``hidden``, ``named`` (added physics), ``verdict``, ``parameter`` (name, true, found),
         ``validation`` (held-out rms before/after) and ``noise``.
     """
-    from petsoft.calibration.synth import run_synth
+    from petsoft.calibration.synth import SynthOptions, synth
     from petsoft.diagnosis.diagnose import run_diagnose
     from petsoft.experiment import dumps_toml, load_experiment
 
@@ -81,9 +80,9 @@ def run_diagnosis_demo(out: Path, say=print) -> dict:
         say(f"demo: the truth has {HIDDEN['physics']} {HIDDEN['tables']}; the user's model "
             f"(user.toml) lacks it and starts with E 10 % low")
     comm.Barrier()
-    run_synth(Namespace(experiment=str(out / "truth.toml"), out=str(out / "recording.h5"),
-                        noise=noise, markers=8, markers_file=None, dropout=0.1, refine=1,
-                        integrator=None, seed=3))
+    synth(load_experiment(out / "truth.toml"), SynthOptions(out=out / "recording.h5", noise=noise,
+                                                            markers=8, dropout=0.1, refine=1,
+                                                            seed=3))
     comm.Barrier()
     res = run_diagnose(load_experiment(out / "user.toml"), out / "recording.h5",
                        out=out / "diagnosis", say=say)

@@ -41,6 +41,7 @@ import numpy as np
 from petsc4py import PETSc
 from scipy import stats
 
+from petsoft.calibration.calibrate import build_forward
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
 
@@ -107,18 +108,6 @@ def _with_time(experiment, end: float | None = None, step: float | None = None,
         data["mesh"]["box"]["cells"] = [cells_factor * c for c in experiment.mesh.box.cells]
     return experiment_from_dict(data, source=experiment.source, base_dir=experiment.base_dir,
                                 path=experiment.path)
-
-
-def _forward(experiment, names, recording, times, comm, integrator=None, h=None):
-    from petsoft.calibration.forward import ForwardModel
-    from petsoft.calibration.observation import MarkerObserver
-
-    def observer(system):
-        return MarkerObserver(system, recording.reference, recording.names,
-                              source=str(recording.source))
-
-    return ForwardModel(experiment, names, observer, times, comm=comm, integrator=integrator,
-                        h=h)
 
 
 def gradient_for(experiment, default: str) -> str:
@@ -347,7 +336,7 @@ class _Diagnosis:
 
         comm = self.comm if comm is None else _petsc_comm(comm)
         ident_exp = _with_time(experiment, end=self.cut)
-        res = run_calibration(ident_exp, self.path, method=self.method,
+        res = run_calibration(ident_exp, self.recording, method=self.method,
                               gradient=gradient_for(experiment, self.gradient),
                               integrator=self.integrator, noise=self.sigma, comm=comm,
                               say=None)
@@ -366,9 +355,10 @@ class _Diagnosis:
         """Marker positions of ``experiment`` at every frame of the record (or ``times``)."""
         names = list(experiment.calibrate)
         p = np.array([get_parameter(experiment, n) for n in names])
-        fm = _forward(experiment, names, self.recording,
-                      self.times if times is None else times,
-                      self.comm if comm is None else _petsc_comm(comm), self.integrator, h=h)
+        fm = build_forward(experiment, names, self.recording,
+                           self.times if times is None else times,
+                           self.comm if comm is None else _petsc_comm(comm), self.integrator,
+                           h=h)
         try:
             return fm.simulate(p)
         finally:
@@ -428,7 +418,7 @@ class _Diagnosis:
         exact = [n for n in names if n not in fd]
         t = self.times[self.ident]
         if exact:
-            fm = _forward(ext, exact, self.recording, t, comm, self.integrator)
+            fm = build_forward(ext, exact, self.recording, t, comm, self.integrator)
             try:
                 sim, dsim = fm.jacobian(np.array([p[names.index(n)] for n in exact]))
             finally:
@@ -464,8 +454,8 @@ class _Diagnosis:
         data = self.data[self.ident]
         seen = np.isfinite(data)
         sigma = self.sigma
-        fm = _forward(fit.experiment, names, self.recording, self.times[self.ident], self.comm,
-                      self.integrator)
+        fm = build_forward(fit.experiment, names, self.recording, self.times[self.ident],
+                           self.comm, self.integrator)
 
         def dphi(sim):
             diff = np.where(seen, sim - np.where(seen, data, 0.0), 0.0) / sigma

@@ -361,9 +361,10 @@ class SeriesComponent:
         return np.full(len(points), np.interp(t, self.times, self.values))
 
 
-def read_input_series(path: Path, name: str) -> tuple[SeriesComponent, ...]:
+def read_input_series(recording: Recording | Path, name: str) -> tuple[SeriesComponent, ...]:
     """The measured input ``/inputs/<name>`` of a recording as three time series (x, y, z).
 
+    ``recording`` is a :class:`Recording` already read (its ``inputs``) or the path of one;
     ``name`` may be given as ``"inputs/shaker"`` or ``"shaker"``.
 
     Raises
@@ -372,22 +373,28 @@ def read_input_series(path: Path, name: str) -> tuple[SeriesComponent, ...]:
         Naming the file and dataset: missing file, unknown input (listing the available ones),
         wrong shapes, non-finite values or times that do not strictly increase.
     """
-    import h5py
-
     from petsoft.errors import ExperimentError
 
-    path = Path(path)
     key = name.split("/", 1)[1] if name.startswith("inputs/") else name
-    if not path.is_file():
-        raise ExperimentError(f"{path}: recording not found (needed for the input {name!r})")
-    with h5py.File(path, "r") as f:
-        inputs = f.get("inputs")
-        available = sorted(inputs.keys()) if inputs is not None else []
-        if key not in available:
-            raise ExperimentError(f"{path}: no measured input {name!r}; the recording has "
-                                  f"{', '.join('inputs/' + a for a in available) or 'none'}")
-        times = np.asarray(inputs[key]["time"][()], dtype=float)
-        values = np.asarray(inputs[key]["value"][()], dtype=float)
+    if isinstance(recording, Recording):
+        path, available = recording.source, sorted(recording.inputs)
+        found = recording.inputs.get(key)
+    else:
+        import h5py
+
+        path = Path(recording)
+        if not path.is_file():
+            raise ExperimentError(f"{path}: recording not found (needed for the input {name!r})")
+        with h5py.File(path, "r") as f:
+            inputs = f.get("inputs")
+            available = sorted(inputs.keys()) if inputs is not None else []
+            found = ((inputs[key]["time"][()], inputs[key]["value"][()])
+                     if key in available else None)
+    if found is None:
+        raise ExperimentError(f"{path}: no measured input {name!r}; the recording has "
+                              f"{', '.join('inputs/' + a for a in available) or 'none'}")
+    times = np.asarray(found[0], dtype=float)
+    values = np.asarray(found[1], dtype=float)
     where = f"{path}: /inputs/{key}"
     if times.ndim != 1 or len(times) < 2:
         raise ExperimentError(f"{where}/time must be a 1-D array of at least 2 times, "
