@@ -1,4 +1,15 @@
-"""petsoft: PETSc-backed, MPI-parallel simulation and calibration of soft deformable objects."""
+"""petsoft: PETSc-backed, MPI-parallel simulation and calibration of soft deformable objects.
+
+The public Python API (see :mod:`petsoft.api`)::
+
+    load_experiment, read_recording       read the user's files into values
+    with_parameters                       a copy of an experiment with changed parameters
+    static, simulate, synth               solve, integrate, make a synthetic recording
+    calibrate, diagnose                   fit parameters; find, model and verify missing physics
+
+The API is loaded on first use: ``import petsoft`` does not initialise PETSc, so a program (or
+the ``petsoft`` command) can still call ``petsc4py.init(sys.argv)`` with its PETSc options first.
+"""
 
 import os
 
@@ -9,3 +20,19 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from petsoft.version import __version__ as __version__  # noqa: E402
+
+#: The names :mod:`petsoft.api` exports, loaded lazily (PEP 562).
+_API = ("load_experiment", "with_parameters", "read_recording", "static", "simulate", "synth",
+        "calibrate", "diagnose")
+
+
+def __getattr__(name: str):
+    if name in _API:
+        from petsoft import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'petsoft' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_API])

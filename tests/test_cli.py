@@ -170,7 +170,11 @@ def test_static_command_in_process_on_all_ranks(tmp_path_factory):
     if comm.rank == 0:
         _write(base, EXPERIMENT.format(model="corotated"))
     comm.Barrier()
-    summary = solve_static(load_experiment(base / "exp.toml"), base / "o", "tao", 2, False)
+    outcome = solve_static(load_experiment(base / "exp.toml"), base / "o", "tao", 2, False)
+    # every rank holds the same gathered displacement
+    assert np.abs(outcome.displacement).max() > 0
+    assert np.array_equal(comm.bcast(outcome.displacement), outcome.displacement)
     if comm.rank == 0:
-        assert summary["max_displacement"] > 0
+        summary = json.loads((base / "o" / "summary.json").read_text())
+        assert summary["max_displacement"] == np.linalg.norm(outcome.displacement, axis=1).max()
         assert json.loads((base / "o" / "summary.json").read_text())["ranks"] == comm.size

@@ -8,13 +8,12 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.dynamics.run_simulation import simulate_experiment
 from petsoft.experiment import experiment_from_dict, load_experiment
 from petsoft.io.summary import write_summary
-from petsoft.io.xdmf import write_xdmf
-from petsoft.mesh.probes import interpolate, locate
 from petsoft.physics.model import build_model
 from petsoft.solvers.options import apply_experiment_options
-from petsoft.solvers.static import StaticSolver
+from petsoft.solvers.run_static import solve_experiment
 
 # The embedded default of `petsoft demo`: a soft neo-Hookean cantilever (silicone-like) clamped
 # at x = 0, sagging under gravity with a downward end load large enough to bend it visibly.
@@ -85,10 +84,10 @@ def run(args) -> int:
         out = Path(args.out)
         if args.part in ("all", "static"):
             experiment = experiment_from_dict(DEMO_EXPERIMENT, source="<embedded demo>")
-            summary = solve_static(experiment, out, args.method, args.load_steps, False,
+            outcome = solve_static(experiment, out, args.method, args.load_steps, False,
                                    command="demo")
             if PETSc.COMM_WORLD.rank == 0:
-                png = plot_deflection(summary["_mesh"], summary["_u"], out / "deflection.png")
+                png = plot_deflection(outcome.mesh, outcome.displacement, out / "deflection.png")
                 _print(f"plot: {png}   (open displacement.xdmf in ParaView for the 3D field)")
         if args.part in ("all", "diagnose"):
             from petsoft.diagnosis.demo import run_diagnosis_demo
@@ -100,46 +99,10 @@ def run(args) -> int:
 
 
 def solve_static(experiment, out: Path, method: str, load_steps: int, spd: bool,
-                 command: str = "static") -> dict:
-    """Solve an experiment's quasistatic problem and write its outputs (all ranks call)."""
-    t0 = time.perf_counter()
-    comm = PETSc.COMM_WORLD
-    apply_experiment_options(experiment.petsc)
-    model = build_model(experiment, comm, project_spd=spd)
-    mesh = model.dmesh.mesh
-    probe_cells, probe_weights = (
-        locate(mesh.points, mesh.tets, experiment.output.probes,
-               source=f"{experiment.source}: output.probes")
-        if experiment.output.probes else (None, None))
-    _print(f"petsoft {command}: {len(mesh.tets)} tets, {len(mesh.points)} nodes, "
-           f"{3 * len(mesh.points)} dofs on {comm.size} rank(s); {method.upper()}, "
-           f"{load_steps} load step(s)")
-    solver = StaticSolver(model, method=method, load_steps=load_steps, monitor=_print)
-    result = solver.solve()
-    u = model.dmesh.gather_global(result.displacement)
-    summary = {}
-    if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
-        write_xdmf(out / "displacement.xdmf", mesh.points, mesh.tets,
-                   point_data={"displacement": u})
-        magnitude = np.linalg.norm(u, axis=1)
-        probes = []
-        if probe_cells is not None:
-            values = interpolate(u, mesh.tets, probe_cells, probe_weights)
-            probes = [{"point": list(map(float, p)), "displacement": list(map(float, v))}
-                      for p, v in zip(experiment.output.probes, values, strict=True)]
-        summary = {"max_displacement": float(magnitude.max()), "probes": probes}
-        stats = {"method": method, "load_steps": result.load_steps,
-                 "newton_iterations": result.newton_iterations,
-                 "linear_iterations": result.linear_iterations, "retries": result.retries,
-                 "ksp_type": solver.ksp.getType(), "pc_type": solver.ksp.getPC().getType()}
-        path = write_summary(out, command, summary, stats, time.perf_counter() - t0, comm)
-        _print(f"max displacement {summary['max_displacement']:.6g} m after "
-               f"{result.newton_iterations} Newton / {result.linear_iterations} linear "
-               f"iterations ({stats['ksp_type']}+{stats['pc_type']}); wrote {path.parent}/")
-        summary["_mesh"], summary["_u"] = mesh, u
-    solver.destroy()
-    return summary
+                 command: str = "static"):
+    """`petsoft static` (and the demo's first part): solve and write (all ranks call)."""
+    return solve_experiment(experiment, out=out, method=method, load_steps=load_steps, spd=spd,
+                            command=command, say=_print)
 
 
 def plot_deflection(mesh, u: np.ndarray, path: Path) -> Path:
@@ -168,23 +131,10 @@ def plot_deflection(mesh, u: np.ndarray, path: Path) -> Path:
 
 def run_simulation(experiment, out: Path, args) -> None:
     """`petsoft simulate`: build, run and write a dynamic simulation (all ranks call)."""
-    from petsoft.dynamics.simulate import Simulation
-
-    apply_experiment_options(experiment.petsc)
-    if experiment.is_mass_spring:
-        from petsoft.dynamics.mass_spring import build_mass_spring_model
-
-        model = build_mass_spring_model(experiment, PETSc.COMM_WORLD, recording=args.recording)
-    else:
-        model = build_model(experiment, PETSc.COMM_WORLD, recording=args.recording)
-    sim = Simulation(model, experiment, integrator=args.integrator, solver=args.solver,
-                     out=out, monitor=_print, explicit_scheme=args.explicit_scheme,
-                     alpha_backend=args.alpha_backend, spd=getattr(args, "spd", False))
-    result = sim.run(restart=args.restart)
-    _print(f"t = {result.time:g} s after {result.steps} steps ({result.retries} retried), "
-           f"{result.newton_iterations} Newton / {result.linear_iterations} linear iterations, "
-           f"{result.wall_time:.3g} s; wrote {out}/")
-    sim.destroy()
+    simulate_experiment(experiment, out=out, integrator=args.integrator,
+                        recording=args.recording, restart=args.restart, solver=args.solver,
+                        explicit_scheme=args.explicit_scheme, alpha_backend=args.alpha_backend,
+                        spd=args.spd, say=_print)
 
 
 def run_modes(args) -> int:

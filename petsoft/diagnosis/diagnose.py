@@ -44,6 +44,7 @@ from scipy import stats
 from petsoft.calibration.calibrate import build_forward
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
+from petsoft.io.recording import Recording, read_recording
 
 #: The numerics check refines a box mesh only while the refined mesh has at most this many
 #: tetrahedra (6 per box cell).
@@ -246,17 +247,15 @@ def _cell_geometry(mesh) -> tuple[np.ndarray, np.ndarray]:
 class _Diagnosis:
     """State shared by the steps (recording split, noise, communicator, options)."""
 
-    def __init__(self, experiment, recording_path, *, fraction, alpha, method, gradient,
+    def __init__(self, experiment, recording, *, fraction, alpha, method, gradient,
                  integrator, noise, comm, say):
         from petsoft.diagnosis.noise import NoiseError, noise_summary
-        from petsoft.io.recording import read_recording
         from petsoft.physics.model import on_root
 
         self.comm = _petsc_comm(comm)
         self.rank0 = self.comm.tompi4py().rank == 0
         self.say = say
         self.t0 = time.perf_counter()
-        self.path = Path(recording_path)
         self.method, self.gradient, self.integrator = method, gradient, integrator
         self.alpha = float(alpha)
         if not 0.0 < fraction <= 1.0:
@@ -264,9 +263,12 @@ class _Diagnosis:
                                 "of the record must be in (0, 1]")
         if not 0.0 < self.alpha < 1.0:
             raise DiagnoseError(f"--alpha = {alpha}: the significance level must be in (0, 1)")
-        # read on rank 0, then every rank gets it (on_root shares only the error)
-        rec = self.recording = self.comm.tompi4py().bcast(
-            on_root(self.comm, read_recording, self.path), root=0)
+        if not isinstance(recording, Recording):
+            # read on rank 0, then every rank gets it (on_root shares only the error)
+            recording = self.comm.tompi4py().bcast(
+                on_root(self.comm, read_recording, Path(recording)), root=0)
+        rec = self.recording = recording
+        self.path = recording.source
         if rec.positions is None:
             raise DiagnoseError(f"{self.path}: the recording has no /frames/position; diagnose "
                                 "needs marker positions")
@@ -704,42 +706,23 @@ def resolve_numerics(diag: _Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
     return fit, ev, rounds
 
 
-def run_diagnose(experiment, recording_path, **kwargs) -> DiagnoseResult:
-    """Diagnose ``experiment`` against a recording (module docstring). All ranks call.
-
-    Python's cyclic garbage collector is paused for the run and run explicitly at the same
-    program points on every rank (after each calibration and score): freeing PETSc objects
-    of a parallel communicator is collective (petsc4py's garbage cleanup, communicator
-    destruction), and an automatic collection triggered on one rank only (rank 0 alone writes
-    files and figures) interleaved those collectives with the solvers' on 2 ranks (seen:
-    ranks stuck in VecCreate_MPI vs VecNorm). See :func:`_run_diagnose` for the parameters.
-    """
-    enabled = gc.isenabled()
-    gc.collect()
-    gc.disable()
-    try:
-        return _run_diagnose(experiment, recording_path, **kwargs)
-    finally:
-        gc.collect()
-        if enabled:
-            gc.enable()
-
-
-def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fraction: float = 0.7,
+def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: float = 0.7,
                  alpha: float = 0.01, max_additions: int = 3, max_tries: int = 4,
                  method: str = "gauss-newton", gradient: str = "sensitivity",
                  integrator: str | None = None, noise: float | None = None,
-                 numerics: bool = True, comm=None,
-                 say=None) -> DiagnoseResult:
-    """The diagnosis of :func:`run_diagnose` (call that: it handles the garbage collector).
+                 numerics: bool = True, comm=None, say=None) -> DiagnoseResult:
+    """Diagnose ``experiment`` against a recording (module docstring). All ranks call.
 
     Parameters
     ----------
     experiment : Experiment
         The user's model, with ``[time]`` and ``[calibrate]``.
-    recording_path : path
+    recording : Recording or path
+        The data: a :class:`~petsoft.io.recording.Recording` every rank holds, or the path of
+        one (read once, on rank 0, and shared).
     out : Path, optional
-        Output directory (report.json, report.md, figures, diagnosed.toml, summary.json).
+        Output directory (report.json, report.md, figures, diagnosed.toml, summary.json); None
+        writes nothing.
     fraction : float
         Share of the record's span used for identification; the rest is held out.
     alpha : float
@@ -748,21 +731,58 @@ def _run_diagnose(experiment, recording_path, *, out: Path | None = None, fracti
         At most this many terms are added.
     max_tries : int
         At most this many significant candidates are re-calibrated per round.
+    method : str
+        Calibration method (:data:`petsoft.calibration.calibrate.METHODS`).
+    gradient : str
+        Calibration gradient (:data:`petsoft.calibration.calibrate.GRADIENTS`); finite
+        differences are used where a candidate allows no other.
+    integrator : str, optional
+        Overrides ``[time] integrator`` for every simulation.
     noise : float, optional
         Position noise std (m) when the recording has no ``/noise`` (else estimated from it).
-    method, gradient, integrator
-        Calibration options (:func:`~petsoft.calibration.calibrate.run_calibration`).
     numerics : bool
         Run the step/mesh refinement check.
+    comm : PETSc.Comm or mpi4py communicator, optional
+        Default: PETSc.COMM_WORLD.
     say : callable(str), optional
         Progress lines (rank 0).
+
+    Returns
+    -------
+    DiagnoseResult
+
+    Notes
+    -----
+    Python's cyclic garbage collector is paused for the run and run explicitly at the same
+    program points on every rank (after each calibration and score): freeing PETSc objects
+    of a parallel communicator is collective (petsc4py's garbage cleanup, communicator
+    destruction), and an automatic collection triggered on one rank only (rank 0 alone writes
+    files and figures) interleaved those collectives with the solvers' on 2 ranks (seen:
+    ranks stuck in VecCreate_MPI vs VecNorm).
     """
+    enabled = gc.isenabled()
+    gc.collect()
+    gc.disable()
+    try:
+        return _run_diagnose(experiment, recording, out=out, fraction=fraction, alpha=alpha,
+                             max_additions=max_additions, max_tries=max_tries, method=method,
+                             gradient=gradient, integrator=integrator, noise=noise,
+                             numerics=numerics, comm=comm, say=say)
+    finally:
+        gc.collect()
+        if enabled:
+            gc.enable()
+
+
+def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions, max_tries,
+                  method, gradient, integrator, noise, numerics, comm, say) -> DiagnoseResult:
+    """The diagnosis of :func:`run_diagnose` (call that: it handles the garbage collector)."""
     from petsoft.calibration.groups import map_on_groups
     from petsoft.diagnosis.candidates import build_candidates
     from petsoft.diagnosis.report import PHYSICS
 
     t0 = time.perf_counter()
-    diag = _Diagnosis(experiment, recording_path, fraction=fraction, alpha=alpha, method=method,
+    diag = _Diagnosis(experiment, recording, fraction=fraction, alpha=alpha, method=method,
                       gradient=gradient, integrator=integrator, noise=noise, comm=comm,
                       say=say)
     diag.tell(f"petsoft diagnose: {len(diag.times)} frames, identification t <= {diag.cut:.4g} s "

@@ -1,0 +1,348 @@
+"""petsoft's public Python API: what the ``petsoft`` command does, as functions on values.
+
+Every function takes values (an :class:`~petsoft.experiment.Experiment`, a
+:class:`~petsoft.io.recording.Recording`) with explicit keyword options, and returns a result
+object; files are read only by :func:`load_experiment` and :func:`read_recording`, and written
+only where ``out`` says. All ranks call every function (run a script under ``mpiexec -n N``), and
+every rank gets the same result.
+
+>>> import petsoft
+>>> exp = petsoft.load_experiment("experiment.toml")          # doctest: +SKIP
+>>> rec = petsoft.read_recording("recording.h5")               # doctest: +SKIP
+>>> fit = petsoft.calibrate(exp, rec)                          # doctest: +SKIP
+>>> report = petsoft.diagnose(exp, rec, out="diagnosis")       # doctest: +SKIP
+
+PETSc options (solvers) come from the experiment's ``[petsc]`` table and from
+``petsc4py.init(sys.argv)`` called before the first petsoft function, as on the command line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+from petsoft.calibration.calibrate import CalibrationResult, run_calibration
+from petsoft.calibration.synth import SynthOptions, SynthResult
+from petsoft.calibration.synth import synth as _synth
+from petsoft.diagnosis.diagnose import DiagnoseResult, run_diagnose
+from petsoft.dynamics.run_simulation import SimulationRun, simulate_experiment
+from petsoft.experiment import Experiment
+from petsoft.experiment import load_experiment as _load_experiment
+from petsoft.experiment import with_parameters as _with_parameters
+from petsoft.io.recording import Recording
+from petsoft.io.recording import read_recording as _read_recording
+from petsoft.solvers.run_static import StaticOutcome, solve_experiment
+
+__all__ = ["load_experiment", "with_parameters", "read_recording", "static", "simulate", "synth",
+           "calibrate", "diagnose", "Experiment", "Recording", "StaticResult", "SimulationRun",
+           "SynthOptions", "SynthResult", "CalibrationResult", "DiagnoseResult"]
+
+
+def _quiet(line: str) -> None:
+    """The default progress sink of the API: nothing (pass ``say=print`` to follow a run)."""
+
+
+def load_experiment(path: str | Path) -> Experiment:
+    """Read and validate an experiment file (TOML; the keys: ``petsoft/formats.md``).
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    Experiment
+        A frozen value; :func:`petsoft.experiment.with_parameters` makes changed copies.
+
+    Raises
+    ------
+    petsoft.errors.ExperimentError
+        Naming the file, the key and line, and what would be valid.
+    """
+    return _load_experiment(path)
+
+
+def with_parameters(experiment: Experiment, values: dict[str, float]) -> Experiment:
+    """A copy of ``experiment`` with parameters changed by their dotted names.
+
+    Parameters
+    ----------
+    experiment : Experiment
+    values : dict of str to float
+        E.g. ``{"material.youngs_modulus": 1.4e6, "damping.mass": 0.5}`` (the names of a
+        ``[calibrate]`` table).
+
+    Returns
+    -------
+    Experiment
+    """
+    return _with_parameters(experiment, values)
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Read a recording (HDF5; the layout: ``petsoft/formats.md`` section 2) on every rank.
+
+    Rank 0 reads the file and every rank receives the same value (one file read per job).
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    Recording
+        Marker reference positions and names, frame times, positions (NaN where unseen), the
+        noise when the file states it, and measured inputs.
+
+    Raises
+    ------
+    petsoft.io.recording.RecordingError
+        Naming the file and the dataset that is wrong.
+    """
+    comm = MPI.COMM_WORLD
+    recording, error = None, None
+    if comm.rank == 0:
+        try:
+            recording = _read_recording(Path(path))
+        except Exception as exc:  # noqa: BLE001 -- re-raised on every rank below
+            error = exc
+    error = comm.bcast(error, root=0)
+    if error is not None:
+        raise error
+    return comm.bcast(recording, root=0)
+
+
+@dataclass(frozen=True)
+class StaticResult:
+    """The quasistatic solution of :func:`static` (the same on every rank).
+
+    Attributes
+    ----------
+    displacement : ndarray (N, 3)
+        Nodal displacements (m) in the mesh's node order.
+    max_displacement : float
+        The largest nodal displacement magnitude (m).
+    probes : ndarray (P, 3)
+        Displacements at ``[output] probes`` (empty without probes).
+    newton_iterations, linear_iterations, load_steps : int
+    out : Path or None
+        Where ``displacement.xdmf`` and ``summary.json`` were written.
+    """
+
+    displacement: np.ndarray
+    max_displacement: float
+    probes: np.ndarray
+    newton_iterations: int
+    linear_iterations: int
+    load_steps: int
+    out: Path | None
+
+
+def static(experiment: Experiment, *, out: str | Path | None = None, method: str = "snes",
+           load_steps: int = 1, spd: bool = False, say=_quiet) -> StaticResult:
+    """Quasistatic equilibrium of ``experiment`` (``petsoft static``).
+
+    Parameters
+    ----------
+    experiment : Experiment
+    out : str or Path, optional
+        Write ``displacement.xdmf``/``.h5`` and ``summary.json`` here; None writes nothing.
+    method : {"snes", "tao"}
+        Newton on the residual, or minimisation of the potential energy.
+    load_steps : int
+        Apply loads and prescribed displacements in this many equal increments (>= 1).
+    spd : bool
+        Project element Hessians to positive semi-definite (robust far from equilibrium).
+    say : callable(str)
+        Progress lines (rank 0); default silent.
+
+    Returns
+    -------
+    StaticResult
+    """
+    outcome: StaticOutcome = solve_experiment(
+        experiment, out=None if out is None else Path(out), method=method,
+        load_steps=load_steps, spd=spd, say=say)
+    return StaticResult(displacement=outcome.displacement,
+                        max_displacement=float(np.linalg.norm(outcome.displacement,
+                                                              axis=1).max()),
+                        probes=outcome.probes, newton_iterations=outcome.newton_iterations,
+                        linear_iterations=outcome.linear_iterations,
+                        load_steps=outcome.load_steps,
+                        out=None if out is None else Path(out))
+
+
+def simulate(experiment: Experiment, *, out: str | Path | None = None,
+             integrator: str | None = None, recording: Recording | str | Path | None = None,
+             restart: bool = False, solver: str = "snes", explicit_scheme: str = "verlet",
+             alpha_backend: str = "petsoft", spd: bool = False,
+             say=_quiet) -> SimulationRun:
+    """Integrate ``experiment`` in time (``petsoft simulate``).
+
+    Parameters
+    ----------
+    experiment : Experiment
+        With ``[time]`` (end, step, integrator).
+    out : str or Path, optional
+        Output directory (trajectory.xdmf, probes.h5, energy, checkpoints, summary.json);
+        default the experiment's ``[output] directory``.
+    integrator : str, optional
+        Overrides ``[time] integrator``: be, si, alpha, midpoint, trapezoidal, ere, explicit,
+        imex.
+    recording : Recording or path, optional
+        The recording whose ``/inputs`` drive ``series`` supports.
+    restart : bool
+        Continue from the latest checkpoint in ``out``.
+    solver : {"snes", "tao", "local-global"}
+        How backward Euler solves a step: Newton, minimisation of the incremental potential, or
+        (mass-spring models) the local/global iteration.
+    explicit_scheme : {"verlet", "euler"}
+        The explicit integrator's scheme.
+    alpha_backend : {"petsoft", "ts"}
+        Generalized-alpha by petsoft's own stepper or PETSc TS alpha2.
+    spd : bool
+        Clamped (positive semi-definite) spring Jacobians for mass-spring models.
+    say : callable(str)
+        Progress lines (rank 0); default silent.
+
+    Returns
+    -------
+    SimulationRun
+        Final time, state, steps, iterations, energies and probe trajectories (numpy arrays).
+    """
+    return simulate_experiment(
+        experiment, out=None if out is None else Path(out), integrator=integrator,
+        recording=recording, restart=restart, solver=solver, explicit_scheme=explicit_scheme,
+        alpha_backend=alpha_backend, spd=spd, say=say)
+
+
+def synth(experiment: Experiment, *, out: str | Path, noise: float = 0.0, markers: int = 8,
+          markers_file: str | Path | None = None, dropout: float = 0.0, refine: int = 1,
+          integrator: str | None = None, seed: int = 0, say=_quiet) -> SynthResult:
+    """A synthetic recording of ``experiment`` (``petsoft synth``), truth in ``truth.json``.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        The truth, with ``[time]``.
+    out : str or Path
+        The recording to write (HDF5).
+    noise : float
+        Gaussian position noise std (m).
+    markers : int
+        Random surface-node markers (ignored with ``markers_file``).
+    markers_file : str or Path, optional
+        Marker reference positions, x y z per line.
+    dropout : float
+        Fraction of samples dropped (NaN), in [0, 1).
+    refine : int
+        Simulate on a mesh and step refined by this factor (against the inverse crime).
+    integrator : str, optional
+        Overrides ``[time] integrator`` for the truth's simulation.
+    seed : int
+        Seed of the markers, the noise and the dropout.
+    say : callable(str)
+        Progress lines (rank 0); default silent.
+
+    Returns
+    -------
+    SynthResult
+    """
+    options = SynthOptions(out=Path(out), noise=noise, markers=markers,
+                           markers_file=markers_file, dropout=dropout, refine=refine,
+                           integrator=integrator, seed=seed)
+    return _synth(experiment, options, say=say)
+
+
+def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
+              method: str = "gauss-newton", gradient: str = "adjoint",
+              integrator: str | None = None, starts: int = 0, seed: int = 0,
+              regularization: float = 0.0, noise: float | None = None,
+              out: str | Path | None = None, say=_quiet) -> CalibrationResult:
+    """Fit the ``[calibrate]`` parameters of ``experiment`` to a recording (``petsoft calibrate``).
+
+    Parameters
+    ----------
+    experiment : Experiment
+        With ``[time]`` and ``[calibrate]`` (dotted keys with bounds; the start is the value in
+        the experiment).
+    recording : Recording or path
+    method : str
+        gauss-newton, lbfgs, newton, gradient-descent or nelder-mead.
+    gradient : str
+        adjoint, sensitivity or fd (finite differences).
+    integrator : str, optional
+        Overrides ``[time] integrator`` (be, si or alpha: those with gradients).
+    starts : int
+        Extra random starts in the bounds (multi-start for non-convex fits), 0 for none.
+    seed : int
+        Seed of the random starts.
+    regularization : float
+        Tikhonov weight towards the start (in scaled parameters).
+    noise : float, optional
+        Position noise std (m) when the recording has no ``/noise``.
+    out : str or Path, optional
+        Write calibrated.toml, summary.json and figures here; None writes nothing.
+    say : callable(str)
+        Progress lines (rank 0); default silent.
+
+    Returns
+    -------
+    CalibrationResult
+        ``names``, ``values``, ``std``, rms before/after, iterations, the fit history.
+    """
+    return run_calibration(experiment, recording, method=method, gradient=gradient,
+                           integrator=integrator, starts=starts, seed=seed,
+                           regularization=regularization, noise=noise,
+                           out=None if out is None else Path(out), say=say)
+
+
+def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
+             out: str | Path | None = None, fraction: float = 0.7, alpha: float = 0.01,
+             max_additions: int = 3, max_tries: int = 4, method: str = "gauss-newton",
+             gradient: str = "sensitivity", integrator: str | None = None,
+             noise: float | None = None, numerics: bool = True,
+             say=_quiet) -> DiagnoseResult:
+    """Find, model and verify the physics ``experiment`` lacks (``petsoft diagnose``).
+
+    Calibrates the model on the first ``fraction`` of the record, tests the residual against
+    the noise, checks the numerics (step and mesh refinement), locates the mismatch, ranks the
+    candidate physics terms by score tests, fits the best and keeps one when it predicts the
+    held-out rest of the record better; repeats until the residual is noise.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        The user's model, with ``[time]`` and ``[calibrate]``.
+    recording : Recording or path
+    out : str or Path, optional
+        Write report.json, report.md, figures, diagnosed.toml and summary.json here.
+    fraction : float
+        Share of the record used for identification, in (0, 1]; the rest is held out.
+    alpha : float
+        Significance level of the verdict and the tests.
+    max_additions : int
+        At most this many physics terms are added.
+    max_tries : int
+        At most this many significant candidates are fitted per round.
+    method, gradient, integrator
+        Calibration options, as for :func:`calibrate`.
+    noise : float, optional
+        Position noise std (m) when the recording has no ``/noise``.
+    numerics : bool
+        Run the step and mesh refinement checks.
+    say : callable(str)
+        Progress lines (rank 0); default silent.
+
+    Returns
+    -------
+    DiagnoseResult
+        ``verdict``, ``added``, ``rejected``, the base and final fits, and the report.
+    """
+    return run_diagnose(experiment, recording, out=None if out is None else Path(out),
+                        fraction=fraction, alpha=alpha, max_additions=max_additions,
+                        max_tries=max_tries, method=method, gradient=gradient,
+                        integrator=integrator, noise=noise, numerics=numerics, say=say)
