@@ -35,7 +35,7 @@ def cloth_mesh(n: int, size: float, height: float):
 
 def write_cloth(out: Path, n: int, size: float, height: float, comm) -> Path:
     """The cloth mesh as ``out/cloth.msh`` (written on rank 0; all ranks return its path)."""
-    from petsoft.dynamics.mass_spring import write_spring_mesh
+    from petsoft.mesh.springs import write_spring_mesh
 
     path = out / "cloth.msh"
     if comm.rank == 0:

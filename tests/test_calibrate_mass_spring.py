@@ -21,9 +21,9 @@ from child_process import child_env  # tests/child_process.py
 from petsc4py import PETSc
 
 from petsoft.calibration.calibrate import build_forward, run_calibration
-from petsoft.dynamics.mass_spring import write_spring_mesh
 from petsoft.experiment import load_experiment
 from petsoft.io.recording import read_recording, write_recording
+from petsoft.mesh.springs import write_spring_mesh
 
 L, G, C = 0.2, 9.81, 0.5           # length (m), gravity (m/s^2), damping.mass (1/s)
 PHI0, END, FRAME = 1.0, 1.0, 0.02  # release angle (rad from hanging), span (s), frame spacing

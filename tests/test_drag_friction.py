@@ -35,15 +35,14 @@ from petsoft.dynamics.energy import EnergyLedger
 from petsoft.dynamics.implicit import ImplicitIntegrator
 from petsoft.dynamics.mass_spring import (
     MassSpringSystem,
-    SpringMesh,
     build_mass_spring_model,
     rope_mesh,
-    write_spring_mesh,
 )
 from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError
 from petsoft.experiment import DragSpec, experiment_from_dict, load_experiment, with_parameters
+from petsoft.mesh.springs import SpringMesh, write_spring_mesh
 from petsoft.physics import drag, friction
 from petsoft.physics.model import build_model
 from petsoft.solvers.options import clear_options

@@ -352,9 +352,9 @@ def _cloth_system(tmp_path, damping=0.5, springs_extra=None, collider_extra=None
     from petsoft.dynamics.mass_spring import (
         MassSpringSystem,
         build_mass_spring_model,
-        write_spring_mesh,
     )
     from petsoft.experiment import experiment_from_dict
+    from petsoft.mesh.springs import write_spring_mesh
 
     comm = MPI.COMM_WORLD
     base = Path(comm.bcast(str(tmp_path) if comm.rank == 0 else None))

@@ -19,11 +19,11 @@ from petsoft.dynamics.mass_spring import (
     build_mass_spring_model,
     cloth_mesh,
     rope_mesh,
-    write_spring_mesh,
 )
 from petsoft.dynamics.simulate import Simulation
 from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict, load_experiment
+from petsoft.mesh.springs import write_spring_mesh
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -366,7 +366,8 @@ def test_mass_spring_forward_model(tmp_path, method):
     central difference): adjoint == forward sensitivities, Taylor orders 2."""
     from pathlib import Path
 
-    from petsoft.dynamics.mass_spring import rope_mesh, write_spring_mesh
+    from petsoft.dynamics.mass_spring import rope_mesh
+    from petsoft.mesh.springs import write_spring_mesh
 
     mpi = PETSc.COMM_WORLD.tompi4py()
     path = Path(mpi.bcast(str(tmp_path), root=0)) / "rope.vtu"

@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
-from petsoft.dynamics.implicit import SNES_REASONS, SolverReuse, StepReport, _branch_of, _NoBranch
+from petsoft.dynamics.implicit import SNES_REASONS, NoBranch, SolverReuse, StepReport, branch_of
 from petsoft.errors import InvertedElementError
 from petsoft.solvers.linear import linear_defaults
 from petsoft.solvers.options import scoped_defaults
@@ -216,7 +216,7 @@ class GeneralizedAlpha(SolverReuse):
          self.load) = (s.create_vec() for _ in range(10))
         self._last = None
         self._bad = None
-        self._branch = _NoBranch()
+        self._branch = NoBranch()
         self.prefix = prefix
         self.snes = None
         self._new_solver()
@@ -353,8 +353,8 @@ class GeneralizedAlpha(SolverReuse):
 
     def step(self, t0, q0, v0, h, q1, v1) -> StepReport:
         s = self.system
-        self._branch = _branch_of(s)
-        if not isinstance(self._branch, _NoBranch):
+        self._branch = branch_of(s)
+        if not isinstance(self._branch, NoBranch):
             # (before the consistent acceleration: a branch never reset starts relaxed here)
             self._branch.prepare("alpha", h, q0, alpha_f=self.af)
         if not self._continues(t0, q0, v0):

@@ -59,7 +59,7 @@ class StepReport:
     reason: str = ""
 
 
-class _NoBranch:
+class NoBranch:
     """Stands in for the Maxwell branch of a system without one (e.g. mass-spring)."""
 
     active = False
@@ -77,9 +77,10 @@ class _NoBranch:
         return 0.0
 
 
-def _branch_of(system):
+def branch_of(system):
+    """The system's stepping Maxwell branch, or a :class:`NoBranch` that does nothing."""
     branch = getattr(system, "viscoelastic", None)
-    return branch if branch is not None and branch.stepping else _NoBranch()
+    return branch if branch is not None and branch.stepping else NoBranch()
 
 
 class SolverReuse:
@@ -141,7 +142,7 @@ class ImplicitIntegrator(SolverReuse):
         self.h = None
         self.t0 = 0.0
         self._dg_c = 0.0
-        self._branch = _NoBranch()
+        self._branch = NoBranch()
         self.prefix = prefix
         self.snes = self.tao = None
         self._new_solver()
@@ -325,8 +326,8 @@ class ImplicitIntegrator(SolverReuse):
         self.t0, self.h = t0, h
         q0.copy(self.q0)
         v0.copy(self.v0)
-        self._branch = _branch_of(s)
-        if not isinstance(self._branch, _NoBranch):
+        self._branch = branch_of(s)
+        if not isinstance(self._branch, NoBranch):
             self._branch.prepare(self.method, h, q0)
         t1 = t0 + h
         gravity = s.gravity

@@ -34,8 +34,7 @@ rows of the matrix it owns need no further communication. The matrix pattern is 
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 from mpi4py import MPI
@@ -43,7 +42,8 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
-from petsoft.errors import ExperimentError, MeshError
+from petsoft.errors import ExperimentError
+from petsoft.mesh.springs import SpringMesh, read_spring_mesh
 from petsoft.physics.colliders import Collider, default_stiffness
 from petsoft.physics.drag import face_pairs
 from petsoft.physics.springs import (
@@ -64,91 +64,6 @@ NODE_TOLERANCE = 1e-9
 
 class MassSpringWarning(UserWarning):
     """Something in a mass-spring model is suspicious but usable (a node in no spring)."""
-
-
-# ---------------------------------------------------------------------------------------------
-# Meshes of nodes, lines and triangles
-
-
-@dataclass
-class SpringMesh:
-    """Nodes with line and triangle cells (what a mass-spring model is built from).
-
-    ``tets`` is the cell array written to output (triangles if any, else lines, else one vertex
-    cell per node): the name is the one :class:`~petsoft.dynamics.simulate.Simulation` and the
-    XDMF writer read from a mesh.
-    """
-
-    points: np.ndarray
-    lines: np.ndarray
-    triangles: np.ndarray
-    source: str = "<mesh>"
-    regions: dict = field(default_factory=dict)
-    facet_groups: dict = field(default_factory=dict)
-
-    @property
-    def tets(self) -> np.ndarray:
-        if len(self.triangles):
-            return self.triangles
-        if len(self.lines):
-            return self.lines
-        return np.arange(len(self.points), dtype=np.int64)[:, None]
-
-    @property
-    def cell_tags(self) -> np.ndarray:
-        return np.zeros(len(self.tets), dtype=np.int64)
-
-
-def read_spring_mesh(path: str | Path, scale: float = 1.0) -> SpringMesh:
-    """Nodes, lines and triangles of any mesh file meshio reads (vertex cells are ignored).
-
-    Raises
-    ------
-    MeshError
-        Unreadable file, volume cells, cell node numbers out of range.
-    """
-    import meshio
-
-    path = Path(path)
-    try:
-        raw = meshio.read(path)
-    except Exception as exc:  # meshio raises many types for a bad file
-        raise MeshError(f"{path}: cannot read the mesh ({exc})") from exc
-    points = np.asarray(raw.points, dtype=float)
-    if points.shape[1] == 2:
-        points = np.column_stack([points, np.zeros(len(points))])
-    lines, tris = [], []
-    for block in raw.cells:
-        if block.type == "line":
-            lines.append(block.data)
-        elif block.type == "triangle":
-            tris.append(block.data)
-        elif block.type != "vertex":
-            raise MeshError(f"{path}: cells of type {block.type!r}: a mass-spring model is built "
-                            "from nodes, lines (ropes) and triangles (cloth); use [material] for "
-                            "a volume mesh")
-    lines = np.concatenate(lines).astype(np.int64) if lines else np.zeros((0, 2), np.int64)
-    tris = np.concatenate(tris).astype(np.int64) if tris else np.zeros((0, 3), np.int64)
-    for what, cells in (("line", lines), ("triangle", tris)):
-        bad = np.flatnonzero((cells < 0).any(axis=1) | (cells >= len(points)).any(axis=1))
-        if len(bad):
-            raise MeshError(f"{path}: {what} {int(bad[0])} refers to a node outside "
-                            f"0..{len(points) - 1}: {cells[bad[0]].tolist()}")
-    return SpringMesh(points * scale, lines, tris, source=str(path))
-
-
-def write_spring_mesh(path: str | Path, points, lines=None, triangles=None) -> None:
-    """Write nodes and line/triangle cells with meshio (gmsh 2.2 for ``.msh``)."""
-    import meshio
-
-    cells = []
-    if lines is not None and len(lines):
-        cells.append(("line", np.asarray(lines)))
-    if triangles is not None and len(triangles):
-        cells.append(("triangle", np.asarray(triangles)))
-    fmt = "gmsh22" if str(path).endswith(".msh") else None
-    meshio.write(path, meshio.Mesh(np.asarray(points, float), cells), file_format=fmt,
-                 **({"binary": False} if fmt else {}))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -320,7 +235,7 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
         Pairs naming missing nodes, springs of zero rest length, ``[[mass]]`` off the nodes, free
         nodes without mass, tractions, fixed nodes inside a collider, a static initial state.
     """
-    from petsoft.mesh.regions import RegionResolver
+    from petsoft.fem.regions import RegionResolver
     from petsoft.physics.model import on_root
 
     comm = comm if comm is not None else PETSc.COMM_WORLD

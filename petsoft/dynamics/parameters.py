@@ -83,7 +83,7 @@ class ParameterMap:
     """
 
     def __init__(self, system):
-        from petsoft.experiment import _key_part
+        from petsoft.experiment import key_part
         from petsoft.physics.model import cell_materials
 
         self.system = system
@@ -111,16 +111,16 @@ class ParameterMap:
             for i, name in enumerate(regions):
                 mine = last == i
                 if key in exp.material[name].overrides:
-                    self.cells[f"material.{_key_part(name)}.{key}"] = mine[local]
+                    self.cells[f"material.{key_part(name)}.{key}"] = mine[local]
                 else:
                     default |= mine
-                    self.cells[f"material.{_key_part(name)}.{key}"] = mine[local]
+                    self.cells[f"material.{key_part(name)}.{key}"] = mine[local]
             self.cells[f"material.{key}"] = default[local]
             # a [region.<name>] without a material table: setting it appends an override
             for name in exp.regions:
                 if name not in exp.material:
                     mask = model.resolver.cell_mask(name, key=f"region.{name}")
-                    self.cells[f"material.{_key_part(name)}.{key}"] = mask[local]
+                    self.cells[f"material.{key_part(name)}.{key}"] = mask[local]
         self.values = {n: float(self._current(n)) for n in self.cells}
         self.values["damping.mass"] = system.alpha
         self.values["damping.stiffness"] = system.beta

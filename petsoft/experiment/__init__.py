@@ -543,8 +543,9 @@ _BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
 _INDEXED_KEY = re.compile(r"[A-Za-z0-9_-]+(\[\d+\])*")
 
 
-def _key_part(k: str) -> str:
-    # An array entry is shown as key[i]; other keys as TOML writes them.
+def key_part(k: str) -> str:
+    """One part of a dotted parameter or key name as a message shows it: an array entry as
+    ``key[i]``, any other key as TOML writes it (quoted when it needs quotes)."""
     return k if _INDEXED_KEY.fullmatch(k) else json.dumps(k)
 
 
@@ -592,7 +593,7 @@ class _Reader:
     def key(self, k: str | None = None) -> str:
         if k is None:
             return self.name
-        return f"{self.name}.{_key_part(k)}" if self.name else _key_part(k)
+        return f"{self.name}.{key_part(k)}" if self.name else key_part(k)
 
     def header(self) -> str:
         if not self.name:
@@ -959,7 +960,7 @@ def _check_drag_surface(exp: Experiment) -> None:
             if getattr(exp.drag, k) != 0.0 or f"drag.{k}" in exp.calibrate]
     if not keys:
         return
-    from petsoft.dynamics.mass_spring import read_spring_mesh
+    from petsoft.mesh.springs import read_spring_mesh
 
     try:
         mesh = read_spring_mesh(exp.mesh.file, scale=exp.mesh.scale)
@@ -1072,7 +1073,7 @@ def _read_regions(r: _Reader | None) -> dict[str, RegionSpec]:
         if not isinstance(table, dict):
             r.fail(
                 name,
-                f" = {_show(table)}: regions are tables: write [region.{_key_part(name)}] "
+                f" = {_show(table)}: regions are tables: write [region.{key_part(name)}] "
                 'with where = "<condition of x, y, z>"',
             )
         if not _is_region_name(name) or name != name.strip():
@@ -1395,7 +1396,7 @@ def _parameter_table(exp: Experiment) -> dict[str, tuple[float, _Range]]:
         for name in regions:
             spec = exp.material_for(name)
             for k, (rng, _unit) in _MATERIAL_RANGES.items():
-                params[f"material.{_key_part(name)}.{k}"] = (getattr(spec, k), rng)
+                params[f"material.{key_part(name)}.{k}"] = (getattr(spec, k), rng)
     params["damping.mass"] = (exp.damping.mass, _NONNEGATIVE)
     params["damping.stiffness"] = (exp.damping.stiffness, _NONNEGATIVE)
     params["drag.linear"] = (exp.drag.linear, _NONNEGATIVE)

@@ -1,1 +1,2 @@
-"""Finite elements: the compiled element kernels, matrix assembly and Dirichlet conditions."""
+"""Finite elements: the compiled element kernels, matrix assembly, Dirichlet conditions, and
+the resolution of `where` selections (regions, expressions) to vertices, cells and faces."""

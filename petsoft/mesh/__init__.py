@@ -1,1 +1,2 @@
-"""Meshes: reading and validating serial meshes, regions, probes, and the distributed mesh."""
+"""Meshes: reading, generating and validating serial meshes (tetrahedral and spring meshes),
+their topology and orderings, probe points, and the mesh distributed over MPI ranks (DMPlex)."""

@@ -9,8 +9,8 @@ from petsc4py import PETSc
 
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.fem.boundary import DirichletConditions
+from petsoft.fem.regions import RegionResolver
 from petsoft.mesh.distributed import DistributedMesh
-from petsoft.mesh.regions import RegionResolver
 from petsoft.mesh.serial import box_mesh, read_mesh
 from petsoft.physics.contact import build_contact
 from petsoft.physics.elastic import ElasticTerm

@@ -42,7 +42,7 @@ __all__ = [
 ]
 
 
-def _addr(a: np.ndarray) -> int:
+def addr(a: np.ndarray) -> int:
     """The address of ``a``'s data.
 
     Not ``a.ctypes.data``: numpy builds that from a ``ctypes.cast`` result, which references
@@ -54,7 +54,7 @@ def _addr(a: np.ndarray) -> int:
 
 
 def _ptr_of(a: np.ndarray | None) -> int | None:
-    return None if a is None else _addr(a)
+    return None if a is None else addr(a)
 
 
 def _c_array(a, shape: tuple[int, ...], name: str) -> np.ndarray:
@@ -113,8 +113,8 @@ def element_energy(model: str, dN, volume, u, mu, lam) -> np.ndarray:
     W = np.empty(n)
     bad_J = ctypes.c_double(0.0)
     status = _lib.petsoft_elastic_energy(
-        code, n, _addr(dN), _addr(volume), _addr(u), _addr(mu),
-        _addr(lam), _addr(W), ctypes.addressof(bad_J),
+        code, n, addr(dN), addr(volume), addr(u), addr(mu),
+        addr(lam), addr(W), ctypes.addressof(bad_J),
     )  # fmt: skip
     _check_status(status, bad_J)
     return W
@@ -157,8 +157,8 @@ def element_gradient_hessian_into(
         _check_output(H_out, (n, 12, 12), "H_out")
     bad_J = ctypes.c_double(0.0)
     status = _lib.petsoft_elastic_gradient_hessian(
-        code, n, _addr(dN), _addr(volume), _addr(u), _addr(mu),
-        _addr(lam), int(bool(project_spd)), _ptr_of(g_out), _ptr_of(H_out),
+        code, n, addr(dN), addr(volume), addr(u), addr(mu),
+        addr(lam), int(bool(project_spd)), _ptr_of(g_out), _ptr_of(H_out),
         ctypes.addressof(bad_J),
     )  # fmt: skip
     _check_status(status, bad_J)
@@ -200,8 +200,8 @@ def material_response(model: str, F, mu, lam) -> tuple[np.ndarray, np.ndarray, n
     psi, P, dPdF = np.empty(n), np.empty((n, 3, 3)), np.empty((n, 3, 3, 3, 3))
     bad_J = ctypes.c_double(0.0)
     status = _lib.petsoft_material_response(
-        code, n, _addr(F), _addr(mu), _addr(lam), _addr(psi), _addr(P),
-        _addr(dPdF), ctypes.addressof(bad_J),
+        code, n, addr(F), addr(mu), addr(lam), addr(psi), addr(P),
+        addr(dPdF), ctypes.addressof(bad_J),
     )  # fmt: skip
     _check_status(status, bad_J)
     return psi, P, dPdF
@@ -214,5 +214,5 @@ def project_spd(dPdF) -> np.ndarray:
     shape = A.shape
     if A.ndim < 1 or A.size != shape[0] * 81:
         raise ValueError(f"dPdF must have shape (n, 3, 3, 3, 3) or (n, 9, 9), got {shape}")
-    _lib.petsoft_project_spd9(shape[0], _addr(A))
+    _lib.petsoft_project_spd9(shape[0], addr(A))
     return A

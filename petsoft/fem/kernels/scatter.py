@@ -15,11 +15,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from petsoft.fem.kernels.compiled import _addr
+from petsoft.fem.kernels.compiled import addr
 
 # Arrays go in as plain addresses (checked contiguous and typed by the callers below): numpy's
 # ndpointer/``.ctypes`` conversion leaves a self-referencing ctypes object per call that keeps the
-# array alive until the cyclic collector runs (see petsoft.fem.kernels.compiled._addr).
+# array alive until the cyclic collector runs (see petsoft.fem.kernels.compiled.addr).
 _i64p = _f64p = ctypes.c_void_p
 
 
@@ -127,8 +127,8 @@ def scatter_add_matrix(pattern: BlockPattern, conn: np.ndarray, positions: np.nd
     if backend == "c" and values.dtype == np.float64:
         pos = np.ascontiguousarray(positions, dtype=np.int64)
         bptr = np.ascontiguousarray(pattern.bptr, dtype=np.int64)
-        _library().petsoft_scatter_add_matrix(ne, npe, _addr(conn), _addr(pos), _addr(bptr),
-                                              _addr(ke), _addr(values))
+        _library().petsoft_scatter_add_matrix(ne, npe, addr(conn), addr(pos), addr(bptr),
+                                              addr(ke), addr(values))
         return
     r = conn[:, :, None]                                   # (ne, a, 1)
     row0 = pattern.bptr[r]
@@ -148,7 +148,7 @@ def scatter_add_vector(conn: np.ndarray, element_vectors: np.ndarray, out: np.nd
     ne, npe = conn.shape
     fe = np.ascontiguousarray(element_vectors, dtype=np.float64).reshape(ne, 3 * npe)
     if backend == "c" and out.flags.c_contiguous and out.dtype == np.float64:
-        _library().petsoft_scatter_add_vector(ne, npe, _addr(conn), _addr(fe), _addr(out))
+        _library().petsoft_scatter_add_vector(ne, npe, addr(conn), addr(fe), addr(out))
         return
     dofs = (3 * conn[:, :, None] + np.arange(3)).ravel()
     out += np.bincount(dofs, weights=fe.ravel(), minlength=out.size)
