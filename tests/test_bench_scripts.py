@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_bench_assembly_quick():
     """``bench_assembly.py --quick`` exits 0 and prints its table (with or without DOLFINx)."""
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "scripts" / "bench_assembly.py"), "--quick"],
+        [sys.executable, str(ROOT / "scripts" / "benchmarks" / "bench_assembly.py"), "--quick"],
         cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "tets ranks  petsoft tets/s  DOLFINx tets/s  ratio" in proc.stdout, proc.stdout
@@ -26,7 +26,7 @@ def test_bench_assembly_quick():
 def test_bench_step_quick():
     """``bench_step.py --quick`` exits 0 and prints its table (with or without DOLFINx)."""
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "scripts" / "bench_step.py"), "--quick"],
+        [sys.executable, str(ROOT / "scripts" / "benchmarks" / "bench_step.py"), "--quick"],
         cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "dofs ranks solver" in proc.stdout, proc.stdout
@@ -40,7 +40,7 @@ def test_bench_gradient_quick():
     """``bench_gradient.py --quick`` exits 0 and prints a row per integrator and parameter count,
     each with the adjoint and forward-sensitivity gradients agreeing."""
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "scripts" / "bench_gradient.py"), "--quick"],
+        [sys.executable, str(ROOT / "scripts" / "benchmarks" / "bench_gradient.py"), "--quick"],
         cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "sens/fwd  adj/fwd" in proc.stdout, proc.stdout
@@ -56,7 +56,8 @@ def test_bench_linear_solvers_quick():
     """``bench_linear_solvers.py --quick`` exits 0 and prints one row with a time per solver, every
     solver's trajectory matching the default's (the script says when one differs)."""
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "scripts" / "bench_linear_solvers.py"), "--quick"],
+        [sys.executable, str(ROOT / "scripts" / "benchmarks" / "bench_linear_solvers.py"),
+         "--quick"],
         cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "cg-gamg" in proc.stdout and "differs" not in proc.stdout, proc.stdout
@@ -71,8 +72,8 @@ def test_bench_diagnose_plane_error_is_the_distance_between_the_planes():
 
     from petsoft.experiment import experiment_from_dict
 
-    spec = importlib.util.spec_from_file_location("bench_diagnose",
-                                                  ROOT / "scripts" / "bench_diagnose.py")
+    spec = importlib.util.spec_from_file_location(
+        "bench_diagnose", ROOT / "scripts" / "benchmarks" / "bench_diagnose.py")
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     data = {"mesh": {"box": {"size": [0.3, 0.04, 0.04], "cells": [2, 1, 1]}},

@@ -2,7 +2,7 @@
 
 The recordings here are made on the calibration mesh itself (an inverse crime, on purpose: these
 tests check the pipeline, where the answer must then be the truth to the noise level). Recovery
-from refined-mesh data is measured by scripts/demo_calibrate_bar.py.
+from refined-mesh data is measured by scripts/examples/demo_calibrate_bar.py.
 """
 
 import json
@@ -167,9 +167,10 @@ def test_command_line_one_and_two_ranks_agree(case):
 
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 def test_recovery_demo_quick(tmp_path):
-    """scripts/demo_calibrate_bar.py --quick: both cases run, the table and recovery.json are
-    written, and even on its 6x1x1 mesh E lands within 5 % (region E within 15 %)."""
-    script = Path(__file__).resolve().parents[1] / "scripts" / "demo_calibrate_bar.py"
+    """scripts/examples/demo_calibrate_bar.py --quick: both cases run, the table and
+    recovery.json are written, and even on its 6x1x1 mesh E lands within 5 % (region E within
+    15 %)."""
+    script = Path(__file__).resolve().parents[1] / "scripts" / "examples" / "demo_calibrate_bar.py"
     run = subprocess.run([sys.executable, str(script), "--quick", "--out", str(tmp_path)],
                          capture_output=True, text=True, env=child_env(), timeout=600)
     assert run.returncode == 0, run.stderr

@@ -1,26 +1,26 @@
-"""scripts/calibrate_pendulum.py on a short span of the real pendulum: it imports, calibrates,
+"""scripts/examples/calibrate_pendulum.py on a short span of the real pendulum: it imports,
+calibrates,
 predicts, writes its files, and its numbers are finite and physically plausible.
 
 Runs serially and under ``mpiexec -n 2`` (the script is collective; rank 0 writes).
 """
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _examples import load_script
 from petsc4py import PETSc
 
 ROOT = Path(__file__).resolve().parents[1]
-DATA = (ROOT / "scripts" / "data" / "pendulum-single"
+DATA = (ROOT / "scripts" / "examples" / "data" / "pendulum-single"
         / "SinglePendulumDataForParameterEstimation.mat")
 
 
 @pytest.mark.skipif(not DATA.exists(), reason="the real pendulum data are not in this checkout")
 def test_calibrate_pendulum_script_short_span(tmp_path):
-    sys.path.insert(0, str(ROOT / "scripts"))
-    import calibrate_pendulum
+    calibrate_pendulum = load_script("calibrate_pendulum")
 
     out = Path(PETSc.COMM_WORLD.tompi4py().bcast(str(tmp_path), root=0)) / "cal"
     # 1 s of id0 at 50 ms frames, h = 10 ms; 0.5 s of each validation segment

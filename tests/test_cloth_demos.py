@@ -15,8 +15,8 @@ serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns process
 
 
 def _run(script, out, *args):
-    r = subprocess.run([sys.executable, str(ROOT / "scripts" / script), "--quick", "--out",
-                        str(out), *args], capture_output=True, text=True, env=child_env(),
+    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "examples" / script), "--quick",
+                        "--out", str(out), *args], capture_output=True, text=True, env=child_env(),
                        timeout=300)
     return r, {line.split()[0]: line.split() for line in r.stdout.splitlines()
                if line.split() and line.split()[0] in ("be", "be-lg", "si", "midpoint", "ere")}

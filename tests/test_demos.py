@@ -14,7 +14,8 @@ serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns process
 
 @serial_only
 def test_twisted_bar_demo_quick(tmp_path):
-    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "demo_twisted_bar.py"), "--quick",
+    r = subprocess.run([sys.executable, str(ROOT / "scripts" / "examples" / "demo_twisted_bar.py"),
+                        "--quick",
                         "--out", str(tmp_path), "--methods", "be", "midpoint"],
                        capture_output=True, text=True, env=child_env(), timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr

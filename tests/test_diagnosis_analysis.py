@@ -459,7 +459,8 @@ def test_pendulum_envelope_script(tmp_path):
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    run = subprocess.run([sys.executable, str(root / "scripts" / "pendulum_envelope.py"),
+    script = root / "scripts" / "examples" / "pendulum_envelope.py"
+    run = subprocess.run([sys.executable, str(script),
                           "--dir", str(tmp_path / "rec"), "--out", str(tmp_path / "env")],
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr

@@ -360,7 +360,7 @@ def test_modal_imex_fails_under_large_rotation():
 def test_demo_script_quick(tmp_path):
     """``demo_stiff_pendulum.py --quick`` runs, prints its table and writes the figure."""
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "scripts" / "demo_stiff_pendulum.py"), "--quick",
+        [sys.executable, str(ROOT / "scripts" / "examples" / "demo_stiff_pendulum.py"), "--quick",
          "--out", str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     for text in ("slow err end", "IMEX (be fast, RK4 slow)", "backward Euler",

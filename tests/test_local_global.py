@@ -439,7 +439,7 @@ def test_cli_simulate_solver_local_global(tmp_path):
     root = Path(__file__).resolve().parents[1]
     env = {k: v for k, v in os.environ.items()
            if not k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess"))}
-    toml = str(root / "scripts" / "stiff_spring_pendulum.toml")
+    toml = str(root / "scripts" / "examples" / "stiff_spring_pendulum.toml")
     cli = [sys.executable, "-m", "petsoft.cli.main", "simulate", toml]
     runs = {}
     for solver in ("snes", "local-global"):

@@ -181,9 +181,10 @@ def test_be_amplitude_ratio_at_tau_omega_one(tmp_path):
 
 
 def test_stiff_spring_pendulum_experiment(tmp_path):
-    """scripts/stiff_spring_pendulum.toml runs (BE, shortened): the bob keeps r ~ r0 + mg/k, BE
+    """scripts/examples/stiff_spring_pendulum.toml runs (BE, shortened): the bob keeps
+    r ~ r0 + mg/k, BE
     never gains energy, and the swing starts downward."""
-    exp = load_experiment(ROOT / "scripts" / "stiff_spring_pendulum.toml")
+    exp = load_experiment(ROOT / "scripts" / "examples" / "stiff_spring_pendulum.toml")
     exp = dataclasses.replace(exp, time=dataclasses.replace(exp.time, end=0.2))
     model = build_mass_spring_model(exp)
     out = _shared(tmp_path) / "out"
@@ -342,9 +343,9 @@ def test_petsoft_simulate_command_on_the_pendulum(tmp_path):
     for k in list(env):  # a child must not inherit this process's MPI singleton state
         if k.startswith(("OMPI_COMM_WORLD", "PMIX_", "OMPI_MCA_orte", "OMPI_MCA_ess")):
             env.pop(k)
-    text = (ROOT / "scripts" / "stiff_spring_pendulum.toml").read_text()
+    text = (ROOT / "scripts" / "examples" / "stiff_spring_pendulum.toml").read_text()
     (tmp_path / "p.toml").write_text(text.replace("end = 2.0", "end = 0.1"))
-    shutil.copy(ROOT / "scripts" / "stiff_spring_pendulum.msh", tmp_path)
+    shutil.copy(ROOT / "scripts" / "examples" / "stiff_spring_pendulum.msh", tmp_path)
     traj = []
     for ranks in (1, 2):
         out = tmp_path / f"out{ranks}"

@@ -30,7 +30,8 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def _load_make_meshes():
-    spec = importlib.util.spec_from_file_location("make_meshes", ROOT / "scripts/make_meshes.py")
+    spec = importlib.util.spec_from_file_location("make_meshes",
+                                                  ROOT / "scripts/tools/make_meshes.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -202,7 +203,7 @@ def test_scale(tmp_path):
 def test_committed_meshes_match_generator(tmp_path):
     for path in make_meshes.main(tmp_path):
         assert (ROOT / "meshes" / path.name).read_bytes() == path.read_bytes(), (
-            f"meshes/{path.name} differs from scripts/make_meshes.py output: rerun the script"
+            f"meshes/{path.name} differs from scripts/tools/make_meshes.py output: rerun the script"
         )
 
 

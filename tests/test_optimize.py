@@ -368,7 +368,8 @@ def test_distributed_problem_equals_serial(method):
 @pytest.mark.serial_only
 def test_demo_multistart_script(tmp_path):
     out = subprocess.run(
-        [sys.executable, str(ROOT / "scripts" / "demo_multistart.py"), "--out", str(tmp_path),
+        [sys.executable, str(ROOT / "scripts" / "examples" / "demo_multistart.py"), "--out",
+         str(tmp_path),
          "--starts", "8"], capture_output=True, text=True, timeout=120, check=True).stdout
     assert "single start" in out and "multistart" in out
     assert (tmp_path / "multistart.png").stat().st_size > 10000

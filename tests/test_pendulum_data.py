@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _examples import load_script
 
 from petsoft.experiment import load_experiment
 from petsoft.io.recording import read_recording
@@ -14,18 +15,18 @@ from petsoft.io.recording import read_recording
 pytestmark = pytest.mark.serial_only   # runs a script in a subprocess
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPT = ROOT / "scripts" / "import_pendulum.py"
+SCRIPT = ROOT / "scripts" / "examples" / "import_pendulum.py"
 
 
 def test_data_and_licence_are_in_the_project():
-    folder = ROOT / "scripts" / "data" / "pendulum-single"
+    folder = ROOT / "scripts" / "examples" / "data" / "pendulum-single"
     assert "MIT License" in (folder / "LICENSE").read_text()
     assert "arXiv:2205.06231" in (folder / "README.md").read_text()
 
 
 def test_sign_convention():
-    sys.path.insert(0, str(SCRIPT.parent))
-    from import_pendulum import marker_positions, marker_velocities
+    pendulum = load_script("import_pendulum")
+    marker_positions, marker_velocities = pendulum.marker_positions, pendulum.marker_velocities
 
     L = 0.2
     np.testing.assert_allclose(marker_positions(np.array([np.pi]), L), [[0, 0, -L]], atol=1e-15)
@@ -42,8 +43,8 @@ def test_import_pendulum(tmp_path):
     assert run.returncode == 0, run.stderr
     from scipy.io import loadmat
 
-    raw = loadmat(ROOT / "scripts/data/pendulum-single/SinglePendulumDataForParameterEstimation"
-                  ".mat", squeeze_me=True)
+    raw = loadmat(ROOT / "scripts/examples/data/pendulum-single"
+                  / "SinglePendulumDataForParameterEstimation.mat", squeeze_me=True)
     theta_id = np.concatenate([y[0] for y in raw["Y_id"]])[::10]
     L = 0.1528
     ident = read_recording(tmp_path / "identification.h5")

@@ -9,7 +9,7 @@
    diagnosis never reads). The truth keeps the user's mesh so that the demo runs in minutes,
    not hours: a 36-tet bar is far from mesh convergence, and with a refined truth the numerics
    check (rightly) refines the model first, which costs more than a demo should.
-   ``scripts/bench_diagnose.py`` makes its recordings on refined meshes.
+   ``scripts/benchmarks/bench_diagnose.py`` makes its recordings on refined meshes.
 3. **Diagnosis.** ``petsoft diagnose`` starts from the user's model: the truth without the effect,
    Young's modulus 10 % off and calibrated. It calibrates, tests the residual against the noise,
    locates the mismatch, ranks every vocabulary term, adds the best one, re-calibrates, and keeps

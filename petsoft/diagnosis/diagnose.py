@@ -920,7 +920,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         # Schwarz's (Bayesian) criterion chi2 + k ln(n), n the identification samples: with
         # thousands of samples Akaike's 2 per parameter let a standard linear solid (2
         # parameters, stiffness damping as its short-relaxation limit) win by 6 in chi2 over the
-        # hidden stiffness damping itself (scripts/bench_diagnose.py, stiffness-damping)
+        # hidden stiffness damping itself (scripts/benchmarks/bench_diagnose.py, stiffness-damping)
         penalty = float(np.log(max(np.isfinite(diag.data[diag.ident]).sum(), 2)))
         passed = []
         for s, c in contenders:

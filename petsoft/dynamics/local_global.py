@@ -31,8 +31,8 @@ at h = 0.05 s: rate 0.994 per iteration, thousands of iterations to 1e-8). By de
 fixed-point map is Anderson-accelerated (window 5, ``-<prefix>anderson``), safeguarded by the
 potential (see :meth:`LocalGlobalSolver.solve`): 5-10x fewer iterations in the tests and demos.
 
-Cost (measured, ``scripts/demo_cloth_sphere.py``, 15 x 15 cloth, h = 1/400 s, 1 rank): Newton
-2.7 iterations and 28 ms per step, local/global 41 iterations and 218 ms per step to
+Cost (measured, ``scripts/examples/demo_cloth_sphere.py``, 15 x 15 cloth, h = 1/400 s, 1 rank):
+Newton 2.7 iterations and 28 ms per step, local/global 41 iterations and 218 ms per step to
 ``rtol`` 1e-8. An iteration is far cheaper than a Newton iteration (three back-substitutions
 with a factorization reused across steps, no assembly), but at this tolerance the linear rate
 loses to Newton's quadratic one; Liu et al. run a fixed handful of iterations instead

@@ -6,7 +6,7 @@ from petsc4py import PETSc
 
 #: Systems up to this many dofs are solved directly by default: a forward run or a calibration
 #: makes thousands of solves, and on a few thousand dofs one factorisation costs less than an
-#: algebraic-multigrid set-up plus its iterations (scripts/bench_linear_solvers.py).
+#: algebraic-multigrid set-up plus its iterations (scripts/benchmarks/bench_linear_solvers.py).
 DIRECT_DOFS = 6000
 
 

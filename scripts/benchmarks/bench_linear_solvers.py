@@ -19,9 +19,9 @@ same run. The crossover where multigrid wins is what ``DIRECT_DOFS`` should foll
 
 Run
 ---
-    .venv/bin/python scripts/bench_linear_solvers.py             # ~2 minutes
-    .venv/bin/python scripts/bench_linear_solvers.py --quick     # smoke run
-    mpiexec -n 2 .venv/bin/python scripts/bench_linear_solvers.py
+    .venv/bin/python scripts/benchmarks/bench_linear_solvers.py             # ~2 minutes
+    .venv/bin/python scripts/benchmarks/bench_linear_solvers.py --quick     # smoke run
+    mpiexec -n 2 .venv/bin/python scripts/benchmarks/bench_linear_solvers.py
 
 Things to try: ``--material neohookean`` (Newton takes several iterations per step);
 ``--sizes 12 24 48`` (cells along the bar; the section has a sixth of them, at least 2).
@@ -30,7 +30,6 @@ Things to try: ``--material neohookean`` (Newton takes several iterations per st
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 
 _parser = argparse.ArgumentParser(description=__doc__.splitlines()[0],
@@ -48,7 +47,6 @@ import petsc4py  # noqa: E402
 import petsoft  # noqa: E402, F401  before petsc4py.init: one BLAS thread (petsoft/__init__.py)
 
 petsc4py.init([sys.argv[0]] + _petsc_args)
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import numpy as np  # noqa: E402
 from _bench_common import NRANKS, progress, say, timed_interleaved  # noqa: E402

@@ -12,8 +12,8 @@ nothing (to the Newton tolerance), and the exponential Rosenbrock-Euler method (
 
 Run::
 
-    .venv/bin/python scripts/demo_twisted_bar.py --out twisted-bar
-    mpiexec -n 2 .venv/bin/python scripts/demo_twisted_bar.py --out twisted-bar
+    .venv/bin/python scripts/examples/demo_twisted_bar.py --out twisted-bar
+    mpiexec -n 2 .venv/bin/python scripts/examples/demo_twisted_bar.py --out twisted-bar
 
 Writes ``energy.png`` (total energy over time per method), ``<method>/trajectory.xdmf`` (open in
 ParaView: warp by vector ``displacement``), ``<method>/energies.csv`` and prints a table.

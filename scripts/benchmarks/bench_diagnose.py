@@ -25,9 +25,10 @@ Run (cases run one after another, each on all ranks; 4-80 minutes a case, 7 CPU-
 cases, measured serially with 3-5 processes sharing a 2-core machine: the numerics check adopts
 the 2x mesh, 2304 tets, in every case, and a halved step in some)::
 
-    .venv/bin/python scripts/bench_diagnose.py --dir out/bench_diagnose [--cases damping,control]
-    mpiexec -n 2 .venv/bin/python scripts/bench_diagnose.py --dir out/bench_diagnose
-    .venv/bin/python scripts/bench_diagnose.py --dir out/bench_diagnose --collect
+    .venv/bin/python scripts/benchmarks/bench_diagnose.py --dir out/bench_diagnose \
+        [--cases damping,control]
+    mpiexec -n 2 .venv/bin/python scripts/benchmarks/bench_diagnose.py --dir out/bench_diagnose
+    .venv/bin/python scripts/benchmarks/bench_diagnose.py --dir out/bench_diagnose --collect
 
 (the last prints the table of every case run so far in that directory, e.g. by two processes
 given half the cases each).

@@ -2,8 +2,8 @@
 
 Run line (from the repository root; rewrites the files, byte-for-byte the same each time)::
 
-    .venv/bin/python scripts/make_meshes.py            # writes into meshes/
-    .venv/bin/python scripts/make_meshes.py /tmp/out   # or anywhere else
+    .venv/bin/python scripts/tools/make_meshes.py            # writes into meshes/
+    .venv/bin/python scripts/tools/make_meshes.py /tmp/out   # or anywhere else
 
 The meshes are structured (``petsoft.mesh.serial.box_mesh``: hexahedra split into 6 tetrahedra) with
 physical groups attached by position, and written by meshio in gmsh 2.2 ASCII format, which every

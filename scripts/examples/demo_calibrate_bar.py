@@ -43,8 +43,8 @@ That mismatch is also what `petsoft diagnose` must attribute to numerics, not ph
 
 Run::
 
-    python scripts/demo_calibrate_bar.py --out bar-calibration
-    mpiexec -n 2 python scripts/demo_calibrate_bar.py --out bar-calibration
+    python scripts/examples/demo_calibrate_bar.py --out bar-calibration
+    mpiexec -n 2 python scripts/examples/demo_calibrate_bar.py --out bar-calibration
 
 Things to try: ``--method lbfgs``; ``--cells 40`` (finer calibration mesh); ``--quick`` (tiny,
 for the test suite; no accuracy claim); PETSc options for the forward solves, e.g.

@@ -2,9 +2,10 @@
 
 Run (serial; a few seconds)::
 
-    .venv/bin/python scripts/pendulum_envelope.py [--dir out/pendulum] [--out out/pendulum-envelope]
+    .venv/bin/python scripts/examples/pendulum_envelope.py [--dir out/pendulum] \
+        [--out out/pendulum-envelope]
 
-It reads the recordings ``scripts/import_pendulum.py`` writes (``identification.h5`` and
+It reads the recordings ``scripts/examples/import_pendulum.py`` writes (``identification.h5`` and
 ``validation.h5`` in ``--dir``; it runs the import there first when they are missing) and
 applies petsoft's array-only diagnosis tools (:mod:`petsoft.diagnosis`):
 
@@ -47,7 +48,6 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent))   # run from a checkout without installing
 PUBLISHED = {"a": 0.14775, "m": 0.14758, "I": 1.0912e-4, "k": 2.2394e-4, "g": 9.810}
 
 

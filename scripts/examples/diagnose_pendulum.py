@@ -2,13 +2,14 @@
 
 Run (serial; about 10-20 minutes on a loaded 2-core machine)::
 
-    .venv/bin/python scripts/diagnose_pendulum.py [--out out/pendulum-diagnose] [--span 6]
+    .venv/bin/python scripts/examples/diagnose_pendulum.py [--out out/pendulum-diagnose] [--span 6]
         [--step 0.005] [--every 10] [--val-span 9.16]
-    mpiexec -n 2 .venv/bin/python scripts/diagnose_pendulum.py   # candidates on 2 groups
+    mpiexec -n 2 .venv/bin/python scripts/examples/diagnose_pendulum.py   # candidates on 2 groups
 
 What it does
 ------------
-1. Imports the recording (``scripts/import_pendulum.py --per-segment``, reused when present): a
+1. Imports the recording (``scripts/examples/import_pendulum.py --per-segment``, reused when
+   present): a
    point mass on a stiff spring from a fixed pivot, one experiment per segment.
 2. Takes identification segment ``id0`` (released at 1.6 rad) with **no friction at all**
    (``damping.mass`` = 0) and only ``gravity.acceleration.z`` to calibrate (g/L sets the
@@ -22,7 +23,7 @@ What it does
    error of each against the angle noise.
 
 The pivot's friction has a Coulomb (dry) part: the decay envelope of the data is closer to linear
-than to exponential at small amplitude (``scripts/pendulum_envelope.py``), which a purely
+than to exponential at small amplitude (``scripts/examples/pendulum_envelope.py``), which a purely
 viscous model, such as the published one, cannot follow on the late small swings of ``val1``.
 
 Outputs in ``OUT``: ``diagnose/`` (the report), ``summary.json`` (everything printed) and
@@ -36,13 +37,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent))   # run from a checkout without installing
-sys.path.insert(0, str(HERE))
 
 #: Experiment tables a diagnosis may add or change, copied onto the validation experiments.
 PHYSICS_TABLES = ("damping", "friction", "drag", "gravity")

@@ -2,7 +2,7 @@
 
 Run (serial; a few seconds)::
 
-    .venv/bin/python scripts/demo_stiff_pendulum.py [--quick] [--out out/stiff_pendulum]
+    .venv/bin/python scripts/examples/demo_stiff_pendulum.py [--quick] [--out out/stiff_pendulum]
 
 The lecture's example [Ascher & Reich '99]: a unit mass on a stiff spring (w = 1000 rad/s, rest
 length 1 m) swinging under gravity (g = 9.81: the swing has Omega = sqrt(g/r0) = 3.1 rad/s).

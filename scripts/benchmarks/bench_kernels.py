@@ -2,7 +2,7 @@
 
 Run (single core, no MPI needed)::
 
-    .venv/bin/python scripts/bench_kernels.py [--n 100000] [--repeat 5]
+    .venv/bin/python scripts/benchmarks/bench_kernels.py [--n 100000] [--repeat 5]
 
 For each material model it times gradient + Hessian into preallocated buffers (what the
 assembly does every Newton step), with and without SPD projection, plus the C energy alone.

@@ -2,10 +2,11 @@
 
 Run (serial; about a second)::
 
-    .venv/bin/python scripts/import_pendulum.py [--out out/pendulum] [--every 10]
+    .venv/bin/python scripts/examples/import_pendulum.py [--out out/pendulum] [--every 10]
         [--length 0.1528] [--per-segment]
 
-The data (scripts/data/pendulum-single/, MIT licence, Kaheman et al. 2022, arXiv:2205.06231;
+The data (scripts/examples/data/pendulum-single/, MIT licence, Kaheman et al. 2022,
+arXiv:2205.06231;
 see the README there) are the angle theta(t) of a rigid arm swinging freely about a fixed pivot,
 sampled at 1 kHz for 55 s, cut into 4 identification and 2 validation segments.
 
@@ -46,14 +47,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE / "data" / "pendulum-single" / "SinglePendulumDataForParameterEstimation.mat"
-sys.path.insert(0, str(HERE.parent))   # run from a checkout without installing
 
 # The published fit (README of the data): physical pendulum with viscous pivot friction.
 PUBLISHED = {"a": 0.14775, "m": 0.14758, "I": 1.0912e-4, "k": 2.2394e-4, "g": 9.810}
@@ -114,7 +113,8 @@ def write_experiment(path: Path, mesh_name: str, length: float, mass: float, end
     def expr(c):
         return f"{c * s:.17g}*z" if c != 0.0 else "0"
 
-    text = f'''# Real single pendulum (scripts/import_pendulum.py; data: Kaheman et al. 2022, MIT).
+    text = f'''# Real single pendulum (scripts/examples/import_pendulum.py; data: Kaheman et al.
+# 2022, MIT).
 # Recording: {recording}. A point mass on a stiff spring from a fixed pivot; the undamped model
 # (damping.mass = 0) is the starting point for calibration and diagnosis.
 
@@ -238,7 +238,8 @@ def main(argv=None) -> int:
         pos = marker_positions(th, L)[:, None, :]
         rec = write_recording(
             out / f"{name}.h5", np.array([[0.0, 0.0, -L]]), t - offset, pos, names=["bob"],
-            attrs={"source": f"scripts/import_pendulum.py: {args.data.name} ({name}, every "
+            attrs={"source": f"scripts/examples/import_pendulum.py: {args.data.name} ({name}, "
+                             f"every "
                              f"{args.every} samples); Kaheman et al. 2022, MIT licence",
                    "time_offset": offset, "length": L},
             noise={"position_std": L * sigma})

@@ -35,9 +35,9 @@ times.
 
 Run
 ---
-    .venv/bin/python scripts/bench_gradient.py                  # ~20 s, default sizes
-    .venv/bin/python scripts/bench_gradient.py --quick          # smoke run, a few seconds
-    mpiexec -n 2 .venv/bin/python scripts/bench_gradient.py     # 2 ranks (same table)
+    .venv/bin/python scripts/benchmarks/bench_gradient.py                  # ~20 s, default sizes
+    .venv/bin/python scripts/benchmarks/bench_gradient.py --quick  # smoke run, a few seconds
+    mpiexec -n 2 .venv/bin/python scripts/benchmarks/bench_gradient.py     # 2 ranks (same table)
 
 Things to try
 -------------
@@ -85,7 +85,6 @@ import petsc4py  # noqa: E402
 import petsoft  # noqa: E402, F401  before petsc4py.init: one BLAS thread (petsoft/__init__.py)
 
 petsc4py.init([sys.argv[0]] + _petsc_args)
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import time  # noqa: E402
 
 from _bench_common import COMM, NRANKS, progress, say, wall  # noqa: E402

@@ -17,8 +17,8 @@ then differ by 15 cm (the draping is sensitive).
 
 Run::
 
-    .venv/bin/python scripts/demo_cloth_mixed.py --out cloth-mixed
-    mpiexec -n 2 .venv/bin/python scripts/demo_cloth_mixed.py --out cloth-mixed
+    .venv/bin/python scripts/examples/demo_cloth_mixed.py --out cloth-mixed
+    mpiexec -n 2 .venv/bin/python scripts/examples/demo_cloth_mixed.py --out cloth-mixed
 
 Writes ``energy.png``, ``frames-<method>.png`` (stiff half red, soft half blue) and
 ``<method>/trajectory.xdmf`` per method.
@@ -37,13 +37,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import petsc4py
 
 import petsoft  # noqa: F401  before petsc4py.init: one BLAS thread (petsoft/__init__.py)
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def main(argv=None) -> int:

@@ -23,8 +23,8 @@ within 7e-6 m. At h = 1/100 s semi-implicit gains energy at the impact (the chec
 
 Run::
 
-    .venv/bin/python scripts/demo_cloth_sphere.py --out cloth-sphere
-    mpiexec -n 2 .venv/bin/python scripts/demo_cloth_sphere.py --out cloth-sphere
+    .venv/bin/python scripts/examples/demo_cloth_sphere.py --out cloth-sphere
+    mpiexec -n 2 .venv/bin/python scripts/examples/demo_cloth_sphere.py --out cloth-sphere
 
 Writes ``energy.png`` (energy profile per method), ``frames-<method>.png`` (four snapshots),
 ``<method>/trajectory.xdmf`` (ParaView: warp by vector ``displacement``), ``energies.csv`` and
@@ -49,13 +49,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import petsc4py
 
 import petsoft  # noqa: F401  before petsc4py.init: one BLAS thread (petsoft/__init__.py)
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def main(argv=None) -> int:

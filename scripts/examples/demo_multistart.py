@@ -2,8 +2,8 @@
 
 Run (1 or 2 ranks; about a second)::
 
-    .venv/bin/python scripts/demo_multistart.py [--out out/multistart] [--starts 12]
-    mpiexec -n 2 .venv/bin/python scripts/demo_multistart.py
+    .venv/bin/python scripts/examples/demo_multistart.py [--out out/multistart] [--starts 12]
+    mpiexec -n 2 .venv/bin/python scripts/examples/demo_multistart.py
 
 The lecture's shifted-oscillation example: data ``q_t = sin(w (t - s))`` sampled at 200 times in
 [0, 10] from (w, s) = (2, 0.3) with 5 % noise, fitted over w in [0.5, 4] (log-scaled) and s in

@@ -37,11 +37,11 @@ differences should be ~1e-13 (round-off).
 
 Run
 ---
-    .venv/bin/python scripts/bench_assembly.py                       # 1 rank, ~1e4, 1e5, 1e6 tets
+    .venv/bin/python scripts/benchmarks/bench_assembly.py  # 1 rank, ~1e4, 1e5, 1e6 tets
     export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 \\
            OMPI_MCA_rmaps_base_oversubscribe=1
-    mpiexec -n 2 .venv/bin/python scripts/bench_assembly.py          # 2 ranks
-    .venv/bin/python scripts/bench_assembly.py --quick               # tiny smoke run (~ seconds)
+    mpiexec -n 2 .venv/bin/python scripts/benchmarks/bench_assembly.py          # 2 ranks
+    .venv/bin/python scripts/benchmarks/bench_assembly.py --quick  # tiny smoke run (~ seconds)
 
 Things to try
 -------------

@@ -57,11 +57,11 @@ and round-off with MUMPS.
 
 Run
 ---
-    .venv/bin/python scripts/bench_step.py                     # 1 rank, ~1e4, 1e5, 1e6 dofs
+    .venv/bin/python scripts/benchmarks/bench_step.py  # 1 rank, ~1e4, 1e5, 1e6 dofs
     export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 \\
            OMPI_MCA_rmaps_base_oversubscribe=1
-    mpiexec -n 2 .venv/bin/python scripts/bench_step.py        # 2 ranks
-    .venv/bin/python scripts/bench_step.py --quick             # tiny smoke run (~ seconds)
+    mpiexec -n 2 .venv/bin/python scripts/benchmarks/bench_step.py        # 2 ranks
+    .venv/bin/python scripts/benchmarks/bench_step.py --quick  # tiny smoke run (~ seconds)
 
 The 1e6-dof size takes about an hour (GAMG only: MUMPS is skipped above ``--mumps-max-dofs``,
 default 3e5; its 3D LU at 1e5 dofs already takes ~7 s and ~2 GB per factorisation, and both grow

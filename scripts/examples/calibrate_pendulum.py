@@ -3,12 +3,12 @@
 Run (serial; about 4 minutes with the defaults on a loaded 2-core machine, of which the
 calibration is 2.5; 7 minutes with --step 0.0025)::
 
-    .venv/bin/python scripts/calibrate_pendulum.py [--out out/pendulum-cal] [--span 6]
+    .venv/bin/python scripts/examples/calibrate_pendulum.py [--out out/pendulum-cal] [--span 6]
         [--step 0.005] [--every 10] [--val-span 9.16] [--no-halving]
 
 What it does
 ------------
-1. Runs ``scripts/import_pendulum.py --per-segment`` into ``OUT/data`` (or reuses it): one
+1. Runs ``scripts/examples/import_pendulum.py --per-segment`` into ``OUT/data`` (or reuses it): one
    recording and one mass-spring experiment per segment (``id0`` ... ``val1``), each starting
    from its segment's first sample (angle and filtered angular velocity), a point mass
    M = (I + m a^2) / L^2 on a stiff spring of length L = 0.1528 m from a fixed pivot.
@@ -34,7 +34,7 @@ models on all segments), and ``id/`` (calibrated.toml, the driver's summary and 
 
 Expect the viscous-only model to leave a systematic residual on the validation segments: the
 data's decay has a dry-friction (Coulomb) component besides the viscous one
-(``scripts/pendulum_envelope.py``). Dry friction's equivalent viscous rate grows as the
+(``scripts/examples/pendulum_envelope.py``). Dry friction's equivalent viscous rate grows as the
 amplitude falls, so a viscous fit on the large early swings (id0) underestimates the damping of
 the small late ones: on val1 both viscous models (ours and the published one, fitted on all four
 identification segments) predict too large a swing, the residual envelope growing linearly to
@@ -53,15 +53,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent))   # run from a checkout without installing
-sys.path.insert(0, str(HERE))
 
 LENGTH = 0.1528          # m, the importer's marker distance (the published equivalent length)
 G_STANDARD = 9.81
