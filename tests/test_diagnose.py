@@ -280,7 +280,8 @@ def test_every_new_term_starts_at_the_base_model(case):
     """Each candidate's extension at its zero value simulates the base model: exactly for the
     velocity terms and the viscoelastic branch, to the penalty's size for the elastic support
     (1e-3 of a cell's strain), exactly for a plane the body does not reach."""
-    from petsoft.diagnosis.diagnose import _forward, model_scales
+    from petsoft.calibration.calibrate import build_forward
+    from petsoft.diagnosis.diagnose import model_scales
 
     exp = load_experiment(case["user"])
     rec = read_recording(case["plain"])
@@ -288,7 +289,7 @@ def test_every_new_term_starts_at_the_base_model(case):
 
     def simulate(e):
         names = list(e.calibrate)
-        fm = _forward(e, names, rec, rec.times, comm)
+        fm = build_forward(e, names, rec, rec.times, comm)
         try:
             return fm.simulate(np.array([get_parameter(e, n) for n in names]))
         finally:

@@ -17,9 +17,8 @@ from petsc4py import PETSc
 from petsoft.dynamics.local_global import (
     LocalGlobalError,
     LocalGlobalSolver,
-    PlaneCollider,
-    SphereCollider,
 )
+from petsoft.physics.colliders import Collider
 from petsoft.solvers.options import clear_options
 
 G = np.array([0.0, 0.0, -9.81])
@@ -210,7 +209,7 @@ def test_sphere_contact_converges_to_newton_with_penalty():
     inside = np.linalg.norm(X + ref - center, axis=1) < radius
     assert 0 < inside.sum() < N       # the case has contact, and not everywhere
     s = LocalGlobalSolver(edges, rest, k, m, X, fixed=fixed, rtol=1e-12, atol=1e-11,
-                          colliders=[SphereCollider(tuple(center), radius, kc)])
+                          colliders=[Collider.sphere(center, radius, kc)])
     q1, rep = run(s, q0, v0, h, f)
     qv = s.from_array(q1)
     depth = s.penetration(qv)
@@ -230,7 +229,7 @@ def test_plane_contact_rest_state():
     kc = 1e4
     s = LocalGlobalSolver([[0, 1]], [1.0], 10.0, m, X, rtol=1e-13, atol=1e-13,
                           damping_mass=20.0, comm=PETSc.COMM_SELF,
-                          colliders=[PlaneCollider((0, 0, 0), (0, 0, 1), kc)])
+                          colliders=[Collider.plane((0, 0, 0), (0, 0, 1), kc)])
     f = m[:, None] * G
     q = np.zeros((2, 3))
     v = np.zeros((2, 3))
@@ -263,7 +262,7 @@ def test_distributed_equals_one_rank():
     out = {}
     for name, comm in (("world", PETSc.COMM_WORLD), ("self", PETSc.COMM_SELF)):
         s = LocalGlobalSolver(edges, rest, k, m, X, fixed=fixed, comm=comm, rtol=1e-10,
-                              colliders=[SphereCollider((0.5, 0.5, -0.5), 0.49, 1e3)])
+                              colliders=[Collider.sphere((0.5, 0.5, -0.5), 0.49, 1e3)])
         q = q0.copy()
         v = v0 + [0, 0, -2.0]
         its = []

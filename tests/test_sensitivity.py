@@ -256,7 +256,8 @@ def test_si_third_derivative_term_is_needed_and_where_taylor_flattens(light_forw
 
 class _InterfaceOnly:
     """A DynamicSystem seen through the three-method parameter interface only (as a mass-spring
-    system offers it): no element-level ``parameter_derivatives``, no ``parameters``."""
+    system offers it): no element-level ``parameter_derivatives``, no ``parameters`` (None, as
+    :class:`petsoft.dynamics.interfaces.SystemDefaults` declares a capability a system lacks)."""
 
     HIDDEN = ("parameter_derivatives", "parameters", "model")
 
@@ -265,7 +266,7 @@ class _InterfaceOnly:
 
     def __getattr__(self, name):
         if name in self.HIDDEN:
-            raise AttributeError(name)
+            return None
         return getattr(self._s, name)
 
     def initial_state(self):

@@ -346,7 +346,7 @@ def test_mass_spring_models_refuse_the_branch():
 def test_unsupported_integrators_are_refused(integrator):
     exp = _bent(integrator)
     with pytest.raises(ExperimentError, match=rf"time.integrator = '{integrator}': "
-                       r"\[viscoelastic\] ratio = 0.5 .* be, si, midpoint, trapezoidal, alpha "
+                       r"\[viscoelastic\] ratio = 0.5 .* be, si, alpha, midpoint, trapezoidal "
                        "only"):
         Simulation(build_model(exp), exp)
     exp = _bent("alpha")

@@ -78,14 +78,15 @@ from petsc4py import PETSc
 from petsoft.calibration.observation import time_interpolation
 from petsoft.dynamics.alpha import GeneralizedAlpha, alpha_parameters
 from petsoft.dynamics.implicit import ImplicitIntegrator
+from petsoft.dynamics.integrators import check_viscoelastic, with_gradients
 from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, SolverError
 from petsoft.physics.model import build_model
-from petsoft.solvers.linear import linear_defaults
 from petsoft.solvers.options import scoped_defaults
 
-INTEGRATORS = ("be", "si", "alpha")
+#: The schemes with gradients (the registry says which).
+INTEGRATORS = with_gradients()
 PREFIX = "fm_"
 GRAD_PREFIX = "fm_grad_"
 #: Newton of the forward run: gradients are only as accurate as the solves (user options win).
@@ -196,7 +197,7 @@ class ForwardModel:
         if groups:
             s.define_stiffness_groups(max(groups) + 1)
         pnames = s.parameter_names()
-        if getattr(s, "viscoelastic", None) is not None:
+        if s.viscoelastic is not None:
             from petsoft.dynamics.parameters import VISCOELASTIC
 
             pnames = pnames + list(VISCOELASTIC)   # simulate / fd only (see the docstring)
@@ -207,7 +208,7 @@ class ForwardModel:
         if any(n.startswith("viscoelastic.") for n in self.names):
             # z evolves also at ratio 0, so that d sim/d ratio exists there (be sensitivities)
             s.viscoelastic.track = True
-        if hasattr(s, "parameters"):
+        if s.parameters is not None:
             self.p0 = np.array([s.parameters.values[n] for n in self.names])
         else:
             from petsoft.experiment import get_parameter
@@ -243,16 +244,16 @@ class ForwardModel:
             self.J.setNearNullSpace(modes)
         self._K = None
         # a length scale for the SI third-derivative difference: mean cell size or spring length
-        vol = getattr(getattr(s, "dmesh", None), "cell_volumes", None)
+        vol = s.dmesh.cell_volumes if s.elastic is not None else None
         if vol is not None:
             self.cell_size = float(np.cbrt(s.dmesh.allreduce_sum(vol.sum())
                                            / s.dmesh.comm.tompi4py().allreduce(len(vol))))
-        elif getattr(s, "rest_lengths", None) is not None and len(s.rest_lengths):
+        elif s.rest_lengths is not None and len(s.rest_lengths):
             self.cell_size = float(np.mean(s.rest_lengths))   # replicated on every rank
         else:
             self.cell_size = 1.0
         # the SI third-derivative term vanishes for the linear law (K constant)
-        elastic = getattr(s, "elastic", None)
+        elastic = s.elastic
         self.linear_material = elastic is not None and all(g.model == "linear"
                                                            for g in elastic.groups)
         self.stats = {}
@@ -266,9 +267,7 @@ class ForwardModel:
             raise ExperimentError(f"{self.experiment.source}: non-finite parameter values "
                                   f"{dict(zip(self.names, p.tolist(), strict=True))}")
         self.system.set_parameters(dict(zip(self.names, p.tolist(), strict=True)))
-        from petsoft.physics.viscoelastic import check_integrator
-
-        check_integrator(getattr(self.system, "viscoelastic", None), self.method,
+        check_viscoelastic(self.system.viscoelastic, self.method,
                          where=f"{self.experiment.source}: the forward model's integrator")
 
     def _refuse_derivatives(self, p, sensitivities: bool = False) -> None:
@@ -280,7 +279,7 @@ class ForwardModel:
         from petsoft.dynamics.parameters import VISCOELASTIC
 
         asked = [n for n in self.names if n in VISCOELASTIC]
-        branch = getattr(self.system, "viscoelastic", None)
+        branch = self.system.viscoelastic
         ratio = branch.ratio if branch is not None else 0.0
         if "viscoelastic.ratio" in self.names:
             ratio = float(np.asarray(p, dtype=float).reshape(-1)[
@@ -334,7 +333,7 @@ class ForwardModel:
         s, h = self.system, self.h
         self._set(p)
         q, v = self._initial()
-        branch = getattr(s, "viscoelastic", None)
+        branch = s.viscoelastic
         if branch is not None:
             branch.reset(q)     # every run starts with the branch relaxed
         a = None
@@ -441,7 +440,7 @@ class ForwardModel:
         ksp.setOptionsPrefix(GRAD_PREFIX)
         # inside the scope: the experiment's [petsc] choice of solver replaces the default whole
         with scoped_defaults(**self._grad_defaults):
-            (getattr(self.system, "linear_defaults", None) or linear_defaults)(ksp)
+            self.system.linear_defaults(ksp)
             ksp.setFromOptions()
         ksp.setOperators(self.J)
         return ksp
@@ -526,27 +525,27 @@ class ForwardModel:
 
     def _branch(self):
         """The system's viscoelastic branch when it is on or tracked, else None."""
-        branch = getattr(self.system, "viscoelastic", None)
+        branch = self.system.viscoelastic
         return branch if branch is not None and branch.stepping else None
 
     def _velocity_state(self, v) -> None:
         """Linearise the system's velocity terms at v in the next Jacobian assembly."""
-        setter = getattr(self.system, "set_velocity_state", None)
+        setter = self.system.set_velocity_state
         if setter is not None:
             setter(v)
 
     def _damp_tangent(self, data, x, out):
         """out = the damping term linearised at the step's velocity, applied to x: D x +
         dG/dv x (drag and friction); D x for systems without velocity terms."""
-        tangent = getattr(self.system, "damping_tangent_apply", None)
+        tangent = self.system.damping_tangent_apply
         if tangent is None:
             return self.system.damping_apply(x, out)
         return tangent(data["v"], x, out)
 
     def _damp_second(self, data, x, out):
         """out = d/dv [dG/dv x] along the SI step's w at its u (None when zero)."""
-        second = getattr(self.system, "damping_second_apply", None)
-        terms = getattr(self.system, "velocity_terms", None)
+        second = self.system.damping_second_apply
+        terms = self.system.velocity_terms
         if second is None or terms is None or not terms.nonlinear or "w" not in data:
             return None
         return second(data["v"], data["w"], x, out)
@@ -563,7 +562,7 @@ class ForwardModel:
         ``.contract``."""
         if k0x is not None:
             return self.system.parameter_derivatives(q, v, a, w, k0x, v_lin)
-        if hasattr(self.system, "parameter_derivatives"):
+        if self.system.parameter_derivatives is not None:
             if v_lin is not None:
                 return self.system.parameter_derivatives(q, v, a, w, v_lin=v_lin)
             return self.system.parameter_derivatives(q, v, a, w)
@@ -604,7 +603,7 @@ class ForwardModel:
         """CG on the eliminated consistent mass (initial acceleration of alpha)."""
         s = self.system
         M = s.M.copy()
-        if hasattr(s, "dirichlet"):
+        if s.dirichlet is not None:
             s.dirichlet.eliminate(M)
         ksp = PETSc.KSP().create(comm=self.comm)
         ksp.setOperators(M)
@@ -799,7 +798,7 @@ class ForwardModel:
             d value / d rho_cell}``, each (ncells,) in file numbering on every rank (the maps
             cost one contraction per step).
         """
-        if not hasattr(self.system, "parameter_derivatives"):
+        if self.system.parameter_derivatives is None:
             raise ExperimentError("per-cell sensitivity maps need a continuum (FEM) system")
         value, grad, local = self._adjoint(p, dphi, cell_map=True)
         dm = self.system.dmesh

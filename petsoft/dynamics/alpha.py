@@ -32,7 +32,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.implicit import SNES_REASONS, NoBranch, SolverReuse, StepReport, branch_of
 from petsoft.errors import InvertedElementError
-from petsoft.solvers.linear import linear_defaults
+from petsoft.physics.viscoelastic import MaxwellRule
 from petsoft.solvers.options import scoped_defaults
 
 TS_REASONS = {v: k for k, v in PETSc.TS.ConvergedReason.__dict__.items() if k.isupper()}
@@ -53,7 +53,7 @@ class AlphaTSIntegrator:
     def __init__(self, system, radius: float = 0.5, prefix: str = ""):
         self.system, self.radius = system, float(radius)
         s = system
-        self.moving = bool(getattr(s, "moving_boundary", False))
+        self.moving = bool(s.moving_boundary)
         self.J = s.create_matrix()
         modes = s.near_nullspace()
         if modes is not None:
@@ -74,7 +74,7 @@ class AlphaTSIntegrator:
         # stol: the residual carries 1/h^2 round-off; a Newton update below 1e-12 |q| is converged
         snes.setTolerances(rtol=1e-10, atol=1e-12, stol=1e-12, max_it=25)
         ksp = snes.getKSP()
-        (getattr(s, "linear_defaults", None) or linear_defaults)(ksp)
+        s.linear_defaults(ksp)
         if self.moving:
             ksp.setType(PETSc.KSP.Type.GMRES)
         with scoped_defaults(**{prefix + "ts_alpha_radius": repr(self.radius),
@@ -234,7 +234,7 @@ class GeneralizedAlpha(SolverReuse):
         # stol: the residual carries 1/h^2 round-off; a Newton update below 1e-12 |q| is converged
         snes.setTolerances(rtol=1e-10, atol=1e-12, stol=1e-12, max_it=25)
         self.ksp = snes.getKSP()
-        (getattr(s, "linear_defaults", None) or linear_defaults)(self.ksp)
+        s.linear_defaults(self.ksp)
         with scoped_defaults(**{self.prefix + "snes_linesearch_type": "basic"}):
             snes.setFromOptions()
 
@@ -245,14 +245,14 @@ class GeneralizedAlpha(SolverReuse):
         s.internal_gradient(q0, rhs)
         rhs.scale(-1.0)
         rhs.axpy(-1.0, s.damping_apply(v0, self.work))
-        branch = getattr(s, "viscoelastic", None)
+        branch = s.viscoelastic
         if branch is not None and branch.active:
             rhs.axpy(-1.0, branch.stress_force(q0, self.work))   # g K0 (q0 - z0)
         rhs.axpy(1.0, s.gravity)
         rhs.axpy(1.0, s.tractions(t0, self.work))
         s.zero_prescribed(rhs)
         M = s.M.copy()
-        if hasattr(s, "dirichlet"):
+        if s.dirichlet is not None:
             s.dirichlet.eliminate(M)
         ksp = PETSc.KSP().create(comm=s.comm)
         ksp.setOperators(M)
@@ -356,7 +356,7 @@ class GeneralizedAlpha(SolverReuse):
         self._branch = branch_of(s)
         if not isinstance(self._branch, NoBranch):
             # (before the consistent acceleration: a branch never reset starts relaxed here)
-            self._branch.prepare("alpha", h, q0, alpha_f=self.af)
+            self._branch.prepare(MaxwellRule.GENERALIZED_ALPHA, h, q0, alpha_f=self.af)
         if not self._continues(t0, q0, v0):
             self.consistent_acceleration(t0, q0, v0, self.a0)
         self.h = h

@@ -34,7 +34,7 @@ class EnergyLedger:
         el = system.elastic_energy(q)
         # a Maxwell branch's stored energy is elastic energy too (its dissipation is booked by
         # the steps); systems without one do not have the method
-        branch = getattr(system, "viscoelastic_energy", None)
+        branch = system.viscoelastic_energy
         if branch is not None:
             el += branch(q)
         grav = system.gravitational_energy(q)

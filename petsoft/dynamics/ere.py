@@ -122,9 +122,9 @@ class EREIntegrator:
         self._mpi = s.comm.tompi4py()
         # The lumped ODE is the one whose energy we book (as the explicit integrators do).
         s.lumped_kinetic = mass == "lumped"
-        self.moving = bool(getattr(s, "moving_boundary", False))
+        self.moving = bool(s.moving_boundary)
         self.nonautonomous = time_derivative and (
-            self.moving or bool(getattr(s, "time_dependent_loads", False)))
+            self.moving or bool(s.time_dependent_loads))
         self.K = s.create_matrix()
         # work vectors: _xq, _xv, _t1, _t2 belong to the operator and the work terms; _force
         # writes only its ``out`` and _grad, _qt, _vt, _g, _tmp
@@ -208,7 +208,7 @@ class EREIntegrator:
         self.K.mult(self._xq, self._t1)
         self._t1.scale(h * h)
         # the damping's Jacobian: D, plus the drag and friction linearised at the step's v0
-        tangent = getattr(self.system, "damping_tangent_apply", None)
+        tangent = self.system.damping_tangent_apply
         if tangent is not None:
             self._t1.axpy(h, tangent(self._v_state, self._xv, self._t2))
         else:

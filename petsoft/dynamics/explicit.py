@@ -71,7 +71,7 @@ class ExplicitIntegrator:
         """Estimate the stability limit at q0 and refuse h above it; returns the limit."""
         self.omega_max = largest_frequency(self.system, q0)
         limit = 2.0 / self.omega_max if self.omega_max > 0 else np.inf
-        terms = getattr(self.system, "velocity_terms", None)
+        terms = self.system.velocity_terms
         rate = self.system.comm.tompi4py().allreduce(
             terms.rate_bound() if terms is not None else 0.0, op=MPI.MAX)
         if rate > 0.0 and h > 2.0 / rate:

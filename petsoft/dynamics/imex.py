@@ -292,7 +292,7 @@ class ModalImexIntegrator:
 
     def _compute_modes(self, q0: PETSc.Vec) -> None:
         s = self.system
-        if hasattr(s, "model"):
+        if s.model is not None:            # a model-backed system: SLEPc on its matrices
             from petsoft.solvers.modes import compute_modes
 
             res = compute_modes(s.model, self.count, prefix="imex_")

@@ -34,8 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.dynamics.integrators import SCHEMES
 from petsoft.errors import InvertedElementError
-from petsoft.solvers.linear import linear_defaults
 from petsoft.solvers.options import scoped_defaults
 
 METHODS = ("be", "si", "midpoint", "trapezoidal")
@@ -79,7 +79,7 @@ class NoBranch:
 
 def branch_of(system):
     """The system's stepping Maxwell branch, or a :class:`NoBranch` that does nothing."""
-    branch = getattr(system, "viscoelastic", None)
+    branch = system.viscoelastic
     return branch if branch is not None and branch.stepping else NoBranch()
 
 
@@ -109,7 +109,7 @@ class SolverReuse:
         if not self._solver_used or getattr(self, "snes", None) is None:
             self._solver_used = True
             return False
-        return bool(getattr(self.system, "jacobian_is_constant", False))
+        return bool(self.system.jacobian_is_constant)
 
 
 class ImplicitIntegrator(SolverReuse):
@@ -154,7 +154,7 @@ class ImplicitIntegrator(SolverReuse):
             if obj is not None:
                 obj.destroy()
         s, prefix, method = self.system, self.prefix, self.method
-        linear = getattr(s, "linear_defaults", None) or linear_defaults
+        linear = s.linear_defaults
         if self.solver == "snes":
             self.snes = snes = PETSc.SNES().create(comm=s.comm)
             snes.setOptionsPrefix(prefix)
@@ -173,7 +173,7 @@ class ImplicitIntegrator(SolverReuse):
             # Not with dry friction or quadratic drag: their force saturates (friction: a
             # sigmoid of width friction.speed), where full Newton steps cycle around the stop;
             # backtracking on the residual norm converges (the step's potential is convex).
-            terms = getattr(s, "velocity_terms", None)
+            terms = s.velocity_terms
             search = "bt" if terms is not None and terms.nonlinear else "basic"
             with scoped_defaults(**{prefix + "snes_linesearch_type": search}):
                 snes.setFromOptions()
@@ -303,7 +303,7 @@ class ImplicitIntegrator(SolverReuse):
         d.axpy(-h, self.v0)
         s.M.mult(d, self._b)
         value = 0.5 * d.dot(self._b) / h**2 + s.elastic_energy(x) - self.f1.dot(x)
-        terms = getattr(s, "velocity_terms", None)
+        terms = s.velocity_terms
         if terms is not None and terms.active:
             # h psi((q - q0)/h): psi = v^T D v / 2 + the drag and friction potentials
             d.waxpy(-1.0, self.q0, x)
@@ -328,7 +328,7 @@ class ImplicitIntegrator(SolverReuse):
         v0.copy(self.v0)
         self._branch = branch_of(s)
         if not isinstance(self._branch, NoBranch):
-            self._branch.prepare(self.method, h, q0)
+            self._branch.prepare(SCHEMES[self.method].maxwell, h, q0)
         t1 = t0 + h
         gravity = s.gravity
         s.tractions(t1, self.f1)

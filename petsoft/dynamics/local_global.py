@@ -79,54 +79,6 @@ class LocalGlobalError(PetsoftError):
     """The input of a local/global solver is invalid (springs, masses, colliders, options)."""
 
 
-@dataclass(frozen=True)
-class SphereCollider:
-    """Solid sphere: nodes are pushed out of it by the penalty k/2 max(0, radius - |x - c|)^2."""
-
-    center: tuple[float, float, float]
-    radius: float
-    stiffness: float
-
-    def project(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(active, p): which nodes of ``x`` (n, 3) penetrate, and their closest surface points."""
-        c = np.asarray(self.center, float)
-        r = x - c
-        dist = np.linalg.norm(r, axis=1)
-        active = dist < self.radius
-        # a node exactly at the centre has no closest point; any surface point is a minimiser
-        safe = np.where(dist > 0.0, dist, 1.0)
-        direction = np.where((dist > 0.0)[:, None], r / safe[:, None], np.array([0.0, 0.0, 1.0]))
-        p = np.where(active[:, None], c + self.radius * direction, x)
-        return active, p
-
-    def penetration(self, x: np.ndarray) -> np.ndarray:
-        """Depth of each node inside the sphere (0 outside)."""
-        return np.maximum(0.0, self.radius - np.linalg.norm(x - np.asarray(self.center), axis=1))
-
-
-@dataclass(frozen=True)
-class PlaneCollider:
-    """Half-space below a plane: penalty k/2 max(0, -(x - point) . n)^2, n the unit normal."""
-
-    point: tuple[float, float, float]
-    normal: tuple[float, float, float]
-    stiffness: float
-
-    def _n(self) -> np.ndarray:
-        n = np.asarray(self.normal, float)
-        return n / np.linalg.norm(n)
-
-    def project(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        n = self._n()
-        phi = (x - np.asarray(self.point, float)) @ n
-        active = phi < 0.0
-        p = np.where(active[:, None], x - phi[:, None] * n, x)
-        return active, p
-
-    def penetration(self, x: np.ndarray) -> np.ndarray:
-        return np.maximum(0.0, -(x - np.asarray(self.point, float)) @ self._n())
-
-
 @dataclass
 class LocalGlobalReport:
     """What one local/global step did."""
@@ -168,7 +120,7 @@ class LocalGlobalSolver:
         3 node_index[n] + 0..2). Default: the identity.
     damping_mass : float
         Rayleigh alpha (1/s): D = alpha M.
-    colliders : sequence of SphereCollider / PlaneCollider
+    colliders : sequence of :class:`~petsoft.physics.colliders.Collider`
         Quadratic-penalty contact (see the module docstring).
     comm : PETSc.Comm, optional
         Default ``PETSC_COMM_WORLD``.
@@ -712,10 +664,10 @@ def check_supported(system) -> None:
     from petsoft.errors import ExperimentError
 
     hint = "; use the Newton step (--solver snes) instead"
-    if not hasattr(system, "rest_lengths"):
+    if system.rest_lengths is None:
         raise ExperimentError("--solver local-global solves mass-spring models ([springs]) "
                               "only; a continuum ([material]) needs Newton (--solver snes)")
-    if getattr(system, "damping_stiffness", 0.0) != 0.0:
+    if system.damping_stiffness != 0.0:
         raise ExperimentError(f"[damping] stiffness = {system.damping_stiffness}: the "
                               "local/global step handles mass damping only (its matrix must "
                               "be the isotropic spring Laplacian)" + hint)
@@ -723,24 +675,13 @@ def check_supported(system) -> None:
         raise ExperimentError("[springs] damping (dashpots) is not handled by the local/global "
                               "step (set it to 0 and use [damping] mass)" + hint)
     for k, c in enumerate(system.colliders):
-        if getattr(c, "margin", 0.0) > 0.0:
+        if c.margin > 0.0:
             raise ExperimentError(f"collider[{k}] has a contact margin ({c.margin}): the "
                                   "local/global step projects onto the surface, i.e. handles "
                                   "the quadratic penalty (margin 0) only" + hint)
         if c.friction > 0.0:
             raise ExperimentError(f"collider[{k}] friction = {c.friction}: friction is not "
                                   "handled by the local/global step" + hint)
-
-
-def colliders_of(system) -> list:
-    """The system's colliders as projections (the same quadratic penalty)."""
-    out = []
-    for c in system.colliders:
-        if c.kind == "sphere":
-            out.append(SphereCollider(tuple(c.center), float(c.radius), float(c.stiffness)))
-        else:
-            out.append(PlaneCollider(tuple(c.point), tuple(c.normal), float(c.stiffness)))
-    return out
 
 
 class LocalGlobalIntegrator(ImplicitIntegrator):
@@ -765,7 +706,7 @@ class LocalGlobalIntegrator(ImplicitIntegrator):
         self.lg = LocalGlobalSolver(
             system.edges, system.rest_lengths, system.stiffness, system.masses,
             system.points, fixed=system.fixed, damping_mass=system.alpha,
-            colliders=colliders_of(system), comm=system.comm, layout=self.q0,
+            colliders=system.colliders, comm=system.comm, layout=self.q0,
             prefix=prefix, **solver_args)
         self._prescribed = system.create_vec()
         self.last = None

@@ -40,6 +40,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from petsoft.dynamics.interfaces import SystemDefaults
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
 from petsoft.errors import ExperimentError
@@ -357,7 +358,7 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
 # The dynamic system
 
 
-class MassSpringSystem(VelocityDamping):
+class MassSpringSystem(VelocityDamping, SystemDefaults):
     """The semi-discrete system of a :class:`MassSpringModel` (DynamicSystem's interface).
 
     Parameters
@@ -776,7 +777,7 @@ class MassSpringSystem(VelocityDamping):
                 mass_changed = True
         if mass_changed:
             self._update_mass()
-            if hasattr(self, "velocity_terms"):
+            if self.velocity_terms is not None:     # None while __init__ builds them
                 lo, hi = self.node_range
                 self.velocity_terms.friction_mass = self._friction_masses()
                 self.velocity_terms.node_mass = self.masses[lo:hi].copy()

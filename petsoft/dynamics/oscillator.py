@@ -10,8 +10,10 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.dynamics.interfaces import SystemDefaults
 
-class OscillatorSystem:
+
+class OscillatorSystem(SystemDefaults):
     """N uncoupled unit-mass oscillators with angular frequencies ``omega``.
 
     Parameters

@@ -129,8 +129,8 @@ class ParameterMap:
         for i, c in enumerate("xyz"):
             self.values[f"gravity.acceleration.{c}"] = float(exp.gravity.acceleration[i])
         # elastic supports and collider planes (petsoft.physics.support / contact)
-        self.support = getattr(system.elastic, "support", None)
-        self.contact = getattr(system.elastic, "contact", None)
+        self.support = system.elastic.support
+        self.contact = system.elastic.contact
         self._compliance_error = None
         if self.support is not None:
             from petsoft.physics.support import shared_compliance

@@ -57,6 +57,8 @@ from dataclasses import dataclass
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.dynamics.interfaces import SystemDefaults
+
 
 @dataclass(frozen=True)
 class StiffSpringPendulum:
@@ -248,7 +250,7 @@ class StiffSpringPendulum:
         return float(np.sqrt(self.g / self.r0))
 
 
-class PendulumSystem:
+class PendulumSystem(SystemDefaults):
     """The Cartesian stiff-spring pendulum in petsoft's integrator interface (2 dofs, M = I).
 
     Both dofs live on rank 0 of ``comm`` (the other ranks own none), so every collective

@@ -14,18 +14,13 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
-from petsoft.dynamics.alpha import AlphaTSIntegrator, GeneralizedAlpha
 from petsoft.dynamics.energy import FIELDS, EnergyLedger
 from petsoft.dynamics.explicit import ExplicitIntegrator
-from petsoft.dynamics.implicit import METHODS as IMPLICIT_METHODS
-from petsoft.dynamics.implicit import ImplicitIntegrator
+from petsoft.dynamics.integrators import IntegratorOptions, check_viscoelastic, scheme
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, SolverError
 from petsoft.mesh.probes import interpolate, locate
 
-INTEGRATORS = ("be", "si", "alpha", "midpoint", "trapezoidal", "ere", "explicit", "imex")
-AVAILABLE = IMPLICIT_METHODS + ("explicit", "alpha", "imex", "ere")
-assert set(AVAILABLE) == set(INTEGRATORS)  # every integrator of the format is implemented
 MAX_HALVINGS = 6
 
 
@@ -50,10 +45,9 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
                     alpha_radius: float = 0.5, alpha_backend: str = "petsoft",
                     imex_slow_modes: int = 6):
     """The integrator object for a name of ``[time] integrator``."""
-    from petsoft.physics.viscoelastic import check_integrator
-
-    branch = getattr(system, "viscoelastic", None)
-    check_integrator(branch, name)
+    entry = scheme(name)
+    branch = system.viscoelastic
+    check_viscoelastic(branch, name)
     if name == "alpha" and alpha_backend == "ts" and branch is not None and branch.active:
         raise ExperimentError("--alpha-backend ts does not include the [viscoelastic] branch; "
                               "use petsoft's own generalized-alpha (--alpha-backend petsoft)")
@@ -64,32 +58,16 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
         if name != "be":
             raise ExperimentError(f"--solver local-global solves backward-Euler steps only "
                                   f"(integrator be), not {name!r}")
-        terms = getattr(system, "velocity_terms", None)
+        terms = system.velocity_terms
         if terms is not None and terms.active:
             raise ExperimentError("--solver local-global handles Rayleigh mass damping only; "
                                   "[drag] and [friction] need --solver snes (or tao)")
         from petsoft.dynamics.local_global import LocalGlobalIntegrator
 
         return LocalGlobalIntegrator(system)
-    if name in IMPLICIT_METHODS:
-        return ImplicitIntegrator(system, name, solver=solver)
-    if name == "explicit":
-        return ExplicitIntegrator(system, explicit_scheme)
-    if name == "alpha":
-        if alpha_backend == "ts":
-            return AlphaTSIntegrator(system, alpha_radius)
-        return GeneralizedAlpha(system, alpha_radius)
-    if name == "ere":
-        from petsoft.dynamics.ere import EREIntegrator
-
-        return EREIntegrator(system)
-    if name == "imex":
-        from petsoft.dynamics.imex import ModalImexIntegrator
-
-        return ModalImexIntegrator(system, slow_modes=imex_slow_modes, fast="be")
-    raise ExperimentError(
-        f"time.integrator = {name!r} is not available in this version of petsoft yet; "
-        f"available: {', '.join(AVAILABLE)}")
+    return entry.build(system, IntegratorOptions(
+        solver=solver, explicit_scheme=explicit_scheme, alpha_radius=alpha_radius,
+        alpha_backend=alpha_backend, imex_slow_modes=imex_slow_modes))
 
 
 def initial_state(model, system, experiment, monitor=None):
@@ -139,9 +117,7 @@ class Simulation:
                                   "end and step (and optionally integrator)")
         self.model, self.experiment = model, experiment
         self.name = integrator or experiment.time.integrator
-        if self.name not in INTEGRATORS:
-            raise ExperimentError(f"integrator {self.name!r} is unknown; valid: "
-                                  f"{', '.join(INTEGRATORS)}")
+        scheme(self.name, "integrator")        # a clear error for an unknown name
         if experiment.is_mass_spring:
             from petsoft.dynamics.mass_spring import MassSpringSystem
 
@@ -214,7 +190,7 @@ class Simulation:
         else:
             q, v = initial_state(self.model, s, exp, monitor=self.monitor)
             first = 1
-            if getattr(s, "viscoelastic", None) is not None:
+            if s.viscoelastic is not None:
                 s.viscoelastic.reset(q)   # the branch starts relaxed
             result = SimulationResult(0.0, 0, q, v, np.zeros((0, len(FIELDS))))
         q1, v1 = q.duplicate(), v.duplicate()
@@ -284,7 +260,7 @@ class Simulation:
         dm = self.model.dmesh
         state = getattr(self.integrator, "state", dict)()
         fields = {"q": q, "v": v}
-        branch = getattr(self.system, "viscoelastic", None)
+        branch = self.system.viscoelastic
         if branch is not None and branch.active:
             fields["z"] = branch.z       # the Maxwell branch's internal variable
         gathered = {k: dm.gather_global(vec) for k, vec in
@@ -324,7 +300,7 @@ class Simulation:
                 if float(data["step_size"]) != self.experiment.time.step:
                     raise PetsoftError(f"{data['path']}: step {data['step_size']} s differs from "
                                        f"[time] step {self.experiment.time.step} s")
-                branch = getattr(self.system, "viscoelastic", None)
+                branch = self.system.viscoelastic
                 if branch is not None and branch.active and "z" not in data["fields"]:
                     raise PetsoftError(f"{data['path']}: written without a [viscoelastic] "
                                        "branch (no /state/z), but the experiment has one "
@@ -339,7 +315,7 @@ class Simulation:
         q = dm.from_file_field(data["fields"]["q"])
         v = dm.from_file_field(data["fields"]["v"])
         state = {k: dm.from_file_field(a) for k, a in data["integrator_state"].items()}
-        branch = getattr(self.system, "viscoelastic", None)
+        branch = self.system.viscoelastic
         if branch is not None:
             if "z" in data["fields"]:
                 z = dm.from_file_field(data["fields"]["z"])

@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.dynamics.interfaces import SystemDefaults
 from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
 from petsoft.fem.assembly import MatrixAssembler
 from petsoft.physics.drag import face_pairs
@@ -49,7 +50,7 @@ NODE_SET = "__nodes__"
 _COMBINATION = "petsoft_combination"
 
 
-class DynamicSystem(VelocityDamping):
+class DynamicSystem(VelocityDamping, SystemDefaults):
     """Owns the matrices and work vectors of the dynamic problem of a :class:`Model`.
 
     Parameters
@@ -148,11 +149,7 @@ class DynamicSystem(VelocityDamping):
     def _add_reference_hessian(self) -> None:
         """K0 into the assembler: the elastic Hessian at q = 0 (plus the model's elastic
         supports: :meth:`petsoft.physics.potential.ModelPotential.add_reference_hessian`)."""
-        reference = getattr(self.elastic, "add_reference_hessian", None)
-        if reference is not None:
-            reference(self.assembler)
-        else:
-            self.elastic.add_hessian(np.zeros((self.dmesh.nvertices, 3)), self.assembler)
+        self.elastic.add_reference_hessian(self.assembler)
 
     def _matrix_from(self, values: np.ndarray) -> PETSc.Mat:
         A = self.assembler.create_matrix()
@@ -168,7 +165,7 @@ class DynamicSystem(VelocityDamping):
     def jacobian_is_constant(self) -> bool:
         """Whether :meth:`assemble_combination` depends on its coefficients only: a linear
         material, no contact, no quadratic drag or dry friction (same on every rank)."""
-        return (self._linear_material and getattr(self.elastic, "contact", None) is None
+        return (self._linear_material and self.elastic.contact is None
                 and not self.velocity_terms.nonlinear)
 
     def assemble_combination(self, q: PETSc.Vec | None, a_mass: float, b_tangent: float,

@@ -82,6 +82,18 @@ class Collider:
         point = np.asarray(spec.point, float) + float(getattr(spec, "offset", 0.0)) * n
         return cls("plane", float(k), spec.friction, point=point, normal=n)
 
+    @classmethod
+    def sphere(cls, center, radius: float, stiffness: float, friction: float = 0.0) -> Collider:
+        """A solid sphere pushing nodes out by the penalty k/2 max(0, radius - |x - c|)^2."""
+        return cls("sphere", float(stiffness), friction, np.asarray(center, float), float(radius))
+
+    @classmethod
+    def plane(cls, point, normal, stiffness: float, friction: float = 0.0) -> Collider:
+        """The half-space below a plane: penalty k/2 max(0, -(x - point) . n)^2."""
+        n = np.asarray(normal, float)
+        return cls("plane", float(stiffness), friction, point=np.asarray(point, float),
+                   normal=n / np.linalg.norm(n))
+
     def describe(self) -> str:
         if self.kind == "sphere":
             return f"sphere (center {self.center.tolist()}, radius {self.radius:g})"
@@ -99,6 +111,28 @@ class Collider:
         n = r / safe[:, None]
         n[rho == 0.0] = (0.0, 0.0, 1.0)   # the center itself: any direction pushes out
         return rho - self.radius, n, safe
+
+    # -- projection (the local step of the local/global solver) ---------------------------------
+    def project(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(active, p): which points of ``x`` (n, 3) penetrate, and their closest surface points
+        (the minimisers of the quadratic penalty's local step)."""
+        if self.kind == "plane":
+            phi = (x - self.point) @ self.normal
+            active = phi < 0.0
+            return active, np.where(active[:, None], x - phi[:, None] * self.normal, x)
+        r = x - self.center
+        dist = np.linalg.norm(r, axis=1)
+        active = dist < self.radius
+        # a node exactly at the centre has no closest point; any surface point is a minimiser
+        safe = np.where(dist > 0.0, dist, 1.0)
+        direction = np.where((dist > 0.0)[:, None], r / safe[:, None], np.array([0.0, 0.0, 1.0]))
+        return active, np.where(active[:, None], self.center + self.radius * direction, x)
+
+    def penetration(self, x: np.ndarray) -> np.ndarray:
+        """Depth of each point inside the collider (0 outside)."""
+        if self.kind == "plane":
+            return np.maximum(0.0, -(x - self.point) @ self.normal)
+        return np.maximum(0.0, self.radius - np.linalg.norm(x - self.center, axis=1))
 
     # -- penalty terms -------------------------------------------------------------------------
     def _profile(self, phi: np.ndarray):

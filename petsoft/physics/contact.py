@@ -85,6 +85,9 @@ class SurfaceContact:
         The offset of each collider (0 for spheres).
     """
 
+    kind = "contact"
+    in_reference = False     # a state-dependent constraint, not a property of the undeformed body
+
     def __init__(self, dmesh, nodes: np.ndarray, colliders: list[Collider], offsets):
         self.dmesh = dmesh
         self.nodes = np.asarray(nodes, dtype=np.int64)

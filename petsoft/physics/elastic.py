@@ -108,6 +108,10 @@ class ElasticTerm:
         """Add d2W/du2 into the assembler."""
         self.add_gradient(u_local, None, assembler)
 
+    def add_reference_hessian(self, assembler: MatrixAssembler) -> None:
+        """Add K0, the Hessian at u = 0 (for every material law the linear-elastic stiffness)."""
+        self.add_hessian(np.zeros((self.dmesh.nvertices, 3)), assembler)
+
     def lame_derivatives(self, u_local: np.ndarray, w_local: np.ndarray | None = None,
                          v_local: np.ndarray | None = None, beta: float = 0.0):
         """Derivatives of this term's element forces with respect to its own parameters.

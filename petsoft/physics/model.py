@@ -140,6 +140,7 @@ def build_model(experiment, comm: PETSc.Comm | None = None, *, project_spd: bool
     external.zeroEntries()
     dmesh.add_to_global(forces, external)
     dirichlet = DirichletConditions(dmesh, conditions)
-    potential = ModelPotential(elastic, build_support(experiment, dmesh, resolver, dirichlet),
-                               build_contact(experiment, dmesh, rho, E))
+    nodal = [build_support(experiment, dmesh, resolver, dirichlet),
+             build_contact(experiment, dmesh, rho, E)]
+    potential = ModelPotential(elastic, [t for t in nodal if t is not None])
     return Model(experiment, dmesh, resolver, potential, rho[local], external, dirichlet)

@@ -2,9 +2,9 @@
 
 :class:`ModelPotential` is what ``Model.elastic`` holds: the :class:`ElasticTerm` plus the nodal
 (one-vertex) potentials -- elastic supports (:mod:`petsoft.physics.support`) and collider contact
-(:mod:`petsoft.physics.contact`). It offers the ElasticTerm interface (``energy``,
-``add_gradient``, ``add_hessian``, ``connectivities``, ``groups``, ``lame_derivatives``), so the
-static solver, the dynamic system and the modes see every potential term without knowing them.
+(:mod:`petsoft.physics.contact`), each a :class:`~petsoft.physics.term.NodalTerm`. It is a
+:class:`~petsoft.physics.term.Term` itself, so the static solver, the dynamic system and the
+modes see every potential term without knowing them.
 The nodal Hessian blocks go into the shared matrix pattern through a one-vertex element set
 ``"nodal"`` (the diagonal blocks exist already: the pattern does not change).
 
@@ -21,38 +21,56 @@ from petsoft.physics.elastic import ElasticTerm
 
 
 class ModelPotential:
-    """Elastic energy + elastic supports + contact (either may be None).
+    """The model's potential: an element :class:`~petsoft.physics.term.Term` plus a list of
+    :class:`~petsoft.physics.term.NodalTerm` (elastic supports, contact; possibly none).
+
+    Itself a :class:`~petsoft.physics.term.Term`.
 
     Parameters
     ----------
     elastic : ElasticTerm
-    support : ElasticSupport or None
-    contact : SurfaceContact or None
+    nodal_terms : list of NodalTerm
     """
 
     name = "potential"
 
-    def __init__(self, elastic: ElasticTerm, support=None, contact=None):
+    def __init__(self, elastic: ElasticTerm, nodal_terms=()):
         self.term = elastic
-        self.support = support
-        self.contact = contact
-        parts = [t.nodes for t in (support, contact) if t is not None]
+        self.nodal_terms = list(nodal_terms)
+        parts = [t.nodes for t in self.nodal_terms]
         self.nodes = np.unique(np.concatenate(parts)) if parts else np.zeros(0, np.int64)
         # where each term's nodes sit among self.nodes
-        self._at = {id(t): np.searchsorted(self.nodes, t.nodes) for t in (support, contact)
-                    if t is not None}
+        self._at = [np.searchsorted(self.nodes, t.nodes) for t in self.nodal_terms]
 
-    # -- the ElasticTerm interface ---------------------------------------------------------------
-    def __getattr__(self, name):
-        # groups, dmesh, project_spd, lame_derivatives, ...: the elastic term's
-        if name == "term":
-            raise AttributeError(name)
-        return getattr(self.term, name)
+    # -- what the rest of petsoft reads of the elastic law ----------------------------------------
+    @property
+    def dmesh(self):
+        return self.term.dmesh
 
     @property
-    def nodal_terms(self) -> list:
-        return [t for t in (self.support, self.contact) if t is not None]
+    def groups(self) -> list:
+        """The elastic term's element groups (one per material law)."""
+        return self.term.groups
 
+    def lame_derivatives(self, *args, **kwargs):
+        """The elastic term's derivatives in the Lame parameters (see ElasticTerm)."""
+        return self.term.lame_derivatives(*args, **kwargs)
+
+    def nodal(self, kind: str):
+        """The nodal term of ``kind`` ("support", "contact"), or None."""
+        return next((t for t in self.nodal_terms if t.kind == kind), None)
+
+    @property
+    def support(self):
+        """The elastic supports (:class:`~petsoft.physics.support.ElasticSupport`) or None."""
+        return self.nodal("support")
+
+    @property
+    def contact(self):
+        """The collider contact (:class:`~petsoft.physics.contact.SurfaceContact`) or None."""
+        return self.nodal("contact")
+
+    # -- the Term interface ----------------------------------------------------------------------
     def connectivities(self) -> dict[str, np.ndarray]:
         conns = dict(self.term.connectivities())
         if self.nodal_terms:
@@ -60,7 +78,7 @@ class ModelPotential:
         return conns
 
     def energy(self, u_local: np.ndarray) -> float:
-        """This rank's share of the potential energy (elastic + supports + contact)."""
+        """This rank's share of the potential energy (elastic + nodal terms)."""
         total = self.term.energy(u_local)
         for t in self.nodal_terms:
             total += t.energy(u_local)
@@ -69,17 +87,17 @@ class ModelPotential:
     def nodal_gradient(self, u_local: np.ndarray) -> np.ndarray:
         """(len(nodes), 3) gradient of the nodal terms."""
         g = np.zeros((len(self.nodes), 3))
-        for t in self.nodal_terms:
-            g[self._at[id(t)]] += t.gradient(u_local)
+        for t, at in zip(self.nodal_terms, self._at, strict=True):
+            g[at] += t.gradient(u_local)
         return g
 
-    def nodal_hessian(self, u_local: np.ndarray, contact: bool = True) -> np.ndarray:
-        """(len(nodes), 3, 3) Hessian blocks of the nodal terms (``contact``: with contact)."""
+    def nodal_hessian(self, u_local: np.ndarray, reference: bool = False) -> np.ndarray:
+        """(len(nodes), 3, 3) Hessian blocks of the nodal terms (``reference``: only those in
+        K0)."""
         H = np.zeros((len(self.nodes), 3, 3))
-        if self.support is not None:
-            H[self._at[id(self.support)]] += self.support.hessian()
-        if contact and self.contact is not None:
-            H[self._at[id(self.contact)]] += self.contact.hessian(u_local)
+        for t, at in zip(self.nodal_terms, self._at, strict=True):
+            if t.in_reference or not reference:
+                H[at] += t.hessian(u_local)
         return H
 
     def add_gradient(self, u_local: np.ndarray, out: np.ndarray | None, assembler=None) -> None:
@@ -98,8 +116,9 @@ class ModelPotential:
         self.add_gradient(u_local, None, assembler)
 
     def add_reference_hessian(self, assembler) -> None:
-        """Add K0: the elastic Hessian at u = 0 and the supports (no contact)."""
-        zero = np.zeros((self.term.dmesh.nvertices, 3))
-        self.term.add_hessian(zero, assembler)
+        """Add K0: the elastic Hessian at u = 0 and the nodal terms that belong to it (the
+        supports; not contact)."""
+        self.term.add_reference_hessian(assembler)
         if self.nodal_terms:
-            assembler.add("nodal", self.nodal_hessian(zero, contact=False))
+            zero = np.zeros((self.term.dmesh.nvertices, 3))
+            assembler.add("nodal", self.nodal_hessian(zero, reference=True))

@@ -41,6 +41,8 @@ def lumped_face_areas(points: np.ndarray, faces: np.ndarray, nvertices: int) -> 
 class ElasticSupport:
     """Penalty springs of the elastic (compliant) supports on this rank's owned vertices.
 
+    A :class:`~petsoft.physics.term.NodalTerm` (part of the reference stiffness K0).
+
     Parameters
     ----------
     dmesh : DistributedMesh
@@ -50,6 +52,9 @@ class ElasticSupport:
     compliance : float
         c > 0 (m/Pa), shared by the supports (see :func:`build_support`).
     """
+
+    kind = "support"
+    in_reference = True
 
     def __init__(self, dmesh, areas: np.ndarray, compliance: float):
         self.dmesh = dmesh
@@ -74,8 +79,8 @@ class ElasticSupport:
         """(n, 3) k u at the support nodes."""
         return self.stiffness * u_local[self.nodes]
 
-    def hessian(self) -> np.ndarray:
-        """(n, 3, 3) diagonal blocks diag(k)."""
+    def hessian(self, u_local: np.ndarray | None = None) -> np.ndarray:
+        """(n, 3, 3) diagonal blocks diag(k) (constant: ``u_local`` is not needed)."""
         k = self.stiffness
         H = np.zeros((len(k), 3, 3))
         H[:, [0, 1, 2], [0, 1, 2]] = k

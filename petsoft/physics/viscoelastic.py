@@ -44,22 +44,23 @@ The initial state is z(0) = q(0): the branch is relaxed (the body has rested at 
 
 from __future__ import annotations
 
+import enum
+
 from petsc4py import PETSc
 
 from petsoft.errors import ExperimentError
 
-#: Integrators whose step equations include the branch.
-SUPPORTED = ("be", "si", "midpoint", "trapezoidal", "alpha")
 
+class MaxwellRule(enum.Enum):
+    """How the branch's internal variable z steps with an integrator (its registry entry,
+    :data:`petsoft.dynamics.integrators.SCHEMES`, says which)."""
 
-def check_integrator(branch, name: str, where: str = "time.integrator") -> None:
-    """Raise (on every rank: the decision is deterministic) when the branch is on and
-    integrator ``name`` does not include it."""
-    if branch is not None and branch.active and name not in SUPPORTED:
-        raise ExperimentError(
-            f"{where} = {name!r}: [viscoelastic] ratio = {branch.ratio:g} (a standard linear "
-            f"solid) is integrated by {', '.join(SUPPORTED)} only; choose one of them, or set "
-            "[viscoelastic] ratio = 0")
+    #: backward Euler on z (be, si): dz = r w1
+    BACKWARD_EULER = "backward-euler"
+    #: the trapezoidal/midpoint rule on z (midpoint, trapezoidal): dz = r (w0 + w1)/2
+    TRAPEZOIDAL = "trapezoidal"
+    #: trapezoidal z with the force at generalized-alpha's alpha_f level
+    GENERALIZED_ALPHA = "generalized-alpha"
 
 
 class MaxwellBranch:
@@ -84,7 +85,7 @@ class MaxwellBranch:
         self.z = None          # the internal variable (a global vector), set by reset()
         self._z0 = None
         self._q0 = None
-        self._method = None
+        self._rule = None
         self._h = None
         self._af = 1.0         # generalized-alpha's alpha_f
         self._w = None         # the branch strain q - z the last force used
@@ -129,17 +130,15 @@ class MaxwellBranch:
     def _factor(self) -> float:
         """1 + r (backward Euler) or 1 + r/2 (midpoint): q - z = (q* - z0)/factor."""
         r = self._h / self.tau
-        return 1.0 + r if self._method in ("be", "si") else 1.0 + 0.5 * r
+        return 1.0 + r if self._rule is MaxwellRule.BACKWARD_EULER else 1.0 + 0.5 * r
 
-    def prepare(self, method: str, h: float, q0: PETSc.Vec, alpha_f: float = 1.0) -> None:
+    def prepare(self, rule: MaxwellRule, h: float, q0: PETSc.Vec, alpha_f: float = 1.0) -> None:
         """Fix the step [t0, t0 + h] that starts from (q0, z). A branch never reset starts
         relaxed here (z = q0); a caller running several trajectories on one system calls
         :meth:`reset` at the start of each (Simulation and ForwardModel do)."""
         if self.z is None:
             self.reset(q0)
-        if method not in SUPPORTED:
-            check_integrator(self, method)
-        self._method, self._h, self._af = method, float(h), float(alpha_f)
+        self._rule, self._h, self._af = MaxwellRule(rule), float(h), float(alpha_f)
         if self._z0 is None:
             self._z0, self._q0, self._w, self._wm = (self.z.duplicate(), q0.duplicate(),
                                                      q0.duplicate(), q0.duplicate())
@@ -151,17 +150,17 @@ class MaxwellBranch:
         if not self.active:
             return 0.0
         c = self.ratio / self._factor()
-        if self._method in ("be", "si"):
+        if self._rule is MaxwellRule.BACKWARD_EULER:
             return c
-        return self._af * c if self._method == "alpha" else 0.5 * c
+        return self._af * c if self._rule is MaxwellRule.GENERALIZED_ALPHA else 0.5 * c
 
     def strain(self, q1: PETSc.Vec) -> PETSc.Vec:
         """The branch strain w the step's force uses, as a function of the unknown q1."""
         w = self._w
-        if self._method in ("be", "si"):
+        if self._rule is MaxwellRule.BACKWARD_EULER:
             w.waxpy(-1.0, self._z0, q1)
             w.scale(1.0 / self._factor())
-        elif self._method == "alpha":
+        elif self._rule is MaxwellRule.GENERALIZED_ALPHA:
             r2 = 0.5 * self._h / self.tau
             w.waxpy(-r2, self._q0, q1)                  # w1 = (q1 - r/2 q0 - (1 - r/2) z0)
             w.axpy(-(1.0 - r2), self._z0)               #      / (1 + r/2)
@@ -202,7 +201,8 @@ class MaxwellBranch:
         if not self.stepping:
             return 0.0
         # be: dz = r w1; midpoint, trapezoidal, alpha: dz = r wm
-        w = self.strain(q1) if self._method in ("be", "si") else self._mean_strain(q1, self._wm)
+        w = (self.strain(q1) if self._rule is MaxwellRule.BACKWARD_EULER
+             else self._mean_strain(q1, self._wm))
         dz = w.copy()
         dz.scale(self._h / self.tau)
         self.z.axpy(1.0, dz)

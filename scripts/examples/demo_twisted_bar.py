@@ -75,7 +75,8 @@ def main(argv=None) -> int:
 
     from petsc4py import PETSc
 
-    from petsoft.dynamics.simulate import AVAILABLE, Simulation
+    from petsoft.dynamics.integrators import SCHEMES
+    from petsoft.dynamics.simulate import Simulation
     from petsoft.errors import PetsoftError
     from petsoft.physics.model import build_model
 
@@ -85,9 +86,9 @@ def main(argv=None) -> int:
     out = Path(args.out)
     rows, curves = [], {}
     for method in args.methods:
-        if method not in AVAILABLE:
+        if method not in SCHEMES:
             if rank0:
-                print(f"{method}: not available in this petsoft ({', '.join(AVAILABLE)})")
+                print(f"{method}: not available in this petsoft ({', '.join(SCHEMES)})")
             continue
         exp = experiment(args.cells, args.step, args.end, method, out / method, args.damping)
         t0 = time.perf_counter()

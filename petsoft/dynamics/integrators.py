@@ -1,0 +1,137 @@
+"""The time integrators: one registry of the schemes and what each can do.
+
+The experiment file names a scheme by a string (``[time] integrator``; the vocabulary is
+:data:`petsoft.experiment.INTEGRATORS`, the public format). Below the reader, code asks this
+registry about the scheme -- how to build it, its order, whether calibration has gradients
+through it, how the viscoelastic branch steps with it -- instead of comparing names.
+
+The builders import their integrator module when called: the integrator modules themselves read
+this registry (a Maxwell branch's rule), so importing them here would be a cycle.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from petsoft.errors import ExperimentError
+from petsoft.physics.viscoelastic import MaxwellRule
+
+
+@dataclass(frozen=True)
+class IntegratorOptions:
+    """The run options some schemes take (the ``petsoft simulate`` flags)."""
+
+    solver: str = "snes"
+    explicit_scheme: str = "verlet"
+    alpha_radius: float = 0.5
+    alpha_backend: str = "petsoft"
+    imex_slow_modes: int = 6
+
+
+@dataclass(frozen=True)
+class Scheme:
+    """One time integrator.
+
+    Attributes
+    ----------
+    name : str
+        Its name in ``[time] integrator``.
+    description : str
+    order : int
+        Order of accuracy (for smooth motion).
+    implicit : bool
+        Solves a (non)linear system per step.
+    gradients : bool
+        Calibration's forward model differentiates through it (sensitivities and adjoint).
+    maxwell : MaxwellRule or None
+        How the viscoelastic branch's internal variable steps with it; None: the scheme does
+        not include the branch.
+    build : callable(system, IntegratorOptions) -> integrator
+    """
+
+    name: str
+    description: str
+    order: int
+    implicit: bool
+    gradients: bool
+    maxwell: MaxwellRule | None
+    build: Callable
+
+
+def _implicit(name: str):
+    def build(system, options: IntegratorOptions):
+        from petsoft.dynamics.implicit import ImplicitIntegrator
+
+        return ImplicitIntegrator(system, name, solver=options.solver)
+    return build
+
+
+def _alpha(system, options: IntegratorOptions):
+    from petsoft.dynamics.alpha import AlphaTSIntegrator, GeneralizedAlpha
+
+    if options.alpha_backend == "ts":
+        return AlphaTSIntegrator(system, options.alpha_radius)
+    return GeneralizedAlpha(system, options.alpha_radius)
+
+
+def _explicit(system, options: IntegratorOptions):
+    from petsoft.dynamics.explicit import ExplicitIntegrator
+
+    return ExplicitIntegrator(system, options.explicit_scheme)
+
+
+def _ere(system, options: IntegratorOptions):
+    from petsoft.dynamics.ere import EREIntegrator
+
+    return EREIntegrator(system)
+
+
+def _imex(system, options: IntegratorOptions):
+    from petsoft.dynamics.imex import ModalImexIntegrator
+
+    return ModalImexIntegrator(system, slow_modes=options.imex_slow_modes, fast="be")
+
+
+#: Every scheme, by its name in the experiment file.
+SCHEMES: dict[str, Scheme] = {s.name: s for s in (
+    Scheme("be", "backward Euler, full Newton", 1, True, True,
+           MaxwellRule.BACKWARD_EULER, _implicit("be")),
+    Scheme("si", "semi-implicit: one Newton step", 1, True, True,
+           MaxwellRule.BACKWARD_EULER, _implicit("si")),
+    Scheme("alpha", "generalized-alpha", 2, True, True,
+           MaxwellRule.GENERALIZED_ALPHA, _alpha),
+    Scheme("midpoint", "implicit midpoint with a discrete gradient", 2, True, False,
+           MaxwellRule.TRAPEZOIDAL, _implicit("midpoint")),
+    Scheme("trapezoidal", "trapezoidal rule", 2, True, False,
+           MaxwellRule.TRAPEZOIDAL, _implicit("trapezoidal")),
+    Scheme("ere", "exponential Rosenbrock-Euler", 2, False, False, None, _ere),
+    Scheme("explicit", "velocity Verlet (or symplectic Euler), lumped mass", 2, False, False,
+           None, _explicit),
+    Scheme("imex", "fast/slow modal splitting", 1, True, False, None, _imex),
+)}
+
+
+def scheme(name: str, where: str = "time.integrator") -> Scheme:
+    """The registry entry of ``name``; a clear error naming the valid ones otherwise."""
+    try:
+        return SCHEMES[name]
+    except KeyError:
+        raise ExperimentError(f"{where} = {name!r} is unknown; valid: "
+                              f"{', '.join(SCHEMES)}") from None
+
+
+def with_gradients() -> tuple[str, ...]:
+    """The schemes calibration differentiates through."""
+    return tuple(n for n, s in SCHEMES.items() if s.gradients)
+
+
+def check_viscoelastic(branch, name: str, where: str = "time.integrator") -> None:
+    """Raise (on every rank: the decision is deterministic) when the branch is on and scheme
+    ``name`` does not include it."""
+    if branch is not None and branch.active and scheme(name, where).maxwell is None:
+        supported = [n for n, s in SCHEMES.items() if s.maxwell is not None]
+        raise ExperimentError(
+            f"{where} = {name!r}: [viscoelastic] ratio = {branch.ratio:g} (a standard linear "
+            f"solid) is integrated by {', '.join(supported)} only; choose one of them, or set "
+            "[viscoelastic] ratio = 0")

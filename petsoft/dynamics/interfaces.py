@@ -1,0 +1,110 @@
+"""What the integrators, forward models and the local/global solver need of a dynamic system.
+
+A *system* is a semi-discrete model  M q'' = -grad W(q) - D v + f(t)  with Dirichlet conditions:
+the FEM body (:class:`~petsoft.dynamics.system.DynamicSystem`), a mass-spring network
+(:class:`~petsoft.dynamics.mass_spring.MassSpringSystem`), a set of scalar oscillators
+(:class:`~petsoft.dynamics.oscillator.OscillatorSystem`, the damping analysis). :class:`System`
+declares the members every integrator calls. Capabilities only some systems have (a viscoelastic
+branch, velocity-dependent forces, parameter derivatives, Dirichlet conditions, ...) are declared
+too, with a neutral default in :class:`SystemDefaults` that every system inherits, so callers ask
+``system.viscoelastic is not None`` instead of probing with ``getattr``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol, runtime_checkable
+
+from petsc4py import PETSc
+
+
+@runtime_checkable
+class System(Protocol):
+    """The interface of a dynamic system (see the module docstring).
+
+    Every method works on PETSc vectors of the system's layout (``create_vec``) and is
+    collective on ``comm``.
+    """
+
+    comm: PETSc.Comm
+    #: the mass matrix (consistent or lumped)
+    M: PETSc.Mat
+
+    # -- what only some systems have: None/False when absent (SystemDefaults) --------------------
+    #: the Maxwell branch of a standard linear solid, or None
+    viscoelastic: Any
+    #: velocity-dependent forces (drag, friction) of :mod:`petsoft.dynamics.velocity`, or None
+    velocity_terms: Any
+    #: Dirichlet conditions (eliminated rows), or None
+    dirichlet: Any
+    #: the elastic term of a continuum body, or None
+    elastic: Any
+    #: reference spring lengths of a mass-spring network, or None
+    rest_lengths: Any
+    #: prescribed displacements change in time / loads change in time / the step matrix is
+    #: constant (linear material, no contact or nonlinear velocity terms)
+    moving_boundary: bool
+    time_dependent_loads: bool
+    jacobian_is_constant: bool
+
+    def create_vec(self) -> PETSc.Vec: ...
+
+    def create_matrix(self) -> PETSc.Mat: ...
+
+    def near_nullspace(self): ...
+
+    def linear_defaults(self, ksp: PETSc.KSP) -> None: ...
+
+    def assemble_combination(self, q: PETSc.Vec | None, a_mass: float, b_tangent: float,
+                             c_reference: float, out: PETSc.Mat, eliminate: bool = True,
+                             velocity: float = 0.0, reuse: bool = False) -> PETSc.Mat:
+        """out = a M + b K(q) + c K0 (+ velocity x dG/dv), Dirichlet rows eliminated."""
+
+    def internal_gradient(self, q: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec: ...
+
+    def elastic_energy(self, q: PETSc.Vec) -> float: ...
+
+    def kinetic_energy(self, v: PETSc.Vec) -> float: ...
+
+    def gravitational_energy(self, q: PETSc.Vec) -> float: ...
+
+    def damping_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec: ...
+
+    def tractions(self, t: float, out: PETSc.Vec) -> PETSc.Vec: ...
+
+    def apply_prescribed(self, vec: PETSc.Vec, t: float) -> None: ...
+
+    def zero_prescribed(self, vec: PETSc.Vec) -> None: ...
+
+    def prescribed_offsets(self, vec: PETSc.Vec): ...
+
+    def destroy(self) -> None: ...
+
+
+class SystemDefaults:
+    """Neutral values of the optional capabilities of :class:`System` (a system without them).
+
+    A system class lists this last among its bases; what it has, it defines itself (an
+    attribute, a property or a method), which takes precedence.
+    """
+
+    viscoelastic = None
+    velocity_terms = None
+    dirichlet = None
+    elastic = None
+    rest_lengths = None
+    dmesh = None
+    #: the discrete model the system was built from (mesh, terms, conditions), or None
+    model = None
+    #: the physical parameters in place (``values`` by name), or None
+    parameters = None
+    moving_boundary = False
+    time_dependent_loads = False
+    jacobian_is_constant = False
+    #: linearisation of the velocity terms and its derivatives (VelocityDamping), or None
+    set_velocity_state = None
+    damping_tangent_apply = None
+    damping_second_apply = None
+    #: d residual / d parameters of a continuum body, or None
+    parameter_derivatives = None
+    #: the viscoelastic branch's stored energy, or None
+    viscoelastic_energy = None

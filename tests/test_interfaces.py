@@ -1,0 +1,144 @@
+"""The declared interfaces hold: every system is a :class:`System`, every potential term a
+:class:`Term` or :class:`NodalTerm` (with the declared signatures), there is one collider, and the
+integrator registry covers the experiment format's vocabulary, each entry building and stepping."""
+
+from __future__ import annotations
+
+import inspect
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from petsoft.dynamics.integrators import SCHEMES, scheme
+from petsoft.dynamics.interfaces import System
+from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model, rope_mesh
+from petsoft.dynamics.oscillator import OscillatorSystem
+from petsoft.dynamics.simulate import Simulation
+from petsoft.dynamics.system import DynamicSystem
+from petsoft.errors import ExperimentError
+from petsoft.experiment import INTEGRATORS, experiment_from_dict
+from petsoft.physics.colliders import Collider
+from petsoft.physics.model import build_model
+from petsoft.physics.term import NodalTerm, Term
+
+BAR = {
+    "mesh": {"box": {"size": [0.2, 0.04, 0.04], "cells": [4, 1, 1]}},
+    "material": {"model": "neohookean", "youngs_modulus": 1e6, "poisson_ratio": 0.3,
+                 "density": 1000.0},
+    "gravity": {"acceleration": [0.0, 0.0, -9.81]},
+    # an elastic support (a NodalTerm) and a floor the bar does not reach (another)
+    "boundary": [{"kind": "fixed", "where": "x < 1e-9", "compliance": 1e-9}],
+    "collider": [{"kind": "plane", "point": [0.0, 0.0, -1.0], "normal": [0.0, 0.0, 1.0]}],
+    "initial": {"velocity": ["0", "0", "x"]},
+    "time": {"end": 0.002, "step": 0.001, "integrator": "be"},
+    "output": {"directory": "unused"},
+}
+
+
+def _protocol_methods(protocol) -> dict[str, inspect.Signature]:
+    return {name: inspect.signature(member) for name, member in vars(protocol).items()
+            if callable(member) and not name.startswith("_")}
+
+
+def _assert_implements(obj, protocol):
+    assert isinstance(obj, protocol), f"{type(obj).__name__} is not a {protocol.__name__}"
+    for name, declared in _protocol_methods(protocol).items():
+        actual = inspect.signature(getattr(obj, name))
+        want = [p for p in declared.parameters if p != "self"]
+        have = list(actual.parameters)
+        assert have[:len(want)] == want, (
+            f"{type(obj).__name__}.{name}{actual} does not take the declared "
+            f"{protocol.__name__}.{name}{declared}")
+        extra = [actual.parameters[p] for p in have[len(want):]]
+        assert all(p.default is not p.empty or p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+                   for p in extra), f"{type(obj).__name__}.{name} needs more than declared"
+
+
+@pytest.fixture(scope="module")
+def fem_model():
+    return build_model(experiment_from_dict(BAR))
+
+
+def test_system_every_system_class_is_a_system(fem_model, tmp_path_factory):
+    from petsoft.mesh.springs import write_spring_mesh
+
+    fem = DynamicSystem(fem_model)
+    _assert_implements(fem, System)
+    comm = MPI.COMM_WORLD
+    folder = comm.bcast(str(tmp_path_factory.mktemp("rope")) if comm.rank == 0 else None)
+    mesh = rope_mesh(3, 1.0)
+    if comm.rank == 0:
+        write_spring_mesh(f"{folder}/rope.msh", mesh.points, mesh.lines, mesh.triangles)
+    comm.Barrier()
+    rope = experiment_from_dict({"mesh": {"file": f"{folder}/rope.msh"},
+                                 "springs": {"stiffness": 10.0, "node_mass": 0.1},
+                                 "boundary": [{"kind": "fixed", "where": "x < 0.1"}]})
+    spring = MassSpringSystem(build_mass_spring_model(rope), 0.0, 0.0)
+    _assert_implements(spring, System)
+    oscillators = OscillatorSystem(np.array([1.0, 2.0]))
+    _assert_implements(oscillators, System)
+    # capabilities a system lacks are declared None, not missing
+    assert oscillators.viscoelastic is None and oscillators.dirichlet is None
+    assert spring.elastic is None and fem.rest_lengths is None
+    for s in (fem, spring, oscillators):
+        s.destroy()
+
+
+def test_term_the_potential_and_its_parts_are_declared_terms(fem_model):
+    potential = fem_model.elastic
+    _assert_implements(potential, Term)
+    _assert_implements(potential.term, Term)
+    kinds = [t.kind for t in potential.nodal_terms]
+    assert kinds == ["support", "contact"]
+    for t in potential.nodal_terms:
+        _assert_implements(t, NodalTerm)
+    assert potential.support.in_reference and not potential.contact.in_reference
+
+
+def test_term_reference_hessian_is_the_elastic_one_plus_the_supports(fem_model):
+    """K0 = the elastic Hessian at 0 + the supports' springs: adding the support term's blocks
+    to the elastic term's reference Hessian gives the potential's, entry for entry."""
+    from petsoft.fem.assembly import MatrixAssembler
+
+    potential = fem_model.elastic
+    assembler = MatrixAssembler(fem_model.dmesh, potential.connectivities())
+    assembler.begin()
+    potential.add_reference_hessian(assembler)
+    total = assembler.values.copy()
+    assembler.begin()
+    potential.term.add_reference_hessian(assembler)
+    zero = np.zeros((fem_model.dmesh.nvertices, 3))
+    assembler.add("nodal", potential.nodal_hessian(zero, reference=True))
+    assert np.array_equal(total, assembler.values)
+    springs = np.abs(potential.support.hessian(zero)).max(initial=0.0)   # none on some ranks
+    assert MPI.COMM_WORLD.allreduce(springs, op=MPI.MAX) > 0
+
+
+def test_collider_one_definition_projects_onto_its_surface():
+    rng = np.random.default_rng(3)
+    x = rng.uniform(-1.0, 1.0, (200, 3))
+    for c in (Collider.sphere((0.1, 0.0, 0.0), 0.6, 1e3),
+              Collider.plane((0, 0, 0.2), (1, 1, 2), 1e3)):
+        active, p = c.project(x)
+        phi = c.distance(x)[0]
+        assert np.array_equal(active, phi < 0.0)
+        assert np.allclose(c.distance(p[active])[0], 0.0, atol=1e-14)   # on the surface
+        assert np.array_equal(p[~active], x[~active])
+        assert np.allclose(c.penetration(x), np.maximum(0.0, -phi), atol=1e-15)
+
+
+def test_integrator_registry_covers_the_format_and_every_entry_steps():
+    assert tuple(SCHEMES) == tuple(INTEGRATORS)
+    with pytest.raises(ExperimentError, match="'leapfrog' is unknown; valid: be, si, alpha"):
+        scheme("leapfrog")
+    data = {**BAR, "collider": []}       # contact is not for every scheme's stability limit
+    for name in SCHEMES:
+        # a step below the explicit stability limit (2.2e-4 s here)
+        exp = experiment_from_dict({**data, "time": {"end": 2e-4, "step": 1e-4,
+                                                     "integrator": name, "imex_slow_modes": 2}})
+        sim = Simulation(build_model(exp), exp)
+        result = sim.run()
+        assert result.steps == 2, name
+        assert np.isfinite(result.energies).all(), name
+        sim.destroy()
