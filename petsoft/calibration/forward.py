@@ -83,6 +83,7 @@ from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, SolverError
 from petsoft.physics.model import build_model
+from petsoft.solvers.convergence import check_converged
 from petsoft.solvers.options import scoped_defaults
 
 #: The schemes with gradients (the registry says which).
@@ -448,9 +449,8 @@ class ForwardModel:
     def _solve(self, ksp, rhs, out) -> None:
         ksp.solve(rhs, out)
         if ksp.getConvergedReason() < 0:
-            raise SolverError(f"{self.experiment.source}: a sensitivity/adjoint linear solve "
-                              f"diverged (KSP reason {ksp.getConvergedReason()}); try "
-                              f"-{GRAD_PREFIX}pc_type lu")
+            check_converged(ksp, f"{self.experiment.source}: a sensitivity/adjoint linear solve",
+                            hint=f"try -{GRAD_PREFIX}pc_type lu")
 
     def _predictor(self, n, q0, v0):
         qp = q0.copy()

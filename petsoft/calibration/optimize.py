@@ -72,15 +72,11 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.errors import InvertedElementError, SolverError
+from petsoft.solvers.convergence import reason_name
 from petsoft.solvers.options import scoped_defaults
 
 METHODS = ("gd", "newton", "lbfgs", "gauss-newton", "brgn", "nelder-mead")
 
-_TAO_REASONS = {
-    getattr(PETSc.TAO.Reason, k): k
-    for k in dir(PETSc.TAO.Reason)
-    if not k.startswith("_") and k not in ("ITERATING", "CONTINUE_ITERATING")
-}
 
 
 class OptimizationError(SolverError):
@@ -793,6 +789,7 @@ def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
     try:
         tao.solve()
         reason_code = int(tao.getConvergedReason())
+        reason = reason_name(tao, reason_code)
         its = int(tao.getIterationNumber())
         tao_type = tao.getType()
         z = np.clip(x.getArray(readonly=True).copy(), lo, hi)
@@ -804,7 +801,6 @@ def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
         gnorm = projected_gradient_norm(z, g, lo, hi)
     else:
         f, gnorm = ev.value(z), float("nan")
-    reason = _TAO_REASONS.get(reason_code, str(reason_code))
     return OptimizeResult(method, z, z, f, gnorm, its, ev.count, reason, reason_code > 0,
                           hessian=hessian_kind, tao_type=tao_type)
 

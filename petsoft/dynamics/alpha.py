@@ -30,12 +30,11 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
-from petsoft.dynamics.implicit import SNES_REASONS, NoBranch, SolverReuse, StepReport, branch_of
+from petsoft.dynamics.implicit import NoBranch, SolverReuse, StepReport, branch_of
 from petsoft.errors import InvertedElementError
 from petsoft.physics.viscoelastic import MaxwellRule
+from petsoft.solvers.convergence import reason_name
 from petsoft.solvers.options import scoped_defaults
-
-TS_REASONS = {v: k for k, v in PETSc.TS.ConvergedReason.__dict__.items() if k.isupper()}
 
 
 class AlphaTSIntegrator:
@@ -151,7 +150,7 @@ class AlphaTSIntegrator:
         report.linear_iterations = snes.getLinearSolveIterations()
         reason = ts.getConvergedReason()
         report.converged = reason >= 0 and snes.getConvergedReason() > 0
-        report.reason = TS_REASONS.get(reason, str(reason))
+        report.reason = reason_name(ts)
         if self._bad is not None:
             report.converged = False
             report.reason += f" ({self._bad})"
@@ -384,7 +383,7 @@ class GeneralizedAlpha(SolverReuse):
         report.newton_iterations = self.snes.getIterationNumber()
         report.linear_iterations = self.snes.getLinearSolveIterations()
         report.converged = reason > 0 and self._bad is None
-        report.reason = SNES_REASONS.get(reason, str(reason))
+        report.reason = reason_name(self.snes)
         if self._bad is not None:
             report.reason += f" ({self._bad})"
         if not report.converged:

@@ -75,6 +75,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.implicit import StepReport
 from petsoft.errors import InvertedElementError
+from petsoft.solvers.convergence import outcome
 
 MASSES = ("lumped", "consistent")
 NCV = 10
@@ -112,8 +113,6 @@ class EREIntegrator:
                  time_derivative: bool = True, prefix: str = "ere_"):
         from slepc4py import SLEPc
 
-        self._reasons = {v: k for k, v in SLEPc.MFN.ConvergedReason.__dict__.items()
-                         if k.isupper() and k != "ITERATING"}
         if mass not in MASSES:
             raise ValueError(f"ERE mass must be one of {MASSES}, not {mass!r}")
         self.system, self.mass = system, mass
@@ -188,10 +187,10 @@ class EREIntegrator:
             out.pointwiseMult(rhs, self.inv_mass)
         else:
             self.ksp.solve(rhs, out)
-            reason = self.ksp.getConvergedReason()
-            if reason < 0 and self._mass_failure is None:
+            solve = outcome(self.ksp)
+            if not solve.converged and self._mass_failure is None:
                 # not raised: this runs inside MFN's callbacks; the step reports it
-                self._mass_failure = f"consistent mass solve diverged (KSP reason {reason})"
+                self._mass_failure = f"consistent mass solve diverged (KSP {solve.reason})"
         self.system.zero_prescribed(out)
         return out
 
@@ -328,10 +327,10 @@ class EREIntegrator:
             # A's action changed (h, K(q0)) behind the shell: set it again so MFN sets up anew
             self.mfn.setOperator(self.A)
             self.mfn.solve(self.B, self.X)
-            reason = self.mfn.getConvergedReason()
-            report.linear_iterations = self.mfn.getIterationNumber()
-            report.reason = self._reasons.get(reason, str(reason))
-            if reason < 0:
+            solve = outcome(self.mfn)
+            report.linear_iterations = solve.iterations
+            report.reason = solve.reason
+            if solve.code < 0:
                 report.converged = False
                 report.reason = f"MFN did not converge ({report.reason})"
                 return report

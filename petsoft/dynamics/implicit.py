@@ -36,6 +36,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.integrators import SCHEMES
 from petsoft.errors import InvertedElementError
+from petsoft.solvers.convergence import reason_name
 from petsoft.solvers.options import scoped_defaults
 
 METHODS = ("be", "si", "midpoint", "trapezoidal")
@@ -43,7 +44,6 @@ METHODS = ("be", "si", "midpoint", "trapezoidal")
 # energies: below, it is noise that would stall Newton; the energy error it leaves per step is
 # then ~1e4 eps |W| (1e-12 relative).
 NOISE_FACTOR = 1.0e4
-SNES_REASONS = {v: k for k, v in PETSc.SNES.ConvergedReason.__dict__.items() if k.isupper()}
 
 
 @dataclass
@@ -372,7 +372,7 @@ class ImplicitIntegrator(SolverReuse):
             report.newton_iterations = self.snes.getIterationNumber()
             report.linear_iterations = self.snes.getLinearSolveIterations()
             report.converged = reason > 0
-            report.reason = SNES_REASONS.get(reason, str(reason))
+            report.reason = reason_name(self.snes)
         else:
             self.tao.setSolution(q1)
             self.tao.solve(q1)
@@ -380,7 +380,7 @@ class ImplicitIntegrator(SolverReuse):
             report.newton_iterations = self.tao.getIterationNumber()
             report.linear_iterations = self.ksp.getIterationNumber()
             report.converged = reason > 0
-            report.reason = str(reason)
+            report.reason = reason_name(self.tao)
         if self._bad is not None:
             report.converged = False
             report.reason += f" ({self._bad})"

@@ -66,13 +66,13 @@ import scipy.sparse as sp
 from petsc4py import PETSc
 
 from petsoft.dynamics.implicit import ImplicitIntegrator, StepReport
-from petsoft.errors import PetsoftError, SolverError
+from petsoft.errors import PetsoftError
+from petsoft.solvers.convergence import check_converged
 from petsoft.solvers.options import scoped_defaults
 
 #: |R| below this many ulps of |rhs| is round-off: the step is converged (a tolerance below
 #: that level would otherwise fail after max_it iterations and halve the step)
 ROUNDOFF_FACTOR = 1.0e3
-KSP_REASONS = {v: k for k, v in PETSc.KSP.ConvergedReason.__dict__.items() if k.isupper()}
 
 
 class LocalGlobalError(PetsoftError):
@@ -527,12 +527,11 @@ class LocalGlobalSolver:
                 work[3].getArray()[:] = np.where(fx[:, c], z[:, c], r)
                 ksp = self._ksps[self._solver_of[c]]
                 ksp.solve(work[3], work[0])
-                reason = ksp.getConvergedReason()
-                if reason < 0:   # the KSP is collective: every rank sees the same reason
-                    raise SolverError(
-                        f"local/global step (h = {h:g} s): the linear solve of coordinate "
-                        f"{'xyz'[c]} failed ({KSP_REASONS.get(reason, reason)}); try "
-                        f"-{self.prefix}ksp_type preonly -{self.prefix}pc_type cholesky")
+                # the KSP is collective: every rank sees the same reason
+                check_converged(ksp, f"local/global step (h = {h:g} s): the linear solve of "
+                                f"coordinate {'xyz'[c]}",
+                                hint=f"try -{self.prefix}ksp_type preonly "
+                                     f"-{self.prefix}pc_type cholesky")
                 new[:, c] = work[0].getArray(readonly=True)
             rep.global_time += time.perf_counter() - t
             return new

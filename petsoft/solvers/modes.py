@@ -39,6 +39,7 @@ from slepc4py import SLEPc
 from petsoft.errors import PetsoftError, SolverError
 from petsoft.fem.assembly import CHUNK, MatrixAssembler
 from petsoft.physics.loads import consistent_mass_matrices
+from petsoft.solvers.convergence import reason_name
 
 # Shift (as a fraction of trace(K)/trace(M), an upper-end eigenvalue scale ~ c^2/h^2) used when
 # rigid-body modes make K singular. It must lie well below the lowest elastic eigenvalue, or
@@ -324,7 +325,7 @@ def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "") 
             if nconv < nelastic:
                 raise SolverError(
                     f"modes: only {nconv} of {nelastic} eigenpairs converged in {iterations} "
-                    f"iterations (reason {eps.getConvergedReason()}, tolerance "
+                    f"iterations (reason {reason_name(eps)}, tolerance "
                     f"{eps.getTolerances()[0]:g}); raise -eps_max_it or -eps_ncv, or relax "
                     "-eps_tol")
             for i in range(nelastic):

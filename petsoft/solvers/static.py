@@ -19,12 +19,11 @@ from petsc4py import PETSc
 
 from petsoft.errors import InvertedElementError, SolverError
 from petsoft.fem.assembly import MatrixAssembler
+from petsoft.solvers.convergence import check_converged, reason_name
 from petsoft.solvers.linear import linear_defaults
 from petsoft.solvers.options import scoped_defaults, user_has
 
 STALL_RTOL = 1e-8  # a stalled solve whose gradient fell this much is converged (round-off)
-SNES_REASONS = {v: k for k, v in PETSc.SNES.ConvergedReason.__dict__.items() if k.isupper()}
-TAO_REASONS = {v: k for k, v in PETSc.TAO.Reason.__dict__.items() if k.isupper()}
 
 
 @dataclass
@@ -204,8 +203,7 @@ class StaticSolver:
         y = x.duplicate()
         self.lift_ksp.solve(rhs, y)
         if self.lift_ksp.getConvergedReason() < 0:
-            raise SolverError(f"the lifting solve of the prescribed displacements diverged "
-                              f"({self.lift_ksp.getConvergedReason()})")
+            check_converged(self.lift_ksp, "the lifting solve of the prescribed displacements")
         x.axpy(1.0, y)
         return self.lift_ksp.getIterationNumber()
 
@@ -272,14 +270,14 @@ class StaticSolver:
             self.snes.solve(None, x)
             reason = self.snes.getConvergedReason()
             its, lits = self.snes.getIterationNumber(), self.snes.getLinearSolveIterations()
-            name = f"SNES {SNES_REASONS.get(reason, reason)}"
+            name = f"SNES {reason_name(self.snes)}"
         else:
             self.tao.setSolution(x)
             self.tao.solve(x)
             reason = self.tao.getConvergedReason()
             its = self.tao.getIterationNumber()
             lits = self.ksp.getIterationNumber()  # TAO reports no total; this is the last solve
-            name = f"TAO {TAO_REASONS.get(reason, reason)}"
+            name = f"TAO {reason_name(self.tao)}"
         if reason <= 0 and self._bad_element is None:
             # A solver that stalls only because its relative tolerance lies below the round-off
             # floor of the gradient (an increment solved exactly by the first Newton step) has
