@@ -34,6 +34,7 @@ from petsoft.experiment import load_experiment as _load_experiment
 from petsoft.experiment import with_parameters as _with_parameters
 from petsoft.io.recording import Recording
 from petsoft.io.recording import read_recording as _read_recording
+from petsoft.solvers.options import experiment_options
 from petsoft.solvers.run_static import StaticOutcome, solve_experiment
 
 __all__ = ["load_experiment", "with_parameters", "read_recording", "static", "simulate", "synth",
@@ -294,10 +295,11 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
     CalibrationResult
         ``names``, ``values``, ``std``, rms before/after, iterations, the fit history.
     """
-    return run_calibration(experiment, recording, method=method, gradient=gradient,
-                           integrator=integrator, starts=starts, seed=seed,
-                           regularization=regularization, noise=noise,
-                           out=None if out is None else Path(out), say=say)
+    with experiment_options(experiment.petsc):
+        return run_calibration(experiment, recording, method=method, gradient=gradient,
+                               integrator=integrator, starts=starts, seed=seed,
+                               regularization=regularization, noise=noise,
+                               out=None if out is None else Path(out), say=say)
 
 
 def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
@@ -342,7 +344,8 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
     DiagnoseResult
         ``verdict``, ``added``, ``rejected``, the base and final fits, and the report.
     """
-    return run_diagnose(experiment, recording, out=None if out is None else Path(out),
-                        fraction=fraction, alpha=alpha, max_additions=max_additions,
-                        max_tries=max_tries, method=method, gradient=gradient,
-                        integrator=integrator, noise=noise, numerics=numerics, say=say)
+    with experiment_options(experiment.petsc):
+        return run_diagnose(experiment, recording, out=None if out is None else Path(out),
+                            fraction=fraction, alpha=alpha, max_additions=max_additions,
+                            max_tries=max_tries, method=method, gradient=gradient,
+                            integrator=integrator, noise=noise, numerics=numerics, say=say)

@@ -193,7 +193,7 @@ def synth(experiment, options: SynthOptions, *, say=None) -> SynthResult:
     from petsoft.io.recording import write_recording
     from petsoft.io.summary import write_summary
     from petsoft.physics.model import build_model, load_mesh
-    from petsoft.solvers.options import apply_experiment_options
+    from petsoft.solvers.options import experiment_options
 
     t0 = time.perf_counter()
     comm = PETSc.COMM_WORLD
@@ -240,14 +240,15 @@ def synth(experiment, options: SynthOptions, *, say=None) -> SynthResult:
         for _ in range(levels):
             mesh = refine_mesh(mesh)
     sim_exp = experiment_from_dict(data, source=exp.source, base_dir=exp.base_dir, path=exp.path)
-    apply_experiment_options(sim_exp.petsc)
-    model = build_model(sim_exp, comm, mesh=mesh)
-    tell(f"petsoft synth: {len(markers)} markers; simulating on {len(model.dmesh.mesh.tets)} tets "
-        f"(refine {K}, original {len(mesh0.tets)}) with step {step:g} s")
-    sim = Simulation(model, sim_exp, monitor=tell)
-    result = sim.run()
-    integrator = sim.name
-    sim.destroy()
+    with experiment_options(sim_exp.petsc):
+        model = build_model(sim_exp, comm, mesh=mesh)
+        tell(f"petsoft synth: {len(markers)} markers; simulating on "
+             f"{len(model.dmesh.mesh.tets)} tets (refine {K}, original {len(mesh0.tets)}) with "
+             f"step {step:g} s")
+        sim = Simulation(model, sim_exp, monitor=tell)
+        result = sim.run()
+        integrator = sim.name
+        sim.destroy()
     summary = {}
     if rank0:
         t_sim = np.array(result.probe_times)

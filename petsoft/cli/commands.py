@@ -12,7 +12,7 @@ from petsoft.dynamics.run_simulation import simulate_experiment
 from petsoft.experiment import experiment_from_dict, load_experiment
 from petsoft.io.summary import write_summary
 from petsoft.physics.model import build_model
-from petsoft.solvers.options import apply_experiment_options
+from petsoft.solvers.options import experiment_options
 from petsoft.solvers.run_static import solve_experiment
 
 # The embedded default of `petsoft demo`: a soft neo-Hookean cantilever (silicone-like) clamped
@@ -62,23 +62,24 @@ def run(args) -> int:
         from petsoft.calibration.calibrate import run_calibration
 
         experiment = load_experiment(args.experiment)
-        apply_experiment_options(experiment.petsc)
         out = Path(args.out) if args.out else experiment.output.directory
-        run_calibration(experiment, args.recording, method=args.method, gradient=args.gradient,
-                        integrator=args.integrator, starts=args.multistart, seed=args.seed,
-                        regularization=args.regularization, noise=args.noise, out=out,
-                        say=_print)
+        with experiment_options(experiment.petsc):
+            run_calibration(experiment, args.recording, method=args.method,
+                            gradient=args.gradient, integrator=args.integrator,
+                            starts=args.multistart, seed=args.seed,
+                            regularization=args.regularization, noise=args.noise, out=out,
+                            say=_print)
         return 0
     if args.command == "diagnose":
         from petsoft.diagnosis.diagnose import run_diagnose
 
         experiment = load_experiment(args.experiment)
-        apply_experiment_options(experiment.petsc)
         out = Path(args.out) if args.out else experiment.output.directory
-        run_diagnose(experiment, args.recording, out=out, fraction=args.fraction,
-                     alpha=args.alpha, max_additions=args.max_additions, method=args.method,
-                     integrator=args.integrator, noise=args.noise,
-                     numerics=not args.no_numerics, say=_print)
+        with experiment_options(experiment.petsc):
+            run_diagnose(experiment, args.recording, out=out, fraction=args.fraction,
+                         alpha=args.alpha, max_additions=args.max_additions, method=args.method,
+                         integrator=args.integrator, noise=args.noise,
+                         numerics=not args.no_numerics, say=_print)
         return 0
     if args.command == "demo":
         out = Path(args.out)
@@ -152,13 +153,13 @@ def run_modes(args) -> int:
     comm = PETSc.COMM_WORLD
     experiment = load_experiment(args.experiment)
     out = Path(args.out) if args.out else experiment.output.directory
-    apply_experiment_options(experiment.petsc)
     model = build_model(experiment, comm)
     mesh = model.dmesh.mesh
     _print(f"petsoft modes: {len(mesh.tets)} tets, {len(mesh.points)} nodes, "
            f"{3 * len(mesh.points)} dofs ({model.dirichlet.count} constrained) on {comm.size} "
            f"rank(s); {args.num_modes} mode(s)")
-    result = compute_modes(model, args.num_modes)
+    with experiment_options(experiment.petsc):
+        result = compute_modes(model, args.num_modes)
     writer = XdmfWriter(out / "modes.xdmf", mesh.points, mesh.tets) if comm.rank == 0 else None
     for k, x in enumerate(result.modes):
         shape = model.dmesh.gather_global(x)       # collective; None off rank 0
@@ -211,12 +212,12 @@ def run_damping(args) -> int:
     if experiment is not None:
         if experiment.time is None:
             raise ExperimentError(f"{experiment.source}: petsoft damping needs [time] step")
-        apply_experiment_options(experiment.petsc)
         model = build_model(experiment, comm)
         _print(f"{experiment.source}: {args.modes} lowest modes at step "
                f"{experiment.time.step:g} s, {args.steps} steps per run")
-        fem = damping.fem_mode_damping(model, experiment.time.step, schemes, args.modes,
-                                       args.steps, args.amplitude, monitor=_print)
+        with experiment_options(experiment.petsc):
+            fem = damping.fem_mode_damping(model, experiment.time.step, schemes, args.modes,
+                                           args.steps, args.amplitude, monitor=_print)
     damping.report(out, schemes, fem, rows, comm, t0, printer=_print,
                    source=experiment.source if experiment else None)
     return 0

@@ -1,6 +1,7 @@
 """The PETSc options database: experiment defaults under command-line options.
 
-Precedence, lowest first: defaults in code, the experiment's ``[petsc]`` table, the command line.
+Precedence, lowest first: defaults in code, the experiment's ``[petsc]`` table (present only while
+that experiment runs: :func:`experiment_options`), the command line.
 Defaults petsc4py has no setter for (e.g. the SNES line search in 3.18) are put in the options
 database only around one object's ``setFromOptions()`` (:func:`scoped_defaults`), so different
 solvers can have different defaults and a user's option always wins.
@@ -15,16 +16,26 @@ from petsc4py import PETSc
 _inserted_by_us: set[str] = set()
 
 
-def apply_experiment_options(table: dict[str, str]) -> list[str]:
-    """Insert ``[petsc]`` options the command line did not set; returns the keys inserted."""
+@contextmanager
+def experiment_options(table: dict[str, str]):
+    """The experiment's ``[petsc]`` options, for the solvers set up inside the block only.
+
+    Each key the command line (or an enclosing block) did not set is inserted on entry and
+    removed on exit, so one experiment's choices never leak into the next run of the process
+    (the Python API runs several). Yields the keys inserted.
+    """
     opts = PETSc.Options()
-    inserted = []
+    placed = []
     for key, value in table.items():
         key = key.lstrip("-")
         if not opts.hasName(key):
             opts.setValue(key, value)
-            inserted.append(key)
-    return inserted
+            placed.append(key)
+    try:
+        yield placed
+    finally:
+        for key in placed:
+            opts.delValue(key)
 
 
 def clear_options(keys) -> None:
