@@ -15,14 +15,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _examples import load_script
 from mpi4py import MPI
 from petsc4py import PETSc
 
 from petsoft.dynamics.imex import ImexIntegrator, ModalImexIntegrator
 from petsoft.dynamics.implicit import ImplicitIntegrator
 from petsoft.dynamics.oscillator import OscillatorSystem
-from petsoft.dynamics.pendulum import PendulumSystem, StiffSpringPendulum
 from petsoft.errors import ExperimentError
+
+# a lecture test problem, with the examples (scripts/examples/pendulum_systems.py)
+_pendulum_systems = load_script("pendulum_systems")
+StiffSpringPendulum = _pendulum_systems.StiffSpringPendulum
+PendulumSystem = _pendulum_systems.PendulumSystem
 
 ROOT = Path(__file__).resolve().parents[1]
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _examples import load_script
 from mpi4py import MPI
 from petsc4py import PETSc
 
@@ -26,15 +27,16 @@ from petsoft.calibration.optimize import (
     print_monitor,
 )
 from petsoft.calibration.scaling import ParameterScaling, ScalingError
-from petsoft.calibration.testproblems import (
-    ExponentialDecay,
-    LinearModel,
-    Rosenbrock,
-    ShiftedOscillation,
-)
 from petsoft.calibration.uncertainty import UnidentifiableError, uncertainty
 from petsoft.errors import InvertedElementError, PetsoftError
 from petsoft.solvers.options import clear_options
+
+# a lecture test problem, with the examples (scripts/examples/optimization_problems.py)
+_optimization_problems = load_script("optimization_problems")
+ShiftedOscillation = _optimization_problems.ShiftedOscillation
+Rosenbrock = _optimization_problems.Rosenbrock
+LinearModel = _optimization_problems.LinearModel
+ExponentialDecay = _optimization_problems.ExponentialDecay
 
 WORLD = MPI.COMM_WORLD
 ROOT = Path(__file__).resolve().parents[1]

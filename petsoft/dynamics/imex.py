@@ -9,7 +9,7 @@ explicitly, accurately and without damping: only the slow energy is approximated
 is the point ("we don't want to conserve total energy").
 
 :class:`ImexIntegrator` -- the lecture's "IMEX of sorts" for the stiff-spring pendulum
-    (:mod:`petsoft.dynamics.pendulum`). The vector field in polar coordinates is split into
+    (``scripts/examples/pendulum_systems.py``). The vector field in polar coordinates is split into
 
     * slow:  phi' = p_phi / r^2,  p_phi' = -g r cos(phi)     (r, p_r frozen),
     * fast:  r' = p_r,  p_r' = -w^2 (r - r0) + p_phi^2 / r^3 - g sin(phi)   (phi, p_phi frozen),
@@ -31,8 +31,8 @@ is the point ("we don't want to conserve total energy").
     Measured (tests/test_imex.py): order 1 with ``be``/``si`` (limited by BE), 2 with
     ``midpoint``/``alpha`` under Strang, 1 under Lie.
 
-    It takes and returns the Cartesian state (q, v) of a
-    :class:`~petsoft.dynamics.pendulum.PendulumSystem`, so it runs side by side with petsoft's
+    It takes and returns the Cartesian state (q, v) of a ``PendulumSystem``
+    (scripts/examples/pendulum_systems.py), so it runs side by side with petsoft's
     fully implicit integrators applied to the Cartesian form; consecutive steps continue from the
     polar state kept internally (no round trip through atan2, the angle is not wrapped).
 

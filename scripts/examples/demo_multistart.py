@@ -7,7 +7,8 @@ Run (1 or 2 ranks; about a second)::
 
 The lecture's shifted-oscillation example: data ``q_t = sin(w (t - s))`` sampled at 200 times in
 [0, 10] from (w, s) = (2, 0.3) with 5 % noise, fitted over w in [0.5, 4] (log-scaled) and s in
-[-1, 1] (affine), as ``petsoft.calibration.testproblems.ShiftedOscillation``. Every optimizer of
+[-1, 1] (affine), as ``ShiftedOscillation`` of ``optimization_problems.py`` beside this script.
+Every optimizer of
 ``petsoft.calibration.optimize`` is local, and the misfit has a local minimum in nearly every
 interval of w of width ~ 2 pi / 10, so:
 
@@ -56,9 +57,10 @@ def main(argv=None) -> dict:
     ap.add_argument("--no-plot", action="store_true")
     args, petsc_args = ap.parse_known_args(argv)  # unknown arguments are PETSc options
     petsc4py.init([sys.argv[0], *petsc_args])  # before anything imports PETSc
+    from optimization_problems import ShiftedOscillation
+
     from petsoft.calibration.multistart import multistart, random_starts
     from petsoft.calibration.optimize import minimize
-    from petsoft.calibration.testproblems import ShiftedOscillation
 
     comm = MPI.COMM_WORLD
     rank = comm.Get_rank()

@@ -54,11 +54,11 @@ from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
+from pendulum_systems import PendulumSystem, StiffSpringPendulum
 
 from petsoft.dynamics.alpha import GeneralizedAlpha
 from petsoft.dynamics.imex import ImexIntegrator
 from petsoft.dynamics.implicit import ImplicitIntegrator
-from petsoft.dynamics.pendulum import PendulumSystem, StiffSpringPendulum
 
 MAX_HALVINGS = 6
 LABELS = {"imex": "IMEX ({} fast, RK4 slow)", "be": "backward Euler", "si": "semi-implicit",
