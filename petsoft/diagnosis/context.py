@@ -1,0 +1,469 @@
+"""What a diagnosis run knows and does to one model: the context of :func:`run_diagnose`.
+
+:class:`Diagnosis` holds the recording split into the identification and held-out windows, the
+noise level and its source, the communicator and the calibration options, fixed when the run
+starts; it calibrates a model on the identification window and predicts the held-out one
+(:class:`Fit`), simulates, scores a candidate, and maps where added stiffness or mass would lower
+the misfit. :func:`evidence_of` is the mismatch analysis of one fit.
+"""
+
+from __future__ import annotations
+
+import gc
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from petsc4py import PETSc
+
+from petsoft.calibration.calibrate import build_forward
+from petsoft.errors import ExperimentError, PetsoftError
+from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
+from petsoft.io.recording import Recording, read_recording
+
+
+class DiagnoseError(PetsoftError):
+    """``petsoft diagnose`` cannot run on these inputs; the message says what and where."""
+
+
+@dataclass
+class Fit:
+    """One calibrated model: experiment (calibrated values set), its parameter names/values/std,
+    chi2 and rms on the identification window, rms on the held-out window, simulations."""
+
+    experiment: object
+    names: list[str]
+    values: np.ndarray
+    std: np.ndarray
+    chi2: float
+    rms: float
+    heldout_rms: float | None
+    sim: np.ndarray
+    iterations: int = 0
+    evaluations: int = 0
+
+
+def petsc_comm(comm):
+    if comm is None:
+        return PETSc.COMM_WORLD
+    return comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm)
+
+
+def with_time(experiment, end: float | None = None, step: float | None = None,
+               cells_factor: int = 1):
+    """A copy with ``[time] end``/``step`` replaced and a box mesh's cells multiplied."""
+    data = experiment.to_dict()
+    if end is not None:
+        data["time"]["end"] = float(end)
+    if step is not None:
+        data["time"]["step"] = float(step)
+    if cells_factor != 1:
+        data["mesh"]["box"]["cells"] = [cells_factor * c for c in experiment.mesh.box.cells]
+    return experiment_from_dict(data, source=experiment.source, base_dir=experiment.base_dir,
+                                path=experiment.path)
+
+
+def gradient_for(experiment, default: str) -> str:
+    """The calibration gradient ``experiment`` allows: finite differences once the viscoelastic
+    branch is on or calibrated (the sensitivities do not carry its internal variable)."""
+    cal = set(experiment.calibrate or {})
+    try:
+        ratio = float(get_parameter(experiment, "viscoelastic.ratio"))
+    except ExperimentError:
+        ratio = 0.0
+    if ratio != 0.0 or any(n.startswith("viscoelastic.") for n in cal):
+        return "fd"
+    return default
+
+
+def model_scales(experiment, times: np.ndarray, data: np.ndarray,
+                 evidence: dict | None = None) -> dict:
+    """Sizes that bound the candidates' new parameters (:func:`~petsoft.diagnosis.candidates.
+    build_candidates`): ``mass`` (kg), ``area`` (exterior surface, m^2), ``length`` (bounding-box
+    diagonal, m), ``cell`` (mean cell size, m) of the model; ``speed``/``speed_max`` (rms and
+    largest marker speed, m/s, by differences of the seen samples) and ``frequency`` (the data's
+    dominant modal frequency, Hz, when the evidence found one)."""
+    from petsoft.mesh.topology import exterior_faces
+
+    out: dict = {}
+    if experiment.is_mass_spring:
+        from petsoft.dynamics.mass_spring import load_spring_mesh
+
+        mesh = load_spring_mesh(experiment)
+        pts = mesh.points
+        total = float(sum(m.value for m in experiment.masses))
+        total += float(experiment.springs.node_mass or 0.0) * len(pts)
+        out["mass"] = total if total > 0 else 1.0
+        tri = getattr(mesh, "triangles", None)
+        if tri is not None and len(tri):
+            e1, e2 = pts[tri[:, 1]] - pts[tri[:, 0]], pts[tri[:, 2]] - pts[tri[:, 0]]
+            out["area"] = float(0.5 * np.linalg.norm(np.cross(e1, e2), axis=1).sum())
+        else:
+            out["area"] = 1.0
+        edges = (mesh.lines if len(mesh.lines) else
+                 np.concatenate([mesh.triangles[:, [0, 1]], mesh.triangles[:, [1, 2]]])
+                 if len(mesh.triangles) else np.zeros((0, 2), dtype=int))
+        out["cell"] = float(np.mean(np.linalg.norm(pts[edges[:, 0]] - pts[edges[:, 1]],
+                                                   axis=1))) if len(edges) else 1.0
+    else:
+        from petsoft.physics.model import load_mesh
+
+        mesh = load_mesh(experiment)
+        pts = mesh.points
+        p = pts[mesh.tets]
+        vol = np.abs(np.linalg.det(p[:, 1:] - p[:, :1])) / 6.0
+        out["mass"] = float(get_parameter(experiment, "material.density") * vol.sum())
+        faces, _ = exterior_faces(mesh.tets)
+        q = pts[faces]
+        out["area"] = float(0.5 * np.linalg.norm(np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]),
+                                                 axis=1).sum())
+        out["cell"] = float(np.cbrt(np.mean(vol)))
+    out["length"] = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) or 1.0
+    dt = np.diff(times)[:, None, None]
+    vel = np.diff(data, axis=0) / dt
+    speed = np.linalg.norm(vel, axis=2)
+    speed = speed[np.isfinite(speed)]
+    out["speed"] = float(np.sqrt(np.mean(speed**2))) if speed.size else 1.0
+    out["speed_max"] = float(speed.max()) if speed.size else 1.0
+    out["speed"] = out["speed"] or 1.0
+    out["speed_max"] = out["speed_max"] or 1.0
+    modes = (evidence or {}).get("data_modes") or []
+    osc = [m for m in modes if m["frequency_hz"] > 0]
+    out["frequency"] = (float(max(osc, key=lambda m: m["amplitude"])["frequency_hz"])
+                        if osc else None)
+    return out
+
+
+def chi2(sim, data, sigma) -> float:
+    seen = np.isfinite(data)
+    return float(np.sum(((sim[seen] - data[seen]) / sigma) ** 2))
+
+
+def rms(sim, data) -> float | None:
+    seen = np.isfinite(data)
+    if not seen.any():
+        return None
+    return float(np.sqrt(np.mean((sim[seen] - data[seen]) ** 2)))
+
+
+def fmt(x) -> str:
+    return "-" if x is None else f"{x:.4g}"
+
+
+def format_values(names, values) -> str:
+    return ", ".join(f"{n}={v:.6g}" for n, v in zip(names, values, strict=True))
+
+
+def cell_geometry(mesh) -> tuple[np.ndarray, np.ndarray]:
+    """(centroids (E, 3), volumes (E,)) of the whole mesh."""
+    p = mesh.points[mesh.tets]
+    vol = np.abs(np.linalg.det(p[:, 1:] - p[:, :1])) / 6.0
+    return p.mean(axis=1), vol
+
+
+class Diagnosis:
+    """State shared by the steps (recording split, noise, communicator, options)."""
+
+    def __init__(self, experiment, recording, *, fraction, alpha, method, gradient,
+                 integrator, noise, comm, say):
+        from petsoft.diagnosis.noise import NoiseError, noise_summary
+        from petsoft.physics.model import on_root
+
+        self.comm = petsc_comm(comm)
+        self.rank0 = self.comm.tompi4py().rank == 0
+        self.say = say
+        self.t0 = time.perf_counter()
+        self.method, self.gradient, self.integrator = method, gradient, integrator
+        self.alpha = float(alpha)
+        if not 0.0 < fraction <= 1.0:
+            raise DiagnoseError(f"--fraction = {fraction}: the identification window's share "
+                                "of the record must be in (0, 1]")
+        if not 0.0 < self.alpha < 1.0:
+            raise DiagnoseError(f"--alpha = {alpha}: the significance level must be in (0, 1)")
+        if not isinstance(recording, Recording):
+            # read on rank 0, then every rank gets it (on_root shares only the error)
+            recording = self.comm.tompi4py().bcast(
+                on_root(self.comm, read_recording, Path(recording)), root=0)
+        rec = self.recording = recording
+        self.path = recording.source
+        if rec.positions is None:
+            raise DiagnoseError(f"{self.path}: the recording has no /frames/position; diagnose "
+                                "needs marker positions")
+        if experiment.time is None:
+            raise DiagnoseError(f"{experiment.source}: [time] (end, step) is needed")
+        if not experiment.calibrate:
+            raise DiagnoseError(f"{experiment.source}: diagnose calibrates the model as given "
+                                'first: add a [calibrate] table, e.g. "material.youngs_modulus" '
+                                "= [1e4, 1e8]")
+        keep = rec.times <= experiment.time.end * (1 + 1e-12)
+        if rec.times[0] < -1e-12 or keep.sum() < 4:
+            raise DiagnoseError(f"{self.path}: need at least 4 frames in [0, "
+                                f"{experiment.time.end:g}] s ([time] end of {experiment.source}); "
+                                f"the recording has "
+                                f"{int(keep.sum())} (first at t = {rec.times[0]:g} s)")
+        self.times = rec.times[keep]
+        self.data = rec.positions[keep]
+        span = self.times[-1]
+        self.cut = float(fraction * span)
+        ident = self.times <= self.cut * (1 + 1e-12)
+        if ident.sum() < 4:
+            raise DiagnoseError(f"--fraction = {fraction}: the identification window [0, "
+                                f"{self.cut:g}] s holds {int(ident.sum())} frames; at least 4 "
+                                "are needed")
+        self.ident = ident
+        self.held = ~ident
+        self.base_experiment = experiment
+        self.model_error = {}
+        #: typical mass, area, speed... of the model (candidate parameter scales), fixed by
+        #: :meth:`fix_scales` once the base model's numerics are settled
+        self.scales: dict | None = None
+        #: cell centroids of the last sensitivity maps (None before the first)
+        self.centroids: np.ndarray | None = None
+        if rec.noise and rec.noise.get("position_std"):
+            self.sigma = float(rec.noise["position_std"])
+            self.sigma_source = "given by the recording"
+        elif noise is not None:
+            if not (np.isfinite(noise) and noise > 0):
+                raise DiagnoseError(f"--noise = {noise}: the position noise std (m) must be > 0")
+            self.sigma, self.sigma_source = float(noise), "given (--noise)"
+        else:
+            try:
+                s = noise_summary(self.data, self.times)
+            except NoiseError as exc:
+                raise DiagnoseError(f"{self.path}: the recording has no /noise and {exc}; give "
+                                    "the noise with --noise") from exc
+            self.sigma = float(s["std_mad"] if s["gaussian"] else s["std_rms"])
+            self.sigma_source = "estimated from the data"
+
+    #: Estimated discretisation error (m, rms) of the current model per refinement kind, from
+    #: :func:`resolve_numerics` (Richardson: the change under refinement over 2^p - 1).
+    model_error: dict
+
+    @property
+    def sigma_verdict(self) -> float:
+        """The noise plus the measured discretisation error (in quadrature): the level the
+        verdict tests the residual against, since a mismatch the model's own numerics can
+        explain is no evidence of missing physics."""
+        return float(np.sqrt(self.sigma**2 + sum(e**2 for e in self.model_error.values())))
+
+    def fix_scales(self, fit: Fit, ev: dict) -> None:
+        """The candidates' parameter scales, from ``fit`` on the identification window."""
+        self.scales = model_scales(fit.experiment, self.times[self.ident], self.data[self.ident],
+                                   ev)
+
+    def excess(self, fit: Fit) -> float:
+        """chi2 above its expectation (the degrees of freedom) on the identification window."""
+        dof = max(int(np.isfinite(self.data[self.ident]).sum()) - len(fit.names), 1)
+        return max(fit.chi2 - dof, 0.0)
+
+    def tell(self, line: str) -> None:
+        if self.say is not None and self.rank0:
+            self.say(f"[{time.perf_counter() - self.t0:7.1f} s] {line}")
+
+    # -- fitting ----------------------------------------------------------------------------
+    def calibrate(self, experiment, comm=None) -> Fit:
+        """Calibrate ``experiment`` on the identification window; predict the held-out one.
+
+        ``comm`` (default: the diagnosis' communicator) lets candidate fits run on groups of
+        ranks (:func:`petsoft.calibration.groups.map_on_groups`)."""
+        from petsoft.calibration.calibrate import calibration_parameters, run_calibration
+
+        comm = self.comm if comm is None else petsc_comm(comm)
+        ident_exp = with_time(experiment, end=self.cut)
+        res = run_calibration(ident_exp, self.recording, method=self.method,
+                              gradient=gradient_for(experiment, self.gradient),
+                              integrator=self.integrator, noise=self.sigma, comm=comm,
+                              say=None)
+        gc.collect()                    # every rank, same point (see run_diagnose)
+        names, _, _ = calibration_parameters(experiment)
+        calibrated = with_parameters(experiment, dict(zip(names, res.values, strict=True)))
+        sim = self.simulate(calibrated, comm=comm)
+        return Fit(experiment=calibrated, names=names, values=np.asarray(res.values),
+                   std=np.asarray(res.std), chi2=chi2(sim[self.ident], self.data[self.ident],
+                                                        self.sigma),
+                   rms=rms(sim[self.ident], self.data[self.ident]) or 0.0,
+                   heldout_rms=rms(sim[self.held], self.data[self.held]) if self.held.any()
+                   else None, sim=sim, iterations=res.iterations, evaluations=res.evaluations)
+
+    def fit_candidates(self, scored: list, current: Fit) -> None:
+        """Calibrate each candidate of ``scored`` ((score entry, candidate) pairs) not fitted
+        yet, extending ``current``'s model, concurrently on groups of ranks; each entry gains
+        ``fit`` (None when the fit failed) and ``fit_error``."""
+        from petsoft.calibration.groups import map_on_groups
+
+        need = [(s, c) for s, c in scored if "fit" not in s]
+        fits = map_on_groups(
+            lambda item, sub: self.calibrate(item[1].extend(current.experiment), comm=sub),
+            need, self.comm)
+        gc.collect()                    # every rank, same point (see run_diagnose)
+        for (s, _), f in zip(need, fits, strict=True):
+            s["fit"] = f.value if f.ok else None
+            s["fit_error"] = f.error
+
+    def simulate(self, experiment, h=None, comm=None, times=None) -> np.ndarray:
+        """Marker positions of ``experiment`` at every frame of the record (or ``times``)."""
+        names = list(experiment.calibrate)
+        p = np.array([get_parameter(experiment, n) for n in names])
+        fm = build_forward(experiment, names, self.recording,
+                           self.times if times is None else times,
+                           self.comm if comm is None else petsc_comm(comm), self.integrator,
+                           h=h)
+        try:
+            return fm.simulate(p)
+        finally:
+            fm.destroy()
+
+    def score(self, fit: Fit, candidate, comm=None) -> dict:
+        """Rank ``candidate`` at ``fit`` (identification window) by its score-test statistic;
+        a ``"switch"`` candidate's column is the change the switch makes (see
+        :mod:`petsoft.diagnosis.candidates`)."""
+        from petsoft.diagnosis.score import ScoreError, score_test
+
+        comm = self.comm if comm is None else petsc_comm(comm)
+        entry = {"physics": candidate.physics, "parameters": candidate.parameters,
+                 "region": candidate.region, "kind": candidate.kind}
+        ext = candidate.extend(fit.experiment)
+        if candidate.kind == "switch":
+            # before: the extended model was fitted here, two calibrations per round that took
+            # most of a bench case's scoring time
+            sim, cols = self._columns(fit.experiment, candidate, comm)
+            cols["switch"] = self.simulate(ext, comm=comm, times=self.times[self.ident]) - sim
+            gc.collect()
+            tested = ["switch"]
+        else:
+            sim, cols = self._columns(ext, candidate, comm)
+            tested = candidate.tested_parameters
+        data = self.data[self.ident]
+        seen = np.isfinite(data)
+        r = (sim[seen] - data[seen]) / self.sigma
+        base_cols = np.stack([cols[n][seen] for n in fit.names], axis=1) / self.sigma
+        cand_cols = np.stack([cols[n][seen] for n in tested], axis=1) / self.sigma
+        try:
+            s = score_test(r, base_cols, cand_cols)
+        except ScoreError as exc:
+            return {**entry, "score": 0.0, "dof": len(tested), "p_value": 1.0, "log10_p": 0.0,
+                    "note": str(exc)}
+        outward = outward_only(candidate, ext, tested, s.gradient)
+        if outward:
+            return {**entry, "score": 0.0, "dof": s.dof, "p_value": 1.0, "log10_p": 0.0,
+                    "gradient": s.gradient.tolist(), "note": outward}
+        return {**entry, "score": s.statistic, "dof": s.dof, "p_value": s.p_value,
+                "log10_p": s.log10_p, "gradient": s.gradient.tolist()}
+
+    def _columns(self, ext, candidate, comm) -> tuple[np.ndarray, dict]:
+        """Simulation and sensitivity columns of the extended model at its current values:
+        exact forward sensitivities, one-sided differences for ``"score-fd"`` parameters."""
+        from petsoft.dynamics.parameters import VISCOELASTIC
+
+        names = list(ext.calibrate)
+        p = np.array([get_parameter(ext, n) for n in names])
+        # by differences: a score-fd candidate's parameters; and every column when a
+        # viscoelastic branch is already in the model (added in an earlier round) and the
+        # integrator is not be: the exact sensitivities of si and alpha refuse the branch
+        fd = [n for n in names if candidate.kind == "score-fd" and n in candidate.parameters]
+        branch_on = ext.viscoelastic.ratio > 0.0 or any(n in VISCOELASTIC for n in names)
+        if branch_on and (self.integrator or ext.time.integrator) != "be":
+            fd = list(names)
+        exact = [n for n in names if n not in fd]
+        t = self.times[self.ident]
+        if exact:
+            fm = build_forward(ext, exact, self.recording, t, comm, self.integrator)
+            try:
+                sim, dsim = fm.jacobian(np.array([p[names.index(n)] for n in exact]))
+            finally:
+                fm.destroy()
+                gc.collect()                # every rank, same point (see run_diagnose)
+            cols = {n: dsim[..., i] for i, n in enumerate(exact)}
+        else:
+            sim, cols = self.simulate(ext, comm=comm, times=t), {}
+        # a parameter at zero (a candidate's start) steps by 1e-6 of its upper bound
+        upper = {n: max(abs(lo), abs(hi)) for n, (lo, hi) in zip(candidate.parameters,
+                                                                  candidate.bounds, strict=True)}
+        for n in fd:
+            value = get_parameter(ext, n)
+            scale = abs(value) if value != 0.0 else upper.get(n, 1.0)
+            step = float(candidate.fd_steps.get(n, 1e-6 * scale))
+            moved = with_parameters(ext, {n: get_parameter(ext, n) + step})
+            cols[n] = (self.simulate(moved, comm=comm, times=t) - sim) / step
+            gc.collect()
+        return sim, cols
+
+    def sensitivity_regions(self, fit: Fit) -> dict:
+        """Spheres from the adjoint per-cell maps of the misfit (one sweep).
+
+        Returns
+        -------
+        dict
+            ``{"stiffness": sphere where |d misfit/d E_cell| is largest, "density": sphere
+            where d misfit/d rho_cell is most negative}``, each None when it cannot be made.
+        """
+        from petsoft.diagnosis.candidates import sensitivity_region
+
+        names = fit.names
+        data = self.data[self.ident]
+        seen = np.isfinite(data)
+        sigma = self.sigma
+        fm = build_forward(fit.experiment, names, self.recording, self.times[self.ident],
+                           self.comm, self.integrator)
+
+        def dphi(sim):
+            diff = np.where(seen, sim - np.where(seen, data, 0.0), 0.0) / sigma
+            return 0.5 * float(np.sum(diff * diff)), diff / sigma
+
+        try:
+            _, _, maps = fm.cell_gradient(fit.values, dphi)
+            centroids, volumes = cell_geometry(fm.system.dmesh.mesh)
+        except ExperimentError:
+            return dict(NO_REGIONS)
+        finally:
+            fm.destroy()
+        self.centroids = centroids
+        return {"stiffness": sensitivity_region(centroids, maps["youngs_modulus"], volumes),
+                "density": sensitivity_region(centroids, maps["density"], volumes,
+                                              inward=True)}
+
+
+#: What :meth:`Diagnosis.sensitivity_regions` returns when no map can be made.
+NO_REGIONS = {"stiffness": None, "density": None}
+
+
+def evidence_of(diag: Diagnosis, fit: Fit) -> dict:
+    from petsoft.diagnosis.evidence import collect_evidence
+
+    rec = diag.recording
+    ev = collect(diag, fit, collect_evidence, rec)
+    if diag.model_error and ev["verdict"] != "consistent" and ev["noise_test"].level_ok:
+        # a discretisation error of the size measured is smooth in time, so the residual
+        # cannot be white: with it in the budget only the chi-square level can be tested
+        ev["verdict"] = "consistent"
+        ev.setdefault("notes", []).append(
+            "verdict from the chi-square level only: the residual includes the measured "
+            "discretisation error, which is not white")
+    return ev
+
+
+def collect(diag, fit, collect_evidence, rec) -> dict:
+    return collect_evidence(diag.data[diag.ident], fit.sim[diag.ident], diag.times[diag.ident],
+                            rec.reference, rec.names, sigma=diag.sigma_verdict,
+                            num_parameters=len(fit.names), alpha=diag.alpha)
+
+
+def outward_only(candidate, ext, tested: list[str], gradient) -> str | None:
+    """Why a one-parameter candidate starting at its lower bound cannot help, or None.
+
+    The misfit's gradient g = J_c^T r (r = sim - data; J_b^T r = 0 at the base fit, so g is the
+    efficient score's) says the misfit falls as the parameter moves by -g. At the lower bound
+    (a damping of 0, a region at the surrounding density) only an increase is allowed: with
+    g > 0 the fit cannot move (Kuhn-Tucker), and the two-sided score only took a slot of the
+    fitted shortlist (seen: four damping laws fitted to LR 4.6e-10 after gravity was added).
+    """
+    if len(tested) != 1 or tested[0] not in candidate.parameters:
+        return None
+    name = tested[0]
+    lo = candidate.bounds[candidate.parameters.index(name)][0]
+    start = get_parameter(ext, name)
+    if start <= lo and float(np.asarray(gradient).ravel()[0]) > 0.0:
+        return (f"the misfit falls only for {name} below its lower bound {lo:.3g} "
+                f"(one-sided score: 0)")
+    return None

@@ -1,0 +1,135 @@
+"""What a diagnosis writes: report.json (formats.md section 3), report.md, the figures, the
+residual field for ParaView, diagnosed.toml and summary.json."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from petsoft.diagnosis.context import Diagnosis, Fit
+
+
+@dataclass
+class DiagnoseResult:
+    """What ``petsoft diagnose`` found (identical on every rank)."""
+
+    verdict: str
+    final_verdict: str
+    report: dict
+    base: Fit
+    final: Fit
+    added: list[dict] = field(default_factory=list)
+    rejected: list[dict] = field(default_factory=list)
+    scores: list[dict] = field(default_factory=list)
+    not_modelled: dict = field(default_factory=dict)
+    numerics: dict = field(default_factory=dict)
+    evidence: dict | None = None
+
+
+def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict, added,
+                           rejected) -> dict:
+    from petsoft.diagnosis.report import build_report, fit_summary
+
+    d = diag.data[diag.ident]
+    validation = None
+    if base.heldout_rms is not None and final.heldout_rms is not None:
+        validation = {"base_rms": base.heldout_rms, "final_rms": final.heldout_rms}
+    mismatch = base_ev["mismatch"]
+    region = mismatch["region"]
+    spatial = [a["region"] for a in added if a.get("region")]
+    if spatial:
+        region = spatial[0]
+    return build_report(
+        # the verdict is about the user's model: anything missing makes it missing-physics
+        verdict=base_ev["verdict"],
+        noise_std=diag.sigma,
+        base=fit_summary(d, base.sim[diag.ident], diag.sigma, len(base.names)),
+        final=fit_summary(d, final.sim[diag.ident], diag.sigma, len(final.names)),
+        parameters={n: float(v) for n, v in zip(final.names, final.values, strict=True)},
+        validation=validation, markers=mismatch["markers"],
+        time_windows=mismatch["time_windows"], frequencies_hz=mismatch["frequencies_hz"],
+        region=region, added=added, rejected=rejected)
+
+
+def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: dict,
+                  wall_time: float) -> None:
+    """report.json, report.md, figures, diagnosed.toml, summary.json (rank 0 writes)."""
+    from petsoft.diagnosis.evidence import write_figures
+    from petsoft.diagnosis.report import write_report, write_report_md
+    from petsoft.experiment import write_toml
+    from petsoft.io.summary import write_summary
+
+    if not diag.rank0:
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    if not result.base.experiment.is_mass_spring and base_ev.get("markers") is not None:
+        # where on the body: the base fit's per-marker residual spread over the mesh (ParaView)
+        from petsoft.diagnosis.locate import write_residual_field
+        from petsoft.physics.model import load_mesh
+
+        mesh = load_mesh(result.base.experiment)
+        write_residual_field(out / "residual_field.xdmf", mesh.points, mesh.tets,
+                             diag.recording.reference, base_ev["markers"])
+    write_report(out / "report.json", result.report)
+    t = diag.times[diag.ident]
+    figs = write_figures(out, base_ev, t, diag.data[diag.ident], result.base.sim[diag.ident],
+                         result.final.sim[diag.ident], result.added, result.rejected)
+    notes = list(result.evidence.get("notes", [])) if result.evidence else []
+    notes.append(f"identification window t <= {diag.cut:.4g} s; held out: "
+                 f"{int(diag.held.sum())} later frames")
+    for s in result.scores:
+        notes.append(f"round {s['round']}: score test {s['physics']}: S = {s['score']:.4g}, "
+                     f"dof {s['dof']}, p = {s['p_value']:.3g}")
+    for k, why in sorted(result.not_modelled.items()):
+        notes.append(f"{k}: not modelled yet / not tried ({why})")
+    for r in result.numerics.get("refinements", []):
+        opts = "; ".join(f"{k}: chi2 {v['chi2']:.5g}" for k, v in r["options"].items()
+                         if "chi2" in v)
+        notes.append(f"numerics before blaming physics (after {r.get('after_additions', 0)} "
+                     f"additions; checked {r['why']}): chi2 {r['chi2']:.5g} at step "
+                     f"{r['step']:.4g} s; refined: "
+                     f"{opts}; " + (f"adopted {r['adopted']} (it lowered chi2 by more than 10 % "
+                                    "of the excess over the noise)" if r.get("adopted")
+                                    else "nothing adopted (refinement does not matter)"))
+    if result.numerics.get("model_error"):
+        notes.append("discretisation error estimated from the refinement check (Richardson): "
+                     + ", ".join(f"{k} {v:.3g} m" for k, v in
+                                 result.numerics["model_error"].items())
+                     + f"; the verdict tests the residual against the noise and this error in "
+                     f"quadrature ({result.numerics['sigma_verdict']:.3g} m)")
+    for k, v in result.numerics.items():
+        if k in ("model_error", "sigma_verdict", "refinements"):
+            continue
+        if isinstance(v, dict) and "change" in v:
+            notes.append(f"numerics {k}: the simulation changes by {v['change']:.3g} m rms "
+                         f"({v['change_over_noise']:.3g} x the noise)" + (
+                             "" if v["resolved"] else ": more than the noise, so part of the "
+                             "mismatch (and of the fitted parameters) may be discretisation "
+                             "error; refine the model before trusting the diagnosis"))
+        elif k != "base_rms_all":
+            notes.append(f"numerics {k}: {v}")
+    ev = dict(result.evidence or {})
+    ev["notes"] = notes
+    write_report_md(out / "report.md", result.report, ev, [f.name for f in figs])
+    write_toml(result.final.experiment, out / "diagnosed.toml")
+    results = {
+        "recording": str(diag.path), "verdict": result.verdict,
+        "final_verdict": result.final_verdict,
+        "noise_std": diag.sigma, "noise_source": diag.sigma_source,
+        "identification_end": diag.cut,
+        "base": {"parameters": dict(zip(result.base.names, result.base.values.tolist(),
+                                        strict=True)),
+                 "chi2": result.base.chi2, "rms": result.base.rms,
+                 "heldout_rms": result.base.heldout_rms},
+        "final": {"parameters": dict(zip(result.final.names, result.final.values.tolist(),
+                                         strict=True)),
+                  "chi2": result.final.chi2, "rms": result.final.rms,
+                  "heldout_rms": result.final.heldout_rms},
+        "scores": [{k: v for k, v in s.items() if k != "gradient"} for s in result.scores],
+        "not_modelled": result.not_modelled, "numerics": result.numerics,
+        "files": {"report": "report.json", "markdown": "report.md",
+                  "experiment": "diagnosed.toml", "figures": [f.name for f in figs],
+                  "residual_field": ("residual_field.xdmf"
+                                     if (out / "residual_field.xdmf").exists() else None)},
+    }
+    write_summary(out, "diagnose", results, {"simulations": None}, wall_time, diag.comm)
