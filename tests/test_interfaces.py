@@ -20,7 +20,7 @@ from petsoft.errors import ExperimentError
 from petsoft.experiment import INTEGRATORS, experiment_from_dict
 from petsoft.physics.colliders import Collider
 from petsoft.physics.model import build_model
-from petsoft.physics.term import NodalTerm, Term
+from petsoft.physics.term import NodalTerm, ParametricTerm, Term
 
 BAR = {
     "mesh": {"box": {"size": [0.2, 0.04, 0.04], "cells": [4, 1, 1]}},
@@ -142,3 +142,51 @@ def test_integrator_registry_covers_the_format_and_every_entry_steps():
         assert result.steps == 2, name
         assert np.isfinite(result.energies).all(), name
         sim.destroy()
+
+
+# -- parametric terms (terms branch) ------------------------------------------------------------
+PRESSED = {
+    "mesh": {"box": {"size": [0.3, 0.04, 0.04], "cells": [4, 1, 1]}},
+    "material": {"model": "linear", "youngs_modulus": 1e5, "poisson_ratio": 0.3,
+                 "density": 1000.0},
+    "boundary": [{"kind": "fixed", "where": "x < 1e-9", "compliance": 1e-6}],
+    # a plane the bottom face penetrates (a parameter) and a sphere (no parameter)
+    "collider": [{"kind": "plane", "point": [0, 0, 0.002], "normal": [0, 0, 1],
+                  "stiffness": 4e4},
+                 {"kind": "sphere", "center": [0.31, 0.02, 0.02], "radius": 0.035,
+                  "stiffness": 3e4}],
+}
+
+
+def test_term_parametric_terms_are_declared_and_match_differences():
+    """The supports and the contact are ParametricTerms (declared signatures); each parameter's
+    gradient derivative matches central differences of the term's gradient."""
+    model = build_model(experiment_from_dict(PRESSED))
+    potential, dm = model.elastic, model.dmesh
+    assert [t.kind for t in potential.parametric_terms] == ["support", "contact"]
+    assert not isinstance(potential.term, ParametricTerm)
+    for t in potential.parametric_terms:
+        _assert_implements(t, ParametricTerm)
+    field = np.random.default_rng(0).standard_normal((len(dm.mesh.points), 3))
+    u = 1e-3 * field[dm.vertex_ids]           # the same field on every rank
+    params = {n: (t, v) for t in potential.parametric_terms for n, v in t.parameters().items()}
+    assert sorted(params) == ["boundary.compliance", "collider.0.offset"]   # not the sphere
+    for name, (t, value) in params.items():
+        d = np.zeros((dm.nvertices, 3))
+        t.add_parameter_derivative(name, u, d)
+        step = 1e-6 * (abs(value) if value else 1e-3)
+        grads = []
+        for sign in (1, -1):
+            t.set_parameter(name, value + sign * step)
+            assert t.parameters()[name] == value + sign * step
+            grads.append(t.gradient(u))
+        t.set_parameter(name, value)
+        fd = np.zeros_like(d)
+        fd[t.nodes] = (grads[0] - grads[1]) / (2 * step)
+        assert MPI.COMM_WORLD.allreduce(np.abs(d).max(initial=0.0), op=MPI.MAX) > 0.0, name
+        assert np.abs(d - fd).max(initial=0.0) <= 1e-6 * max(np.abs(fd).max(initial=0.0),
+                                                             1e-30), name
+    with pytest.raises(KeyError):
+        potential.contact.set_parameter("collider.1.offset", 0.0)      # a sphere
+    with pytest.raises(KeyError):
+        potential.support.add_parameter_derivative("collider.0.offset", u, d)

@@ -72,15 +72,14 @@ class Collider:
 
     @classmethod
     def from_spec(cls, spec, default_stiffness: float) -> Collider:
+        """The collider of a ``[[collider]]`` table (:class:`petsoft.experiment.ColliderSpec`)."""
         k = spec.stiffness if spec.stiffness is not None else default_stiffness
         if spec.kind == "sphere":
-            return cls("sphere", float(k), spec.friction, np.asarray(spec.center, float),
-                       float(spec.radius))
-        n = np.asarray(spec.normal, float)
-        n = n / np.linalg.norm(n)
-        # the plane moved by its offset along the normal (0 unless given)
-        point = np.asarray(spec.point, float) + float(getattr(spec, "offset", 0.0)) * n
-        return cls("plane", float(k), spec.friction, point=point, normal=n)
+            return cls.sphere(spec.center, spec.radius, k, spec.friction)
+        plane = cls.plane(spec.point, spec.normal, k, spec.friction)
+        # the plane moved by its offset along the normal
+        plane.point = plane.point + float(spec.offset) * plane.normal
+        return plane
 
     @classmethod
     def sphere(cls, center, radius: float, stiffness: float, friction: float = 0.0) -> Collider:

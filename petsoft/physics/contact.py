@@ -74,6 +74,9 @@ def default_fem_stiffness(mesh, density: np.ndarray, youngs: np.ndarray, surface
 class SurfaceContact:
     """Penalty contact of rigid colliders with this rank's owned surface vertices.
 
+    A :class:`~petsoft.physics.term.NodalTerm` (not part of K0) and a
+    :class:`~petsoft.physics.term.ParametricTerm` (the planes' ``collider.<i>.offset``).
+
     Parameters
     ----------
     dmesh : DistributedMesh
@@ -137,6 +140,26 @@ class SurfaceContact:
         x = self.positions(u_local)
         phi, n, _ = c.distance(x)
         return -c._profile(phi)[2][:, None] * n
+
+    # -- the ParametricTerm interface ----------------------------------------------------------
+    def _plane_index(self, name: str) -> int:
+        parts = name.split(".")
+        if (len(parts) != 3 or parts[0] != "collider" or parts[2] != "offset"
+                or not parts[1].isdigit() or int(parts[1]) >= len(self.colliders)
+                or self.colliders[int(parts[1])].kind != "plane"):
+            raise KeyError(name)
+        return int(parts[1])
+
+    def parameters(self) -> dict[str, float]:
+        return {f"collider.{i}.offset": self.offsets[i]
+                for i, c in enumerate(self.colliders) if c.kind == "plane"}
+
+    def set_parameter(self, name: str, value: float) -> None:
+        self.set_offset(self._plane_index(name), value)
+
+    def add_parameter_derivative(self, name: str, u_local: np.ndarray,
+                                 out: np.ndarray) -> None:
+        out[self.nodes] += self.offset_derivative(self._plane_index(name), u_local)
 
 
 def build_contact(experiment, dmesh, density_file: np.ndarray, youngs_file: np.ndarray):

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from petsoft.physics.elastic import ElasticTerm
+from petsoft.physics.term import ParametricTerm
 
 
 class ModelPotential:
@@ -69,6 +70,11 @@ class ModelPotential:
     def contact(self):
         """The collider contact (:class:`~petsoft.physics.contact.SurfaceContact`) or None."""
         return self.nodal("contact")
+
+    @property
+    def parametric_terms(self) -> list[ParametricTerm]:
+        """The nodal terms with scalar parameters (:class:`~.term.ParametricTerm`)."""
+        return [t for t in self.nodal_terms if isinstance(t, ParametricTerm)]
 
     # -- the Term interface ----------------------------------------------------------------------
     def connectivities(self) -> dict[str, np.ndarray]:

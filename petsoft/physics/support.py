@@ -28,6 +28,9 @@ import numpy as np
 from petsoft.errors import ExperimentError
 from petsoft.mesh.topology import triangle_areas_normals
 
+#: The experiment's name of the supports' shared compliance (see :func:`shared_compliance`).
+COMPLIANCE = "boundary.compliance"
+
 
 def lumped_face_areas(points: np.ndarray, faces: np.ndarray, nvertices: int) -> np.ndarray:
     """(N,) per vertex: the sum of A_f / 3 over the faces (F, 3) touching it."""
@@ -41,7 +44,8 @@ def lumped_face_areas(points: np.ndarray, faces: np.ndarray, nvertices: int) -> 
 class ElasticSupport:
     """Penalty springs of the elastic (compliant) supports on this rank's owned vertices.
 
-    A :class:`~petsoft.physics.term.NodalTerm` (part of the reference stiffness K0).
+    A :class:`~petsoft.physics.term.NodalTerm` (part of the reference stiffness K0) and a
+    :class:`~petsoft.physics.term.ParametricTerm` (``boundary.compliance``).
 
     Parameters
     ----------
@@ -89,6 +93,22 @@ class ElasticSupport:
     def compliance_derivative(self, y_local: np.ndarray) -> np.ndarray:
         """(n, 3) d(K_s y)/dc = -(A / c^2) y at the support nodes (y = u, or u + w + beta v)."""
         return -(self.areas / self.compliance ** 2) * y_local[self.nodes]
+
+    # -- the ParametricTerm interface ----------------------------------------------------------
+    def parameters(self) -> dict[str, float]:
+        return {COMPLIANCE: self.compliance}
+
+    def set_parameter(self, name: str, value: float) -> None:
+        if name != COMPLIANCE:
+            raise KeyError(name)
+        self.set_compliance(value)
+
+    def add_parameter_derivative(self, name: str, u_local: np.ndarray,
+                                 out: np.ndarray) -> None:
+        """Add d(k u)/dc at ``u_local`` (linear in u: pass u + w + beta v for that state)."""
+        if name != COMPLIANCE:
+            raise KeyError(name)
+        out[self.nodes] += self.compliance_derivative(u_local)
 
 
 def build_support(experiment, dmesh, resolver, dirichlet) -> ElasticSupport | None:

@@ -11,6 +11,12 @@ ModelPotential` sums them):
   per-node gradients and 3x3 Hessian blocks for its ``nodes``, which the potential adds through
   one shared one-vertex element set.
 
+A term with scalar parameters (named as in ``petsoft.experiment.get_parameter``: the supports'
+``boundary.compliance``, the planes' ``collider.<i>.offset``) also implements
+:class:`ParametricTerm`: their values, setting them, and the derivative of the term's gradient
+with respect to one, which the sensitivities need. (The elastic law's Lame parameters vary per
+cell: :meth:`petsoft.physics.elastic.ElasticTerm.lame_derivatives`.)
+
 A new physics term is one new module implementing one of these, appended where the model is
 built (:func:`petsoft.physics.model.build_model`). ``tests/test_interfaces.py`` checks every
 implementation against these declarations.
@@ -65,3 +71,19 @@ class NodalTerm(Protocol):
 
     def hessian(self, u_local: np.ndarray) -> np.ndarray:
         """(len(nodes), 3, 3) Hessian blocks at the nodes."""
+
+
+@runtime_checkable
+class ParametricTerm(Protocol):
+    """A term with scalar parameters the calibration may set and differentiate."""
+
+    def parameters(self) -> dict[str, float]:
+        """The term's parameters (experiment names) and their current values."""
+
+    def set_parameter(self, name: str, value: float) -> None:
+        """Set one of :meth:`parameters` (KeyError for a name that is not one)."""
+
+    def add_parameter_derivative(self, name: str, u_local: np.ndarray,
+                                 out: np.ndarray) -> None:
+        """Add d(dW/du)/dp at ``u_local``, p the parameter ``name``, into the local (nv, 3)
+        array ``out`` (for a term linear in u, pass y = u + w + beta v for d(K y)/dp)."""

@@ -87,7 +87,7 @@ class StaticSolver:
             # With collider contact the residual has a kink where nodes touch: cp's secant on it
             # crawls (regula falsi pinned at the far end: steps of 0.1% on a cantilever sagging
             # onto a plane, 50+ iterations and failed increments), l2 took 4-5 (measured).
-            contact = getattr(model.elastic, "contact", None) is not None
+            contact = model.elastic.contact is not None
             line_search = {prefix + "snes_linesearch_type": "l2" if contact else "cp",
                            prefix + "snes_linesearch_max_it": "5"}
             if user_has(prefix + "snes_linesearch_type"):
