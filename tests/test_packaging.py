@@ -73,7 +73,7 @@ def test_petsoft_version_prints_petsc_version():
 def test_importing_petsoft_does_not_initialise_petsc():
     # the CLI must call petsc4py.init(argv) before PETSc loads, so the package root and its
     # lazily exported API may not import petsc4py.PETSc
-    code = ("import sys, petsoft; names = dir(petsoft); "
+    code = ("import sys, petsoft, petsoft.cli.main; names = dir(petsoft); "
             "print('petsc4py.PETSc' in sys.modules, 'diagnose' in names)")
     run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          env=child_env(), timeout=120)

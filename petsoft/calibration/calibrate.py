@@ -16,9 +16,13 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
+from petsoft.dynamics.simulate import initial_state
 from petsoft.errors import ExperimentError
-from petsoft.experiment import get_parameter, with_parameters
+from petsoft.experiment import get_parameter, with_parameters, write_toml
 from petsoft.io.recording import Recording, read_recording
+from petsoft.io.summary import write_summary
+from petsoft.physics.model import on_root
 
 METHODS = ("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead")
 GRADIENTS = ("adjoint", "sensitivity", "fd")
@@ -113,8 +117,6 @@ def write_outputs(out: Path, experiment, recording_path, result: CalibrationResu
                   method: str, gradient: str, wall_time: float, comm) -> None:
     """calibrated.toml, summary.json, trajectories.png, residuals.png (rank 0 writes)."""
     from petsoft.calibration.plots import plot_residuals, plot_trajectories
-    from petsoft.experiment import write_toml
-    from petsoft.io.summary import write_summary
 
     if comm.rank != 0:
         return
@@ -187,9 +189,6 @@ def mass_spring_system(experiment, comm, recording=None):
     ``[initial]`` displacement and velocity expressions, which do not depend on the calibrated
     parameters (a static initial state is rejected by the mass-spring model builder).
     """
-    from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
-    from petsoft.dynamics.simulate import initial_state
-
     model = build_mass_spring_model(experiment, comm, recording=recording)
     system = MassSpringSystem(model, experiment.damping.mass, experiment.damping.stiffness)
     system.initial_state = lambda: initial_state(model, system, experiment)
@@ -229,7 +228,6 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
     from petsoft.calibration.optimize import minimize
     from petsoft.calibration.scaling import ParameterScaling
     from petsoft.calibration.uncertainty import UnidentifiableError, uncertainty
-    from petsoft.physics.model import on_root
 
     t_start = time.perf_counter()
     comm = _petsc_comm(comm if comm is not None else PETSc.COMM_WORLD)

@@ -79,12 +79,16 @@ from petsoft.calibration.observation import time_interpolation
 from petsoft.dynamics.alpha import GeneralizedAlpha, alpha_parameters
 from petsoft.dynamics.implicit import ImplicitIntegrator
 from petsoft.dynamics.integrators import check_viscoelastic, with_gradients
+from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
+from petsoft.dynamics.parameters import VISCOELASTIC
 from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, SolverError
+from petsoft.experiment import get_parameter
 from petsoft.physics.model import build_model
 from petsoft.solvers.convergence import check_converged
 from petsoft.solvers.options import scoped_defaults
+from petsoft.solvers.static import StaticSolver
 
 #: The schemes with gradients (the registry says which).
 INTEGRATORS = with_gradients()
@@ -184,7 +188,6 @@ class ForwardModel:
         elif exp.is_mass_spring:
             # the mass-spring system offers the same interface (parameter names, in-place
             # set_parameters, residual_parameter_derivatives): the generic derivative path
-            from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
 
             self.model = build_mass_spring_model(exp, comm, recording=recording)
             system = MassSpringSystem(self.model, exp.damping.mass, exp.damping.stiffness)
@@ -199,8 +202,6 @@ class ForwardModel:
             s.define_stiffness_groups(max(groups) + 1)
         pnames = s.parameter_names()
         if s.viscoelastic is not None:
-            from petsoft.dynamics.parameters import VISCOELASTIC
-
             pnames = pnames + list(VISCOELASTIC)   # simulate / fd only (see the docstring)
         bad = [n for n in self.names if n not in pnames]
         if bad:
@@ -212,8 +213,6 @@ class ForwardModel:
         if s.parameters is not None:
             self.p0 = np.array([s.parameters.values[n] for n in self.names])
         else:
-            from petsoft.experiment import get_parameter
-
             self.p0 = np.array([get_parameter(exp, n) for n in self.names])
         self._own_observer = not hasattr(observer, "observe")
         self.observer = observer(s) if self._own_observer else observer
@@ -277,7 +276,6 @@ class ForwardModel:
         the branch's internal variable; backward Euler's forward sensitivities do."""
         if sensitivities and self.method == "be":
             return
-        from petsoft.dynamics.parameters import VISCOELASTIC
 
         asked = [n for n in self.names if n in VISCOELASTIC]
         branch = self.system.viscoelastic
@@ -300,7 +298,6 @@ class ForwardModel:
             return s.initial_state()
         if not self.static:
             return initial_state(self.model, s, self.experiment)
-        from petsoft.solvers.static import StaticSolver
 
         # the static equilibrium under the current parameters, solved tightly: its derivative
         # K(q0) dq0/dp = -d r_static/dp holds at the exact solution
@@ -629,7 +626,6 @@ class ForwardModel:
             x.zeroEntries()
         ksp = self._solver()
         # backward Euler with a viscoelastic branch: z is one more state (dz0 = dq0: z0 = q0)
-        from petsoft.dynamics.parameters import VISCOELASTIC
 
         visco = [j for j, n in enumerate(self.names) if n in VISCOELASTIC]
         others = [j for j in range(P) if j not in visco]

@@ -17,6 +17,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.errors import PetsoftError
+from petsoft.mesh.topology import exterior_faces
 
 
 class ObservationError(PetsoftError):
@@ -66,8 +67,6 @@ def _locate_in_tets(points, tets, reference, names, source, tol=1e-9):
         worst = bary.min(axis=1)
         best = int(np.argmax(worst))
         if worst[best] < -tol:
-            from petsoft.mesh.topology import exterior_faces
-
             faces, _ = exterior_faces(tets)
             dist = distance_to_surface(p, points, faces)
             size = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))

@@ -23,9 +23,15 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.dynamics.simulate import Simulation
 from petsoft.errors import PetsoftError
+from petsoft.experiment import experiment_from_dict, get_parameter, load_experiment, parameter_names
+from petsoft.io.recording import write_recording
+from petsoft.io.summary import write_summary
 from petsoft.mesh.serial import Mesh, validate
 from petsoft.mesh.topology import exterior_faces
+from petsoft.physics.model import build_model, load_mesh
+from petsoft.solvers.options import experiment_options
 
 
 class SynthError(PetsoftError):
@@ -163,8 +169,6 @@ class SynthResult:
 
 def run_synth(args) -> int:
     """`petsoft synth EXPERIMENT.toml --out RECORDING.h5 ...` (all ranks call)."""
-    from petsoft.experiment import load_experiment
-
     options = SynthOptions(out=args.out, noise=args.noise, markers=args.markers,
                            markers_file=args.markers_file, dropout=args.dropout,
                            refine=args.refine, integrator=args.integrator, seed=args.seed)
@@ -188,12 +192,6 @@ def synth(experiment, options: SynthOptions, *, say=None) -> SynthResult:
     SynthResult
     """
     from petsoft.calibration.observation import time_interpolation
-    from petsoft.dynamics.simulate import Simulation
-    from petsoft.experiment import experiment_from_dict, get_parameter, parameter_names
-    from petsoft.io.recording import write_recording
-    from petsoft.io.summary import write_summary
-    from petsoft.physics.model import build_model, load_mesh
-    from petsoft.solvers.options import experiment_options
 
     t0 = time.perf_counter()
     comm = PETSc.COMM_WORLD

@@ -8,10 +8,19 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.calibration.calibrate import run_calibration
+from petsoft.calibration.synth import run_synth
+from petsoft.diagnosis.demo import run_diagnosis_demo
+from petsoft.diagnosis.diagnose import run_diagnose
+from petsoft.dynamics import damping_analysis as damping
 from petsoft.dynamics.run_simulation import simulate_experiment
+from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict, load_experiment
+from petsoft.io.importers import run_import
 from petsoft.io.summary import write_summary
+from petsoft.io.xdmf import XdmfWriter
 from petsoft.physics.model import build_model
+from petsoft.solvers.modes import compute_modes
 from petsoft.solvers.options import experiment_options
 from petsoft.solvers.run_static import solve_experiment
 
@@ -51,16 +60,10 @@ def run(args) -> int:
     if args.command == "damping":
         return run_damping(args)
     if args.command == "import":
-        from petsoft.io.importers import run_import
-
         return run_import(args)
     if args.command == "synth":
-        from petsoft.calibration.synth import run_synth
-
         return run_synth(args)
     if args.command == "calibrate":
-        from petsoft.calibration.calibrate import run_calibration
-
         experiment = load_experiment(args.experiment)
         out = Path(args.out) if args.out else experiment.output.directory
         with experiment_options(experiment.petsc):
@@ -71,8 +74,6 @@ def run(args) -> int:
                             say=_print)
         return 0
     if args.command == "diagnose":
-        from petsoft.diagnosis.diagnose import run_diagnose
-
         experiment = load_experiment(args.experiment)
         out = Path(args.out) if args.out else experiment.output.directory
         with experiment_options(experiment.petsc):
@@ -91,8 +92,6 @@ def run(args) -> int:
                 png = plot_deflection(outcome.mesh, outcome.displacement, out / "deflection.png")
                 _print(f"plot: {png}   (open displacement.xdmf in ParaView for the 3D field)")
         if args.part in ("all", "diagnose"):
-            from petsoft.diagnosis.demo import run_diagnosis_demo
-
             _print("\n== the whole loop: a recording with a hidden effect, diagnosed ==")
             run_diagnosis_demo(out / "diagnose", say=_print)
         return 0
@@ -146,9 +145,6 @@ def run_modes(args) -> int:
     ...) and the M-normalised shape as the point field ``mode``, so ParaView's time control steps
     through the modes under one Warp By Vector.
     """
-    from petsoft.io.xdmf import XdmfWriter
-    from petsoft.solvers.modes import compute_modes
-
     t0 = time.perf_counter()
     comm = PETSc.COMM_WORLD
     experiment = load_experiment(args.experiment)
@@ -196,9 +192,6 @@ def run_damping(args) -> int:
     the per-mode table of its body at ``[time] step`` (see
     :mod:`petsoft.dynamics.damping_analysis`).
     """
-    from petsoft.dynamics import damping_analysis as damping
-    from petsoft.errors import ExperimentError
-
     t0 = time.perf_counter()
     comm = PETSc.COMM_WORLD
     schemes = damping.default_schemes(args.radii)

@@ -12,6 +12,9 @@ import re
 import sys
 from pathlib import Path
 
+from petsoft.errors import PetsoftError
+from petsoft.version import __version__
+
 #: The user's reference of the experiment, recording and report formats (installed with petsoft).
 FORMATS = Path(__file__).resolve().parents[1] / "formats.md"
 
@@ -54,7 +57,6 @@ class _VersionAction(argparse.Action):
     def __call__(self, parser, namespace, values, option_string=None):
         import petsc4py
 
-        from petsoft.version import __version__
 
         petsc4py.init([])
         from petsc4py import PETSc  # after init: the version query must not read argv
@@ -300,7 +302,6 @@ def main(argv: list[str] | None = None) -> int:
     petsc4py.init(["petsoft", *petsc_args])
     from petsc4py import PETSc
 
-    from petsoft.errors import PetsoftError
 
     try:
         from petsoft.cli import commands

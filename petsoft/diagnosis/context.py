@@ -17,10 +17,15 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
-from petsoft.calibration.calibrate import build_forward
+from petsoft.calibration.calibrate import build_forward, calibration_parameters, run_calibration
+from petsoft.calibration.groups import map_on_groups
+from petsoft.dynamics.mass_spring import load_spring_mesh
+from petsoft.dynamics.parameters import VISCOELASTIC
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
 from petsoft.io.recording import Recording, read_recording
+from petsoft.mesh.topology import exterior_faces
+from petsoft.physics.model import load_mesh, on_root
 
 
 class DiagnoseError(PetsoftError):
@@ -84,12 +89,8 @@ def model_scales(experiment, times: np.ndarray, data: np.ndarray,
     diagonal, m), ``cell`` (mean cell size, m) of the model; ``speed``/``speed_max`` (rms and
     largest marker speed, m/s, by differences of the seen samples) and ``frequency`` (the data's
     dominant modal frequency, Hz, when the evidence found one)."""
-    from petsoft.mesh.topology import exterior_faces
-
     out: dict = {}
     if experiment.is_mass_spring:
-        from petsoft.dynamics.mass_spring import load_spring_mesh
-
         mesh = load_spring_mesh(experiment)
         pts = mesh.points
         total = float(sum(m.value for m in experiment.masses))
@@ -107,8 +108,6 @@ def model_scales(experiment, times: np.ndarray, data: np.ndarray,
         out["cell"] = float(np.mean(np.linalg.norm(pts[edges[:, 0]] - pts[edges[:, 1]],
                                                    axis=1))) if len(edges) else 1.0
     else:
-        from petsoft.physics.model import load_mesh
-
         mesh = load_mesh(experiment)
         pts = mesh.points
         p = pts[mesh.tets]
@@ -168,7 +167,6 @@ class Diagnosis:
     def __init__(self, experiment, recording, *, fraction, alpha, method, gradient,
                  integrator, noise, comm, say):
         from petsoft.diagnosis.noise import NoiseError, noise_summary
-        from petsoft.physics.model import on_root
 
         self.comm = petsc_comm(comm)
         self.rank0 = self.comm.tompi4py().rank == 0
@@ -267,8 +265,6 @@ class Diagnosis:
 
         ``comm`` (default: the diagnosis' communicator) lets candidate fits run on groups of
         ranks (:func:`petsoft.calibration.groups.map_on_groups`)."""
-        from petsoft.calibration.calibrate import calibration_parameters, run_calibration
-
         comm = self.comm if comm is None else petsc_comm(comm)
         ident_exp = with_time(experiment, end=self.cut)
         res = run_calibration(ident_exp, self.recording, method=self.method,
@@ -290,8 +286,6 @@ class Diagnosis:
         """Calibrate each candidate of ``scored`` ((score entry, candidate) pairs) not fitted
         yet, extending ``current``'s model, concurrently on groups of ranks; each entry gains
         ``fit`` (None when the fit failed) and ``fit_error``."""
-        from petsoft.calibration.groups import map_on_groups
-
         need = [(s, c) for s, c in scored if "fit" not in s]
         fits = map_on_groups(
             lambda item, sub: self.calibrate(item[1].extend(current.experiment), comm=sub),
@@ -354,8 +348,6 @@ class Diagnosis:
     def _columns(self, ext, candidate, comm) -> tuple[np.ndarray, dict]:
         """Simulation and sensitivity columns of the extended model at its current values:
         exact forward sensitivities, one-sided differences for ``"score-fd"`` parameters."""
-        from petsoft.dynamics.parameters import VISCOELASTIC
-
         names = list(ext.calibrate)
         p = np.array([get_parameter(ext, n) for n in names])
         # by differences: a score-fd candidate's parameters; and every column when a

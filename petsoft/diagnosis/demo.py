@@ -25,6 +25,9 @@ from pathlib import Path
 
 from mpi4py import MPI
 
+from petsoft.calibration.synth import SynthOptions, synth
+from petsoft.experiment import dumps_toml, load_experiment
+
 #: The truth's extra tables (the effect the user's model lacks) and what diagnose should name.
 HIDDEN = {"tables": {"damping": {"mass": 4.0}}, "physics": "damping.mass",
           "parameter": ("damping.mass", 4.0)}
@@ -58,9 +61,7 @@ def run_diagnosis_demo(out: Path, say=print) -> dict:
         ``hidden``, ``named`` (added physics), ``verdict``, ``parameter`` (name, true, found),
         ``validation`` (held-out rms before/after) and ``noise``.
     """
-    from petsoft.calibration.synth import SynthOptions, synth
     from petsoft.diagnosis.diagnose import run_diagnose
-    from petsoft.experiment import dumps_toml, load_experiment
 
     comm = MPI.COMM_WORLD
     out = Path(out)

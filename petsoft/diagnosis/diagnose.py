@@ -38,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from petsoft.calibration.groups import map_on_groups
+
 # names the tests and scripts import from here
 from petsoft.diagnosis.context import (  # noqa: F401
     NO_REGIONS,
@@ -126,7 +128,6 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
 def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions, max_tries,
                   method, gradient, integrator, noise, numerics, comm, say) -> DiagnoseResult:
     """The diagnosis of :func:`run_diagnose` (call that: it handles the garbage collector)."""
-    from petsoft.calibration.groups import map_on_groups
     from petsoft.diagnosis.candidates import build_candidates
 
     t0 = time.perf_counter()

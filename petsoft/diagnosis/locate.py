@@ -29,6 +29,7 @@ from scipy import stats
 from scipy.spatial import cKDTree
 
 from petsoft.errors import PetsoftError
+from petsoft.io.xdmf import write_xdmf
 
 __all__ = ["LocateError", "MarkerResiduals", "marker_residuals", "mismatch_region",
            "nodal_residual_field", "write_residual_field", "mismatch_time_windows",
@@ -220,8 +221,6 @@ def write_residual_field(path: str | Path, points: np.ndarray, tets: np.ndarray,
                          reference: np.ndarray, res: MarkerResiduals,
                          length: float | None = None) -> Path:
     """Write the nodal residual field (and distance to the nearest marker) as XDMF + HDF5."""
-    from petsoft.io.xdmf import write_xdmf
-
     pts = np.asarray(points, dtype=float)
     field = nodal_residual_field(pts, reference, res.rms, length)
     dist, _ = cKDTree(np.asarray(reference, dtype=float)).query(pts)

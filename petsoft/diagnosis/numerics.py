@@ -13,6 +13,7 @@ import gc
 
 import numpy as np
 
+from petsoft.calibration.groups import map_on_groups
 from petsoft.diagnosis.context import Diagnosis, Fit, evidence_of, rms, with_time
 
 #: The numerics check refines a box mesh only while the refined mesh has at most this many
@@ -105,8 +106,6 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
     the (possibly refined) fit, its evidence and a list
     of what each round measured.
     """
-    from petsoft.calibration.groups import map_on_groups
-
     rounds: list[dict] = []
     for _ in range(max_rounds):
         exp = fit.experiment

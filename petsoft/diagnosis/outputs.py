@@ -7,6 +7,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from petsoft.diagnosis.context import Diagnosis, Fit
+from petsoft.experiment import write_toml
+from petsoft.io.summary import write_summary
+from petsoft.physics.model import load_mesh
 
 
 @dataclass
@@ -56,8 +59,6 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
     """report.json, report.md, figures, diagnosed.toml, summary.json (rank 0 writes)."""
     from petsoft.diagnosis.evidence import write_figures
     from petsoft.diagnosis.report import write_report, write_report_md
-    from petsoft.experiment import write_toml
-    from petsoft.io.summary import write_summary
 
     if not diag.rank0:
         return
@@ -65,7 +66,6 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
     if not result.base.experiment.is_mass_spring and base_ev.get("markers") is not None:
         # where on the body: the base fit's per-marker residual spread over the mesh (ParaView)
         from petsoft.diagnosis.locate import write_residual_field
-        from petsoft.physics.model import load_mesh
 
         mesh = load_mesh(result.base.experiment)
         write_residual_field(out / "residual_field.xdmf", mesh.points, mesh.tets,

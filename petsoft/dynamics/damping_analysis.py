@@ -57,6 +57,8 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError
+from petsoft.io.summary import write_summary
+from petsoft.solvers.modes import compute_modes
 
 DEFAULT_RADII = (0.0, 0.25, 0.5, 0.75, 1.0)
 TABLE_TAU_OMEGA = (0.1, 1.0, 10.0)
@@ -444,8 +446,6 @@ def fem_mode_damping(model, step: float, schemes, nmodes: int = 6, nsteps: int =
     -------
     FemModesResult
     """
-    from petsoft.solvers.modes import compute_modes
-
     modes = compute_modes(model, nmodes)
     elastic = np.flatnonzero(modes.eigenvalues > 0.0)
     omega = np.sqrt(modes.eigenvalues[elastic])
@@ -687,8 +687,6 @@ def report(out: Path, schemes, fem: FemModesResult | None, rows: list[ScalarRow]
 
     Collective (only rank 0 writes and prints); returns the summary's results on rank 0.
     """
-    from petsoft.io.summary import write_summary
-
     table = scalar_table_rows(rows, TABLE_TAU_OMEGA)
     full = scalar_table_rows(rows)
     fem_rows = fem_table_rows(fem) if fem is not None else []

@@ -76,6 +76,7 @@ from petsc4py import PETSc
 from petsoft.dynamics.alpha import alpha_parameters
 from petsoft.dynamics.implicit import ImplicitIntegrator, StepReport
 from petsoft.errors import ExperimentError
+from petsoft.solvers.modes import compute_modes
 
 FAST_METHODS = ("be", "si", "midpoint", "alpha")
 SPLITTINGS = ("strang", "lie")
@@ -293,7 +294,6 @@ class ModalImexIntegrator:
     def _compute_modes(self, q0: PETSc.Vec) -> None:
         s = self.system
         if s.model is not None:            # a model-backed system: SLEPc on its matrices
-            from petsoft.solvers.modes import compute_modes
 
             res = compute_modes(s.model, self.count, prefix="imex_")
             values = np.asarray(res.eigenvalues, float)

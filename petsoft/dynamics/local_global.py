@@ -66,7 +66,7 @@ import scipy.sparse as sp
 from petsc4py import PETSc
 
 from petsoft.dynamics.implicit import ImplicitIntegrator, StepReport
-from petsoft.errors import PetsoftError
+from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.solvers.convergence import check_converged
 from petsoft.solvers.options import scoped_defaults
 
@@ -660,8 +660,6 @@ def check_supported(system) -> None:
         Not a mass-spring system, stiffness-proportional damping, spring dashpots, friction,
         the C2 contact margin.
     """
-    from petsoft.errors import ExperimentError
-
     hint = "; use the Newton step (--solver snes) instead"
     if system.rest_lengths is None:
         raise ExperimentError("--solver local-global solves mass-spring models ([springs]) "

@@ -44,9 +44,12 @@ from petsoft.dynamics.interfaces import SystemDefaults
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
 from petsoft.errors import ExperimentError
+from petsoft.fem.regions import RegionResolver
+from petsoft.io.recording import read_input_series
 from petsoft.mesh.springs import SpringMesh, read_spring_mesh
 from petsoft.physics.colliders import Collider, default_stiffness
 from petsoft.physics.drag import face_pairs
+from petsoft.physics.model import on_root
 from petsoft.physics.springs import (
     KINDS,
     SpringNetwork,
@@ -236,9 +239,6 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
         Pairs naming missing nodes, springs of zero rest length, ``[[mass]]`` off the nodes, free
         nodes without mass, tractions, fixed nodes inside a collider, a static initial state.
     """
-    from petsoft.fem.regions import RegionResolver
-    from petsoft.physics.model import on_root
-
     comm = comm if comm is not None else PETSc.COMM_WORLD
     src = experiment.source
     if mesh is None:
@@ -299,7 +299,6 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
                 raise ExperimentError(
                     f"{src}: {key}.series = {b.series!r}: a measured input needs its recording "
                     "(petsoft simulate ... --recording RECORDING.h5)")
-            from petsoft.io.recording import read_input_series
 
             displacement = read_input_series(recording, b.series)
         mask = resolver.vertex_mask(b.where, f"{key}.where")

@@ -54,8 +54,11 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.errors import ExperimentError
+from petsoft.experiment import get_parameter, key_part
 from petsoft.fem.kernels.scatter import scatter_add_vector
 from petsoft.mesh.ordering import morton_order
+from petsoft.physics.model import cell_materials
+from petsoft.physics.support import shared_compliance
 
 MATERIAL_KEYS = ("youngs_modulus", "poisson_ratio", "density")
 #: Parameters set_parameters changes but the residual derivatives do not cover: the Maxwell
@@ -83,9 +86,6 @@ class ParameterMap:
     """
 
     def __init__(self, system):
-        from petsoft.experiment import key_part
-        from petsoft.physics.model import cell_materials
-
         self.system = system
         model = system.model
         exp = model.experiment
@@ -133,8 +133,6 @@ class ParameterMap:
         self.contact = system.elastic.contact
         self._compliance_error = None
         if self.support is not None:
-            from petsoft.physics.support import shared_compliance
-
             try:
                 shared_compliance(exp)
                 self.values["boundary.compliance"] = self.support.compliance
@@ -297,8 +295,6 @@ class ParameterMap:
 
 
 def get_default(system, name: str) -> float:
-    from petsoft.experiment import get_parameter
-
     return float(get_parameter(system.model.experiment, name))
 
 

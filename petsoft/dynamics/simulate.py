@@ -18,8 +18,12 @@ from petsoft.dynamics.energy import FIELDS, EnergyLedger
 from petsoft.dynamics.explicit import ExplicitIntegrator
 from petsoft.dynamics.integrators import IntegratorOptions, check_viscoelastic, scheme
 from petsoft.dynamics.system import DynamicSystem
-from petsoft.errors import ExperimentError, SolverError
+from petsoft.errors import ExperimentError, PetsoftError, SolverError
+from petsoft.io.recording import write_recording
+from petsoft.io.summary import write_summary
+from petsoft.io.xdmf import XdmfWriter
 from petsoft.mesh.probes import interpolate, locate
+from petsoft.solvers.static import StaticSolver
 
 MAX_HALVINGS = 6
 
@@ -76,8 +80,6 @@ def initial_state(model, system, experiment, monitor=None):
     pts = dm.mesh.points
     init = experiment.initial
     if init.from_ == "static":
-        from petsoft.solvers.static import StaticSolver
-
         solver = StaticSolver(model, monitor=monitor)
         q0 = solver.solve().displacement.copy()
         solver.destroy()
@@ -200,8 +202,6 @@ class Simulation:
         writer = None
         every = exp.output.every
         if self.out is not None and rank0:
-            from petsoft.io.xdmf import XdmfWriter
-
             self.out.mkdir(parents=True, exist_ok=True)
             if restart:
                 self._archive_trajectory()
@@ -281,7 +281,6 @@ class Simulation:
     def _restore(self, ledger):
         """State, first step and result so far from the latest checkpoint (all ranks)."""
         from petsoft.dynamics.checkpoint import read_latest
-        from petsoft.errors import PetsoftError
 
         dm = self.model.dmesh
         mpi = dm.comm.tompi4py()
@@ -368,9 +367,6 @@ class Simulation:
                 interpolate(u, self.probe_connectivity, self.probe_cells, self.probe_weights))
 
     def _write_outputs(self, result: SimulationResult) -> None:
-        from petsoft.io.recording import write_recording
-        from petsoft.io.summary import write_summary
-
         dm = self.model.dmesh
         u = dm.gather_global(result.q)
         if dm.comm.rank == 0:

@@ -35,6 +35,8 @@ from petsc4py import PETSc
 from petsoft.dynamics.interfaces import SystemDefaults
 from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
 from petsoft.fem.assembly import MatrixAssembler
+from petsoft.fem.kernels.materials import lame_parameters
+from petsoft.physics import friction
 from petsoft.physics.drag import face_pairs
 from petsoft.physics.loads import (
     consistent_mass_matrices,
@@ -42,6 +44,7 @@ from petsoft.physics.loads import (
     lumped_masses,
     traction_forces,
 )
+from petsoft.physics.viscoelastic import MaxwellBranch
 from petsoft.solvers.linear import linear_defaults
 
 #: The assembler's element set of single nodes: the velocity terms' 3x3 diagonal blocks.
@@ -130,8 +133,6 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
         """(nv, 3) the friction's damping per unit mass and unit ``dry`` at the local vertices
         (linearised at v_lin like :meth:`VelocityTerms.unit_linearised`): its density
         derivative."""
-        from petsoft.physics import friction
-
         m, eps = self._friction_mask_local.astype(float), self.velocity_terms.speed
         if v_lin_local is None:
             return friction.damping(v_local, m, eps)
@@ -353,8 +354,6 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
     def set_parameters(self, values: dict) -> None:
         """Change named parameters in place (no mesh rebuild): per-cell Lame parameters and
         density, then M, K0, the lumped masses and gravity; Rayleigh coefficients."""
-        from petsoft.fem.kernels.materials import lame_parameters
-
         pm = self.parameters
         pm.update(values)
         self._parameter_version += 1
@@ -417,8 +416,6 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
 
     # -- the viscoelastic (Maxwell) branch -------------------------------------------------------
     def _viscoelastic_setup(self) -> None:
-        from petsoft.physics.viscoelastic import MaxwellBranch
-
         spec = self.model.experiment.viscoelastic
         #: the :class:`~petsoft.physics.viscoelastic.MaxwellBranch` (inactive for ratio 0)
         self.viscoelastic = MaxwellBranch(self, spec.ratio, spec.relaxation_time)

@@ -80,6 +80,7 @@ from typing import Any, NoReturn
 
 from petsoft.errors import ExperimentError
 from petsoft.experiment.expressions import FUNCTIONS, Expression, parse_expression
+from petsoft.mesh.springs import read_spring_mesh
 
 try:
     import tomllib
@@ -960,7 +961,6 @@ def _check_drag_surface(exp: Experiment) -> None:
             if getattr(exp.drag, k) != 0.0 or f"drag.{k}" in exp.calibrate]
     if not keys:
         return
-    from petsoft.mesh.springs import read_spring_mesh
 
     try:
         mesh = read_spring_mesh(exp.mesh.file, scale=exp.mesh.scale)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from petsoft.errors import PetsoftError
+from petsoft.errors import ExperimentError, PetsoftError
 
 FORMAT = "petsoft-recording"
 VERSION = 1
@@ -349,8 +349,6 @@ class SeriesComponent:
         self.times, self.values, self.source = times, values, source
 
     def evaluate_at(self, points, t: float | None = None) -> np.ndarray:
-        from petsoft.errors import ExperimentError
-
         t = 0.0 if t is None else float(t)
         span = self.times[-1] - self.times[0]
         if t < self.times[0] - 1e-12 * max(span, 1.0) or t > self.times[-1] + 1e-12 * max(
@@ -373,8 +371,6 @@ def read_input_series(recording: Recording | Path, name: str) -> tuple[SeriesCom
         Naming the file and dataset: missing file, unknown input (listing the available ones),
         wrong shapes, non-finite values or times that do not strictly increase.
     """
-    from petsoft.errors import ExperimentError
-
     key = name.split("/", 1)[1] if name.startswith("inputs/") else name
     if isinstance(recording, Recording):
         path, available = recording.source, sorted(recording.inputs)

@@ -10,6 +10,7 @@ from petsc4py import PETSc
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.fem.boundary import DirichletConditions
 from petsoft.fem.regions import RegionResolver
+from petsoft.io.recording import read_input_series
 from petsoft.mesh.distributed import DistributedMesh
 from petsoft.mesh.serial import box_mesh, read_mesh
 from petsoft.physics.contact import build_contact
@@ -127,7 +128,6 @@ def build_model(experiment, comm: PETSc.Comm | None = None, *, project_spd: bool
                 raise ExperimentError(
                     f"{experiment.source}: boundary[{i}].series = {b.series!r}: a measured input "
                     "needs its recording (petsoft simulate ... --recording RECORDING.h5)")
-            from petsoft.io.recording import read_input_series
 
             displacement = read_input_series(recording, b.series)
         mask = resolver.vertex_mask(b.where, key)
