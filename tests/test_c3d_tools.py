@@ -36,6 +36,8 @@ def _expected_small():
     ("ezc3d_float_mm_analog.c3d", 1e-6),              # ezc3d: float, NaN coordinates
     ("c3d_float_m.c3d", 1e-6),                         # c3d: float, in metres, residual -1
     ("c3d_int_mm.c3d", 0.1e-3 / 2 + 1e-9),             # c3d: int16 at POINT:SCALE 0.1 mm
+    ("c3d_float_m_dec.c3d", 1e-6),                     # the c3d float file as DEC (VAX F)
+    ("c3d_float_m_mips.c3d", 1e-6),                    # ... and as MIPS (big-endian)
 ])
 def test_other_writers(name, atol):
     rec = read_c3d(DATA / name)
@@ -46,7 +48,7 @@ def test_other_writers(name, atol):
     assert np.isnan(rec.positions[~seen]).all()
     np.testing.assert_allclose(rec.positions[seen], expected[seen], rtol=0, atol=atol)
     np.testing.assert_allclose(rec.times, np.arange(10) / 100.0)
-    assert rec.attrs["unit_scale"] == (1.0 if name == "c3d_float_m.c3d" else 1e-3)
+    assert rec.attrs["unit_scale"] == (1.0 if name.startswith("c3d_float_m") else 1e-3)
 
 
 def test_analog_skipped_with_a_note(tmp_path):
