@@ -90,3 +90,22 @@ def test_truncated_file(tmp_path, cut, message):
     with pytest.raises(ImportFileError) as err:
         read_c3d(path)
     assert str(path) in str(err.value) and message in str(err.value)
+
+
+def test_corrupt_file(tmp_path):
+    raw = bytearray((DATA / "c3d_int_mm.c3d").read_bytes())
+    path = tmp_path / "bad.c3d"
+    bad = bytearray(raw)
+    bad[4:6] = (-3).to_bytes(2, "little", signed=True)      # analog samples per frame
+    path.write_bytes(bad)
+    with pytest.raises(ImportFileError, match="corrupt header: -3 analog samples per frame"):
+        read_c3d(path)
+    bad = bytearray(raw)
+    name_len = bad[512 + 4]                                  # first record's link: backwards
+    at = 512 + 4 + 2 + name_len
+    bad[at:at + 2] = (-40).to_bytes(2, "little", signed=True)
+    path.write_bytes(bad)
+    with pytest.raises(ImportFileError) as err:
+        read_c3d(path)
+    assert str(path) in str(err.value)
+    assert "corrupt parameter section: the record at byte 516 points -40 bytes" in str(err.value)

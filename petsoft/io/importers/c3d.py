@@ -44,15 +44,16 @@ _UNIT_ALIASES = {"millimeters": "mm", "millimetres": "mm", "meters": "m", "metre
 
 def _floats(blob: bytes | np.ndarray, processor: str) -> np.ndarray:
     """float32 words as float64: IEEE (Intel little-endian, MIPS big-endian) or DEC VAX F."""
-    if processor == "mips":
-        return np.frombuffer(blob, dtype=">f4").astype(float)
     if processor != "dec":
-        return np.frombuffer(blob, dtype="<f4").astype(float)
+        with np.errstate(invalid="ignore"):   # signalling NaN bit patterns (damaged files)
+            return np.frombuffer(blob, dtype=">f4" if processor == "mips" else "<f4").astype(
+                float)
     # VAX F: two little-endian 16-bit words, the high one (sign, exponent) first, exponent bias
     # 2 larger than IEEE's; an exponent of 0 is zero
     u = np.frombuffer(blob, dtype="<u4")
     ieee = ((u >> np.uint32(16)) | (u << np.uint32(16))).astype(np.uint32)
-    values = ieee.view("<f4").astype(float) / 4.0
+    with np.errstate(invalid="ignore"):
+        values = ieee.view("<f4").astype(float) / 4.0
     values[(ieee & np.uint32(0x7F800000)) == 0] = 0.0
     return values
 
@@ -120,6 +121,9 @@ def _parameters(raw: bytes, start: int, processor: str, source: str) -> dict:
             params.append((gid, name, value))
         if offset == 0:
             break
+        if offset < 0:   # a backward link would loop for ever
+            raise ImportFileError(f"{source}: corrupt parameter section: the record at byte {p} "
+                                  f"points {offset} bytes backwards")
         p = q + offset
     return {f"{groups.get(g, str(g))}:{n}": v for g, n, v in params}
 
@@ -245,6 +249,9 @@ def read_c3d(path: Path, *, units: str | None = None, scale: float | None = None
                                   f"length unit ({', '.join(UNITS)}); give --units or --scale")
         factor = UNITS[unit]
     analog_per_frame = int(nanalog_h)
+    if analog_per_frame < 0:
+        raise ImportFileError(f"{source}: corrupt header: {analog_per_frame} analog samples per "
+                              "frame (header word 3, byte 4)")
     floats = point_scale < 0
     itemsize = 4 if floats else 2
     per_frame = 4 * npoints + analog_per_frame
