@@ -51,6 +51,7 @@ def test_other_writers(name, atol):
     assert rec.attrs["unit_scale"] == (1.0 if name.startswith("c3d_float_m") else 1e-3)
 
 
+@pytest.mark.serial_only  # a subprocess of the CLI
 def test_analog_skipped_with_a_note(tmp_path):
     rec = read_c3d(DATA / "ezc3d_float_mm_analog.c3d")
     assert "analog data skipped (2 channels" in rec.attrs["note"]
