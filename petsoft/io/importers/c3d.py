@@ -168,6 +168,41 @@ def _trim_padding(raw: bytes, start: int, nframes: int, frame_bytes: int) -> int
     return nframes
 
 
+def _labels(params: dict, npoints: int) -> list[str]:
+    """POINT:LABELS, LABELS2... for the used points; missing or repeated names made unique."""
+    labels: list[str] = []
+    for key in ["POINT:LABELS"] + [f"POINT:LABELS{i}" for i in range(2, 10)]:
+        v = params.get(key)
+        if isinstance(v, list):
+            labels += v
+        elif isinstance(v, str) and v:
+            labels.append(v)
+    labels = labels[:npoints]
+    labels += [f"p{i}" for i in range(len(labels), npoints)]
+    labels = [lab or f"p{i}" for i, lab in enumerate(labels)]
+    if len(set(labels)) != len(labels):
+        seen: set[str] = set()
+        labels = [lab if not (lab in seen or seen.add(lab)) else f"{lab}#{i}"
+                  for i, lab in enumerate(labels)]
+    return labels
+
+
+def _factor(params: dict, units: str | None, scale: float | None, source: str) -> float:
+    """The factor to metres: from --units / --scale, else POINT:UNITS (default mm)."""
+    factor = unit_scale(units, scale, source)
+    if factor is not None:
+        return factor
+    file_units = params.get("POINT:UNITS", "")
+    if isinstance(file_units, list):
+        file_units = file_units[0] if file_units else ""
+    unit = (file_units or "mm").strip().lower()   # the C3D default unit is millimetres
+    unit = _UNIT_ALIASES.get(unit, unit)
+    if unit not in UNITS:
+        raise ImportFileError(f"{source}: POINT:UNITS = {file_units!r} is not a known "
+                              f"length unit ({', '.join(UNITS)}); give --units or --scale")
+    return UNITS[unit]
+
+
 def read_c3d(path: Path, *, units: str | None = None, scale: float | None = None,
              rest_frame: int | None = None) -> Recording:
     """Read the 3D points of a C3D file as a Recording in metres.
@@ -223,31 +258,8 @@ def read_c3d(path: Path, *, units: str | None = None, scale: float | None = None
         raise ImportFileError(f"{source}: frame rate {rate} is not positive")
     if npoints <= 0:
         raise ImportFileError(f"{source}: the file has no 3D points (POINT:USED = {npoints})")
-    labels: list[str] = []
-    for key in ["POINT:LABELS"] + [f"POINT:LABELS{i}" for i in range(2, 10)]:
-        v = params.get(key)
-        if isinstance(v, list):
-            labels += v
-        elif isinstance(v, str) and v:
-            labels.append(v)
-    labels = labels[:npoints]
-    labels += [f"p{i}" for i in range(len(labels), npoints)]
-    labels = [lab or f"p{i}" for i, lab in enumerate(labels)]
-    if len(set(labels)) != len(labels):
-        seen: set[str] = set()
-        labels = [lab if not (lab in seen or seen.add(lab)) else f"{lab}#{i}"
-                  for i, lab in enumerate(labels)]
-    file_units = params.get("POINT:UNITS", "")
-    if isinstance(file_units, list):
-        file_units = file_units[0] if file_units else ""
-    factor = unit_scale(units, scale, source)
-    if factor is None:
-        unit = (file_units or "mm").strip().lower()   # the C3D default unit is millimetres
-        unit = _UNIT_ALIASES.get(unit, unit)
-        if unit not in UNITS:
-            raise ImportFileError(f"{source}: POINT:UNITS = {file_units!r} is not a known "
-                                  f"length unit ({', '.join(UNITS)}); give --units or --scale")
-        factor = UNITS[unit]
+    labels = _labels(params, npoints)
+    factor = _factor(params, units, scale, source)
     analog_per_frame = int(nanalog_h)
     if analog_per_frame < 0:
         raise ImportFileError(f"{source}: corrupt header: {analog_per_frame} analog samples per "
