@@ -102,6 +102,8 @@ def run_import(args) -> int:
             raise ImportFileError(f"--position-std = {args.position_std} must be >= 0")
         rec.noise["position_std"] = float(args.position_std)
     if PETSc.COMM_WORLD.rank == 0:
+        if rec.attrs.get("note"):
+            print(f"petsoft import: note: {rec.attrs['note']}", flush=True)
         path = rec.write(Path(args.out))
         seen = rec.seen()
         print(f"petsoft import: {rec.num_markers} markers, {rec.num_frames} frames "
