@@ -100,3 +100,86 @@ def test_reason_names_cover_every_kind_and_unknown_codes():
         reason_name(np.zeros(1), 0)
     for obj in (snes, ksp, ts, tao):
         obj.destroy()
+
+
+def test_preonly_and_ksponly_reasons_are_converged():
+    """preonly stops with KSP CONVERGED_ITS and -snes_type ksponly with SNES CONVERGED_ITS."""
+    A = _laplacian(10)
+    ksp = PETSc.KSP().create(comm=A.getComm())
+    ksp.setOperators(A)
+    ksp.setType("preonly")
+    ksp.getPC().setType("jacobi")
+    b, x = A.createVecs()
+    b.set(1.0)
+    ksp.solve(b, x)
+    assert check_converged(ksp, "one preonly application").reason == "CONVERGED_ITS"
+
+    snes = PETSc.SNES().create(comm=A.getComm())
+    f = b.duplicate()
+
+    def residual(snes, x, out):
+        A.mult(x, out)
+        out.axpy(-1.0, b)
+
+    snes.setFunction(residual, f)
+    snes.setJacobian(lambda *args: None, A)
+    snes.setType("ksponly")
+    x.zeroEntries()
+    snes.solve(None, x)
+    assert check_converged(snes, "a ksponly solve").reason == "CONVERGED_ITS"
+    for obj in (snes, f, ksp, b, x, A):
+        obj.destroy()
+
+
+def _decay_ts(max_snes_its: int) -> tuple[PETSc.TS, PETSc.Vec, PETSc.Mat]:
+    """u' = -u by backward Euler over [0, 0.1] in steps of 0.05."""
+    ts = PETSc.TS().create(comm=PETSc.COMM_SELF)
+    u = PETSc.Vec().createSeq(1)
+    J = PETSc.Mat().createDense((1, 1), comm=PETSc.COMM_SELF)
+    J.setUp()
+
+    def rhs(ts, t, u, out):
+        out[0] = -u[0]
+        out.assemble()
+
+    def rhs_jacobian(ts, t, u, J, P):
+        P.setValue(0, 0, -1.0)
+        P.assemble()
+
+    ts.setRHSFunction(rhs, u.duplicate())
+    ts.setRHSJacobian(rhs_jacobian, J)
+    ts.setType("beuler")
+    ts.setTimeStep(0.05)
+    ts.setMaxTime(0.1)
+    ts.setExactFinalTime(PETSc.TS.ExactFinalTime.MATCHSTEP)
+    ts.setMaxSNESFailures(1)
+    ts.setErrorIfStepFails(False)     # report the reason (as petsoft's alpha backend does)
+    snes = ts.getSNES()
+    # newtonls with rtol 1e-300 never converges on a linear problem in max_it iterations
+    snes.setTolerances(rtol=1e-300, atol=0.0, stol=0.0, max_it=max_snes_its)
+    snes.getKSP().setType("preonly")
+    snes.getKSP().getPC().setType("lu")
+    u.set(1.0)
+    return ts, u, J
+
+
+def test_a_ts_reaching_its_final_time_is_converged_and_counts_steps():
+    ts, u, J = _decay_ts(max_snes_its=50)
+    ts.getSNES().setTolerances(rtol=1e-10, atol=1e-14, max_it=50)
+    ts.solve(u)
+    result = check_converged(ts, "backward-Euler decay")
+    assert result.kind == "TS" and result.reason.startswith("CONVERGED_")
+    assert result.iterations == 2     # steps
+    for obj in (ts, u, J):
+        obj.destroy()
+
+
+def test_a_ts_whose_newton_fails_raises_naming_the_step():
+    ts, u, J = _decay_ts(max_snes_its=1)
+    ts.solve(u)
+    assert not outcome(ts).converged
+    with pytest.raises(SolverError, match=r"^backward-Euler step 1 at t = 0 s: TS "
+                                          r"DIVERGED_NONLINEAR_SOLVE after \d+ iteration"):
+        check_converged(ts, "backward-Euler step 1 at t = 0 s")
+    for obj in (ts, u, J):
+        obj.destroy()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from petsc4py import PETSc
 
+from petsoft.dynamics.run_simulation import simulate_experiment
 from petsoft.experiment import experiment_from_dict
 from petsoft.solvers.options import experiment_options
 from petsoft.solvers.run_static import solve_experiment
@@ -53,3 +54,22 @@ def test_nested_blocks_remove_only_what_they_inserted():
         assert opts.hasName("ksp_type") and not opts.hasName("pc_type")
         assert outer == ["ksp_type"]
     assert not opts.hasName("ksp_type")
+
+
+def test_a_dynamic_run_uses_the_experiment_options_and_leaves_none_behind(tmp_path):
+    """Backward Euler on a small bar with [petsc] ksp_type = cg, pc_type = jacobi: each Newton
+    iteration takes several linear iterations (fewer with petsoft's default: a direct solve for
+    so few unknowns in serial, a looser tolerance in parallel), and no key is in the global
+    options database after the run."""
+    data = {**BAR, "initial": {"displacement": ["0", "0", "0.3*x**2"]},
+            "time": {"end": 0.004, "step": 2e-3, "integrator": "be"},
+            "petsc": {"ksp_type": "cg", "pc_type": "jacobi", "ksp_rtol": "1e-12"}}
+    krylov = simulate_experiment(experiment_from_dict(data), out=tmp_path / "cg")
+    assert krylov.newton_iterations > 0
+    assert krylov.linear_iterations > 2 * krylov.newton_iterations
+    opts = PETSc.Options()
+    for key in data["petsc"]:
+        assert not opts.hasName(key), f"{key} left in the global options database"
+    direct = simulate_experiment(experiment_from_dict({**data, "petsc": {}}),
+                                 out=tmp_path / "default")
+    assert direct.linear_iterations < krylov.linear_iterations

@@ -33,7 +33,7 @@ from petsc4py import PETSc
 from petsoft.dynamics.implicit import NoBranch, SolverReuse, StepReport, branch_of
 from petsoft.errors import InvertedElementError
 from petsoft.physics.viscoelastic import MaxwellRule
-from petsoft.solvers.convergence import reason_name
+from petsoft.solvers.convergence import outcome, reason_name
 from petsoft.solvers.options import scoped_defaults
 
 
@@ -148,8 +148,7 @@ class AlphaTSIntegrator:
         snes = ts.getSNES()
         report.newton_iterations = snes.getIterationNumber()
         report.linear_iterations = snes.getLinearSolveIterations()
-        reason = ts.getConvergedReason()
-        report.converged = reason >= 0 and snes.getConvergedReason() > 0
+        report.converged = outcome(ts).converged and outcome(snes).converged
         report.reason = reason_name(ts)
         if self._bad is not None:
             report.converged = False
@@ -379,11 +378,11 @@ class GeneralizedAlpha(SolverReuse):
             self._new_solver()
         self.snes.solve(None, q1)
         report = StepReport()
-        reason = self.snes.getConvergedReason()
         report.newton_iterations = self.snes.getIterationNumber()
         report.linear_iterations = self.snes.getLinearSolveIterations()
-        report.converged = reason > 0 and self._bad is None
-        report.reason = reason_name(self.snes)
+        done = outcome(self.snes)
+        report.converged = done.converged and self._bad is None
+        report.reason = done.reason
         if self._bad is not None:
             report.reason += f" ({self._bad})"
         if not report.converged:

@@ -402,7 +402,7 @@ class EREIntegrator:
     def destroy(self) -> None:
         for name in ("mfn", "A", "Y", "B", "X", "K", "Me", "ksp", "inv_mass", "_xq", "_xv",
                      "_t1", "_t2", "_a0", "_w", "_f", "_fp", "_grad", "_qt", "_vt", "_g",
-                     "_tmp", "_dq"):
+                     "_tmp", "_dq", "_v_state"):
             obj = getattr(self, name, None)
             if obj is not None:
                 obj.destroy()

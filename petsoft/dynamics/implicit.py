@@ -36,7 +36,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.integrators import SCHEMES
 from petsoft.errors import InvertedElementError
-from petsoft.solvers.convergence import reason_name
+from petsoft.solvers.convergence import outcome
 from petsoft.solvers.options import scoped_defaults
 
 METHODS = ("be", "si", "midpoint", "trapezoidal")
@@ -368,19 +368,17 @@ class ImplicitIntegrator(SolverReuse):
             self._new_solver()
         if self.solver == "snes":
             self.snes.solve(None, q1)
-            reason = self.snes.getConvergedReason()
             report.newton_iterations = self.snes.getIterationNumber()
             report.linear_iterations = self.snes.getLinearSolveIterations()
-            report.converged = reason > 0
-            report.reason = reason_name(self.snes)
+            done = outcome(self.snes)
+            report.converged, report.reason = done.converged, done.reason
         else:
             self.tao.setSolution(q1)
             self.tao.solve(q1)
-            reason = self.tao.getConvergedReason()
             report.newton_iterations = self.tao.getIterationNumber()
             report.linear_iterations = self.ksp.getIterationNumber()
-            report.converged = reason > 0
-            report.reason = reason_name(self.tao)
+            done = outcome(self.tao)
+            report.converged, report.reason = done.converged, done.reason
         if self._bad is not None:
             report.converged = False
             report.reason += f" ({self._bad})"

@@ -77,9 +77,13 @@ def outcome(solver) -> Outcome:
     """The :class:`Outcome` of ``solver``'s last solve."""
     code = int(solver.getConvergedReason())
     kind = type(solver).__name__
-    ok = code >= 0 if isinstance(solver, PETSc.TS) else code > 0
+    if isinstance(solver, PETSc.TS):
+        # a TS counts steps, not iterations; it converged when it reached its final time (>= 0)
+        ok, its = code >= 0, solver.getStepNumber()
+    else:
+        ok, its = code > 0, solver.getIterationNumber()
     return Outcome(converged=ok, reason=_table(solver).get(code, str(code)), code=code,
-                   iterations=int(solver.getIterationNumber()), kind=kind)
+                   iterations=int(its), kind=kind)
 
 
 def check_converged(solver, what: str, hint: str = "") -> Outcome:
