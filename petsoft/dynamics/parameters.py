@@ -54,6 +54,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.errors import ExperimentError
+from petsoft.experiment.parameters import key_part
 from petsoft.fem.kernels.scatter import scatter_add_vector
 from petsoft.mesh.ordering import morton_order
 
@@ -83,7 +84,6 @@ class ParameterMap:
     """
 
     def __init__(self, system):
-        from petsoft.experiment import key_part
         from petsoft.physics.model import cell_materials
 
         self.system = system
