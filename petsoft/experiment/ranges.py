@@ -10,12 +10,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-# ------------------------------------------------------------------------------------------------
-# Ranges of numeric values, shared by the loader and the [calibrate] bounds check.
-
 
 @dataclass(frozen=True)
 class Range:
+    """The interval ``lo`` .. ``hi`` (None: unbounded), each end open or closed."""
+
     lo: float | None = None
     hi: float | None = None
     lo_open: bool = False
@@ -50,5 +49,6 @@ MATERIAL_RANGES = {
 
 
 def format_number(v: float) -> str:
+    """A number as a message shows it: integers without a decimal point."""
     return str(int(v)) if float(v).is_integer() and abs(v) < 1e15 else repr(float(v))
 

@@ -40,6 +40,7 @@ def _toml_key(k: str) -> str:
 
 
 def toml_value(v: Any) -> str:
+    """One TOML value (scalar, array or inline table) as text."""
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, int):
