@@ -38,9 +38,9 @@ def test_every_toml_example_loads(index, tmp_path):
 
 
 def test_every_top_level_section_is_documented():
-    from petsoft.experiment import _TOP_KEYS
+    from petsoft.experiment.reader import TOP_KEYS
 
     documented = set(re.findall(r"^\[\[?([a-z_]+)", "\n".join(BLOCKS), flags=re.M))
     documented |= set(re.findall(r"^([a-z_]+) =", "\n".join(BLOCKS), flags=re.M))
-    missing = set(_TOP_KEYS) - documented
+    missing = set(TOP_KEYS) - documented
     assert not missing, f"sections the reader accepts but formats.md never shows: {missing}"

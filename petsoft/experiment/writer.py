@@ -1,0 +1,100 @@
+"""Writing experiments back as TOML (calibration writes calibrated experiments).
+
+This module owns the TOML text: :func:`dumps_toml` serialises a dict of TOML values (the dict
+form comes from :meth:`~petsoft.experiment.spec.Experiment.to_dict`), :func:`write_toml` writes
+an experiment file that :func:`~petsoft.experiment.reader.load_experiment` reads back equal.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from petsoft.experiment.spec import Experiment
+
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
+
+def _toml_string(s: str) -> str:
+    out = []
+    for ch in s:
+        if ch == '"':
+            out.append('\\"')
+        elif ch == "\\":
+            out.append("\\\\")
+        elif ch in "\b\t\n\f\r":
+            out.append({"\b": "\\b", "\t": "\\t", "\n": "\\n", "\f": "\\f", "\r": "\\r"}[ch])
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04x}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
+def _toml_key(k: str) -> str:
+    return k if _BARE_KEY.fullmatch(k) else _toml_string(k)
+
+
+def toml_value(v: Any) -> str:
+    """One TOML value (scalar, array or inline table) as text."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)  # shortest round-trip repr; always a valid TOML float
+    if isinstance(v, str):
+        return _toml_string(v)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{_toml_key(k)} = {toml_value(x)}" for k, x in v.items()) + " }"
+    if isinstance(v, os.PathLike):
+        return _toml_string(os.fspath(v))
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _is_table_array(v: Any) -> bool:
+    return isinstance(v, list) and bool(v) and all(isinstance(x, dict) for x in v)
+
+
+def _dump_table(lines: list[str], table: Mapping[str, Any], path: list[str]) -> None:
+    for k, v in table.items():
+        if not isinstance(v, dict) and not _is_table_array(v):
+            lines.append(f"{_toml_key(k)} = {toml_value(v)}")
+    for k, v in table.items():
+        name = ".".join(_toml_key(p) for p in [*path, k])
+        if isinstance(v, dict):
+            scalars = any(not isinstance(x, dict) and not _is_table_array(x) for x in v.values())
+            if scalars or not v:  # a table holding only sub-tables needs no header of its own
+                lines.extend(["", f"[{name}]"])
+            _dump_table(lines, v, [*path, k])
+        elif _is_table_array(v):
+            for item in v:
+                lines.extend(["", f"[[{name}]]"])
+                _dump_table(lines, item, [*path, k])
+
+
+def dumps_toml(data: Mapping[str, Any]) -> str:
+    """Serialise a dict of TOML values (tables, arrays of tables, scalars, arrays) to TOML text."""
+    lines: list[str] = []
+    _dump_table(lines, data, [])
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def write_toml(experiment: Experiment, path: str | os.PathLike) -> None:
+    """Write ``experiment`` as a TOML experiment file that :func:`load_experiment` reads back
+    equal; paths inside it are written relative to the file's directory."""
+    target = Path(path)
+    text = "# petsoft experiment (formats.md section 1), written by petsoft\n" + dumps_toml(
+        experiment.to_dict(relative_to=target.parent.resolve())
+    )
+    target.write_text(text, encoding="utf-8")
