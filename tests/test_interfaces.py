@@ -142,3 +142,23 @@ def test_integrator_registry_covers_the_format_and_every_entry_steps():
         assert result.steps == 2, name
         assert np.isfinite(result.energies).all(), name
         sim.destroy()
+
+
+def test_integrator_properties_replace_the_name_comparisons():
+    # the callers (implicit, imex, simulate, calibration.forward) branch on these declared
+    # properties; each must single out the scheme whose code path it selects
+    def having(prop, value=True):
+        return {n for n, e in SCHEMES.items() if getattr(e, prop) == value}
+
+    assert having("one_newton_step") == {"si"}
+    assert having("carries_acceleration") == {"alpha"}
+    assert having("branch_sensitivities") == {"be"}
+    assert having("minimization") == {"be"}
+    assert having("continuum_only") == {"imex"}
+    assert having("ts_backend") == {"alpha"}
+    assert having("force_at", "end") >= {"be", "si"}
+    assert having("force_at", "midpoint") == {"midpoint"}
+    assert having("force_at", "trapezoidal") == {"trapezoidal"}
+    for e in SCHEMES.values():
+        assert (e.maxwell is not None) == (e.name in ("be", "si", "alpha", "midpoint",
+                                                      "trapezoidal")), e.name

@@ -78,7 +78,7 @@ from petsc4py import PETSc
 from petsoft.calibration.observation import time_interpolation
 from petsoft.dynamics.alpha import GeneralizedAlpha, alpha_parameters
 from petsoft.dynamics.implicit import ImplicitIntegrator
-from petsoft.dynamics.integrators import check_viscoelastic, with_gradients
+from petsoft.dynamics.integrators import check_viscoelastic, scheme, with_gradients
 from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, SolverError
@@ -168,9 +168,10 @@ class ForwardModel:
             raise ExperimentError(
                 f"{exp.source}: time.integrator = {self.method!r}: gradients are implemented for "
                 f"{', '.join(INTEGRATORS)} only")
+        self.scheme = scheme(self.method)
         # accelerations are part of the state (alpha) or observed (a_n = (v_n - v_n-1)/h for
         # be/si, the consistent acceleration at t = 0)
-        self.has_a = self.method == "alpha" or self.accel
+        self.has_a = self.scheme.carries_acceleration or self.accel
         self.static = exp.initial.from_ == "static"
         self.h = float(h if h is not None else exp.time.step)
         opts = {k.lstrip("-"): str(v) for k, v in (solver_options or {}).items()}
@@ -233,7 +234,7 @@ class ForwardModel:
             for i, w in zip(self.frame_index[k], self.frame_weight[k], strict=True):
                 if w != 0.0:
                     self.uses.setdefault(int(i), []).append((k, float(w)))
-        if self.method == "alpha":
+        if self.scheme.carries_acceleration:
             self.integrator = GeneralizedAlpha(s, exp.time.alpha_radius if exp.time else 0.5,
                                                prefix=PREFIX)
             self.am, self.af, self.gamma, self.nbeta = alpha_parameters(self.integrator.radius)
@@ -275,7 +276,7 @@ class ForwardModel:
         """Raise (on every rank) when the run has a viscoelastic branch or its parameters are
         requested: the adjoint (and the forward sensitivities of si and alpha) do not include
         the branch's internal variable; backward Euler's forward sensitivities do."""
-        if sensitivities and self.method == "be":
+        if sensitivities and self.scheme.branch_sensitivities:
             return
         from petsoft.dynamics.parameters import VISCOELASTIC
 
@@ -341,7 +342,7 @@ class ForwardModel:
         self.integrator.new_run()
         if self.has_a:
             a = s.create_vec()
-            if self.method == "alpha":
+            if self.scheme.carries_acceleration:
                 self.integrator._forget()
             # the integrator's own formula (alpha recomputes the same a0 on its first step)
             GeneralizedAlpha.consistent_acceleration(self._a0_helper(), 0.0, q, v, a)
@@ -361,7 +362,7 @@ class ForwardModel:
                         "with a smaller step in calibration runs: use a smaller [time] step or "
                         "tighter parameter bounds")
                 a1 = None
-                if self.method == "alpha":
+                if self.scheme.carries_acceleration:
                     a1 = self.integrator.a0.copy()
                 elif self.accel:
                     a1 = v1.copy()
@@ -403,7 +404,7 @@ class ForwardModel:
 
     def _a0_helper(self):
         """What GeneralizedAlpha.consistent_acceleration needs of its instance."""
-        if self.method == "alpha":
+        if self.scheme.carries_acceleration:
             return self.integrator
         if getattr(self, "_helper", None) is None:
             from types import SimpleNamespace
@@ -463,7 +464,9 @@ class ForwardModel:
         s, h = self.system, self.h
         (q0, v0, a0), (q1, v1, a1) = st0, st1
         data = {}
-        if self.method == "be":
+        # backward Euler (full Newton: the Jacobian at the step's end), semi-implicit (one
+        # Newton step from the predictor), generalized-alpha (the acceleration carried)
+        if not (self.scheme.one_newton_step or self.scheme.carries_acceleration):
             acc = v1.copy()
             acc.axpy(-1.0, v0)
             acc.scale(1.0 / h)
@@ -483,7 +486,7 @@ class ForwardModel:
             acc.destroy()
             if k0x is not None:
                 k0x.destroy()
-        elif self.method == "si":
+        elif self.scheme.one_newton_step:
             qp = self._predictor(n, q0, v0)
             w = q1.copy()
             w.axpy(-1.0, qp)
@@ -633,7 +636,8 @@ class ForwardModel:
 
         visco = [j for j, n in enumerate(self.names) if n in VISCOELASTIC]
         others = [j for j in range(P) if j not in visco]
-        tangents["z"] = [s.create_vec() for _ in range(P)] if self.method == "be" else None
+        tangents["z"] = ([s.create_vec() for _ in range(P)]
+                         if self.scheme.branch_sensitivities else None)
 
         def observe_tangents(n):
             for k, w in self.uses.get(n, []):
@@ -684,13 +688,13 @@ class ForwardModel:
             for j, r in zip(others, deriv.vectors([self.names[j] for j in others]),
                             strict=True):
                 Rp[j] = r
-            branch = self._branch() if self.method == "be" else None
+            branch = self._branch() if self.scheme.branch_sensitivities else None
             for j in visco:   # (be only: _refuse_derivatives; the branch is tracked)
                 Rp[j] = branch.residual_derivative(self.names[j], st1[0], s.create_vec())
             rhs, tmp = s.create_vec(), s.create_vec()
             for j in range(P):
                 dq0, dv0 = tangents["q"][j], tangents["v"][j]
-                if self.method == "alpha":
+                if self.scheme.carries_acceleration:
                     self._alpha_tangent(data, Rp[j], dq0, dv0, tangents["a"][j], ksp, rhs, tmp)
                     continue
                 # rhs = -R_p + M (dq0/h^2 + dv0/h) + D dq0/h (- T_w (dq0 + h dv0) for SI)
@@ -842,7 +846,7 @@ class ForwardModel:
         for n in range(N - 1, -1, -1):
             deriv, data = self._step_setup(n, states[n], states[n + 1])
             ksp.setOperators(self.J)
-            if self.method == "alpha":
+            if self.scheme.carries_acceleration:
                 gq, gv, ga = self._alpha_adjoint(data, deriv, gq, gv, ga, ksp, mu, rhs, tmp,
                                                  contract)
             else:
