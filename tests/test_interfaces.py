@@ -11,7 +11,7 @@ import pytest
 from mpi4py import MPI
 
 from petsoft.dynamics.integrators import SCHEMES, scheme
-from petsoft.dynamics.interfaces import System
+from petsoft.dynamics.interfaces import Stepper, System
 from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model, rope_mesh
 from petsoft.dynamics.oscillator import OscillatorSystem
 from petsoft.dynamics.simulate import Simulation
@@ -138,6 +138,9 @@ def test_integrator_registry_covers_the_format_and_every_entry_steps():
         exp = experiment_from_dict({**data, "time": {"end": 2e-4, "step": 1e-4,
                                                      "integrator": name, "imex_slow_modes": 2}})
         sim = Simulation(build_model(exp), exp)
+        # what Simulation (checkpoints included) calls, declared: no probing
+        _assert_implements(sim.integrator, Stepper)
+        assert isinstance(sim.integrator.state(), dict), name
         result = sim.run()
         assert result.steps == 2, name
         assert np.isfinite(result.energies).all(), name

@@ -75,7 +75,7 @@ import re
 import numpy as np
 from petsc4py import PETSc
 
-from petsoft.calibration.observation import time_interpolation
+from petsoft.calibration.observation import MarkerObserver, time_interpolation
 from petsoft.dynamics.alpha import GeneralizedAlpha, alpha_parameters
 from petsoft.dynamics.implicit import ImplicitIntegrator
 from petsoft.dynamics.integrators import check_viscoelastic, scheme, with_gradients
@@ -169,6 +169,7 @@ class ForwardModel:
                 f"{exp.source}: time.integrator = {self.method!r}: gradients are implemented for "
                 f"{', '.join(INTEGRATORS)} only")
         self.scheme = scheme(self.method)
+        self._helper = None     # what the consistent acceleration needs (_a0_helper)
         # accelerations are part of the state (alpha) or observed (a_n = (v_n - v_n-1)/h for
         # be/si, the consistent acceleration at t = 0)
         self.has_a = self.scheme.carries_acceleration or self.accel
@@ -216,7 +217,7 @@ class ForwardModel:
             from petsoft.experiment import get_parameter
 
             self.p0 = np.array([get_parameter(exp, n) for n in self.names])
-        self._own_observer = not hasattr(observer, "observe")
+        self._own_observer = not isinstance(observer, MarkerObserver)   # else a factory
         self.observer = observer(s) if self._own_observer else observer
         # the marker reference positions: observe(0) (the contract is observe(q) = X + B q)
         zero = s.create_vec()
@@ -406,7 +407,7 @@ class ForwardModel:
         """What GeneralizedAlpha.consistent_acceleration needs of its instance."""
         if self.scheme.carries_acceleration:
             return self.integrator
-        if getattr(self, "_helper", None) is None:
+        if self._helper is None:
             from types import SimpleNamespace
 
             self._helper = SimpleNamespace(system=self.system, work=self.system.create_vec())
@@ -965,9 +966,9 @@ class ForwardModel:
     def destroy(self) -> None:
         self.integrator.destroy()
         self.J.destroy()
-        if self._own_observer and hasattr(self.observer, "destroy"):
+        if self._own_observer:
             self.observer.destroy()
-        if getattr(self, "_helper", None) is not None:
+        if self._helper is not None:
             self._helper.work.destroy()
 
 

@@ -76,6 +76,7 @@ from petsc4py import PETSc
 from petsoft.dynamics.alpha import alpha_parameters
 from petsoft.dynamics.implicit import ImplicitIntegrator, StepReport
 from petsoft.dynamics.integrators import scheme
+from petsoft.dynamics.interfaces import StepperDefaults
 from petsoft.errors import ExperimentError
 
 FAST_METHODS = ("be", "si", "midpoint", "alpha")
@@ -250,7 +251,7 @@ class ImexIntegrator:
         """Nothing to destroy: the steps use NumPy only."""
 
 
-class ModalImexIntegrator:
+class ModalImexIntegrator(StepperDefaults):
     """Slow vibration modes explicit (Verlet), the rest implicit (BE/SI): ``imex`` for FEM.
 
     Parameters

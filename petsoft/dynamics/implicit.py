@@ -35,6 +35,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.dynamics.integrators import SCHEMES, scheme
+from petsoft.dynamics.interfaces import StepperDefaults
 from petsoft.errors import InvertedElementError
 from petsoft.solvers.convergence import reason_name
 from petsoft.solvers.options import scoped_defaults
@@ -91,6 +92,7 @@ class SolverReuse:
     """
 
     _solver_used = False
+    snes = None     # the subclass's SNES, once it has one
 
     def new_run(self) -> None:
         """The next step sets up a new solver (a caller's options may have changed)."""
@@ -106,13 +108,13 @@ class SolverReuse:
         A run restarted from a checkpoint still computes bit for bit what the uninterrupted run
         did: it sets the solver up once, on the same matrix, as that run did at its first step.
         """
-        if not self._solver_used or getattr(self, "snes", None) is None:
+        if not self._solver_used or self.snes is None:
             self._solver_used = True
             return False
         return bool(self.system.jacobian_is_constant)
 
 
-class ImplicitIntegrator(SolverReuse):
+class ImplicitIntegrator(SolverReuse, StepperDefaults):
     """Backward Euler, semi-implicit, (discrete-gradient) midpoint or trapezoidal steps.
 
     Parameters
@@ -409,6 +411,7 @@ class ImplicitIntegrator(SolverReuse):
             v.destroy()
 
     def destroy(self) -> None:
-        for name in ("snes", "tao", "J", "R", "q0", "v0", "f0", "f1", "_a", "_b", "_c"):
-            if getattr(self, name, None) is not None:
-                getattr(self, name).destroy()
+        for obj in (self.snes, self.tao, self.J, self.R, self.q0, self.v0, self.f0, self.f1,
+                    self._a, self._b, self._c):
+            if obj is not None:
+                obj.destroy()

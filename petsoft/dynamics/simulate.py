@@ -258,7 +258,7 @@ class Simulation:
         from petsoft.dynamics.checkpoint import write_checkpoint
 
         dm = self.model.dmesh
-        state = getattr(self.integrator, "state", dict)()
+        state = self.integrator.state()
         fields = {"q": q, "v": v}
         branch = self.system.viscoelastic
         if branch is not None and branch.active:
@@ -324,9 +324,7 @@ class Simulation:
             else:
                 branch.reset(q)
         t = float(data["time"])
-        restore = getattr(self.integrator, "restore", None)
-        if restore is not None:
-            restore(t, q, v, state)
+        self.integrator.restore(t, q, v, state)
         rows = data["ledger_rows"]
         ledger.rows = [dict(zip(FIELDS, r, strict=True)) for r in rows]
         ledger.dissipated = float(data["ledger"]["dissipated"])
