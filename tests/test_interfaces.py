@@ -11,7 +11,7 @@ import pytest
 from mpi4py import MPI
 
 from petsoft.dynamics.integrators import SCHEMES, scheme
-from petsoft.dynamics.interfaces import System
+from petsoft.dynamics.interfaces import Stepper, System
 from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model, rope_mesh
 from petsoft.dynamics.oscillator import OscillatorSystem
 from petsoft.dynamics.simulate import Simulation
@@ -138,6 +138,9 @@ def test_integrator_registry_covers_the_format_and_every_entry_steps():
         exp = experiment_from_dict({**data, "time": {"end": 2e-4, "step": 1e-4,
                                                      "integrator": name, "imex_slow_modes": 2}})
         sim = Simulation(build_model(exp), exp)
+        # what Simulation (checkpoints included) calls, declared: no probing
+        _assert_implements(sim.integrator, Stepper)
+        assert isinstance(sim.integrator.state(), dict), name
         result = sim.run()
         assert result.steps == 2, name
         assert np.isfinite(result.energies).all(), name
@@ -190,3 +193,23 @@ def test_term_parametric_terms_are_declared_and_match_differences():
         potential.contact.set_parameter("collider.1.offset", 0.0)      # a sphere
     with pytest.raises(KeyError):
         potential.support.add_parameter_derivative("collider.0.offset", u, d)
+
+
+def test_integrator_properties_replace_the_name_comparisons():
+    # the callers (implicit, imex, simulate, calibration.forward) branch on these declared
+    # properties; each must single out the scheme whose code path it selects
+    def having(prop, value=True):
+        return {n for n, e in SCHEMES.items() if getattr(e, prop) == value}
+
+    assert having("one_newton_step") == {"si"}
+    assert having("carries_acceleration") == {"alpha"}
+    assert having("branch_sensitivities") == {"be"}
+    assert having("minimization") == {"be"}
+    assert having("continuum_only") == {"imex"}
+    assert having("ts_backend") == {"alpha"}
+    assert having("force_at", "end") >= {"be", "si"}
+    assert having("force_at", "midpoint") == {"midpoint"}
+    assert having("force_at", "trapezoidal") == {"trapezoidal"}
+    for e in SCHEMES.values():
+        assert (e.maxwell is not None) == (e.name in ("be", "si", "alpha", "midpoint",
+                                                      "trapezoidal")), e.name

@@ -75,10 +75,10 @@ import re
 import numpy as np
 from petsc4py import PETSc
 
-from petsoft.calibration.observation import time_interpolation
+from petsoft.calibration.observation import MarkerObserver, time_interpolation
 from petsoft.dynamics.alpha import GeneralizedAlpha, alpha_parameters
 from petsoft.dynamics.implicit import ImplicitIntegrator
-from petsoft.dynamics.integrators import check_viscoelastic, with_gradients
+from petsoft.dynamics.integrators import check_viscoelastic, scheme, with_gradients
 from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
 from petsoft.dynamics.parameters import VISCOELASTIC
 from petsoft.dynamics.simulate import initial_state
@@ -172,9 +172,11 @@ class ForwardModel:
             raise ExperimentError(
                 f"{exp.source}: time.integrator = {self.method!r}: gradients are implemented for "
                 f"{', '.join(INTEGRATORS)} only")
+        self.scheme = scheme(self.method)
+        self._helper = None     # what the consistent acceleration needs (_a0_helper)
         # accelerations are part of the state (alpha) or observed (a_n = (v_n - v_n-1)/h for
         # be/si, the consistent acceleration at t = 0)
-        self.has_a = self.method == "alpha" or self.accel
+        self.has_a = self.scheme.carries_acceleration or self.accel
         self.static = exp.initial.from_ == "static"
         self.h = float(h if h is not None else exp.time.step)
         opts = {k.lstrip("-"): str(v) for k, v in (solver_options or {}).items()}
@@ -214,7 +216,7 @@ class ForwardModel:
             self.p0 = np.array([s.parameters.values[n] for n in self.names])
         else:
             self.p0 = np.array([get_parameter(exp, n) for n in self.names])
-        self._own_observer = not hasattr(observer, "observe")
+        self._own_observer = not isinstance(observer, MarkerObserver)   # else a factory
         self.observer = observer(s) if self._own_observer else observer
         # the marker reference positions: observe(0) (the contract is observe(q) = X + B q)
         zero = s.create_vec()
@@ -232,7 +234,7 @@ class ForwardModel:
             for i, w in zip(self.frame_index[k], self.frame_weight[k], strict=True):
                 if w != 0.0:
                     self.uses.setdefault(int(i), []).append((k, float(w)))
-        if self.method == "alpha":
+        if self.scheme.carries_acceleration:
             self.integrator = GeneralizedAlpha(s, exp.time.alpha_radius if exp.time else 0.5,
                                                prefix=PREFIX)
             self.am, self.af, self.gamma, self.nbeta = alpha_parameters(self.integrator.radius)
@@ -274,7 +276,7 @@ class ForwardModel:
         """Raise (on every rank) when the run has a viscoelastic branch or its parameters are
         requested: the adjoint (and the forward sensitivities of si and alpha) do not include
         the branch's internal variable; backward Euler's forward sensitivities do."""
-        if sensitivities and self.method == "be":
+        if sensitivities and self.scheme.branch_sensitivities:
             return
 
         asked = [n for n in self.names if n in VISCOELASTIC]
@@ -338,7 +340,7 @@ class ForwardModel:
         self.integrator.new_run()
         if self.has_a:
             a = s.create_vec()
-            if self.method == "alpha":
+            if self.scheme.carries_acceleration:
                 self.integrator._forget()
             # the integrator's own formula (alpha recomputes the same a0 on its first step)
             GeneralizedAlpha.consistent_acceleration(self._a0_helper(), 0.0, q, v, a)
@@ -358,7 +360,7 @@ class ForwardModel:
                         "with a smaller step in calibration runs: use a smaller [time] step or "
                         "tighter parameter bounds")
                 a1 = None
-                if self.method == "alpha":
+                if self.scheme.carries_acceleration:
                     a1 = self.integrator.a0.copy()
                 elif self.accel:
                     a1 = v1.copy()
@@ -400,9 +402,9 @@ class ForwardModel:
 
     def _a0_helper(self):
         """What GeneralizedAlpha.consistent_acceleration needs of its instance."""
-        if self.method == "alpha":
+        if self.scheme.carries_acceleration:
             return self.integrator
-        if getattr(self, "_helper", None) is None:
+        if self._helper is None:
             from types import SimpleNamespace
 
             self._helper = SimpleNamespace(system=self.system, work=self.system.create_vec())
@@ -460,7 +462,9 @@ class ForwardModel:
         s, h = self.system, self.h
         (q0, v0, a0), (q1, v1, a1) = st0, st1
         data = {}
-        if self.method == "be":
+        # backward Euler (full Newton: the Jacobian at the step's end), semi-implicit (one
+        # Newton step from the predictor), generalized-alpha (the acceleration carried)
+        if not (self.scheme.one_newton_step or self.scheme.carries_acceleration):
             acc = v1.copy()
             acc.axpy(-1.0, v0)
             acc.scale(1.0 / h)
@@ -480,7 +484,7 @@ class ForwardModel:
             acc.destroy()
             if k0x is not None:
                 k0x.destroy()
-        elif self.method == "si":
+        elif self.scheme.one_newton_step:
             qp = self._predictor(n, q0, v0)
             w = q1.copy()
             w.axpy(-1.0, qp)
@@ -629,7 +633,8 @@ class ForwardModel:
 
         visco = [j for j, n in enumerate(self.names) if n in VISCOELASTIC]
         others = [j for j in range(P) if j not in visco]
-        tangents["z"] = [s.create_vec() for _ in range(P)] if self.method == "be" else None
+        tangents["z"] = ([s.create_vec() for _ in range(P)]
+                         if self.scheme.branch_sensitivities else None)
 
         def observe_tangents(n):
             for k, w in self.uses.get(n, []):
@@ -680,13 +685,13 @@ class ForwardModel:
             for j, r in zip(others, deriv.vectors([self.names[j] for j in others]),
                             strict=True):
                 Rp[j] = r
-            branch = self._branch() if self.method == "be" else None
+            branch = self._branch() if self.scheme.branch_sensitivities else None
             for j in visco:   # (be only: _refuse_derivatives; the branch is tracked)
                 Rp[j] = branch.residual_derivative(self.names[j], st1[0], s.create_vec())
             rhs, tmp = s.create_vec(), s.create_vec()
             for j in range(P):
                 dq0, dv0 = tangents["q"][j], tangents["v"][j]
-                if self.method == "alpha":
+                if self.scheme.carries_acceleration:
                     self._alpha_tangent(data, Rp[j], dq0, dv0, tangents["a"][j], ksp, rhs, tmp)
                     continue
                 # rhs = -R_p + M (dq0/h^2 + dv0/h) + D dq0/h (- T_w (dq0 + h dv0) for SI)
@@ -838,7 +843,7 @@ class ForwardModel:
         for n in range(N - 1, -1, -1):
             deriv, data = self._step_setup(n, states[n], states[n + 1])
             ksp.setOperators(self.J)
-            if self.method == "alpha":
+            if self.scheme.carries_acceleration:
                 gq, gv, ga = self._alpha_adjoint(data, deriv, gq, gv, ga, ksp, mu, rhs, tmp,
                                                  contract)
             else:
@@ -957,9 +962,9 @@ class ForwardModel:
     def destroy(self) -> None:
         self.integrator.destroy()
         self.J.destroy()
-        if self._own_observer and hasattr(self.observer, "destroy"):
+        if self._own_observer:
             self.observer.destroy()
-        if getattr(self, "_helper", None) is not None:
+        if self._helper is not None:
             self._helper.work.destroy()
 
 

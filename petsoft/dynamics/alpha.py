@@ -31,13 +31,14 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.dynamics.implicit import NoBranch, SolverReuse, StepReport, branch_of
+from petsoft.dynamics.interfaces import StepperDefaults
 from petsoft.errors import InvertedElementError
 from petsoft.physics.viscoelastic import MaxwellRule
 from petsoft.solvers.convergence import outcome, reason_name
 from petsoft.solvers.options import scoped_defaults
 
 
-class AlphaTSIntegrator:
+class AlphaTSIntegrator(StepperDefaults):
     """Generalized-alpha steps of a system with TS alpha2.
 
     Parameters

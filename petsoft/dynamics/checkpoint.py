@@ -76,7 +76,7 @@ def write_checkpoint(directory: Path, *, step: int, time: float, step_size: floa
             f[f"integrator/{name}"] = arr
         rows = f.create_dataset("ledger/rows", data=ledger.array())
         rows.attrs.update(dissipated=ledger.dissipated, external_work=ledger.external_work,
-                          initial=getattr(ledger, "initial", 0.0))
+                          initial=ledger.initial)
         pause = os.environ.get(_PAUSE_ENV, "")
         if pause and int(pause.split(":")[0]) == step:
             f.flush()

@@ -28,6 +28,7 @@ class EnergyLedger:
     rows: list = field(default_factory=list)
     dissipated: float = 0.0
     external_work: float = 0.0
+    initial: float = 0.0       # the total energy of the first row
 
     def record(self, system, t: float, q, v) -> dict:
         kin = system.kinetic_energy(v)

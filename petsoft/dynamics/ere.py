@@ -74,6 +74,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.dynamics.implicit import StepReport
+from petsoft.dynamics.interfaces import StepperDefaults
 from petsoft.errors import InvertedElementError
 from petsoft.solvers.convergence import outcome
 
@@ -91,7 +92,7 @@ class _ShellOperator:
         self.ig._apply(X, Y)
 
 
-class EREIntegrator:
+class EREIntegrator(StepperDefaults):
     """Exponential Rosenbrock-Euler steps with SLEPc MFN (phi1 products, no linear solves).
 
     Parameters
@@ -131,6 +132,7 @@ class EREIntegrator:
         (self._xq, self._xv, self._t1, self._t2, self._a0, self._w, self._f, self._fp,
          self._grad, self._qt, self._vt, self._g, self._tmp, self._dq) = vecs
         self._pool = [s.create_vec() for _ in range(3)]
+        self._v_state = None    # v0 with the supports' velocity (the first step creates it)
         self._supports, self._tractions_at = {}, {}
         self.fixed = s.prescribed_offsets(self._xq)
         self.n = self._xq.getLocalSize()
@@ -287,7 +289,7 @@ class EREIntegrator:
             s.assemble_combination(q0, 0.0, 1.0, 0.0, self.K, eliminate=False)
             grad0 = None if self.moving else s.internal_gradient(q0, self._grad)
             self._inverse_mass(self._force(t0, q0, v0, self._f, h, grad0), self._a0)
-            if getattr(self, "_v_state", None) is None:
+            if self._v_state is None:
                 self._v_state = self._vt.duplicate()
             self._vt.copy(self._v_state)     # v0 with the supports' velocity at t0
             if self.nonautonomous:
@@ -400,10 +402,10 @@ class EREIntegrator:
             report.boundary_work = self._mpi.allreduce(local)
 
     def destroy(self) -> None:
-        for name in ("mfn", "A", "Y", "B", "X", "K", "Me", "ksp", "inv_mass", "_xq", "_xv",
-                     "_t1", "_t2", "_a0", "_w", "_f", "_fp", "_grad", "_qt", "_vt", "_g",
-                     "_tmp", "_dq", "_v_state"):
-            obj = getattr(self, name, None)
+        for obj in (self.mfn, self.A, self.Y, self.B, self.X, self.K, self.Me, self.ksp,
+                    self.inv_mass, self._xq, self._xv, self._t1, self._t2, self._a0, self._w,
+                    self._f, self._fp, self._grad, self._qt, self._vt, self._g, self._tmp,
+                    self._dq, self._v_state):
             if obj is not None:
                 obj.destroy()
         for vec in self._pool:

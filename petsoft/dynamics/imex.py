@@ -75,6 +75,8 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.alpha import alpha_parameters
 from petsoft.dynamics.implicit import ImplicitIntegrator, StepReport
+from petsoft.dynamics.integrators import scheme
+from petsoft.dynamics.interfaces import StepperDefaults
 from petsoft.errors import ExperimentError
 from petsoft.solvers.modes import compute_modes
 
@@ -151,8 +153,8 @@ class ImexIntegrator:
         def dforce(r):
             return -w2 - 3.0 * state[3] ** 2 / r**4
 
-        m = self.fast
-        if m == "alpha":
+        m = scheme(self.fast)
+        if m.carries_acceleration:
             am, af, beta = self.am, self.af, self.beta
             if self._accel is None:
                 a0 = force(rn)
@@ -173,7 +175,7 @@ class ImexIntegrator:
 
             r1 = rn + h * pn + 0.5 * h * h * a0
         else:
-            theta = 1.0 if m in ("be", "si") else 0.5   # where the force is evaluated
+            theta = 1.0 if m.force_at == "end" else 0.5   # where the force is evaluated
 
             def residual(r1):
                 return r1 - rn - h * pn - theta * h * h * force(rn + theta * (r1 - rn))
@@ -183,19 +185,19 @@ class ImexIntegrator:
 
             r1 = rn + h * pn
         iterations, converged = 0, False
-        for _ in range(1 if m == "si" else self.max_it):
+        for _ in range(1 if m.one_newton_step else self.max_it):
             dr = residual(r1) / jacobian(r1)
             r1 -= dr
             iterations += 1
-            if m == "si" or abs(dr) <= self.rtol * (1.0 + abs(r1)):
+            if m.one_newton_step or abs(dr) <= self.rtol * (1.0 + abs(r1)):
                 converged = True
                 break
         converged = converged and np.isfinite(r1) and r1 > 0.0
         out = state.copy()
         out[0] = r1
-        if m in ("be", "si"):
+        if m.force_at == "end":
             out[2] = (r1 - rn) / h
-        elif m == "midpoint":
+        elif m.force_at == "midpoint":
             out[2] = 2.0 * (r1 - rn) / h - pn
         else:
             a1 = accel(r1)
@@ -250,7 +252,7 @@ class ImexIntegrator:
         """Nothing to destroy: the steps use NumPy only."""
 
 
-class ModalImexIntegrator:
+class ModalImexIntegrator(StepperDefaults):
     """Slow vibration modes explicit (Verlet), the rest implicit (BE/SI): ``imex`` for FEM.
 
     Parameters
@@ -266,7 +268,7 @@ class ModalImexIntegrator:
     """
 
     def __init__(self, system, slow_modes: int = 6, fast: str = "be", prefix: str = ""):
-        if fast not in ("be", "si"):
+        if scheme(fast).force_at != "end" or scheme(fast).carries_acceleration:
             raise ValueError(f"the fast method of modal IMEX is 'be' or 'si', not {fast!r}")
         if int(slow_modes) < 1:
             raise ValueError("slow_modes must be >= 1")

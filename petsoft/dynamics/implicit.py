@@ -34,7 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 from petsc4py import PETSc
 
-from petsoft.dynamics.integrators import SCHEMES
+from petsoft.dynamics.integrators import SCHEMES, scheme
+from petsoft.dynamics.interfaces import StepperDefaults
 from petsoft.errors import InvertedElementError
 from petsoft.solvers.convergence import outcome
 from petsoft.solvers.options import scoped_defaults
@@ -91,6 +92,7 @@ class SolverReuse:
     """
 
     _solver_used = False
+    snes = None     # the subclass's SNES, once it has one
 
     def new_run(self) -> None:
         """The next step sets up a new solver (a caller's options may have changed)."""
@@ -106,13 +108,13 @@ class SolverReuse:
         A run restarted from a checkpoint still computes bit for bit what the uninterrupted run
         did: it sets the solver up once, on the same matrix, as that run did at its first step.
         """
-        if not self._solver_used or getattr(self, "snes", None) is None:
+        if not self._solver_used or self.snes is None:
             self._solver_used = True
             return False
         return bool(self.system.jacobian_is_constant)
 
 
-class ImplicitIntegrator(SolverReuse):
+class ImplicitIntegrator(SolverReuse, StepperDefaults):
     """Backward Euler, semi-implicit, (discrete-gradient) midpoint or trapezoidal steps.
 
     Parameters
@@ -129,7 +131,8 @@ class ImplicitIntegrator(SolverReuse):
     def __init__(self, system, method: str = "be", solver: str = "snes", prefix: str = ""):
         if method not in METHODS:
             raise ValueError(f"unknown implicit method {method!r}")
-        if solver == "tao" and method != "be":
+        self.scheme = scheme(method)
+        if solver == "tao" and not self.scheme.minimization:
             raise ValueError("the optimisation form (TAO) exists for backward Euler only")
         self.system, self.method, self.solver = system, method, solver
         s = system
@@ -153,12 +156,12 @@ class ImplicitIntegrator(SolverReuse):
         for obj in (self.snes, self.tao):
             if obj is not None:
                 obj.destroy()
-        s, prefix, method = self.system, self.prefix, self.method
+        s, prefix = self.system, self.prefix
         linear = s.linear_defaults
         if self.solver == "snes":
             self.snes = snes = PETSc.SNES().create(comm=s.comm)
             snes.setOptionsPrefix(prefix)
-            if method == "si":
+            if self.scheme.one_newton_step:
                 snes.setType(PETSc.SNES.Type.KSPONLY)
             else:
                 snes.setType(PETSc.SNES.Type.NEWTONLS)
@@ -195,7 +198,7 @@ class ImplicitIntegrator(SolverReuse):
         h = self.h
         q1.copy(out)
         out.axpy(-1.0, self.q0)
-        if self.method in ("be", "si"):
+        if self.scheme.force_at == "end":
             out.scale(1.0 / h)
         else:
             out.scale(2.0 / h)
@@ -212,11 +215,11 @@ class ImplicitIntegrator(SolverReuse):
         full.scale(1.0 / h)
         grad = self._c
         damping = s.create_vec()
-        if self.method in ("be", "si"):
+        if self.scheme.force_at == "end":
             s.internal_gradient(q1, grad)
             s.damping_apply(v1, damping)
             load = self.f1
-        elif self.method == "midpoint":
+        elif self.scheme.force_at == "midpoint":
             qm = self._b
             qm.waxpy(1.0, self.q0, q1)
             qm.scale(0.5)
@@ -269,13 +272,13 @@ class ImplicitIntegrator(SolverReuse):
     def _jacobian_coefficients(self) -> tuple[float, float, float]:
         h, s = self.h, self.system
         branch = self._branch.jacobian_coefficient()
-        if self.method in ("be", "si"):
+        if self.scheme.force_at == "end":
             return 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h + branch
         return 2.0 / h**2 + s.alpha / h, 0.5, s.beta / h + branch
 
     def _jacobian(self, q1: PETSc.Vec, P: PETSc.Mat) -> None:
         a, b, c = self._jacobian_coefficients()
-        if self.method == "midpoint":
+        if self.scheme.force_at == "midpoint":
             state = self._b
             state.waxpy(1.0, self.q0, q1)
             state.scale(0.5)
@@ -334,12 +337,12 @@ class ImplicitIntegrator(SolverReuse):
         s.tractions(t1, self.f1)
         self.tractions1 = self.f1.copy()
         self.f1.axpy(1.0, gravity)
-        if self.method == "midpoint":
+        if self.scheme.force_at == "midpoint":
             self.fm = s.tractions(t0 + 0.5 * h, s.create_vec())
             self.tractions_m = self.fm.copy()
             self.fm.axpy(1.0, gravity)
             self._W0 = s.elastic_energy(q0)
-        elif self.method == "trapezoidal":
+        elif self.scheme.force_at == "trapezoidal":
             t0_load = s.tractions(t0, s.create_vec())
             self.tractions_m = t0_load.copy()
             self.tractions_m.axpy(1.0, self.tractions1)
@@ -398,7 +401,7 @@ class ImplicitIntegrator(SolverReuse):
         dq = self.system.create_vec()
         dq.waxpy(-1.0, self.q0, q1)
         report.dissipated = dq.dot(terms["damping"])
-        tractions = self.tractions1 if self.method in ("be", "si") else self.tractions_m
+        tractions = self.tractions1 if self.scheme.force_at == "end" else self.tractions_m
         report.external_work = dq.dot(tractions)
         # the residual's prescribed rows are the reactions the supports exert; free rows ~ 0
         report.boundary_work = dq.dot(full)
@@ -406,6 +409,7 @@ class ImplicitIntegrator(SolverReuse):
             v.destroy()
 
     def destroy(self) -> None:
-        for name in ("snes", "tao", "J", "R", "q0", "v0", "f0", "f1", "_a", "_b", "_c"):
-            if getattr(self, name, None) is not None:
-                getattr(self, name).destroy()
+        for obj in (self.snes, self.tao, self.J, self.R, self.q0, self.v0, self.f0, self.f1,
+                    self._a, self._b, self._c):
+            if obj is not None:
+                obj.destroy()

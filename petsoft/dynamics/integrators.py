@@ -48,6 +48,23 @@ class Scheme:
         How the viscoelastic branch's internal variable steps with it; None: the scheme does
         not include the branch.
     build : callable(system, IntegratorOptions) -> integrator
+    one_newton_step : bool
+        Takes one Newton step per time step instead of solving to convergence (semi-implicit).
+    force_at : {"end", "midpoint", "trapezoidal", "alpha"}
+        Where an implicit step evaluates the internal force: at the step's end, at the
+        midpoint (a discrete gradient), averaged over both ends, or at t_{n+1-alpha_f}.
+    carries_acceleration : bool
+        The acceleration is part of the state carried from step to step (generalized-alpha).
+    branch_sensitivities : bool
+        Calibration's forward sensitivities include the viscoelastic branch's internal variable.
+    minimization : bool
+        A step is the minimum of an incremental potential (``--solver tao``, and the
+        local/global solver, apply).
+    continuum_only : bool
+        Needs a continuum's reference stiffness (not for ``[springs]`` models).
+    ts_backend : bool
+        Also has a PETSc TS implementation (``--alpha-backend ts``; without the viscoelastic
+        branch).
     """
 
     name: str
@@ -57,6 +74,13 @@ class Scheme:
     gradients: bool
     maxwell: MaxwellRule | None
     build: Callable
+    one_newton_step: bool = False
+    force_at: str = "end"
+    carries_acceleration: bool = False
+    branch_sensitivities: bool = False
+    minimization: bool = False
+    continuum_only: bool = False
+    ts_backend: bool = False
 
 
 def _implicit(name: str):
@@ -96,19 +120,22 @@ def _imex(system, options: IntegratorOptions):
 #: Every scheme, by its name in the experiment file.
 SCHEMES: dict[str, Scheme] = {s.name: s for s in (
     Scheme("be", "backward Euler, full Newton", 1, True, True,
-           MaxwellRule.BACKWARD_EULER, _implicit("be")),
+           MaxwellRule.BACKWARD_EULER, _implicit("be"),
+           branch_sensitivities=True, minimization=True),
     Scheme("si", "semi-implicit: one Newton step", 1, True, True,
-           MaxwellRule.BACKWARD_EULER, _implicit("si")),
+           MaxwellRule.BACKWARD_EULER, _implicit("si"), one_newton_step=True),
     Scheme("alpha", "generalized-alpha", 2, True, True,
-           MaxwellRule.GENERALIZED_ALPHA, _alpha),
+           MaxwellRule.GENERALIZED_ALPHA, _alpha, force_at="alpha", carries_acceleration=True,
+           ts_backend=True),
     Scheme("midpoint", "implicit midpoint with a discrete gradient", 2, True, False,
-           MaxwellRule.TRAPEZOIDAL, _implicit("midpoint")),
+           MaxwellRule.TRAPEZOIDAL, _implicit("midpoint"), force_at="midpoint"),
     Scheme("trapezoidal", "trapezoidal rule", 2, True, False,
-           MaxwellRule.TRAPEZOIDAL, _implicit("trapezoidal")),
+           MaxwellRule.TRAPEZOIDAL, _implicit("trapezoidal"), force_at="trapezoidal"),
     Scheme("ere", "exponential Rosenbrock-Euler", 2, False, False, None, _ere),
     Scheme("explicit", "velocity Verlet (or symplectic Euler), lumped mass", 2, False, False,
            None, _explicit),
-    Scheme("imex", "fast/slow modal splitting", 1, True, False, None, _imex),
+    Scheme("imex", "fast/slow modal splitting", 1, True, False, None, _imex,
+           continuum_only=True),
 )}
 
 

@@ -8,6 +8,10 @@ declares the members every integrator calls. Capabilities only some systems have
 branch, velocity-dependent forces, parameter derivatives, Dirichlet conditions, ...) are declared
 too, with a neutral default in :class:`SystemDefaults` that every system inherits, so callers ask
 ``system.viscoelastic is not None`` instead of probing with ``getattr``.
+
+:class:`Stepper` declares what :class:`~petsoft.dynamics.simulate.Simulation` needs of a time
+integrator (the objects :mod:`petsoft.dynamics.integrators` builds); :class:`StepperDefaults`
+gives the checkpoint members to the integrators that carry nothing between steps but (q, v).
 """
 
 from __future__ import annotations
@@ -108,3 +112,30 @@ class SystemDefaults:
     parameter_derivatives = None
     #: the viscoelastic branch's stored energy, or None
     viscoelastic_energy = None
+
+
+@runtime_checkable
+class Stepper(Protocol):
+    """A time integrator: advances (q0, v0) at t0 by h into (q1, v1)."""
+
+    def step(self, t0: float, q0: PETSc.Vec, v0: PETSc.Vec, h: float, q1: PETSc.Vec,
+             v1: PETSc.Vec):
+        """One step; returns its :class:`~petsoft.dynamics.implicit.StepReport`."""
+
+    def state(self) -> dict:
+        """What a checkpoint must keep besides (t, q, v) to continue bit for bit (arrays)."""
+
+    def restore(self, t: float, q: PETSc.Vec, v: PETSc.Vec, state: dict) -> None:
+        """Continue from a checkpoint's (t, q, v) and :meth:`state`."""
+
+    def destroy(self) -> None: ...
+
+
+class StepperDefaults:
+    """The checkpoint members of an integrator that carries nothing between steps but (q, v)."""
+
+    def state(self) -> dict:
+        return {}
+
+    def restore(self, t: float, q: PETSc.Vec, v: PETSc.Vec, state: dict) -> None:
+        """Nothing to restore: the next step starts from (t, q, v) alone."""

@@ -854,8 +854,7 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         return y.getArray(readonly=True).reshape(-1, 3).copy()
 
     def destroy(self) -> None:
-        for name in ("M", "K0", "lumped", "gravity", "_work"):
-            obj = getattr(self, name, None)
+        for obj in (self.M, self.K0, self.lumped, self.gravity, self._work):
             if obj is not None:
                 obj.destroy()
         for A in self.__dict__.get("_unit_matrices", {}).values():

@@ -16,7 +16,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.energy import FIELDS, EnergyLedger
 from petsoft.dynamics.explicit import ExplicitIntegrator
-from petsoft.dynamics.integrators import IntegratorOptions, check_viscoelastic, scheme
+from petsoft.dynamics.integrators import SCHEMES, IntegratorOptions, check_viscoelastic, scheme
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, PetsoftError, SolverError
 from petsoft.io.recording import write_recording
@@ -52,14 +52,14 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
     entry = scheme(name)
     branch = system.viscoelastic
     check_viscoelastic(branch, name)
-    if name == "alpha" and alpha_backend == "ts" and branch is not None and branch.active:
+    if entry.ts_backend and alpha_backend == "ts" and branch is not None and branch.active:
         raise ExperimentError("--alpha-backend ts does not include the [viscoelastic] branch; "
                               "use petsoft's own generalized-alpha (--alpha-backend petsoft)")
     if solver == "local-global" and branch is not None and branch.active:
         raise ExperimentError("--solver local-global does not include the [viscoelastic] branch; "
                               "use --solver snes or tao")
     if solver == "local-global":
-        if name != "be":
+        if not entry.minimization:
             raise ExperimentError(f"--solver local-global solves backward-Euler steps only "
                                   f"(integrator be), not {name!r}")
         terms = system.velocity_terms
@@ -119,15 +119,15 @@ class Simulation:
                                   "end and step (and optionally integrator)")
         self.model, self.experiment = model, experiment
         self.name = integrator or experiment.time.integrator
-        scheme(self.name, "integrator")        # a clear error for an unknown name
+        entry = scheme(self.name, "integrator")        # a clear error for an unknown name
         if experiment.is_mass_spring:
             from petsoft.dynamics.mass_spring import MassSpringSystem
 
-            if self.name == "imex":
+            if entry.continuum_only:
                 raise ExperimentError(
-                    f"{experiment.source}: integrator imex splits the modes of a continuum's "
-                    "reference stiffness and does not apply to [springs] models; use be, si, "
-                    "midpoint, trapezoidal, alpha, explicit or ere")
+                    f"{experiment.source}: integrator {self.name} splits the modes of a "
+                    "continuum's reference stiffness and does not apply to [springs] models; use "
+                    + ", ".join(n for n, e in SCHEMES.items() if not e.continuum_only))
 
             self.system = MassSpringSystem(model, experiment.damping.mass,
                                            experiment.damping.stiffness, clamp=spd)
@@ -258,7 +258,7 @@ class Simulation:
         from petsoft.dynamics.checkpoint import write_checkpoint
 
         dm = self.model.dmesh
-        state = getattr(self.integrator, "state", dict)()
+        state = self.integrator.state()
         fields = {"q": q, "v": v}
         branch = self.system.viscoelastic
         if branch is not None and branch.active:
@@ -323,9 +323,7 @@ class Simulation:
             else:
                 branch.reset(q)
         t = float(data["time"])
-        restore = getattr(self.integrator, "restore", None)
-        if restore is not None:
-            restore(t, q, v, state)
+        self.integrator.restore(t, q, v, state)
         rows = data["ledger_rows"]
         ledger.rows = [dict(zip(FIELDS, r, strict=True)) for r in rows]
         ledger.dissipated = float(data["ledger"]["dissipated"])

@@ -69,6 +69,8 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
     def __init__(self, model, damping_mass: float = 0.0, damping_stiffness: float = 0.0):
         self.model = model
         self._parameter_version = 0     # set_parameters counts: a reused Jacobian's key
+        self._parameters = None         # the ParameterMap, built on first use
+        self.K0 = None                  # the reference stiffness as a matrix, on first use
         dm = self.dmesh = model.dmesh
         self.comm = dm.comm
         self.elastic = model.elastic
@@ -334,7 +336,7 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
     @property
     def parameters(self):
         """The :class:`~petsoft.dynamics.parameters.ParameterMap` (built on first use)."""
-        if getattr(self, "_parameters", None) is None:
+        if self._parameters is None:
             from petsoft.dynamics.parameters import ParameterMap
 
             self._parameters = ParameterMap(self)
@@ -378,7 +380,7 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
         self.assembler.begin()
         self._add_reference_hessian()
         self.k0_values = self.assembler.values.copy()
-        if hasattr(self, "K0"):
+        if self.K0 is not None:
             self.assembler.finish(self.K0)
         self.lumped.zeroEntries()
         dm.add_to_global(np.repeat(lumped_masses(dm, model.density)[:, None], 3, axis=1),
@@ -393,7 +395,7 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
 
     def K0_matrix(self) -> PETSc.Mat:
         """K0 (the reference stiffness) as an assembled matrix."""
-        if not hasattr(self, "K0"):
+        if self.K0 is None:
             self.K0 = self._matrix_from(self.k0_values)
         return self.K0
 
@@ -431,6 +433,6 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
 
     def destroy(self) -> None:
         self.viscoelastic.destroy()
-        for name in ("M", "K0", "lumped", "gravity", "_work"):
-            if hasattr(self, name):
-                getattr(self, name).destroy()
+        for obj in (self.M, self.K0, self.lumped, self.gravity, self._work):
+            if obj is not None:
+                obj.destroy()
