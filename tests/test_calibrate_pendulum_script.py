@@ -20,7 +20,7 @@ DATA = (ROOT / "scripts" / "examples" / "data" / "pendulum-single"
 
 @pytest.mark.skipif(not DATA.exists(), reason="the real pendulum data are not in this checkout")
 def test_calibrate_pendulum_script_short_span(tmp_path):
-    calibrate_pendulum = load_script("calibrate_pendulum")
+    calibrate_pendulum = load_script("calibrate_pendulum", needs=("import_pendulum",))
 
     out = Path(PETSc.COMM_WORLD.tompi4py().bcast(str(tmp_path), root=0)) / "cal"
     # 1 s of id0 at 50 ms frames, h = 10 ms; 0.5 s of each validation segment

@@ -79,3 +79,12 @@ def test_importing_petsoft_does_not_initialise_petsc():
                          env=child_env(), timeout=120)
     assert run.returncode == 0, run.stderr
     assert run.stdout.split() == ["False", "True"]
+
+
+def test_tests_load_scripts_by_file_path_without_editing_sys_path():
+    from _examples import load_script
+
+    before = list(sys.path)
+    problems = load_script("optimization_problems")
+    assert sys.path == before
+    assert Path(problems.__file__).parent == ROOT / "scripts" / "examples"
