@@ -205,3 +205,35 @@ def test_residual_plot_axis_survives_an_exactly_zero_frame(tmp_path, monkeypatch
     plots.plot_residuals(tmp_path / "r.png", t, data, 10 * after, after, ["a", "b", "c"], 2e-6)
     low, high = limits[0]
     assert high / low < 1e6, (low, high)
+
+
+def test_observations_hold_the_window_checks_and_the_noise_policy():
+    """The recording's /noise wins over the given noise, which wins over estimating it; the
+    window keeps frames up to [time] end and rejects frames before t = 0 and position-less data."""
+    from petsoft.calibration.calibrate import ESTIMATED, Observations
+    from petsoft.io.recording import Recording
+
+    times = np.array([0.0, 0.1, 0.2, 0.3])
+    rec = Recording(reference=np.zeros((1, 3)), names=["m0"], times=times,
+                    positions=np.zeros((4, 1, 3)))
+    assert Observations(rec).sigma() == (1.0, ESTIMATED)
+    assert Observations(rec, noise=2e-3).sigma() == (2e-3, "--noise")
+    rec_noise = Recording(reference=rec.reference, names=rec.names, times=times,
+                          positions=rec.positions, noise={"position_std": 1e-3})
+    assert Observations(rec_noise, noise=2e-3).sigma() == (1e-3, "the recording's /noise")
+
+    class _Time:
+        end = 0.2
+
+    class _Exp:
+        time = _Time()
+        source = "<test>"
+
+    assert Observations(rec).window(_Exp()).tolist() == [True, True, True, False]
+    early = Recording(reference=rec.reference, names=rec.names, times=times - 0.1,
+                      positions=rec.positions)
+    with pytest.raises(ExperimentError, match="before the experiment's initial state"):
+        Observations(early).window(_Exp())
+    with pytest.raises(ExperimentError, match="no /frames/position"):
+        Observations(Recording(reference=rec.reference, names=rec.names, times=times)).window(
+            _Exp())

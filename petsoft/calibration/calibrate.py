@@ -66,8 +66,10 @@ def calibration_parameters(experiment) -> tuple[list[str], np.ndarray, list[tupl
     return names, start, bounds
 
 
-def frames_in_window(experiment, times: np.ndarray, source: str) -> np.ndarray:
-    """Boolean mask of the recording frames the simulation covers: 0 <= t <= [time] end.
+def frames_in_window(experiment, times: np.ndarray, source: str,
+                     end: float | None = None) -> np.ndarray:
+    """Boolean mask of the recording frames the simulation covers: 0 <= t <= ``end`` (default
+    ``[time] end``).
 
     Raises
     ------
@@ -78,7 +80,7 @@ def frames_in_window(experiment, times: np.ndarray, source: str) -> np.ndarray:
     if experiment.time is None:
         raise ExperimentError(f"{experiment.source}: [time] (end, step) is needed to calibrate "
                               "against a recording")
-    end = experiment.time.end
+    end = experiment.time.end if end is None else float(end)
     if times[0] < -1e-12:
         raise ExperimentError(
             f"{source}: the first frame is at t = {times[0]:g} s, before the experiment's initial "
@@ -86,9 +88,56 @@ def frames_in_window(experiment, times: np.ndarray, source: str) -> np.ndarray:
     keep = times <= end * (1 + 1e-12)
     if not keep.any():
         raise ExperimentError(
-            f"{source}: no frame lies in the simulated window [0, {end:g}] s ([time] end of "
-            f"{experiment.source}); the recording starts at t = {times[0]:g} s")
+            f"{source}: no frame lies in the simulated window [0, {end:g}] s (the window's end "
+            f"or [time] end of {experiment.source}); the recording starts at t = "
+            f"{times[0]:g} s")
     return keep
+
+
+ESTIMATED = "unknown (estimated from the fit)"
+
+
+@dataclass(frozen=True)
+class Observations:
+    """What a calibration fits: a recording's marker positions and the noise to weigh them by.
+
+    The one home of the window checks (:meth:`window`) and the noise policy (:meth:`sigma`),
+    so that calibrate and its callers (diagnose) do not each re-derive them.
+
+    Attributes
+    ----------
+    recording : Recording
+        The data, held by every rank.
+    noise : float, optional
+        Position noise std (m) to use when the recording has no ``/noise``.
+    end : float, optional
+        End (s) of the identification window: only frames up to it are fitted (diagnose holds
+        the rest out). Default: the experiment's ``[time] end``.
+    """
+
+    recording: Recording
+    noise: float | None = None
+    end: float | None = None
+
+    def window(self, experiment) -> np.ndarray:
+        """Boolean mask of the frames ``experiment`` simulates (:func:`frames_in_window`)."""
+        if self.recording.positions is None:
+            raise ExperimentError(f"{self.recording.source}: the recording has no "
+                                  "/frames/position; calibrating against accelerations only is "
+                                  "not supported yet")
+        return frames_in_window(experiment, self.recording.times, str(self.recording.source),
+                                end=self.end)
+
+    def sigma(self) -> tuple[float, str]:
+        """The position noise std (m) and where it comes from: the recording's ``/noise``,
+        else :attr:`noise`, else 1 with source :data:`ESTIMATED` (the fit's residual then
+        gives it, :func:`noise_from_residual`)."""
+        recorded = self.recording.noise.get("position_std") if self.recording.noise else None
+        if recorded:
+            return float(recorded), "the recording's /noise"
+        if self.noise:
+            return float(self.noise), "--noise"
+        return 1.0, ESTIMATED
 
 
 def noise_from_residual(residual_m: np.ndarray, num_parameters: int) -> float:
@@ -205,9 +254,10 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
     ----------
     experiment : Experiment
         The model, with ``[time]`` and ``[calibrate]``.
-    recording : Recording or path
-        The data: a :class:`~petsoft.io.recording.Recording` already read (every rank holds
-        it), or the path of one (read once here, on rank 0, and shared).
+    recording : Observations, Recording or path
+        The data: :class:`Observations` (recording and noise), a
+        :class:`~petsoft.io.recording.Recording` already read (every rank holds it), or the
+        path of one (read once here, on rank 0, and shared).
     method : one of :data:`METHODS`
     gradient : one of :data:`GRADIENTS`
     integrator : {"be", "si", "alpha"}, optional
@@ -217,7 +267,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         the bounds, spread over sub-communicators (one group per rank).
     noise : float, optional
         Position noise std (m) to use when the recording has no ``/noise``; otherwise it is
-        estimated from the calibrated residual.
+        estimated from the calibrated residual. Not with ``Observations`` (they carry it).
     out : Path, optional
         Where to write the results (:func:`write_outputs`); None writes nothing.
     say : callable(str), optional
@@ -243,23 +293,21 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
     if gradient not in GRADIENTS:
         raise ExperimentError(f"unknown gradient method {gradient!r}; valid: "
                               f"{', '.join(GRADIENTS)}")
-    if not isinstance(recording, Recording):
-        # on_root returns the result on rank 0 only: every rank needs the frames
-        recording = mpi.bcast(on_root(comm, read_recording, Path(recording)), root=0)
+    if isinstance(recording, Observations):
+        if noise is not None:
+            raise ExperimentError("give the noise in the Observations, not also as noise=")
+        observations = recording
+    else:
+        if not isinstance(recording, Recording):
+            # on_root returns the result on rank 0 only: every rank needs the frames
+            recording = mpi.bcast(on_root(comm, read_recording, Path(recording)), root=0)
+        observations = Observations(recording, noise=noise)
+    recording = observations.recording
     recording_path = recording.source
     names, start, bounds = calibration_parameters(experiment)
-    if recording.positions is None:
-        raise ExperimentError(f"{recording_path}: the recording has no /frames/position; "
-                              "calibrating against accelerations only is not supported yet")
-    keep = frames_in_window(experiment, recording.times, str(recording_path))
+    keep = observations.window(experiment)
     times, data = recording.times[keep], recording.positions[keep]
-    noise_std = recording.noise.get("position_std") if recording.noise else None
-    if noise_std:
-        sigma, sigma_source = float(noise_std), "the recording's /noise"
-    elif noise:
-        sigma, sigma_source = float(noise), "--noise"
-    else:
-        sigma, sigma_source = 1.0, "unknown (estimated from the fit)"
+    sigma, sigma_source = observations.sigma()
     lower = np.array([b[0] for b in bounds])
     upper = np.array([b[1] for b in bounds])
     scaling = ParameterScaling(names, start, lower, upper)
@@ -310,13 +358,12 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
     noise_estimate = noise_from_residual(residual_m, len(names))
     try:
         unc = uncertainty(J, r, scaling=scaling, z=z,
-                          noise_std=1.0 if sigma_source != "unknown (estimated from the fit)"
-                          else None)
+                          noise_std=1.0 if sigma_source != ESTIMATED else None)
         std, corr = unc.std, unc.correlation
     except UnidentifiableError as exc:
         tell(f"warning: {exc}")
         std, corr = np.full(len(names), np.inf), None
-    if sigma_source.startswith("unknown"):
+    if sigma_source == ESTIMATED:
         sigma = noise_estimate
     result = CalibrationResult(
         names=names, start=start, values=scaling.to_physical(z), std=np.asarray(std),

@@ -17,7 +17,12 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
-from petsoft.calibration.calibrate import build_forward, calibration_parameters, run_calibration
+from petsoft.calibration.calibrate import (
+    Observations,
+    build_forward,
+    calibration_parameters,
+    run_calibration,
+)
 from petsoft.calibration.groups import map_on_groups
 from petsoft.dynamics.mass_spring import load_spring_mesh
 from petsoft.dynamics.parameters import VISCOELASTIC
@@ -266,11 +271,11 @@ class Diagnosis:
         ``comm`` (default: the diagnosis' communicator) lets candidate fits run on groups of
         ranks (:func:`petsoft.calibration.groups.map_on_groups`)."""
         comm = self.comm if comm is None else petsc_comm(comm)
-        ident_exp = with_time(experiment, end=self.cut)
-        res = run_calibration(ident_exp, self.recording, method=self.method,
+        # the identification window travels with the data, not as a rewritten [time] end
+        observations = Observations(self.recording, noise=self.sigma, end=self.cut)
+        res = run_calibration(experiment, observations, method=self.method,
                               gradient=gradient_for(experiment, self.gradient),
-                              integrator=self.integrator, noise=self.sigma, comm=comm,
-                              say=None)
+                              integrator=self.integrator, comm=comm, say=None)
         gc.collect()                    # every rank, same point (see run_diagnose)
         names, _, _ = calibration_parameters(experiment)
         calibrated = with_parameters(experiment, dict(zip(names, res.values, strict=True)))
