@@ -262,7 +262,8 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
               method: str = "gauss-newton", gradient: str = "adjoint",
               integrator: str | None = None, starts: int = 0, seed: int = 0,
               regularization: float = 0.0, noise: float | None = None,
-              out: str | Path | None = None, say=_quiet) -> CalibrationResult:
+              out: str | Path | None = None, spelled_out: bool = False,
+              say=_quiet) -> CalibrationResult:
     """Fit the ``[calibrate]`` parameters of ``experiment`` to a recording (``petsoft calibrate``).
 
     Parameters
@@ -287,6 +288,9 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
         Position noise std (m) when the recording has no ``/noise``.
     out : str or Path, optional
         Write calibrated.toml, summary.json and figures here; None writes nothing.
+    spelled_out : bool
+        calibrated.toml with every value written out, instead of the user's own file with only
+        the calibrated values changed.
     say : callable(str)
         Progress lines (rank 0); default silent.
 
@@ -299,14 +303,15 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
         return run_calibration(experiment, recording, method=method, gradient=gradient,
                                integrator=integrator, starts=starts, seed=seed,
                                regularization=regularization, noise=noise,
-                               out=None if out is None else Path(out), say=say)
+                               out=None if out is None else Path(out), say=say,
+                               spelled_out=spelled_out)
 
 
 def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
              out: str | Path | None = None, fraction: float = 0.7, alpha: float = 0.01,
              max_additions: int = 3, max_tries: int = 4, method: str = "gauss-newton",
              gradient: str = "sensitivity", integrator: str | None = None,
-             noise: float | None = None, numerics: bool = True,
+             noise: float | None = None, numerics: bool = True, spelled_out: bool = False,
              say=_quiet) -> DiagnoseResult:
     """Find, model and verify the physics ``experiment`` lacks (``petsoft diagnose``).
 
@@ -336,6 +341,9 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
         Position noise std (m) when the recording has no ``/noise``.
     numerics : bool
         Run the step and mesh refinement checks.
+    spelled_out : bool
+        diagnosed.toml with every value written out, instead of the user's own file with the
+        calibrated values changed and the added physics appended.
     say : callable(str)
         Progress lines (rank 0); default silent.
 
@@ -348,4 +356,5 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
         return run_diagnose(experiment, recording, out=None if out is None else Path(out),
                             fraction=fraction, alpha=alpha, max_additions=max_additions,
                             max_tries=max_tries, method=method, gradient=gradient,
-                            integrator=integrator, noise=noise, numerics=numerics, say=say)
+                            integrator=integrator, noise=noise, numerics=numerics, say=say,
+                            spelled_out=spelled_out)

@@ -19,7 +19,8 @@ from petsc4py import PETSc
 from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
 from petsoft.dynamics.simulate import initial_state
 from petsoft.errors import ExperimentError
-from petsoft.experiment import get_parameter, with_parameters, write_toml
+from petsoft.experiment import get_parameter, with_parameters
+from petsoft.experiment.writer import write_experiment_update
 from petsoft.io.recording import Recording, read_recording
 from petsoft.io.summary import write_summary
 from petsoft.physics.model import on_root
@@ -163,15 +164,20 @@ def _print_table(say, result: CalibrationResult) -> None:
 
 def write_outputs(out: Path, experiment, recording_path, result: CalibrationResult,
                   times: np.ndarray, data: np.ndarray, marker_names: list[str],
-                  method: str, gradient: str, wall_time: float, comm) -> None:
-    """calibrated.toml, summary.json, trajectories.png, residuals.png (rank 0 writes)."""
+                  method: str, gradient: str, wall_time: float, comm,
+                  spelled_out: bool = False) -> None:
+    """calibrated.toml, summary.json, trajectories.png, residuals.png (rank 0 writes).
+
+    calibrated.toml is the user's experiment file with the calibrated values replaced
+    (comments and order kept), or with ``spelled_out`` every value written out."""
     from petsoft.calibration.plots import plot_residuals, plot_trajectories
 
     if comm.rank != 0:
         return
     out.mkdir(parents=True, exist_ok=True)
     calibrated = with_parameters(experiment, dict(zip(result.names, result.values, strict=True)))
-    write_toml(calibrated, out / "calibrated.toml")
+    write_experiment_update(experiment, calibrated, out / "calibrated.toml",
+                            spelled_out=spelled_out)
     plot_trajectories(out / "trajectories.png", times, data, result.simulated_before,
                       result.simulated_after, marker_names)
     plot_residuals(out / "residuals.png", times, data, result.simulated_before,
@@ -247,7 +253,8 @@ def mass_spring_system(experiment, comm, recording=None):
 def run_calibration(experiment, recording, *, method: str = "gauss-newton",
                     gradient: str = "adjoint", integrator: str | None = None, starts: int = 0,
                     seed: int = 0, regularization: float = 0.0, noise: float | None = None,
-                    out: Path | None = None, comm=None, say=None) -> CalibrationResult:
+                    out: Path | None = None, comm=None, say=None,
+                    spelled_out: bool = False) -> CalibrationResult:
     """Calibrate the ``[calibrate]`` parameters of ``experiment`` against a recording.
 
     Parameters
@@ -270,6 +277,9 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         estimated from the calibrated residual. Not with ``Observations`` (they carry it).
     out : Path, optional
         Where to write the results (:func:`write_outputs`); None writes nothing.
+    spelled_out : bool
+        Write calibrated.toml with every value spelled out instead of as the user's file with
+        the calibrated values replaced.
     say : callable(str), optional
         Progress lines (called on rank 0 only).
     """
@@ -379,7 +389,8 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         _print_table(say, result)
     if out is not None:
         write_outputs(Path(out), experiment, recording_path, result, times, data,
-                      recording.names, method, gradient, time.perf_counter() - t_start, comm)
+                      recording.names, method, gradient, time.perf_counter() - t_start, comm,
+                      spelled_out=spelled_out)
         tell(f"wrote {out}/ (calibrated.toml, summary.json, trajectories.png, residuals.png)")
     problem.forward.destroy()
     return result

@@ -72,7 +72,8 @@ def run(args) -> int:
             run_calibration(experiment, observations, method=args.method,
                             gradient=args.gradient, integrator=args.integrator,
                             starts=args.multistart, seed=args.seed,
-                            regularization=args.regularization, out=out, say=_print)
+                            regularization=args.regularization, out=out, say=_print,
+                            spelled_out=args.spelled_out)
         return 0
     if args.command == "diagnose":
         experiment = load_experiment(args.experiment)
@@ -82,7 +83,8 @@ def run(args) -> int:
             run_diagnose(experiment, recording, out=out, fraction=args.fraction,
                          alpha=args.alpha, max_additions=args.max_additions, method=args.method,
                          integrator=args.integrator, noise=args.noise,
-                         numerics=not args.no_numerics, say=_print)
+                         numerics=not args.no_numerics, say=_print,
+                         spelled_out=args.spelled_out)
         return 0
     if args.command == "demo":
         out = Path(args.out)

@@ -19,7 +19,8 @@ from petsoft.version import __version__
 FORMATS = Path(__file__).resolve().parents[1] / "formats.md"
 
 _PETSC_OPTION = re.compile(r"^-[A-Za-z][A-Za-z0-9_]+")
-_FLAGS_WITHOUT_VALUE = {"--restart", "--spd", "--quiet", "--help", "--version"}
+_FLAGS_WITHOUT_VALUE = {"--restart", "--spd", "--quiet", "--help", "--version",
+                        "--spelled-out"}
 # `modes -n K` (also -n=K, -nK): the one single-dash option of petsoft's own. The PETSc pattern
 # above needs two characters after the dash, so "-n" alone would otherwise pass as the value of a
 # preceding PETSc option.
@@ -248,6 +249,10 @@ def _add_calibrate_parser(sub) -> None:
     c.add_argument("--regularization", type=float, default=0.0, metavar="LAMBDA",
                    help="Tikhonov weight on the scaled parameters' distance from the start")
     c.add_argument("--out", help="output directory (default: [output] directory)")
+    c.add_argument("--spelled-out", action="store_true",
+                   help="write the calibrated experiment with every value spelled out (default: "
+                        "your own file with only the calibrated values and added sections "
+                        "changed, comments kept)")
 
 
 def _add_diagnose_parser(sub) -> None:
@@ -263,6 +268,10 @@ def _add_diagnose_parser(sub) -> None:
     c.add_argument("experiment", help="experiment file (TOML) with [time] and [calibrate]")
     c.add_argument("recording", help=f"recording (HDF5; the layout: {FORMATS}, section 2)")
     c.add_argument("--out", help="output directory (default: [output] directory)")
+    c.add_argument("--spelled-out", action="store_true",
+                   help="write the calibrated experiment with every value spelled out (default: "
+                        "your own file with only the calibrated values and added sections "
+                        "changed, comments kept)")
     c.add_argument("--fraction", type=float, default=0.7,
                    help="share of the record's span used to identify parameters; the rest is "
                         "held out for prediction (default %(default)s)")

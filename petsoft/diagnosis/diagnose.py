@@ -61,7 +61,8 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
                  alpha: float = 0.01, max_additions: int = 3, max_tries: int = 4,
                  method: str = "gauss-newton", gradient: str = "sensitivity",
                  integrator: str | None = None, noise: float | None = None,
-                 numerics: bool = True, comm=None, say=None) -> DiagnoseResult:
+                 numerics: bool = True, comm=None, say=None,
+                 spelled_out: bool = False) -> DiagnoseResult:
     """Diagnose ``experiment`` against a recording (module docstring). All ranks call.
 
     Parameters
@@ -97,6 +98,9 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
         Default: PETSc.COMM_WORLD.
     say : callable(str), optional
         Progress lines (rank 0).
+    spelled_out : bool
+        Write diagnosed.toml with every value spelled out instead of as the user's file with
+        the calibrated values replaced and the added physics appended.
 
     Returns
     -------
@@ -118,7 +122,7 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
         return _run_diagnose(experiment, recording, out=out, fraction=fraction, alpha=alpha,
                              max_additions=max_additions, max_tries=max_tries, method=method,
                              gradient=gradient, integrator=integrator, noise=noise,
-                             numerics=numerics, comm=comm, say=say)
+                             numerics=numerics, comm=comm, say=say, spelled_out=spelled_out)
     finally:
         gc.collect()
         if enabled:
@@ -126,7 +130,8 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
 
 
 def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions, max_tries,
-                  method, gradient, integrator, noise, numerics, comm, say) -> DiagnoseResult:
+                  method, gradient, integrator, noise, numerics, comm, say,
+                  spelled_out) -> DiagnoseResult:
     """The diagnosis of :func:`run_diagnose` (call that: it handles the garbage collector)."""
     from petsoft.diagnosis.candidates import build_candidates
 
@@ -250,6 +255,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     # a 2-rank deadlock in DMPlex creation vs PetscGarbageCleanup).
     gc.collect()
     if out is not None:
-        write_outputs(Path(out), diag, result, base_ev, time.perf_counter() - t0)
+        write_outputs(Path(out), diag, result, base_ev, time.perf_counter() - t0,
+                      spelled_out=spelled_out)
         diag.tell(f"wrote {out}/ (report.json, report.md, figures, diagnosed.toml, summary.json)")
     return result

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from petsoft.diagnosis.context import Diagnosis, Fit
-from petsoft.experiment import write_toml
+from petsoft.experiment.writer import write_experiment_update
 from petsoft.io.summary import write_summary
 from petsoft.physics.model import load_mesh
 
@@ -55,7 +55,7 @@ def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict,
 
 
 def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: dict,
-                  wall_time: float) -> None:
+                  wall_time: float, spelled_out: bool = False) -> None:
     """report.json, report.md, figures, diagnosed.toml, summary.json (rank 0 writes)."""
     from petsoft.diagnosis.evidence import write_figures
     from petsoft.diagnosis.report import write_report, write_report_md
@@ -111,7 +111,8 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
     ev = dict(result.evidence or {})
     ev["notes"] = notes
     write_report_md(out / "report.md", result.report, ev, [f.name for f in figs])
-    write_toml(result.final.experiment, out / "diagnosed.toml")
+    write_experiment_update(diag.base_experiment, result.final.experiment,
+                            out / "diagnosed.toml", spelled_out=spelled_out)
     results = {
         "recording": str(diag.path), "verdict": result.verdict,
         "final_verdict": result.final_verdict,

@@ -98,3 +98,92 @@ def write_toml(experiment: Experiment, path: str | os.PathLike) -> None:
         experiment.to_dict(relative_to=target.parent.resolve())
     )
     target.write_text(text, encoding="utf-8")
+
+
+#: Keys whose values are paths, written relative to the file's directory.
+_PATH_KEYS = (("mesh", "file"), ("output", "directory"))
+
+
+def write_experiment_update(original: Experiment, updated: Experiment,
+                            path: str | os.PathLike, *, spelled_out: bool = False) -> str:
+    """Write ``updated`` as the user's own file with only what changed changed.
+
+    The user's experiment file (``original.path``) is edited in place of a fresh dump: its
+    comments, order and layout stay, the values that differ between ``original`` and
+    ``updated`` (calibrated parameters) are replaced, and sections or keys ``updated`` adds (a
+    physics term the diagnosis added) are appended, so the result diffs cleanly against the
+    user's file. Paths the file gives are re-based to the new file's directory (an output
+    directory left to its default stays the default: ``out`` beside the new file). The file is
+    read back and checked to describe ``updated``; when it would not (or ``spelled_out``, or the
+    original has no file), every value is written out as :func:`write_toml` does.
+
+    Returns
+    -------
+    str
+        ``"edited"`` or ``"spelled out"``: which form was written.
+    """
+    import tomlkit
+
+    from petsoft.experiment.reader import load_experiment
+
+    target = Path(path)
+    source = Path(original.path) if original.path is not None else None
+    if spelled_out or source is None or not source.is_file():
+        write_toml(updated, target)
+        return "spelled out"
+    base = target.parent.resolve()
+    doc = tomlkit.parse(source.read_text(encoding="utf-8"))
+    _apply_changes(doc, original.to_dict(), updated.to_dict(), updated.to_dict(relative_to=base))
+    for section, key in _PATH_KEYS:
+        table = doc.get(section)
+        new = updated.to_dict(relative_to=base).get(section, {}).get(key)
+        if table is not None and key in table and new is not None and table[key] != new:
+            table[key] = new
+    text = tomlkit.dumps(doc)
+    tmp = target.with_name(f".{target.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    # An output directory the user left to its default ("out" beside the file) stays so: beside
+    # the new file. Everything else must read back exactly as ``updated``.
+    implicit_output = "directory" not in doc.get("output", {})
+    try:
+        back, want = load_experiment(tmp).to_dict(), updated.to_dict()
+        if implicit_output:
+            back["output"].pop("directory"), want["output"].pop("directory")
+        same = back == want
+    except Exception:  # noqa: BLE001 -- any failure to read it back means: spell it out
+        same = False
+    if not same:
+        tmp.unlink()
+        write_toml(updated, target)
+        return "spelled out"
+    os.replace(tmp, target)
+    return "edited"
+
+
+def _apply_changes(doc, old: Mapping[str, Any], new: Mapping[str, Any],
+                   written: Mapping[str, Any]) -> None:
+    """Set in the tomlkit container ``doc`` every key whose value differs from ``old`` to
+    ``new`` (``written``: the same values with paths as they are to be written); tables the
+    document lacks are created with the changed keys only."""
+    import tomlkit
+
+    for key, value in new.items():
+        before = old.get(key)
+        if before == value:
+            continue
+        if isinstance(value, Mapping) and isinstance(before, Mapping):
+            if key not in doc:
+                doc[key] = tomlkit.table()
+            _apply_changes(doc[key], before, value, written[key])
+        elif (isinstance(value, list) and value and all(isinstance(v, Mapping) for v in value)):
+            array = tomlkit.aot()
+            for entry in written[key]:
+                table = tomlkit.table()
+                table.update(entry)
+                array.append(table)
+            doc[key] = array
+        else:
+            doc[key] = written[key]
+    for key in list(doc.keys()):
+        if key in old and key not in new:
+            del doc[key]
