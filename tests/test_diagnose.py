@@ -216,6 +216,12 @@ def test_concealed_mass_damping_is_found(case):
     final = load_experiment(out / "diagnosed.toml")
     assert final.damping.mass == pytest.approx(alpha)
     assert "damping.mass" in final.calibrate
+    # the user's own file, edited: its unchanged lines stay verbatim (not a spelled-out dump)
+    user_lines = case["user"].read_text().splitlines()
+    diagnosed = (out / "diagnosed.toml").read_text()
+    assert not diagnosed.startswith("# petsoft experiment")
+    kept = [line for line in user_lines if line.strip() and line in diagnosed.splitlines()]
+    assert len(kept) >= len([line for line in user_lines if line.strip()]) - 4
     md = (out / "report.md").read_text()
     assert "damping.mass" in md and "friction.dry" in md          # not-modelled terms listed
     assert (out / "summary.json").exists() and (out / "trajectories.png").exists()
