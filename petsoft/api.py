@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from mpi4py import MPI
 
 from petsoft.calibration.calibrate import CalibrationResult, run_calibration
 from petsoft.calibration.synth import SynthOptions, SynthResult
@@ -32,8 +31,7 @@ from petsoft.dynamics.run_simulation import SimulationRun, simulate_experiment
 from petsoft.experiment import Experiment
 from petsoft.experiment import load_experiment as _load_experiment
 from petsoft.experiment import with_parameters as _with_parameters
-from petsoft.io.recording import Recording
-from petsoft.io.recording import read_recording as _read_recording
+from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.solvers.options import experiment_options
 from petsoft.solvers.run_static import StaticOutcome, solve_experiment
 
@@ -103,17 +101,7 @@ def read_recording(path: str | Path) -> Recording:
     petsoft.io.recording.RecordingError
         Naming the file and the dataset that is wrong.
     """
-    comm = MPI.COMM_WORLD
-    recording, error = None, None
-    if comm.rank == 0:
-        try:
-            recording = _read_recording(Path(path))
-        except Exception as exc:  # noqa: BLE001 -- re-raised on every rank below
-            error = exc
-    error = comm.bcast(error, root=0)
-    if error is not None:
-        raise error
-    return comm.bcast(recording, root=0)
+    return read_recording_on_all_ranks(path)
 
 
 @dataclass(frozen=True)

@@ -21,9 +21,8 @@ from petsoft.dynamics.simulate import initial_state
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, with_parameters
 from petsoft.experiment.writer import write_experiment_update
-from petsoft.io.recording import Recording, read_recording
+from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.io.summary import write_summary
-from petsoft.physics.model import on_root
 
 METHODS = ("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead")
 GRADIENTS = ("adjoint", "sensitivity", "fd")
@@ -309,8 +308,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         observations = recording
     else:
         if not isinstance(recording, Recording):
-            # on_root returns the result on rank 0 only: every rank needs the frames
-            recording = mpi.bcast(on_root(comm, read_recording, Path(recording)), root=0)
+            recording = read_recording_on_all_ranks(recording, comm)
         observations = Observations(recording, noise=noise)
     recording = observations.recording
     recording_path = recording.source

@@ -17,10 +17,10 @@ from petsoft.dynamics.run_simulation import simulate_experiment
 from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict, load_experiment
 from petsoft.io.importers import run_import
-from petsoft.io.recording import Recording, read_recording
+from petsoft.io.recording import read_recording_on_all_ranks
 from petsoft.io.summary import write_summary
 from petsoft.io.xdmf import XdmfWriter
-from petsoft.physics.model import build_model, on_root
+from petsoft.physics.model import build_model
 from petsoft.solvers.modes import compute_modes
 from petsoft.solvers.options import experiment_options
 from petsoft.solvers.run_static import solve_experiment
@@ -67,7 +67,7 @@ def run(args) -> int:
     if args.command == "calibrate":
         experiment = load_experiment(args.experiment)
         out = Path(args.out) if args.out else experiment.output.directory
-        observations = Observations(read_recording_everywhere(args.recording), noise=args.noise)
+        observations = Observations(read_recording_on_all_ranks(args.recording), noise=args.noise)
         with experiment_options(experiment.petsc):
             run_calibration(experiment, observations, method=args.method,
                             gradient=args.gradient, integrator=args.integrator,
@@ -78,7 +78,7 @@ def run(args) -> int:
     if args.command == "diagnose":
         experiment = load_experiment(args.experiment)
         out = Path(args.out) if args.out else experiment.output.directory
-        recording = read_recording_everywhere(args.recording)
+        recording = read_recording_on_all_ranks(args.recording)
         with experiment_options(experiment.petsc):
             run_diagnose(experiment, recording, out=out, fraction=args.fraction,
                          alpha=args.alpha, max_additions=args.max_additions, method=args.method,
@@ -100,15 +100,6 @@ def run(args) -> int:
             run_diagnosis_demo(out / "diagnose", say=_print)
         return 0
     raise AssertionError(args.command)
-
-
-def read_recording_everywhere(path) -> Recording:
-    """The recording at ``path``, read once on rank 0 and handed to every rank (collective).
-
-    The CLI reads files; the library below it takes the :class:`Recording` value."""
-    comm = PETSc.COMM_WORLD
-    # on_root returns the result on rank 0 only (and raises a rank 0 error on every rank)
-    return comm.tompi4py().bcast(on_root(comm, read_recording, Path(path)), root=0)
 
 
 def solve_static(experiment, out: Path, method: str, load_steps: int, spd: bool,

@@ -67,6 +67,13 @@ class _VersionAction(argparse.Action):
         parser.exit()
 
 
+def _spelled_out_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--spelled-out", action="store_true",
+                        help="write the calibrated experiment with every value spelled out "
+                             "(default: your own file with only the calibrated values and added "
+                             "sections changed, comments kept)")
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="petsoft",
@@ -249,10 +256,7 @@ def _add_calibrate_parser(sub) -> None:
     c.add_argument("--regularization", type=float, default=0.0, metavar="LAMBDA",
                    help="Tikhonov weight on the scaled parameters' distance from the start")
     c.add_argument("--out", help="output directory (default: [output] directory)")
-    c.add_argument("--spelled-out", action="store_true",
-                   help="write the calibrated experiment with every value spelled out (default: "
-                        "your own file with only the calibrated values and added sections "
-                        "changed, comments kept)")
+    _spelled_out_option(c)
 
 
 def _add_diagnose_parser(sub) -> None:
@@ -268,10 +272,7 @@ def _add_diagnose_parser(sub) -> None:
     c.add_argument("experiment", help="experiment file (TOML) with [time] and [calibrate]")
     c.add_argument("recording", help=f"recording (HDF5; the layout: {FORMATS}, section 2)")
     c.add_argument("--out", help="output directory (default: [output] directory)")
-    c.add_argument("--spelled-out", action="store_true",
-                   help="write the calibrated experiment with every value spelled out (default: "
-                        "your own file with only the calibrated values and added sections "
-                        "changed, comments kept)")
+    _spelled_out_option(c)
     c.add_argument("--fraction", type=float, default=0.7,
                    help="share of the record's span used to identify parameters; the rest is "
                         "held out for prediction (default %(default)s)")

@@ -12,7 +12,6 @@ from __future__ import annotations
 import gc
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from petsc4py import PETSc
@@ -28,9 +27,9 @@ from petsoft.dynamics.mass_spring import load_spring_mesh
 from petsoft.dynamics.parameters import VISCOELASTIC
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
-from petsoft.io.recording import Recording, read_recording
+from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.mesh.topology import exterior_faces
-from petsoft.physics.model import load_mesh, on_root
+from petsoft.physics.model import load_mesh
 
 
 class DiagnoseError(PetsoftError):
@@ -185,9 +184,7 @@ class Diagnosis:
         if not 0.0 < self.alpha < 1.0:
             raise DiagnoseError(f"--alpha = {alpha}: the significance level must be in (0, 1)")
         if not isinstance(recording, Recording):
-            # read on rank 0, then every rank gets it (on_root shares only the error)
-            recording = self.comm.tompi4py().bcast(
-                on_root(self.comm, read_recording, Path(recording)), root=0)
+            recording = read_recording_on_all_ranks(recording, self.comm)
         rec = self.recording = recording
         self.path = recording.source
         if rec.positions is None:

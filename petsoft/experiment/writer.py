@@ -131,12 +131,13 @@ def write_experiment_update(original: Experiment, updated: Experiment,
     if spelled_out or source is None or not source.is_file():
         write_toml(updated, target)
         return "spelled out"
-    base = target.parent.resolve()
+    written = updated.to_dict(relative_to=target.parent.resolve())
+    want = updated.to_dict()
     doc = tomlkit.parse(source.read_text(encoding="utf-8"))
-    _apply_changes(doc, original.to_dict(), updated.to_dict(), updated.to_dict(relative_to=base))
+    _apply_changes(doc, original.to_dict(), want, written)
     for section, key in _PATH_KEYS:
         table = doc.get(section)
-        new = updated.to_dict(relative_to=base).get(section, {}).get(key)
+        new = written.get(section, {}).get(key)
         if table is not None and key in table and new is not None and table[key] != new:
             table[key] = new
     text = tomlkit.dumps(doc)
@@ -146,7 +147,7 @@ def write_experiment_update(original: Experiment, updated: Experiment,
     # the new file. Everything else must read back exactly as ``updated``.
     implicit_output = "directory" not in doc.get("output", {})
     try:
-        back, want = load_experiment(tmp).to_dict(), updated.to_dict()
+        back = load_experiment(tmp).to_dict()
         if implicit_output:
             back["output"].pop("directory"), want["output"].pop("directory")
         same = back == want

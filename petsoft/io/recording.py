@@ -359,6 +359,29 @@ class SeriesComponent:
         return np.full(len(points), np.interp(t, self.times, self.values))
 
 
+def read_recording_on_all_ranks(path: str | os.PathLike, comm=None) -> Recording:
+    """The recording at ``path``, read once on rank 0 and given to every rank of ``comm``
+    (an mpi4py or PETSc communicator; default the world). Collective.
+
+    A user error in the file (:class:`~petsoft.errors.PetsoftError`) is raised on every rank.
+    """
+    from mpi4py import MPI
+    from petsc4py import PETSc
+
+    mpi = MPI.COMM_WORLD if comm is None else (
+        comm.tompi4py() if isinstance(comm, PETSc.Comm) else comm)
+    recording, error = None, None
+    if mpi.rank == 0:
+        try:
+            recording = read_recording(Path(path))
+        except PetsoftError as exc:
+            error = exc
+    error = mpi.bcast(error, root=0)
+    if error is not None:
+        raise error
+    return mpi.bcast(recording, root=0)
+
+
 def read_input_series(recording: Recording | Path, name: str) -> tuple[SeriesComponent, ...]:
     """The measured input ``/inputs/<name>`` of a recording as three time series (x, y, z).
 
