@@ -57,8 +57,14 @@ Also: :meth:`ForwardModel.cell_gradient` (the adjoint gradient plus d value/d E 
 of every cell, sensitivity maps, from the same sweep), :meth:`ForwardModel.fd_jacobian` (central
 differences), and ``observe="acceleration"`` (marker accelerations instead of positions).
 
-Memory: the adjoint keeps every step's state, (N + 1) x (2 vectors, 3 for alpha) x ndof x 8 bytes
-(e.g. 1000 steps of a 30 000-dof mesh: 0.7 GB for alpha); checkpointing is future work.
+Memory: the adjoint needs every step's state, (N + 1) x (2 vectors, 3 for alpha) x ndof x 8 bytes
+(e.g. 1000 steps of a 30 000-dof mesh: 0.7 GB for alpha). It keeps them all while they fit
+:data:`ADJOINT_MEMORY` per rank (or ``checkpoints``, if given); beyond that it holds ``s``
+snapshots and recomputes the states between them on the way back, on Griewank's binomial schedule
+(:mod:`petsoft.calibration.checkpointing`): with r the least number with C(s + r, s) >= N, no
+step is recomputed more than r times. The recomputed steps are the first run's steps from the same
+state (alpha from the stored acceleration), so the gradient is the same to the solver tolerance
+(``stats["adjoint"]`` counts recomputed steps and the peak of states held).
 
 Initial states: expression initial conditions do not depend on parameters; ``[initial]
 from = "static"`` does: the equilibrium grad W(q0) = f_g + f_t(0) is solved tightly (SNES rtol
@@ -73,8 +79,10 @@ import math
 import re
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
+from petsoft.calibration.checkpointing import SweepStats, reverse_sweep, spine
 from petsoft.calibration.observation import MarkerObserver, time_interpolation
 from petsoft.dynamics.alpha import GeneralizedAlpha, alpha_parameters
 from petsoft.dynamics.implicit import ImplicitIntegrator
@@ -96,6 +104,8 @@ PREFIX = "fm_"
 GRAD_PREFIX = "fm_grad_"
 #: Newton of the forward run: gradients are only as accurate as the solves (user options win).
 FORWARD_OPTIONS = {PREFIX + "snes_rtol": "1e-12"}
+#: Bytes of stored states the adjoint may hold per rank before it checkpoints (binomial).
+ADJOINT_MEMORY = 1 << 30
 #: Relative size of the SI third-derivative difference: eps |w|_inf = this x mean cell size.
 SI_EPS = 1e-4
 _GROUP = re.compile(r"#(\d+)$")
@@ -151,6 +161,9 @@ class ForwardModel:
     system : optional
         A prebuilt system offering the same interface (e.g. a mass-spring system); then
         ``initial_state`` is taken from ``system.initial_state()``.
+    checkpoints : int, optional
+        The most states the adjoint holds at once (>= 2; None or 0: all of them while they fit
+        :data:`ADJOINT_MEMORY`, else as many as fit).
     observe : {"position", "acceleration"}
         What the markers report: positions X + B q, or accelerations B a (``/frames/acceleration``
         of a recording): alpha's own a_n, (v_n - v_{n-1})/h for be and si, and the consistent
@@ -159,8 +172,10 @@ class ForwardModel:
 
     def __init__(self, experiment, names, observer, frame_times, comm=None, integrator=None,
                  h=None, system=None, observe: str = "position",
-                 solver_options: dict | None = None, recording=None):
+                 solver_options: dict | None = None, recording=None,
+                 checkpoints: int | None = None):
         exp = self.experiment = experiment
+        self.checkpoints = checkpoints
         if observe not in ("position", "acceleration"):
             raise ExperimentError(f"observe = {observe!r}: valid are position, acceleration")
         self.accel = observe == "acceleration"
@@ -328,9 +343,14 @@ class ForwardModel:
         zero.destroy()
         return self._solver(), deriv
 
-    def _run(self, p, store: bool, on_step=None):
-        """Forward run; returns the states [(q, v, a or None)] if ``store`` and the frames."""
-        s, h = self.system, self.h
+    def _run(self, p, store: bool, on_step=None, keep=()):
+        """Forward run; returns the states and the frames.
+
+        The states are [(q, v, a or None)] of every step if ``store``; otherwise the last one,
+        and those whose step is in ``keep`` (the adjoint's checkpoints) as ``{step: state}``
+        with step 0 always kept.
+        """
+        s = self.system
         self._set(p)
         q, v = self._initial()
         branch = s.viscoelastic
@@ -345,43 +365,83 @@ class ForwardModel:
             # the integrator's own formula (alpha recomputes the same a0 on its first step)
             GeneralizedAlpha.consistent_acceleration(self._a0_helper(), 0.0, q, v, a)
         states = [(q.copy(), v.copy(), a.copy() if a is not None else None)]
+        kept = {0: states[0]} if keep else None
         obs = {}
         self._observe(0, a if self.accel else q, obs)
         q1, v1 = q.duplicate(), v.duplicate()
         with scoped_defaults(**self._forward_defaults):
             for n in range(self.nsteps):
-                t0 = n * h
-                report = self.integrator.step(t0, q, v, h, q1, v1)
-                if not report.converged:
-                    raise SolverError(
-                        f"{self.experiment.source}: forward model ({self.method}) step {n + 1} at "
-                        f"t = {t0:.6g} s (h = {h:.3g} s) failed: {report.reason}; parameters "
-                        f"{dict(zip(self.names, np.asarray(p).tolist(), strict=True))}. No retry "
-                        "with a smaller step in calibration runs: use a smaller [time] step or "
-                        "tighter parameter bounds")
-                a1 = None
-                if self.scheme.carries_acceleration:
-                    a1 = self.integrator.a0.copy()
-                elif self.accel:
-                    a1 = v1.copy()
-                    a1.axpy(-1.0, v)
-                    a1.scale(1.0 / h)
+                a1 = self._step(n, q, v, q1, v1, p)
                 if on_step is not None:
                     on_step(n, states[-1], (q1, v1, a1))
                 if store:
                     states.append((q1.copy(), v1.copy(), a1))
                 else:
-                    for x in states[-1]:
-                        if x is not None:
-                            x.destroy()
+                    if kept is None or states[-1] is not kept.get(n):
+                        self._free_state(states[-1])
                     states[-1] = (q1.copy(), v1.copy(), a1)
+                    if kept is not None and n + 1 in keep:
+                        kept[n + 1] = states[-1]
                 q1.copy(q)
                 v1.copy(v)
                 self._observe(n + 1, states[-1][2] if self.accel else q, obs)
         for x in (q, v, q1, v1, a):
             if x is not None:
                 x.destroy()
+        if kept is not None:
+            if states[-1] is not kept.get(self.nsteps):
+                self._free_state(states[-1])
+            return kept, self._frames(obs)
         return states, self._frames(obs)
+
+    def _step(self, n, q, v, q1, v1, p):
+        """Step n -> n+1 from (q, v) into (q1, v1); returns a1 (a new vector) or None."""
+        h = self.h
+        report = self.integrator.step(n * h, q, v, h, q1, v1)
+        if not report.converged:
+            raise SolverError(
+                f"{self.experiment.source}: forward model ({self.method}) step {n + 1} at "
+                f"t = {n * h:.6g} s (h = {h:.3g} s) failed: {report.reason}; parameters "
+                f"{dict(zip(self.names, np.asarray(p).tolist(), strict=True))}. No retry "
+                "with a smaller step in calibration runs: use a smaller [time] step or "
+                "tighter parameter bounds")
+        if self.scheme.carries_acceleration:
+            return self.integrator.a0.copy()
+        if self.accel:
+            a1 = v1.copy()
+            a1.axpy(-1.0, v)
+            a1.scale(1.0 / h)
+            return a1
+        return None
+
+    def _advance(self, state, n0: int, n1: int, p):
+        """The state of step n1 recomputed from ``state`` of step n0 (the adjoint's
+        checkpoints): the same steps as the first run took, from the same start, so the same
+        numbers (alpha restarts from the stored acceleration, exactly as a checkpoint restart)."""
+        q0, v0, a0 = state
+        q, v = q0.copy(), v0.copy()
+        q1, v1 = q.duplicate(), v.duplicate()
+        self.integrator.new_run()
+        if self.scheme.carries_acceleration:
+            self.integrator._forget()
+            self.integrator.restore(n0 * self.h, q, v, {"acceleration": a0})
+        a1 = None
+        with scoped_defaults(**self._forward_defaults):
+            for n in range(n0, n1):
+                if a1 is not None:
+                    a1.destroy()
+                a1 = self._step(n, q, v, q1, v1, p)
+                q1.copy(q)
+                v1.copy(v)
+        q1.destroy()
+        v1.destroy()
+        return q, v, a1
+
+    @staticmethod
+    def _free_state(state) -> None:
+        for x in state:
+            if x is not None:
+                x.destroy()
 
     def _observe(self, n, q, obs) -> None:
         if n in self.uses:
@@ -812,7 +872,17 @@ class ForwardModel:
     def _adjoint(self, p, dphi, cell_map: bool):
         self._refuse_derivatives(p)
         s, h, P = self.system, self.h, len(self.names)
-        states, sim = self._run(p, store=True)
+        N = self.nsteps
+        snapshots = self._snapshots(N)
+        stats = SweepStats()
+        if snapshots is None:
+            states, sim = self._run(p, store=True)
+            stats.hold(len(states))
+            start, stored = states[0], None
+        else:
+            stored, sim = self._run(p, store=False, keep=set(spine(N, snapshots)))
+            stats.hold(len(stored))
+            start = stored.pop(0)
         value, wsim = dphi(sim)
         wsim = np.asarray(wsim, dtype=float).reshape(sim.shape)
         grad = np.zeros(P)
@@ -828,7 +898,6 @@ class ForwardModel:
         for n, uses in self.uses.items():
             w = sum(wt * wsim[k] for k, wt in uses)
             loads[n] = self.observer.adjoint(w)
-        N = self.nsteps
         gq, gv = s.create_vec(), s.create_vec()
         gq.zeroEntries()
         gv.zeroEntries()
@@ -840,8 +909,11 @@ class ForwardModel:
             (ga if self.accel else gq).axpy(1.0, loads.pop(N))
         ksp = self._solver()
         mu, rhs, tmp = s.create_vec(), s.create_vec(), s.create_vec()
-        for n in range(N - 1, -1, -1):
-            deriv, data = self._step_setup(n, states[n], states[n + 1])
+
+        def backward(n, st0, st1) -> None:
+            """The adjoint of step n -> n+1 (states n and n+1): (gq, gv, ga) of n+1 -> of n."""
+            nonlocal gq, gv, ga
+            deriv, data = self._step_setup(n, st0, st1)
             ksp.setOperators(self.J)
             if self.scheme.carries_acceleration:
                 gq, gv, ga = self._alpha_adjoint(data, deriv, gq, gv, ga, ksp, mu, rhs, tmp,
@@ -877,7 +949,19 @@ class ForwardModel:
             self._free_data(data)
             if n in loads:
                 (ga if self.accel else gq).axpy(1.0, loads.pop(n))
-        q0, v0, a0 = states[0]
+
+        if stored is None:
+            for n in range(N - 1, -1, -1):
+                backward(n, states[n], states[n + 1])
+        else:
+            reverse_sweep(N, snapshots, start, stored,
+                          lambda state, n0, n1: self._advance(state, n0, n1, p), backward,
+                          self._free_state, stats)
+        self.stats["adjoint"] = {"steps": N, "snapshots": snapshots,
+                                 "recomputed_steps": stats.recomputed_steps,
+                                 "peak_states": stats.peak_states,
+                                 "peak_bytes": stats.peak_states * self._state_bytes()}
+        q0, v0, a0 = start
         if self.static:
             sksp, sderiv = self._static_setup(q0)       # self.J = K(q0)
         if self.has_a:
@@ -901,8 +985,31 @@ class ForwardModel:
             if x is not None:
                 x.destroy()
         ksp.destroy()
-        self._free(states)
+        if stored is None:
+            self._free(states)
+        else:
+            self._free_state(start)
         return float(value), grad, cells
+
+    def _state_bytes(self) -> int:
+        """Bytes of one stored state on this rank (q, v and, if carried, a)."""
+        local = self.system.create_vec()
+        size = local.getLocalSize()
+        local.destroy()
+        return (3 if self.has_a else 2) * size * 8
+
+    def _snapshots(self, steps: int) -> int | None:
+        """How many states the adjoint may hold (None: all N + 1, the trajectory fits).
+
+        ``self.checkpoints`` when set (0 = decide); otherwise all while (N + 1) states fit
+        :data:`ADJOINT_MEMORY` bytes on this rank, else as many as fit (at least 2). Every
+        rank takes the same decision (the largest state counts).
+        """
+        if self.checkpoints:
+            return None if self.checkpoints >= steps + 1 else max(int(self.checkpoints), 2)
+        fit = ADJOINT_MEMORY // max(self._state_bytes(), 1)
+        fit = self.comm.tompi4py().allreduce(int(fit), op=MPI.MIN)
+        return None if fit >= steps + 1 else max(int(fit), 2)
 
     def _alpha_adjoint(self, data, deriv, gq1, gv1, ga1, ksp, mu, rhs, tmp, contract):
         """Transpose of :meth:`_alpha_tangent`: adjoints of (q1, v1, a1) -> of (q0, v0, a0)."""
