@@ -15,7 +15,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.mesh.ordering import first_touch_order, morton_order
+from petsoft.mesh.ordering import cell_centroids, first_touch_order, morton_order
 from petsoft.mesh.topology import exterior_faces
 
 
@@ -54,7 +54,7 @@ class DistributedMesh:
         ncells, nvert = len(mesh.tets), len(mesh.points)
 
         # Same deterministic reordering on every rank; only rank 0 hands cells to DMPlex.
-        cell_perm = morton_order(mesh.points[mesh.tets].mean(axis=1))
+        cell_perm = morton_order(cell_centroids(mesh.points, mesh.tets))
         sfc_tets = mesh.tets[cell_perm]
         vertex_perm = first_touch_order(sfc_tets, nvert)
         vertex_rank = np.empty(nvert, dtype=np.int64)

@@ -41,13 +41,26 @@ def morton_order(points: np.ndarray) -> np.ndarray:
     return np.argsort(morton_keys(points), kind="stable")
 
 
+def cell_centroids(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Centroids (n, 3) of cells (n, k): the same numbers as ``points[cells].mean(axis=1)``
+    (the same additions in the same order, and a division by a power of two for tetrahedra),
+    without the (n, k, 3) temporary, whose strided reduction took 0.4 s at 1M tets."""
+    cells = np.asarray(cells)
+    total = points[cells[:, 0]].copy()
+    for k in range(1, cells.shape[1]):      # a loop over the (few) vertices of a cell
+        total += points[cells[:, k]]
+    return total / cells.shape[1]
+
+
 def first_touch_order(cells: np.ndarray, nvertices: int) -> np.ndarray:
     """Vertex permutation numbering vertices in order of first appearance in ``cells``.
 
     Returns ``perm`` with ``perm[new] = old``; vertices in no cell come last.
     """
     flat = np.asarray(cells, dtype=np.int64).ravel()
-    _, first = np.unique(flat, return_index=True)
-    used = flat[np.sort(first)]
-    unused = np.setdiff1d(np.arange(nvertices), used, assume_unique=False)
-    return np.concatenate([used, unused])
+    # the first position of every vertex, in linear time (np.unique sorted all 4n entries):
+    # assigning positions in reverse leaves each vertex's smallest one, since numpy assigns a
+    # repeated index's values in order (tests/test_ordering.py checks against np.unique)
+    first = np.full(nvertices, len(flat), dtype=np.int64)
+    first[flat[::-1]] = np.arange(len(flat) - 1, -1, -1, dtype=np.int64)
+    return np.argsort(first, kind="stable")

@@ -1,0 +1,176 @@
+/* The 3x3-block sparsity pattern of element sets over a vertex graph, and where each element
+ * block lands in it (see scatter.c for the value layout).
+ *
+ * Row r of the block pattern holds every vertex that shares an element with r. It is built from
+ * the vertex -> element incidence (a counting sort), with a marker array to drop repeats, so the
+ * cost is linear in the element-vertex pairs; rows are then sorted (they hold tens of entries).
+ * Element sets may have different numbers of vertices (tetrahedra, springs, contact pairs) and
+ * share the pattern. Only the rows listed in `rows` are built (all local vertices for the
+ * local pattern; the owned vertices of the whole mesh for a parallel matrix's preallocation).
+ *
+ * Memory: besides the outputs, the incidence (one int64 per element-vertex pair) and one int64
+ * per vertex. Returns 0, or -1 when an allocation failed. */
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+typedef struct {
+  int64_t *ptr; /* nv + 1 */
+  int64_t *elt; /* global element index (offset of its set + index in the set) */
+} incidence_t;
+
+static int incidence(int64_t nv, int32_t nsets, const int64_t *ne, const int32_t *npe,
+                     const int64_t *const *conn, incidence_t *inc) {
+  int64_t pairs = 0;
+  for (int32_t s = 0; s < nsets; ++s) pairs += ne[s] * npe[s];
+  inc->ptr = calloc((size_t)nv + 1, sizeof(int64_t));
+  inc->elt = malloc((size_t)(pairs > 0 ? pairs : 1) * sizeof(int64_t));
+  if (!inc->ptr || !inc->elt) return -1;
+  for (int32_t s = 0; s < nsets; ++s)
+    for (int64_t k = 0; k < ne[s] * npe[s]; ++k) inc->ptr[conn[s][k] + 1]++;
+  for (int64_t v = 0; v < nv; ++v) inc->ptr[v + 1] += inc->ptr[v];
+  int64_t *fill = malloc((size_t)(nv > 0 ? nv : 1) * sizeof(int64_t));
+  if (!fill) return -1;
+  memcpy(fill, inc->ptr, (size_t)nv * sizeof(int64_t));
+  int64_t offset = 0;
+  for (int32_t s = 0; s < nsets; ++s) {
+    for (int64_t e = 0; e < ne[s]; ++e)
+      for (int32_t a = 0; a < npe[s]; ++a) inc->elt[fill[conn[s][e * npe[s] + a]]++] = offset + e;
+    offset += ne[s];
+  }
+  free(fill);
+  return 0;
+}
+
+/* The set and the index within it of global element g (sets are few: a linear scan). */
+static void locate(int64_t g, int32_t nsets, const int64_t *ne, int32_t *set, int64_t *e) {
+  int32_t s = 0;
+  while (s < nsets - 1 && g >= ne[s]) g -= ne[s++];
+  *set = s;
+  *e = g;
+}
+
+static int cmp_i64(const void *a, const void *b) {
+  const int64_t x = *(const int64_t *)a, y = *(const int64_t *)b;
+  return (x > y) - (x < y);
+}
+
+/* Visit the distinct neighbours of vertex r: count them (out == NULL) or write them. */
+static int64_t neighbours(int64_t r, int32_t nsets, const int64_t *ne, const int32_t *npe,
+                          const int64_t *const *conn, const incidence_t *inc, int64_t *marker,
+                          int64_t *out) {
+  int64_t count = 0;
+  for (int64_t k = inc->ptr[r]; k < inc->ptr[r + 1]; ++k) {
+    int32_t s;
+    int64_t e;
+    locate(inc->elt[k], nsets, ne, &s, &e);
+    const int64_t *ce = conn[s] + e * npe[s];
+    for (int32_t b = 0; b < npe[s]; ++b) {
+      const int64_t c = ce[b];
+      if (marker[c] != r) {
+        marker[c] = r;
+        if (out) out[count] = c;
+        ++count;
+      }
+    }
+  }
+  return count;
+}
+
+/* Pass 1: bptr[i+1] - bptr[i] = number of distinct neighbours of rows[i] (bptr[0] = 0). */
+int64_t petsoft_pattern_count(int64_t nv, int32_t nsets, const int64_t *ne, const int32_t *npe,
+                              const int64_t *const *conn, int64_t nrows, const int64_t *rows,
+                              int64_t *bptr) {
+  incidence_t inc = {0, 0};
+  int64_t *marker = malloc((size_t)(nv > 0 ? nv : 1) * sizeof(int64_t));
+  if (!marker || incidence(nv, nsets, ne, npe, conn, &inc)) {
+    free(marker); free(inc.ptr); free(inc.elt);
+    return -1;
+  }
+  for (int64_t v = 0; v < nv; ++v) marker[v] = -1;
+  bptr[0] = 0;
+  for (int64_t i = 0; i < nrows; ++i)
+    bptr[i + 1] = bptr[i] + neighbours(rows[i], nsets, ne, npe, conn, &inc, marker, NULL);
+  free(marker); free(inc.ptr); free(inc.elt);
+  return 0;
+}
+
+/* Pass 2: the sorted neighbours of each row into bcol[bptr[i]:bptr[i+1]]. With `pos` (one
+ * (ne, npe, npe) array per set; only when rows = 0..nv-1 in order) also where each element block
+ * lands: the index into bcol of conn[b] in row conn[a], read from a per-row map of column ->
+ * index (the marker array's twin), no search. */
+int64_t petsoft_pattern_fill(int64_t nv, int32_t nsets, const int64_t *ne, const int32_t *npe,
+                             const int64_t *const *conn, int64_t nrows, const int64_t *rows,
+                             const int64_t *bptr, int64_t *bcol, int64_t *const *pos) {
+  incidence_t inc = {0, 0};
+  int64_t *marker = malloc((size_t)(nv > 0 ? nv : 1) * sizeof(int64_t));
+  int64_t *where = pos ? malloc((size_t)(nv > 0 ? nv : 1) * sizeof(int64_t)) : NULL;
+  if (!marker || (pos && !where) || incidence(nv, nsets, ne, npe, conn, &inc)) {
+    free(marker); free(where); free(inc.ptr); free(inc.elt);
+    return -1;
+  }
+  for (int64_t v = 0; v < nv; ++v) marker[v] = -1;
+  for (int64_t i = 0; i < nrows; ++i) {
+    const int64_t r = rows[i];
+    int64_t *row = bcol + bptr[i];
+    const int64_t n = neighbours(r, nsets, ne, npe, conn, &inc, marker, row);
+    qsort(row, (size_t)n, sizeof(int64_t), cmp_i64);
+    if (!pos) continue;
+    for (int64_t k = 0; k < n; ++k) where[row[k]] = bptr[i] + k;
+    for (int64_t k = inc.ptr[r]; k < inc.ptr[r + 1]; ++k) {
+      int32_t s;
+      int64_t e;
+      locate(inc.elt[k], nsets, ne, &s, &e);
+      const int64_t *ce = conn[s] + e * npe[s];
+      for (int32_t a = 0; a < npe[s]; ++a) {
+        if (ce[a] != r) continue; /* (a vertex twice in one element: each a gets its row) */
+        int64_t *pe = pos[s] + (e * npe[s] + a) * npe[s];
+        for (int32_t b = 0; b < npe[s]; ++b) pe[b] = where[ce[b]];
+      }
+    }
+  }
+  free(marker); free(where); free(inc.ptr); free(inc.elt);
+  return 0;
+}
+
+/* The scalar CSR of the block pattern in scatter.c's layout: the three scalar rows of block row
+ * r are contiguous, row 3r+i holds columns 3*bcol[k]+j for each block k of the row. Column
+ * indices are mapped through `colmap` (block column -> first scalar column) when given, else
+ * 3*bcol. 32-bit output (PETSc's default index type). */
+void petsoft_pattern_scalar32(int64_t nrows, const int64_t *bptr, const int64_t *bcol,
+                              const int64_t *colmap, int32_t *indptr, int32_t *indices) {
+  for (int64_t r = 0; r < nrows; ++r) {
+    const int64_t nb = bptr[r + 1] - bptr[r];
+    for (int i = 0; i < 3; ++i) {
+      const int64_t start = 9 * bptr[r] + 3 * nb * i;
+      indptr[3 * r + i] = (int32_t)start;
+      for (int64_t k = 0; k < nb; ++k) {
+        const int64_t c = bptr[r] + k;
+        const int64_t col = colmap ? colmap[bcol[c]] : 3 * bcol[c];
+        indices[start + 3 * k + 0] = (int32_t)col;
+        indices[start + 3 * k + 1] = (int32_t)(col + 1);
+        indices[start + 3 * k + 2] = (int32_t)(col + 2);
+      }
+    }
+  }
+  indptr[3 * nrows] = (int32_t)(9 * bptr[nrows]);
+}
+
+void petsoft_pattern_scalar64(int64_t nrows, const int64_t *bptr, const int64_t *bcol,
+                              const int64_t *colmap, int64_t *indptr, int64_t *indices) {
+  for (int64_t r = 0; r < nrows; ++r) {
+    const int64_t nb = bptr[r + 1] - bptr[r];
+    for (int i = 0; i < 3; ++i) {
+      const int64_t start = 9 * bptr[r] + 3 * nb * i;
+      indptr[3 * r + i] = start;
+      for (int64_t k = 0; k < nb; ++k) {
+        const int64_t c = bptr[r] + k;
+        const int64_t col = colmap ? colmap[bcol[c]] : 3 * bcol[c];
+        indices[start + 3 * k + 0] = col;
+        indices[start + 3 * k + 1] = col + 1;
+        indices[start + 3 * k + 2] = col + 2;
+      }
+    }
+  }
+  indptr[3 * nrows] = 9 * bptr[nrows];
+}
