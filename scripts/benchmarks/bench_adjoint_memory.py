@@ -106,7 +106,9 @@ def main() -> None:
         out = subprocess.run([sys.executable, __file__, "--mode", mode, "--cells",
                               *map(str, args.cells), "--steps", str(args.steps), "--step",
                               str(args.step), "--snapshots", str(args.snapshots)],
-                             check=True, capture_output=True, text=True)
+                             capture_output=True, text=True)
+        if out.returncode:
+            sys.exit(f"{mode} run failed:\n{out.stderr}")
         rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
     print(f"{'mode':<11}{'forward s':>10}{'adjoint s':>10}{'adj/fwd':>8}{'recomputed':>11}"
           f"{'peak states':>12}{'states MB':>10}{'RSS growth MB':>14}")
