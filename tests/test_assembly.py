@@ -78,8 +78,14 @@ def test_distributed_mesh_partitions_cells_and_vertices(dmesh):
     np.testing.assert_array_equal(dmesh.points, dmesh.mesh.points[dmesh.vertex_ids])
     np.testing.assert_array_equal(dmesh.mesh.tets[dmesh.cell_ids],
                                   dmesh.vertex_ids[dmesh.cells])
-    plex = dmesh.dm.getCoordinatesLocal().getArray().reshape(-1, 3)
-    np.testing.assert_allclose(plex, dmesh.points)
+    # owned vertices first, a contiguous range of global numbers; ghosts owned by lower ranks
+    lo, hi = (x // 3 for x in dmesh.create_global_vec().getOwnershipRange())
+    np.testing.assert_array_equal(dmesh.global_dof[dmesh.owned, 0] // 3, np.arange(lo, hi))
+    assert np.all(dmesh.global_dof[~dmesh.owned, 0] // 3 < lo)
+    # the scatter: a global vector holding each dof's global number arrives at every local copy
+    g = dmesh.create_global_vec()
+    g.setArray(np.arange(3 * lo, 3 * hi, dtype=float))
+    np.testing.assert_array_equal(dmesh.to_local(g), dmesh.global_dof)
     gathered = dmesh.gather(dmesh.points)
     if comm.rank == 0:
         np.testing.assert_array_equal(gathered, dmesh.mesh.points)
@@ -137,7 +143,11 @@ def test_assembler_matches_elementwise_petsc_insertion(dmesh):
     asm.begin()
     asm.add("cells", ke)
     asm.finish(A)
-    B = dmesh.dm.createMatrix()
+    n = 3 * int(dmesh.owned.sum())
+    B = PETSc.Mat().createAIJ(((n, None), (n, None)), bsize=3, comm=dmesh.comm)
+    B.setUp()
+    B.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+    B.setLGMap(dmesh.lgmap, dmesh.lgmap)
     idx = dmesh.cells.astype(PETSc.IntType)
     B.setValuesBlockedLocalRCV(idx, idx, ke, addv=PETSc.InsertMode.ADD_VALUES)
     B.assemble()

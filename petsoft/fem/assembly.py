@@ -12,7 +12,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.fem.kernels.scatter import BlockPattern, block_pattern, scalar_csr, scatter_add_matrix
+from petsoft.fem.kernels.scatter import BlockPattern, block_pattern, block_rows, scatter_add_matrix
 
 CHUNK = 16384  # elements per kernel call: keeps element-matrix buffers in cache-sized pieces
 
@@ -35,34 +35,42 @@ class MatrixAssembler:
         self.connectivity = {n: np.ascontiguousarray(connectivities[n], np.int64) for n in names}
         self.positions = dict(zip(names, positions, strict=True))
         self.values = np.zeros(self.pattern.nvalues)
-        self._owned_csr = None     # (serially the pattern's own arrays: no copy)
+        self._owned_nnz = None     # per owned row, in parallel (computed once)
 
     def create_matrix(self) -> PETSc.Mat:
         """A new AIJ matrix (block size 3) with exactly this pattern's nonzeros.
 
-        The owned rows' pattern in global numbering is computed once per assembler (the rows of
-        ghost vertices go to their owners) and every matrix is preallocated from it: PETSc's
-        ``DMCreateMatrix`` redid its own preallocation for every matrix, 0.8 s a matrix at
-        384k tets, more than the distribution and the pattern together.
+        Serially the matrix is made on the pattern's own arrays; in parallel it is preallocated
+        exactly from counts computed once per assembler (:func:`owned_rows_nnz`) and its pattern
+        filled with zeros. PETSc's ``DMCreateMatrix`` redid its own preallocation for
+        every matrix: 0.8 s a matrix at 384k tets, more than the distribution and the pattern.
         """
-        if self._owned_csr is None:
-            self._owned_csr = owned_rows_csr(self.dmesh, self.pattern)
-        indptr, indices = self._owned_csr
-        n = len(indptr) - 1
         if self.dmesh.comm.size == 1:
             # PETSc uses the arrays as they are (no copy of the pattern; petsc4py keeps them
-            # alive with the matrix): the structure is shared, the values are the matrix's own
-            A = PETSc.Mat().createAIJWithArrays((n, n), (indptr, indices, np.zeros(len(indices))),
-                                                bsize=3, comm=self.dmesh.comm)
+            # alive with the matrix): the structure is shared, the values are the matrix's own.
+            # Serially the local numbering is the global one.
+            n = 3 * self.dmesh.nvertices
+            A = PETSc.Mat().createAIJWithArrays(
+                (n, n), (self.pattern.indptr, self.pattern.indices,
+                         np.zeros(len(self.pattern.indices))), bsize=3, comm=self.dmesh.comm)
         else:
+            if self._owned_nnz is None:
+                self._owned_nnz = owned_rows_nnz(self.dmesh, self.pattern)
+            n = len(self._owned_nnz[0])
             A = PETSc.Mat().create(comm=self.dmesh.comm)
             A.setSizes(((n, PETSc.DETERMINE), (n, PETSc.DETERMINE)), bsize=3)
             A.setType(PETSc.Mat.Type.AIJ)
-            A.setPreallocationCSR((indptr, indices))
+            A.setPreallocationNNZ(self._owned_nnz)
         A.setLGMap(self.dmesh.lgmap, self.dmesh.lgmap)
         A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         A.setOption(PETSc.Mat.Option.KEEP_NONZERO_PATTERN, True)
         A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        if self.dmesh.comm.size > 1:
+            # explicit zeros on the whole pattern, as a matrix from DMCreateMatrix had: one may
+            # be copied or combined with another before its first assembly
+            A.setValuesLocalCSR(self.pattern.indptr, self.pattern.indices,
+                                np.zeros(len(self.pattern.indices)))
+            A.assemble()
         return A
 
     def begin(self) -> None:
@@ -84,19 +92,18 @@ class MatrixAssembler:
         return A
 
 
-def owned_rows_csr(dmesh, pattern: BlockPattern) -> tuple[np.ndarray, np.ndarray]:
-    """(indptr, indices): the scalar CSR, in global numbering, of the rows this rank owns.
+def owned_rows_nnz(dmesh, pattern: BlockPattern) -> tuple[np.ndarray, np.ndarray]:
+    """(d_nnz, o_nnz): nonzeros per owned scalar row in the diagonal and off-diagonal blocks of
+    a parallel matrix (PETSc's preallocation), counted exactly.
 
-    Every local block row (owned or ghost vertex) is mapped to global block numbers and sent to
-    the rank owning its vertex, which takes the union of what it receives. In serial the local
-    numbering is the global one and the local pattern is returned as it is.
+    Every local block row (owned or ghost vertex), in global numbering, goes to the rank owning
+    its vertex, which counts the distinct columns of each of its rows (the union of what it
+    receives, by :func:`~petsoft.fem.kernels.scatter.block_rows` on the received pairs: the
+    pattern is symmetric, so a pair (row, column) as a two-vertex element adds nothing else).
     """
-    first = np.asarray(dmesh.global_dof[:, 0], dtype=np.int64)
-    gblock = first // 3                              # the global vertex of each local vertex
+    gblock = np.asarray(dmesh.global_vertex, dtype=np.int64)
     mpi = dmesh.comm.tompi4py()
-    if mpi.size == 1 and np.array_equal(gblock, np.arange(len(gblock))):
-        return pattern.indptr, pattern.indices
-    lo, hi = (x // 3 for x in dmesh._global.getOwnershipRange())
+    lo, hi = (x // 3 for x in dmesh.create_global_vec().getOwnershipRange())
     nglobal = dmesh.nglobal_vertices
     rows = np.repeat(gblock, np.diff(pattern.bptr))
     cols = gblock[pattern.bcol]
@@ -107,9 +114,12 @@ def owned_rows_csr(dmesh, pattern: BlockPattern) -> tuple[np.ndarray, np.ndarray
     counts = np.bincount(owner, minlength=mpi.size).astype(np.int64)
     recv_counts = np.empty_like(counts)
     mpi.Alltoall(counts, recv_counts)
-    recv = np.empty((int(recv_counts.sum()), 2), dtype=np.int64)
-    mpi.Alltoallv([send, 2 * counts, MPI.INT64_T], [recv, 2 * recv_counts, MPI.INT64_T])
-    keys = np.unique((recv[:, 0] - lo) * nglobal + recv[:, 1])
-    bptr = np.zeros(hi - lo + 1, dtype=np.int64)
-    np.cumsum(np.bincount(keys // nglobal, minlength=hi - lo), out=bptr[1:])
-    return scalar_csr(bptr, keys % nglobal, PETSc.IntType)
+    pairs = np.empty((int(recv_counts.sum()), 2), dtype=np.int64)
+    mpi.Alltoallv([send, 2 * counts, MPI.INT64_T], [pairs, 2 * recv_counts, MPI.INT64_T])
+    bptr, bcol = block_rows(nglobal, [pairs], np.arange(lo, hi, dtype=np.int64))
+    inside = (bcol >= lo) & (bcol < hi)
+    row_of = np.repeat(np.arange(hi - lo), np.diff(bptr))
+    d = np.bincount(row_of[inside], minlength=hi - lo)
+    o = np.diff(bptr) - d
+    # three scalar rows per block row, three scalar columns per block
+    return (np.repeat(3 * d, 3).astype(PETSc.IntType), np.repeat(3 * o, 3).astype(PETSc.IntType))

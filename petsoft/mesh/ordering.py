@@ -52,15 +52,27 @@ def cell_centroids(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return total / cells.shape[1]
 
 
-def first_touch_order(cells: np.ndarray, nvertices: int) -> np.ndarray:
-    """Vertex permutation numbering vertices in order of first appearance in ``cells``.
+def first_touch(cells: np.ndarray, nvertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices in order of first appearance in ``cells``, and the cell of each appearance.
 
-    Returns ``perm`` with ``perm[new] = old``; vertices in no cell come last.
+    Returns ``(perm, first_cell)``: ``perm[new] = old``, and ``first_cell[new]`` the index of the
+    first cell holding that vertex (nondecreasing); vertices in no cell come last, with
+    ``first_cell = len(cells)``.
     """
-    flat = np.asarray(cells, dtype=np.int64).ravel()
+    cells = np.asarray(cells, dtype=np.int64)
+    flat = cells.ravel()
     # the first position of every vertex, in linear time (np.unique sorted all 4n entries):
     # assigning positions in reverse leaves each vertex's smallest one, since numpy assigns a
     # repeated index's values in order (tests/test_ordering.py checks against np.unique)
     first = np.full(nvertices, len(flat), dtype=np.int64)
     first[flat[::-1]] = np.arange(len(flat) - 1, -1, -1, dtype=np.int64)
-    return np.argsort(first, kind="stable")
+    perm = np.argsort(first, kind="stable")
+    return perm, first[perm] // max(cells.shape[1], 1)
+
+
+def first_touch_order(cells: np.ndarray, nvertices: int) -> np.ndarray:
+    """Vertex permutation numbering vertices in order of first appearance in ``cells``.
+
+    Returns ``perm`` with ``perm[new] = old``; vertices in no cell come last.
+    """
+    return first_touch(cells, nvertices)[0]
