@@ -136,41 +136,27 @@ int64_t petsoft_pattern_fill(int64_t nv, int32_t nsets, const int64_t *ne, const
 /* The scalar CSR of the block pattern in scatter.c's layout: the three scalar rows of block row
  * r are contiguous, row 3r+i holds columns 3*bcol[k]+j for each block k of the row. Column
  * indices are mapped through `colmap` (block column -> first scalar column) when given, else
- * 3*bcol. 32-bit output (PETSc's default index type). */
-void petsoft_pattern_scalar32(int64_t nrows, const int64_t *bptr, const int64_t *bcol,
-                              const int64_t *colmap, int32_t *indptr, int32_t *indices) {
-  for (int64_t r = 0; r < nrows; ++r) {
-    const int64_t nb = bptr[r + 1] - bptr[r];
-    for (int i = 0; i < 3; ++i) {
-      const int64_t start = 9 * bptr[r] + 3 * nb * i;
-      indptr[3 * r + i] = (int32_t)start;
-      for (int64_t k = 0; k < nb; ++k) {
-        const int64_t c = bptr[r] + k;
-        const int64_t col = colmap ? colmap[bcol[c]] : 3 * bcol[c];
-        indices[start + 3 * k + 0] = (int32_t)col;
-        indices[start + 3 * k + 1] = (int32_t)(col + 1);
-        indices[start + 3 * k + 2] = (int32_t)(col + 2);
-      }
-    }
+ * 3*bcol. */
+#define SCALAR_CSR(NAME, INT)                                                                  \
+  void NAME(int64_t nrows, const int64_t *bptr, const int64_t *bcol, const int64_t *colmap,     \
+            INT *indptr, INT *indices) {                                                          \
+    for (int64_t r = 0; r < nrows; ++r) {                                                         \
+      const int64_t nb = bptr[r + 1] - bptr[r];                                                   \
+      for (int i = 0; i < 3; ++i) {                                                               \
+        const int64_t start = 9 * bptr[r] + 3 * nb * i;                                           \
+        indptr[3 * r + i] = (INT)start;                                                           \
+        for (int64_t k = 0; k < nb; ++k) {                                                        \
+          const int64_t c = bptr[r] + k;                                                          \
+          const int64_t col = colmap ? colmap[bcol[c]] : 3 * bcol[c];                             \
+          indices[start + 3 * k + 0] = (INT)col;                                                  \
+          indices[start + 3 * k + 1] = (INT)(col + 1);                                            \
+          indices[start + 3 * k + 2] = (INT)(col + 2);                                            \
+        }                                                                                         \
+      }                                                                                           \
+    }                                                                                             \
+    indptr[3 * nrows] = (INT)(9 * bptr[nrows]);                                                   \
   }
-  indptr[3 * nrows] = (int32_t)(9 * bptr[nrows]);
-}
 
-void petsoft_pattern_scalar64(int64_t nrows, const int64_t *bptr, const int64_t *bcol,
-                              const int64_t *colmap, int64_t *indptr, int64_t *indices) {
-  for (int64_t r = 0; r < nrows; ++r) {
-    const int64_t nb = bptr[r + 1] - bptr[r];
-    for (int i = 0; i < 3; ++i) {
-      const int64_t start = 9 * bptr[r] + 3 * nb * i;
-      indptr[3 * r + i] = start;
-      for (int64_t k = 0; k < nb; ++k) {
-        const int64_t c = bptr[r] + k;
-        const int64_t col = colmap ? colmap[bcol[c]] : 3 * bcol[c];
-        indices[start + 3 * k + 0] = col;
-        indices[start + 3 * k + 1] = col + 1;
-        indices[start + 3 * k + 2] = col + 2;
-      }
-    }
-  }
-  indptr[3 * nrows] = 9 * bptr[nrows];
-}
+/* 32-bit (PETSc's default index type) and 64-bit outputs. */
+SCALAR_CSR(petsoft_pattern_scalar32, int32_t)
+SCALAR_CSR(petsoft_pattern_scalar64, int64_t)
