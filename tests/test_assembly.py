@@ -155,3 +155,50 @@ def test_assembler_matches_elementwise_petsc_insertion(dmesh):
     assert B.norm() <= 1e-12 * A.norm()
     A.destroy()
     B.destroy()
+
+
+def test_values_copied_in_place_equal_inserted_ones_and_solvers_see_them(dmesh):
+    """finish() on a matrix of its own pattern copies the values into PETSc's array (serially):
+    the same matrix as the inserted values, a solver set up before the change sees the new
+    values, and a matrix whose storage PETSc replaced (MatAXPY builds a new one for a
+    "different" pattern) still gets them (the array is asked of PETSc every time)."""
+    rng = np.random.default_rng(2)
+    asm = MatrixAssembler(dmesh, {"cells": dmesh.cells})
+    A = asm.create_matrix()
+    ref = asm.create_matrix()
+    ref.setAttr("petsoft_pattern", None)       # not recognised: the generic insertion
+    ke = rng.standard_normal((len(dmesh.cells), 12, 12))
+    ke = ke @ ke.transpose(0, 2, 1) + 12 * np.eye(12)   # SPD element blocks: a solvable matrix
+    asm.begin()
+    asm.add("cells", ke)
+    asm.finish(A)
+    asm.finish(ref)
+    diff = A.copy()
+    diff.axpy(-1.0, ref)
+    assert diff.norm() == 0.0
+    ksp = PETSc.KSP().create(comm=dmesh.comm)
+    ksp.setOperators(A)
+    ksp.setType("cg")
+    ksp.getPC().setType("jacobi")
+    ksp.setTolerances(rtol=1e-12)
+    b = A.createVecLeft()
+    b.set(1.0)
+    x1, x2 = b.duplicate(), b.duplicate()
+    ksp.solve(b, x1)
+    asm.values *= 2.0                           # the same matrix, doubled
+    asm.finish(A)
+    ksp.solve(b, x2)
+    x2.scale(2.0)
+    assert (x2 - x1).norm() <= 1e-8 * x1.norm()
+    if dmesh.comm.size == 1:
+        # new storage made by PETSc (a diagonal matrix added as of a different pattern)
+        D = PETSc.Mat().createAIJ(A.getSizes(), nnz=1, comm=dmesh.comm)
+        D.setDiagonal(b)
+        D.assemble()
+        A.axpy(1.0, D, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        asm.finish(A)
+        diff = A.copy()
+        diff.axpy(-2.0, ref)
+        assert diff.norm() <= 1e-12 * ref.norm()
+    for obj in (A, ref, ksp, b, x1, x2, diff):
+        obj.destroy()
