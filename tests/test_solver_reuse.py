@@ -7,7 +7,9 @@ matrix untouched. Checked here:
 
 1. The trajectory with reuse equals the one with a fresh solver every step (reuse switched off
    by declaring the Jacobian non-constant) to round-off, for be, si, midpoint and alpha.
-2. The SNES is kept within a run for a linear bar and renewed every step for a corotated one.
+2. The SNES is kept within a run for a linear bar, and for a corotated one under a
+   preconditioner whose set-up depends on the matrix alone (the direct default), where the
+   trajectory is bitwise the one with a new SNES per step; renewed every step under GAMG.
 3. Changed parameters between runs of one forward model are seen: a second run at another E
    equals a fresh forward model's run at that E, and so do its sensitivities (a stale matrix
    would still give the trajectory -- Newton converges on the residual -- but not them).
@@ -59,28 +61,55 @@ def test_reused_factorisation_gives_the_same_trajectory(method, monkeypatch):
     assert np.abs(kept - fresh).max() <= 1e-10 * scale, np.abs(kept - fresh).max()
 
 
-@pytest.mark.parametrize("model, kept", [("linear", True), ("corotated", False)])
-def test_snes_is_kept_only_for_a_constant_jacobian(model, kept):
+@pytest.mark.parametrize("model, pc, kept", [("linear", None, True), ("corotated", None, True),
+                                             ("corotated", "gamg", False),
+                                             ("linear", "gamg", True)])
+def test_snes_is_kept_unless_a_changing_matrix_meets_multigrid(model, pc, kept):
+    """Kept within a run: for a constant Jacobian (whatever the solver), and for a changing
+    one under a preconditioner whose set-up depends on the matrix alone (the default direct
+    solve here); renewed every step for a changing matrix under GAMG (random set-up)."""
+    from petsc4py import PETSc
+
     from petsoft.dynamics.alpha import GeneralizedAlpha
     from petsoft.physics.model import build_model
+    from petsoft.solvers.options import scoped_defaults
 
     exp = _experiment("alpha", model)
     system = DynamicSystem(build_model(exp), exp.damping.mass, exp.damping.stiffness)
-    assert system.jacobian_is_constant == kept
-    integrator = GeneralizedAlpha(system, radius=0.9)
-    q, v = system.create_vec(), system.create_vec()
-    q.zeroEntries()
-    v.zeroEntries()
-    q1, v1 = q.duplicate(), v.duplicate()
-    solvers = []     # the petsc4py objects themselves: a freed handle's address is reused
-    for n in range(3):
-        report = integrator.step(n * 0.002, q, v, 0.002, q1, v1)
-        assert report.converged
-        solvers.append(integrator.snes)
-        q1.copy(q)
-        v1.copy(v)
-    # the first step of a run sets a solver up; a constant Jacobian keeps it
+    assert system.jacobian_is_constant == (model == "linear")
+    with scoped_defaults(**({"reuse_pc_type": pc} if pc else {})):
+        integrator = GeneralizedAlpha(system, radius=0.9, prefix="reuse_")
+        q, v = system.create_vec(), system.create_vec()
+        q.zeroEntries()
+        v.zeroEntries()
+        q1, v1 = q.duplicate(), v.duplicate()
+        solvers = []     # the petsc4py objects themselves: a freed handle's address is reused
+        for n in range(3):
+            report = integrator.step(n * 0.002, q, v, 0.002, q1, v1)
+            assert report.converged
+            solvers.append(integrator.snes)
+            q1.copy(q)
+            v1.copy(v)
+    assert integrator.snes.getKSP().getPC().getType() == (pc or PETSc.PC.Type.LU)
+    # the first step of a run sets a solver up
     assert (solvers[1] is solvers[2]) == kept
+
+
+@pytest.mark.parametrize("method", ["be", "alpha"])
+def test_a_kept_solver_computes_what_a_new_one_would(method, monkeypatch):
+    """A corotated bar (the matrix changes every Newton iteration) with the default direct
+    solve: the trajectory with the SNES kept equals, bit for bit, the one with a new SNES every
+    step (what a run restarted from a checkpoint does at its first step)."""
+    import petsoft.dynamics.implicit as implicit
+
+    fm = _forward(_experiment(method, "corotated"))
+    try:
+        kept = fm.simulate(fm.p0)
+        monkeypatch.setattr(implicit, "repeatable_setup", lambda ksp: False)
+        fresh = fm.simulate(fm.p0)
+    finally:
+        fm.destroy()
+    np.testing.assert_array_equal(kept, fresh)
 
 
 @pytest.mark.parametrize("method", ["be", "alpha"])

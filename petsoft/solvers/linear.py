@@ -8,6 +8,12 @@ from petsc4py import PETSc
 #: makes thousands of solves, and on a few thousand dofs one factorisation costs less than an
 #: algebraic-multigrid set-up plus its iterations (scripts/benchmarks/bench_linear_solvers.py).
 DIRECT_DOFS = 6000
+#: Up to this many dofs the direct solve is PETSc's own LU with a nested-dissection ordering:
+#: MUMPS costs ~1.5 ms a factorisation whatever the size (its set-up per call), which was most of
+#: a 351-dof bar's Newton iteration; PETSc's LU is faster up to ~1200 dofs, MUMPS beyond
+#: (generalized-alpha forward runs of a neo-Hookean bar, 351 / 567 / 1200 / 2325 dofs: PETSc's
+#: LU took 0.51 / 0.64 / 0.98 / 1.8 x MUMPS's time).
+SMALL_DIRECT_DOFS = 1000
 
 
 def solver_chosen(ksp: PETSc.KSP) -> bool:
@@ -22,8 +28,9 @@ def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None
     """A direct solve for up to :data:`DIRECT_DOFS` dofs, else CG + algebraic multigrid (the
     caller attaches the rigid-body near-nullspace).
 
-    The direct solve is MUMPS when PETSc has it (on a 1875-dof bar it factors 2.5x faster than
-    PETSc's own LU), else PETSc's LU, and only on one rank: across ranks MUMPS schedules
+    The direct solve is PETSc's LU (nested dissection) up to :data:`SMALL_DIRECT_DOFS`, then
+    MUMPS when PETSc has it (on a 1875-dof bar it factors 2.5x faster than PETSc's own LU),
+    and only on one rank: across ranks MUMPS schedules
     dynamically and asynchronously, and two identical 2-rank runs on a loaded machine differed
     in the last bits (tests/test_restart.py's bitwise restart failed once; not reproduced on a
     quiet machine, so the scheduling is the likely, unproven cause), while the iterative
@@ -46,7 +53,11 @@ def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None
         ksp.setType(PETSc.KSP.Type.PREONLY)
         pc = ksp.getPC()
         pc.setType(PETSc.PC.Type.LU)
-        pc.setFactorSolverType("mumps" if PETSc.Sys.hasExternalPackage("mumps") else "petsc")
+        if dofs <= SMALL_DIRECT_DOFS or not PETSc.Sys.hasExternalPackage("mumps"):
+            pc.setFactorSolverType("petsc")
+            pc.setFactorOrdering(PETSc.Mat.OrderingType.ND)
+        else:
+            pc.setFactorSolverType("mumps")
         return
     ksp.setType(PETSc.KSP.Type.CG)
     ksp.getPC().setType(PETSc.PC.Type.GAMG)
