@@ -265,24 +265,99 @@ def test_failure_while_writing_frame_data(tmp_path, mesh, monkeypatch):
     np.testing.assert_array_equal(frames[1][1]["v"], 3 * mesh.points)
 
 
-def test_failure_while_replacing_xdmf(tmp_path, mesh, monkeypatch):
+def test_failure_while_updating_xdmf(tmp_path, mesh, monkeypatch):
+    """The first frame's .xdmf is renamed into place, later frames are written in place: a
+    failure of either leaves the previous document as it was, and the next frame goes on."""
     path = tmp_path / "run.xdmf"
     out = XdmfWriter(path, mesh.points, mesh.tets)
+
+    def failing_replace(src, dst):
+        raise OSError("rename failed (simulated)")
+
+    monkeypatch.setattr(xdmf_mod.os, "replace", failing_replace)
+    with pytest.raises(OSError, match="simulated"):
+        out.write(0.0, {"u": mesh.points})
+    monkeypatch.undo()
+    assert not path.exists() and out.num_frames == 0
+    assert _leftovers(tmp_path) == []  # the temporary file is cleaned up
     out.write(0.0, {"u": mesh.points})
     before = path.read_bytes()
 
-    def failing(src, dst):
-        raise OSError("rename failed (simulated)")
+    real = os.pwrite
 
-    monkeypatch.setattr(xdmf_mod.os, "replace", failing)
-    with pytest.raises(OSError, match="simulated"):
+    def short_write(fd, data, offset):      # the disk fills up after 10 bytes
+        return real(fd, data[:10], offset) if len(data) > 200 else real(fd, data, offset)
+
+    monkeypatch.setattr(xdmf_mod.os, "pwrite", short_write)
+    with pytest.raises(OSError, match="short write"):
         out.write(1.0, {"u": mesh.points})
     monkeypatch.undo()
     assert path.read_bytes() == before and out.num_frames == 1
-    assert _leftovers(tmp_path) == []  # the temporary file is cleaned up
     out.write(2.0, {"u": mesh.points})
     out.close()
     assert [f[0] for f in _read_series(path)[2]] == [0.0, 2.0]
+
+
+def test_frames_are_appended_in_place(tmp_path, mesh):
+    """Each frame adds the same number of bytes and leaves every byte before the closing tags
+    as it was (O(1) a frame, not a rewrite of the whole series)."""
+    path = tmp_path / "run.xdmf"
+    out = XdmfWriter(path, mesh.points, mesh.tets)
+    sizes, docs = [], []
+    for k in range(6):
+        out.write(float(k), {"u": mesh.points * k})
+        docs.append(path.read_bytes())
+        sizes.append(len(docs[-1]))
+    out.close()
+    growth = np.diff(sizes[1:])
+    assert np.all(np.abs(growth - growth[0]) <= 4), sizes      # (digits of k and of the time)
+    tail = len(b"</Grid>\n</Domain>\n</Xdmf>\n")
+    for old, new in zip(docs[:-1], docs[1:], strict=True):
+        assert new.startswith(old[:-tail])
+    assert [f[0] for f in _read_series(path)[2]] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+
+
+def test_killed_at_any_moment_leaves_a_valid_series(tmp_path):
+    """Writers killed (SIGKILL) at random moments while writing frames as fast as they can:
+    every .xdmf left behind parses and references only complete frames, in order."""
+    import signal
+    import time
+
+    script = textwrap.dedent(
+        """
+        import sys
+        from petsoft.mesh.serial import box_mesh
+        from petsoft.io.xdmf import XdmfWriter
+        m = box_mesh([1, 1, 1], [2, 2, 2])
+        out = XdmfWriter(sys.argv[1], m.points, m.tets)
+        print("ready", flush=True)
+        k = 0
+        while True:
+            out.write(0.5 * k, {"u": m.points * k})
+            k += 1
+        """
+    )
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    rng = np.random.default_rng(7)
+    counts = []
+    for trial in range(4):
+        path = tmp_path / f"killed{trial}.xdmf"
+        proc = subprocess.Popen([sys.executable, "-c", script, str(path)], env=env,
+                                stdout=subprocess.PIPE, text=True)
+        assert proc.stdout.readline().strip() == "ready"
+        time.sleep(rng.uniform(0.05, 0.4))
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=60)
+        if not path.exists():       # killed before the first frame
+            counts.append(0)
+            continue
+        ET.parse(path)              # well-formed XML, whatever the moment
+        points, _, frames = _read_series(path)
+        counts.append(len(frames))
+        assert [f[0] for f in frames] == [0.5 * k for k in range(len(frames))]
+        for k, (_, data, _) in enumerate(frames):
+            np.testing.assert_array_equal(data["u"], points * k)
+    assert max(counts) > 1, counts      # the kills did land between frames of a running series
 
 
 def test_killed_process_leaves_consistent_prefix(tmp_path):

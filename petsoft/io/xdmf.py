@@ -11,9 +11,17 @@ Crash consistency is the point of the design. Nothing that looks complete is eve
   into place; an existing ``.xdmf`` of the same name is removed before, so an old series never
   points into the new data.
 * Each frame's arrays are appended to the HDF5 file, which is opened for that frame only and
-  closed (so flushed, and readable by ParaView between frames) before the ``.xdmf`` is rewritten
-  through a temporary file and :func:`os.replace`. The ``.xdmf`` on disk therefore only ever
-  references frames whose data are complete; a crash leaves a consistent prefix of the series.
+  closed (so flushed, and readable by ParaView between frames) before the ``.xdmf`` mentions the
+  frame. The ``.xdmf`` on disk therefore only ever references frames whose data are complete; a
+  crash leaves a consistent prefix of the series.
+* The ``.xdmf`` is created with its first frame through a temporary file and :func:`os.replace`.
+  Every later frame is added in place, in O(1): one ``pwrite`` puts the frame's ``<Grid>`` and
+  the document's closing tags where the closing tags were (the file before them is never
+  touched). A process killed at any point leaves either the old or the new document, since a
+  write to a regular file completes before the process dies; a short write (disk full) is
+  undone by rewriting the old closing tags. (Rewriting the whole file every frame cost O(frames)
+  a frame: 13.6 ms a frame between frames 2000 and 4000.) A power loss in the middle of the write
+  may tear it, even with ``fsync``.
 
 Layout of the HDF5 file::
 
@@ -232,10 +240,33 @@ def _open_for_append(path: Path):
 
 
 def _xdmf_document(grids: str) -> str:
-    return (
-        '<?xml version="1.0" encoding="utf-8"?>\n'
-        '<Xdmf Version="3.0">\n<Domain>\n' + grids + "</Domain>\n</Xdmf>\n"
-    )
+    return _DOC_HEAD + grids + _DOC_TAIL
+
+
+_DOC_HEAD = '<?xml version="1.0" encoding="utf-8"?>\n<Xdmf Version="3.0">\n<Domain>\n'
+_DOC_TAIL = "</Domain>\n</Xdmf>\n"
+_SERIES_HEAD = '<Grid Name="TimeSeries" GridType="Collection" CollectionType="Temporal">\n'
+#: What follows the last frame of a series: where the next frame is written.
+_SERIES_TAIL = ("</Grid>\n" + _DOC_TAIL).encode()
+
+
+def _insert_before_tail(path: Path, offset: int, text: str, fsync: bool) -> int:
+    """Write ``text`` at byte ``offset`` (where the closing tags start), then the closing tags
+    again; returns the new offset. One ``pwrite``; a short one is undone (see the module)."""
+    data = text.encode("utf-8")
+    fd = os.open(path, os.O_WRONLY)
+    try:
+        written = os.pwrite(fd, data + _SERIES_TAIL, offset)
+        if written != len(data) + len(_SERIES_TAIL):
+            os.pwrite(fd, _SERIES_TAIL, offset)
+            os.ftruncate(fd, offset + len(_SERIES_TAIL))
+            raise OSError(f"{path}: short write ({written} of "
+                          f"{len(data) + len(_SERIES_TAIL)} bytes); the frame is not added")
+        if fsync:
+            os.fsync(fd)
+    finally:
+        os.close(fd)
+    return offset + len(data)
 
 
 class XdmfWriter:
@@ -281,7 +312,7 @@ class XdmfWriter:
         self.static_cell_data = _check_fields(cell_data, len(self.tets), "cell_data")
         self.fsync = bool(fsync)
         self.times: list[float] = []
-        self._frame_xml: list[str] = []  # serialised <Grid> of each complete frame
+        self._tail_at = 0    # byte offset of the series' closing tags in the .xdmf
         self._closed = False
 
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -382,23 +413,13 @@ class XdmfWriter:
             ]
         )
         grid = _grid(f"frame_{k}", self._mesh_xml, fields, time=t)
-        self._frame_xml.append(grid)
+        if k == 0:
+            head = _DOC_HEAD + _SERIES_HEAD + grid
+            _replace_text(self.path, head + _SERIES_TAIL.decode(), self.fsync)
+            self._tail_at = len(head.encode("utf-8"))
+        else:
+            self._tail_at = _insert_before_tail(self.path, self._tail_at, grid, self.fsync)
         self.times.append(t)
-        try:
-            self._write_series()
-        except BaseException:
-            # The .xdmf on disk still holds the previous frames; keep our record in step with it.
-            self._frame_xml.pop()
-            self.times.pop()
-            raise
-
-    def _write_series(self) -> None:
-        collection = (
-            '<Grid Name="TimeSeries" GridType="Collection" CollectionType="Temporal">\n'
-            + "".join(self._frame_xml)
-            + "</Grid>\n"
-        )
-        _replace_text(self.path, _xdmf_document(collection), self.fsync)
 
     def close(self) -> None:
         """Finish the series. Idempotent.
