@@ -256,6 +256,10 @@ def _add_calibrate_parser(sub) -> None:
     c.add_argument("--regularization", type=float, default=0.0, metavar="LAMBDA",
                    help="Tikhonov weight on the scaled parameters' distance from the start")
     c.add_argument("--out", help="output directory (default: [output] directory)")
+    c.add_argument("--check-mesh", action="store_true",
+                   help="after the fit, calibrate again on the mesh refined once (box cells "
+                        "doubled, a mesh file split 1->8) and warn when a parameter moves by "
+                        "more than its standard deviation")
     _spelled_out_option(c)
 
 

@@ -98,7 +98,8 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
                      + f"; the verdict tests the residual against the noise and this error in "
                      f"quadrature ({result.numerics['sigma_verdict']:.3g} m)")
     for k, v in result.numerics.items():
-        if k in ("model_error", "sigma_verdict", "refinements"):
+        if k in ("model_error", "sigma_verdict", "refinements", "findings", "recommendation",
+                 "mesh"):
             continue
         if isinstance(v, dict) and "change" in v:
             notes.append(f"numerics {k}: the simulation changes by {v['change']:.3g} m rms "
