@@ -99,6 +99,7 @@ def test_control_on_a_coarse_mesh_file_adds_nothing_and_refines_the_mesh(case):
     assert load_experiment(out / "diagnosed.toml").mesh.refine == 1
 
 
+@pytest.mark.serial_only      # ~15 s: run once, in the serial run (the control runs in both)
 def test_a_consistent_looking_fit_on_a_mesh_file_is_checked_first(case):
     res = _diagnose(case, "noisy")
     assert res.verdict == "consistent"
@@ -110,6 +111,7 @@ def test_a_consistent_looking_fit_on_a_mesh_file_is_checked_first(case):
     assert res.report["numerics"]["recommendation"]
 
 
+@pytest.mark.serial_only      # ~30 s: run once, in the serial run (the control runs in both)
 def test_a_concealed_effect_is_still_found_on_a_coarse_mesh_file(case):
     """The truth's gravity is tilted sideways (the user's model has it straight down): after the
     mesh is refined and its remaining error counted, the missing physics is still found."""

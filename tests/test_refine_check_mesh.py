@@ -112,6 +112,7 @@ def test_check_mesh_warns_when_refining_moves_the_parameter_beyond_its_std(case)
                    for line in lines)
 
 
+@pytest.mark.serial_only      # a second calibration + check (~10 s serial): once is enough
 def test_check_mesh_is_quiet_when_the_shift_is_within_the_std(case):
     res = petsoft.calibrate(case["user_axial"], case["rec"]["axial"], gradient="sensitivity",
                             check_mesh=True)
@@ -121,3 +122,19 @@ def test_check_mesh_is_quiet_when_the_shift_is_within_the_std(case):
     assert 0.003 < E1 / E0 - 1 < 0.05             # it moved, but by less than its std
     assert abs(check["shift_sigmas"]["material.youngs_modulus"]) < 1.0
     assert check["warnings"] == []
+
+
+@pytest.mark.serial_only      # the same fit as above through the command line: once is enough
+def test_the_command_line_flag_writes_the_check_to_the_summary(case, capsys):
+    import json
+
+    from petsoft.cli.main import main
+
+    out = case["dir"] / "cli"
+    assert main(["calibrate", str(case["dir"] / "user_bend.toml"), str(case["rec"]["bend"]),
+                 "--gradient", "sensitivity", "--check-mesh", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "warning: refining the mesh (every tet split 1->8: 192 -> 1536 tets) moves " \
+           "material.youngs_modulus by" in printed
+    check = json.loads((out / "summary.json").read_text())["mesh_check"]
+    assert check["done"] and check["shift_sigmas"]["material.youngs_modulus"] > 1.0
