@@ -99,15 +99,25 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
     for r in rounds:
         label = r.get("adopted")
         if label:
-            remaining[label] = r["options"][label]["remaining_estimate"]
-    for label, rem in remaining.items():
+            remaining[label] = r["options"][label]
+    for label, o in remaining.items():
         noun = _words(label)[1]
-        counted = [q for q in rounds if q.get("adopted") == label and q.get("remaining_counted")]
-        findings.append(
-            f"What remains: the adopted {noun}'s own error is estimated at {_x(rem / sigma)}x "
-            f"the noise (the change between the last two levels / (2^p - 1))"
-            + ("; it is counted in the verdict's noise budget, since the next refinement was "
-               "not made" if counted and label in diag.model_error else "") + ".")
+        rem, bound = o["remaining_estimate"], o.get("remaining_bound", o["remaining_estimate"])
+        counted = label in diag.model_error and any(
+            q.get("adopted") == label and q.get("remaining_counted") for q in rounds)
+        share = rem / o["change_rms"] if o["change_rms"] > 0 else 0.0
+        text = (f"What remains: the adopted {noun}'s own error is estimated at {_x(rem / sigma)}x "
+                f"the noise (Richardson: {share:.2g} of the change refining made)")
+        if bound < rem:
+            text += (f", at most {_x(bound / sigma)}x as the refined fit leaves no more above "
+                     "the noise")
+        if counted:
+            text += ("; it is counted in the verdict's noise budget, since the next refinement "
+                     "was not made")
+            if bound > sigma:
+                text += (f", so a missing effect smaller than about {_x(bound / sigma)}x the "
+                         f"noise cannot be told apart from the {noun}")
+        findings.append(text + ".")
     for label, v in num.items():
         if isinstance(v, dict) and "change" in v:
             action, noun = _words(label)
@@ -123,7 +133,8 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
     mesh = {"tets": user, "tets_final": now}
     advice = []
     if "mesh x2" in remaining or now > user:
-        rem = remaining.get("mesh x2", 0.0) / sigma
+        o = remaining.get("mesh x2", {})
+        rem = o.get("remaining_bound", o.get("remaining_estimate", 0.0)) / sigma
         extra = levels_needed(rem)
         need = now * 8 ** extra
         levels = 0
