@@ -108,7 +108,9 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
         share = rem / o["change_rms"] if o["change_rms"] > 0 else 0.0
         text = (f"What remains: the adopted {noun}'s own error is estimated at {_x(rem / sigma)}x "
                 f"the noise (Richardson: {share:.2g} of the change refining made)")
-        if bound < rem:
+        if bound < 0.05 * sigma:
+            text += ", but the refined fit leaves nothing above the noise"
+        elif bound < 0.8 * rem:
             text += (f", at most {_x(bound / sigma)}x as the refined fit leaves no more above "
                      "the noise")
         if counted:
