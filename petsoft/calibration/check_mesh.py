@@ -38,7 +38,9 @@ def check_mesh(experiment, result, refit: Callable, say: Callable[[str], None]) 
         ``done`` (False with ``reason`` when the mesh cannot be refined), ``how`` (what the
         refinement did), ``values`` and ``std`` on the refined mesh, ``shift_sigmas``
         ((refined - original) / original std per parameter), ``rms`` (before, after) and
-        ``warnings`` (sentences, one per parameter moved by more than one std).
+        ``warnings`` (sentences: one per parameter moved by more than one std, and one when
+        the refined fit's rms is below 0.8 of the original's while that is above 1.2 x the
+        noise).
     """
     reason = MESH_HALVED.applies(experiment)
     if reason is not None:
