@@ -251,7 +251,7 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
               integrator: str | None = None, starts: int = 0, seed: int = 0,
               regularization: float = 0.0, noise: float | None = None,
               out: str | Path | None = None, spelled_out: bool = False,
-              say=_quiet) -> CalibrationResult:
+              check_mesh: bool = False, say=_quiet) -> CalibrationResult:
     """Fit the ``[calibrate]`` parameters of ``experiment`` to a recording (``petsoft calibrate``).
 
     Parameters
@@ -279,6 +279,10 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
     spelled_out : bool
         calibrated.toml with every value written out, instead of the user's own file with only
         the calibrated values changed.
+    check_mesh : bool
+        Calibrate again on the mesh refined once (a box's cells doubled, a mesh file split
+        1 -> 8) and warn when that moves a parameter by more than its standard deviation
+        (``result.mesh_check``: values, shifts in standard deviations, warnings).
     say : callable(str)
         Progress lines (rank 0); default silent.
 
@@ -292,7 +296,7 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
                                integrator=integrator, starts=starts, seed=seed,
                                regularization=regularization, noise=noise,
                                out=None if out is None else Path(out), say=say,
-                               spelled_out=spelled_out)
+                               spelled_out=spelled_out, check_mesh=check_mesh)
 
 
 def diagnose(experiment: Experiment, recording: Recording | str | Path, *,

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.calibration.check_mesh import check_mesh as check_mesh_refinement
 from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
 from petsoft.dynamics.simulate import initial_state
 from petsoft.errors import ExperimentError
@@ -52,6 +53,9 @@ class CalibrationResult:
     correlation: np.ndarray | None = None
     simulated_before: np.ndarray | None = None
     simulated_after: np.ndarray | None = None
+    #: ``check_mesh=True``: the fit on the refined mesh and the parameters' shifts in standard
+    #: deviations (:func:`petsoft.calibration.check_mesh.check_mesh`)
+    mesh_check: dict | None = None
 
 
 def calibration_parameters(experiment) -> tuple[list[str], np.ndarray, list[tuple[float, float]]]:
@@ -199,6 +203,7 @@ def write_outputs(out: Path, experiment, recording_path, result: CalibrationResu
         "noise_estimate_from_fit": result.noise_estimate,
         "starts": result.starts,
         "history": result.history,
+        "mesh_check": result.mesh_check,
         "files": {"experiment": "calibrated.toml", "trajectories": "trajectories.png",
                   "residuals": "residuals.png"},
     }
@@ -253,7 +258,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
                     gradient: str = "adjoint", integrator: str | None = None, starts: int = 0,
                     seed: int = 0, regularization: float = 0.0, noise: float | None = None,
                     out: Path | None = None, comm=None, say=None,
-                    spelled_out: bool = False) -> CalibrationResult:
+                    spelled_out: bool = False, check_mesh: bool = False) -> CalibrationResult:
     """Calibrate the ``[calibrate]`` parameters of ``experiment`` against a recording.
 
     Parameters
@@ -281,6 +286,10 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         the calibrated values replaced.
     say : callable(str), optional
         Progress lines (called on rank 0 only).
+    check_mesh : bool
+        After the fit, calibrate again on the mesh refined once (from the calibrated values)
+        and warn when that moves a parameter by more than its standard deviation
+        (:func:`petsoft.calibration.check_mesh.check_mesh`; ``result.mesh_check``).
     """
     from petsoft.calibration.multistart import multistart, random_starts
     from petsoft.calibration.objective import MarkerMisfit
@@ -385,6 +394,13 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         simulated_before=before, simulated_after=after)
     if say is not None and rank0:
         _print_table(say, result)
+    if check_mesh:
+        result.mesh_check = check_mesh_refinement(
+            experiment, result,
+            lambda fine: run_calibration(fine, observations, method=method, gradient=gradient,
+                                         integrator=integrator, regularization=regularization,
+                                         comm=comm),
+            tell)
     if out is not None:
         write_outputs(Path(out), experiment, recording_path, result, times, data,
                       recording.names, method, gradient, time.perf_counter() - t_start, comm,

@@ -28,7 +28,8 @@ from petsoft.errors import PetsoftError
 from petsoft.experiment import experiment_from_dict, get_parameter, load_experiment, parameter_names
 from petsoft.io.recording import write_recording
 from petsoft.io.summary import write_summary
-from petsoft.mesh.serial import Mesh, validate
+from petsoft.mesh.refine import refine_mesh
+from petsoft.mesh.serial import Mesh
 from petsoft.mesh.topology import exterior_faces
 from petsoft.physics.model import build_model, load_mesh
 from petsoft.solvers.options import experiment_options
@@ -36,57 +37,6 @@ from petsoft.solvers.options import experiment_options
 
 class SynthError(PetsoftError):
     """Bad options of `petsoft synth` (noise, dropout, markers, refinement)."""
-
-
-# The inner octahedron of a 1 -> 8 subdivision split along the diagonal m02-m13 (Bey 1995).
-# Local numbering: 0..3 corners, 4 m01, 5 m02, 6 m03, 7 m12, 8 m13, 9 m23.
-_CHILDREN = np.array([
-    [0, 4, 5, 6], [4, 1, 7, 8], [5, 7, 2, 9], [6, 8, 9, 3],
-    [4, 5, 6, 8], [4, 5, 7, 8], [5, 6, 8, 9], [5, 7, 8, 9],
-])
-_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]])
-
-
-def refine_mesh(mesh: Mesh) -> Mesh:
-    """Uniform 1 -> 8 subdivision of every tetrahedron (edge midpoints as new nodes).
-
-    Cell tags follow their parent; facet-group triangles are split 1 -> 4 with the same
-    midpoints, keeping their orientation. Children are positively oriented.
-    """
-    tets = mesh.tets
-    n = len(mesh.points)
-    edges = np.sort(tets[:, _EDGES].reshape(-1, 2), axis=1)
-    keys = edges[:, 0] * n + edges[:, 1]
-    unique_keys, inverse = np.unique(keys, return_inverse=True)
-    a, b = unique_keys // n, unique_keys % n
-    points = np.concatenate([mesh.points, 0.5 * (mesh.points[a] + mesh.points[b])])
-    local = np.concatenate([tets, n + inverse.reshape(-1, 6)], axis=1)     # (E, 10)
-    children = local[:, _CHILDREN].reshape(-1, 4)
-    X = points[children]
-    vol = np.einsum("ij,ij->i", np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]), X[:, 3] - X[:, 0])
-    flip = vol < 0
-    children[flip] = children[flip][:, [0, 1, 3, 2]]
-
-    def midpoint(u, v):
-        k = np.minimum(u, v) * n + np.maximum(u, v)
-        pos = np.searchsorted(unique_keys, k)
-        if np.any(pos >= len(unique_keys)) or np.any(unique_keys[np.minimum(
-                pos, len(unique_keys) - 1)] != k):
-            raise SynthError(f"{mesh.source}: a facet-group triangle edge is not an edge of "
-                             "any tetrahedron; cannot refine its group")
-        return n + pos
-
-    groups = {}
-    for name, tri in mesh.facet_groups.items():
-        tri = np.asarray(tri, dtype=np.int64)
-        p, q, r = tri[:, 0], tri[:, 1], tri[:, 2]
-        mpq, mqr, mrp = midpoint(p, q), midpoint(q, r), midpoint(r, p)
-        groups[name] = np.stack([np.column_stack([p, mpq, mrp]), np.column_stack([mpq, q, mqr]),
-                                 np.column_stack([mrp, mqr, r]),
-                                 np.column_stack([mpq, mqr, mrp])], axis=1).reshape(-1, 3)
-    return validate(Mesh(points=points, tets=children, cell_tags=np.repeat(mesh.cell_tags, 8),
-                         regions=dict(mesh.regions), facet_groups=groups,
-                         source=f"{mesh.source} refined 1->8"))
 
 
 def surface_nodes(mesh: Mesh) -> np.ndarray:
@@ -234,9 +184,7 @@ def synth(experiment, options: SynthOptions, *, say=None) -> SynthResult:
         if 2 ** levels != K:
             raise SynthError(f"--refine {K}: a file mesh is refined by 1->8 subdivision, which "
                              "halves its size; use a power of two (2, 4, 8)")
-        mesh = mesh0
-        for _ in range(levels):
-            mesh = refine_mesh(mesh)
+        mesh = refine_mesh(mesh0, levels)
     sim_exp = experiment_from_dict(data, source=exp.source, base_dir=exp.base_dir, path=exp.path)
     with experiment_options(sim_exp.petsc):
         model = build_model(sim_exp, comm, mesh=mesh)

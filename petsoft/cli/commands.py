@@ -73,7 +73,7 @@ def run(args) -> int:
                             gradient=args.gradient, integrator=args.integrator,
                             starts=args.multistart, seed=args.seed,
                             regularization=args.regularization, out=out, say=_print,
-                            spelled_out=args.spelled_out)
+                            spelled_out=args.spelled_out, check_mesh=args.check_mesh)
         return 0
     if args.command == "diagnose":
         experiment = load_experiment(args.experiment)

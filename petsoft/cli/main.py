@@ -256,6 +256,10 @@ def _add_calibrate_parser(sub) -> None:
     c.add_argument("--regularization", type=float, default=0.0, metavar="LAMBDA",
                    help="Tikhonov weight on the scaled parameters' distance from the start")
     c.add_argument("--out", help="output directory (default: [output] directory)")
+    c.add_argument("--check-mesh", action="store_true",
+                   help="after the fit, calibrate again on the mesh refined once (box cells "
+                        "doubled, a mesh file split 1->8) and warn when a parameter moves by "
+                        "more than its standard deviation")
     _spelled_out_option(c)
 
 
@@ -266,8 +270,10 @@ def _add_diagnose_parser(sub) -> None:
                     "of the recording, test whether the residual is noise (chi-square + "
                     "whiteness), and if not rank the candidate physics by a score test, add the "
                     "best, re-calibrate and keep it when the likelihood ratio is significant and "
-                    "the held-out rms improves (repeat). Checks the final model with the step "
-                    "halved and a box mesh refined. Writes report.json, report.md, figures, "
+                    "the held-out rms improves (repeat). Before blaming physics (and first, on a "
+                    "mesh file) the step is halved and the mesh refined (a box's cells doubled, "
+                    "a mesh file split 1->8); the report says which refinement matters and "
+                    "recommends a mesh. Writes report.json, report.md, figures, "
                     "diagnosed.toml (the calibrated extended experiment) and summary.json.")
     c.add_argument("experiment", help="experiment file (TOML) with [time] and [calibrate]")
     c.add_argument("recording", help=f"recording (HDF5; the layout: {FORMATS}, section 2)")

@@ -26,7 +26,7 @@ from petsoft.calibration.groups import map_on_groups
 from petsoft.dynamics.mass_spring import load_spring_mesh
 from petsoft.dynamics.parameters import VISCOELASTIC
 from petsoft.errors import ExperimentError, PetsoftError
-from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
+from petsoft.experiment import get_parameter, with_parameters
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.mesh.topology import exterior_faces
 from petsoft.physics.model import load_mesh
@@ -57,20 +57,6 @@ def petsc_comm(comm):
     if comm is None:
         return PETSc.COMM_WORLD
     return comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm)
-
-
-def with_time(experiment, end: float | None = None, step: float | None = None,
-               cells_factor: int = 1):
-    """A copy with ``[time] end``/``step`` replaced and a box mesh's cells multiplied."""
-    data = experiment.to_dict()
-    if end is not None:
-        data["time"]["end"] = float(end)
-    if step is not None:
-        data["time"]["step"] = float(step)
-    if cells_factor != 1:
-        data["mesh"]["box"]["cells"] = [cells_factor * c for c in experiment.mesh.box.cells]
-    return experiment_from_dict(data, source=experiment.source, base_dir=experiment.base_dir,
-                                path=experiment.path)
 
 
 def gradient_for(experiment, default: str) -> str:

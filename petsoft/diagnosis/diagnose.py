@@ -21,8 +21,12 @@ The loop (issue 6, first increment):
    discretisation error (measured while a large physical misfit dominated) is checked once more
    by :func:`resolve_numerics` on the final model; if a refinement now matters it is adopted,
    and the loop goes on if the verdict opens again.
-5. **Numerics.** The final model is simulated with the step halved (and, for a ``[mesh] box``,
-   with the cells doubled per axis); the change of the residual is reported in units of the noise.
+5. **Numerics.** The final model is simulated with the step halved and the mesh refined (a box's
+   cells doubled per axis, a mesh file split 1 -> 8, within a cell limit); the change of the
+   residual is reported in units of the noise, and what every check found is said in words with
+   a recommended mesh (report.json ``numerics``, :mod:`petsoft.diagnosis.numerics_findings`).
+   On a mesh file the refinement check also runs before any physics is tried, even when the
+   base fit looks consistent.
 6. **Report.** report.json (formats.md section 3), report.md, figures, the calibrated extended
    experiment (``diagnosed.toml``) and summary.json.
 
@@ -53,6 +57,7 @@ from petsoft.diagnosis.context import (  # noqa: F401
     outward_only,
 )
 from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
+from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings
 from petsoft.diagnosis.outputs import DiagnoseResult, build_diagnosis_report, write_outputs
 from petsoft.diagnosis.selection import choose, escape_plane, rank_round
 
@@ -240,11 +245,17 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     if diag.model_error:
         num["model_error"] = dict(diag.model_error)
         num["sigma_verdict"] = diag.sigma_verdict
+    if numerics:
+        num.update(numerics_findings(diag, num, checks.refinements, base, current))
+        for line in num["findings"] + [num["recommendation"] or ""]:
+            if line:
+                diag.tell(f"numerics: {line}")
     if num:
         diag.tell("numerics: " + "; ".join(
             f"{k}: residual change {v['change']:.3g} m ({v['change_over_noise']:.3g} x noise)"
             for k, v in num.items() if isinstance(v, dict) and "change" in v))
-    report = build_diagnosis_report(diag, base, current, base_ev, ev, added, rejected)
+    report = build_diagnosis_report(diag, base, current, base_ev, ev, added, rejected,
+                                    numerics={k: num[k] for k in REPORT_KEYS if k in num})
     result = DiagnoseResult(verdict=base_ev["verdict"], final_verdict=ev["verdict"],
                             report=report, base=base, final=current, added=added,
                             rejected=rejected, scores=all_scores,

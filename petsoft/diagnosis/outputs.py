@@ -30,7 +30,7 @@ class DiagnoseResult:
 
 
 def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict, added,
-                           rejected) -> dict:
+                           rejected, numerics: dict | None = None) -> dict:
     from petsoft.diagnosis.report import build_report, fit_summary
 
     d = diag.data[diag.ident]
@@ -51,7 +51,7 @@ def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict,
         parameters={n: float(v) for n, v in zip(final.names, final.values, strict=True)},
         validation=validation, markers=mismatch["markers"],
         time_windows=mismatch["time_windows"], frequencies_hz=mismatch["frequencies_hz"],
-        region=region, added=added, rejected=rejected)
+        region=region, added=added, rejected=rejected, numerics=numerics or None)
 
 
 def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: dict,
@@ -98,7 +98,8 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
                      + f"; the verdict tests the residual against the noise and this error in "
                      f"quadrature ({result.numerics['sigma_verdict']:.3g} m)")
     for k, v in result.numerics.items():
-        if k in ("model_error", "sigma_verdict", "refinements"):
+        if k in ("model_error", "sigma_verdict", "refinements", "findings", "recommendation",
+                 "mesh"):
             continue
         if isinstance(v, dict) and "change" in v:
             notes.append(f"numerics {k}: the simulation changes by {v['change']:.3g} m rms "

@@ -98,7 +98,8 @@ def build_report(*, verdict: str, noise_std: float, base: Mapping, final: Mappin
                  parameters: Mapping[str, float], validation: Mapping | None = None,
                  markers: Sequence[str] = (), time_windows: Sequence = (),
                  frequencies_hz: Sequence[float] = (), region: Mapping | None = None,
-                 added: Sequence[Mapping] = (), rejected: Sequence[Mapping] = ()) -> dict:
+                 added: Sequence[Mapping] = (), rejected: Sequence[Mapping] = (),
+                 numerics: Mapping | None = None) -> dict:
     """Assemble a report dict in the layout of formats.md section 3 and validate it.
 
     Parameters
@@ -154,6 +155,8 @@ def build_report(*, verdict: str, noise_std: float, base: Mapping, final: Mappin
                       "reason": r["reason"]} for r in rejected],
         "parameters": {str(k): _num(v) for k, v in parameters.items()},
     }
+    if numerics is not None:     # what the numerics checks found (diagnosis/numerics_findings)
+        report["numerics"] = dict(numerics)
     validate_report(report)
     return report
 
@@ -223,7 +226,11 @@ def validate_report(report: Mapping) -> None:
     """
     top = {"format", "version", "verdict", "noise_std", "fit", "mismatch", "added", "rejected",
            "parameters"}
-    _keys(report, "(report)", top)
+    _keys(report, "(report)", top, frozenset({"numerics"}))
+    if "numerics" in report:
+        _keys(report["numerics"], "numerics", {"findings"}, frozenset({"recommendation", "mesh"}))
+        for i, f in enumerate(report["numerics"]["findings"]):
+            _string(f, f"numerics.findings[{i}]")
     if report["format"] != FORMAT:
         _fail("format", f"must be {FORMAT!r}, got {report['format']!r}")
     if isinstance(report["version"], bool) or report["version"] != VERSION:
@@ -441,6 +448,11 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
     if not report["added"] and not report["rejected"]:
         lines.append("No candidate physics was tried.")
     lines += [f"- {n}" for n in ev.get("notes", [])]
+    num = report.get("numerics") or {}
+    if num.get("findings") or num.get("recommendation"):
+        lines += ["", "## Mesh and time step", ""] + [f"- {f}" for f in num["findings"]]
+        if num.get("recommendation"):
+            lines += ["", f"**Recommendation:** {num['recommendation']}"]
     if report["parameters"]:
         lines += ["", "## Final parameters", ""]
         lines += [f"- {k} = {v:.6g}" for k, v in report["parameters"].items()]

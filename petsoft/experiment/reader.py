@@ -275,6 +275,10 @@ def experiment_from_dict(
         )
     material = _read_material(top.table("material")) if "material" in data else {}
     springs = _read_springs(top.table("springs")) if "springs" in data else None
+    if springs is not None and mesh.refine:
+        raise ExperimentError(f"{source}: [mesh] refine = {mesh.refine}: only tetrahedral meshes "
+                              "of a [material] model are refined; a [springs] model's springs "
+                              "are its mesh's edges: remove refine")
     regions = _read_regions(top.table("region"))
     damping = _read_damping(top.table("damping"))
     gravity = _read_gravity(top.table("gravity"))
@@ -362,7 +366,7 @@ def _read_mesh(r: TableReader | None, top: TableReader, base: Path) -> MeshSpec:
             ' is missing: add [mesh] with file = "<mesh file>" or box = { size = [lx, ly, lz], '
             "cells = [nx, ny, nz] }",
         )
-    r.check_keys(("file", "box", "scale"))
+    r.check_keys(("file", "box", "scale", "refine"))
     if ("file" in r.data) == ("box" in r.data):
         both = "both are given" if "file" in r.data else "neither is given"
         raise ExperimentError(
@@ -370,6 +374,7 @@ def _read_mesh(r: TableReader | None, top: TableReader, base: Path) -> MeshSpec:
             f"{{ size = [...], cells = [...] }}: {both}"
         )
     scale = r.number("scale", 1.0, POSITIVE)
+    refine = r.integer("refine", 0, INT_NONNEGATIVE)
     if "file" in r.data:
         name = r.string("file", what="a path to a mesh file, relative to the experiment file")
         file = (base / name).resolve()
@@ -381,7 +386,7 @@ def _read_mesh(r: TableReader | None, top: TableReader, base: Path) -> MeshSpec:
             )
         if not file.is_file():
             r.fail("file", f' = "{name}": {file} is not a file')
-        return MeshSpec(file=file, scale=scale)
+        return MeshSpec(file=file, scale=scale, refine=refine)
     box = r.table("box", header="an inline table { size = [lx, ly, lz], cells = [nx, ny, nz] }")
     assert box is not None
     box.check_keys(("size", "cells"))
@@ -399,7 +404,7 @@ def _read_mesh(r: TableReader | None, top: TableReader, base: Path) -> MeshSpec:
     for i, c in enumerate(cells_raw):
         item = TableReader({f"cells[{i}]": c}, box.name, box.source)
         cells.append(item.integer(f"cells[{i}]", rng=INT_POSITIVE))
-    return MeshSpec(box=BoxSpec(size=size, cells=tuple(cells)), scale=scale)
+    return MeshSpec(box=BoxSpec(size=size, cells=tuple(cells)), scale=scale, refine=refine)
 
 
 def _material_values(r: TableReader) -> dict[str, Any]:

@@ -60,11 +60,14 @@ class BoxSpec:
 
 @dataclass(frozen=True)
 class MeshSpec:
-    """``[mesh]``: exactly one of ``file`` (absolute, existing) and ``box``; ``scale`` > 0."""
+    """``[mesh]``: exactly one of ``file`` (absolute, existing) and ``box``; ``scale`` > 0;
+    ``refine`` >= 0: the mesh is split 1 -> 8 that many times after reading
+    (:func:`petsoft.mesh.refine.refine_mesh`)."""
 
     file: Path | None = None
     box: BoxSpec | None = None
     scale: float = 1.0
+    refine: int = 0
 
 
 @dataclass(frozen=True)
@@ -419,6 +422,8 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
     if exp.mesh.box is not None:
         mesh["box"] = {"size": list(exp.mesh.box.size), "cells": list(exp.mesh.box.cells)}
     mesh["scale"] = exp.mesh.scale
+    if exp.mesh.refine:
+        mesh["refine"] = exp.mesh.refine
     d["mesh"] = mesh
     if exp.material:
         default = exp.material["default"]

@@ -12,6 +12,7 @@ from petsoft.fem.boundary import DirichletConditions
 from petsoft.fem.regions import RegionResolver
 from petsoft.io.recording import read_input_series
 from petsoft.mesh.distributed import DistributedMesh
+from petsoft.mesh.refine import refine_mesh
 from petsoft.mesh.serial import box_mesh, read_mesh
 from petsoft.physics.contact import build_contact
 from petsoft.physics.elastic import ElasticTerm
@@ -40,8 +41,8 @@ def load_mesh(experiment):
     spec = experiment.mesh
     if spec.box is not None:
         size = [s * spec.scale for s in spec.box.size]
-        return box_mesh(size, spec.box.cells)
-    return read_mesh(spec.file, scale=spec.scale)
+        return refine_mesh(box_mesh(size, spec.box.cells), spec.refine)
+    return refine_mesh(read_mesh(spec.file, scale=spec.scale), spec.refine)
 
 
 @dataclass

@@ -1,0 +1,162 @@
+"""What the numerics checks of a diagnosis found, in sentences a user acts on.
+
+:func:`numerics_findings` turns the rounds of :func:`~petsoft.diagnosis.numerics.resolve_numerics`
+and the final :func:`~petsoft.diagnosis.numerics.numerics_check` into report.json's ``numerics``
+(``findings``: which refinement matters and by how much, what was adopted and what error is left;
+``recommendation``: the mesh and step to use; ``mesh``: the tet counts behind them), which
+report.md prints under "Mesh and time step".
+"""
+
+from __future__ import annotations
+
+from petsoft.calibration.refinement import levels_needed, mesh_cells, refinement
+
+#: The keys of :func:`numerics_findings` that go to report.json's ``numerics``.
+REPORT_KEYS = ("findings", "recommendation", "mesh")
+
+#: How each kind of refinement is said: (the action, the thing refined).
+_WORDS = {"step": ("the time step is halved", "time step"),
+          "mesh": ("the mesh is refined", "mesh"),
+          "order": ("the elements are raised to order 2", "element order")}
+
+
+def _x(v: float) -> str:
+    return f"{v:.2g}" if v < 10 else f"{v:.0f}"
+
+
+def _words(label: str) -> tuple[str, str]:
+    try:
+        return _WORDS[refinement(label).kind]
+    except KeyError:
+        return f"the model is refined ({label})", label
+
+
+def _shifts(before: dict, after: dict) -> str:
+    moved = [f"{n} {before[n]:.4g} -> {after[n]:.4g}" for n in after
+             if n in before and before[n] != 0 and abs(after[n] / before[n] - 1) > 1e-3]
+    return f", {' and '.join(moved)}" if moved else ""
+
+
+def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
+    out = []
+    where = ("" if first else "Checked again on the final model: " if r.get("final_check")
+             else "Then, on the adopted model: ")
+    for label, o in r["options"].items():
+        action, noun = _words(label)
+        if "error" in o:
+            out.append(f"{where}when {action}, the refined fit failed: {o['error']}.")
+            continue
+        x = o.get("change_same_parameters_over_noise", o["change_over_noise"])
+        head = f"{where}the simulation changes by {_x(x)}x the noise when {action} ({o['how']})"
+        head = head[0].upper() + head[1:]
+        fit = f"chi2/dof {r['chi2'] / r['dof']:.3g} -> {o['chi2_per_dof']:.3g}"
+        moved = _shifts(r["parameters"], o["parameters"])
+        if r.get("adopted") == label:
+            blame = (f"the mismatch is the {noun}, not physics" if x >= 3.0 else
+                     f"part of the mismatch is the {noun}")
+            out.append(f"{head}; refitted, {fit}{moved}: {blame}. The refined model is "
+                       "adopted.")
+        elif o["matters"]:
+            out.append(f"{head}; refitted, the fit improves ({fit}), but less than when "
+                       f"{_words(r['adopted'])[0]}.")
+        elif x < 1.0:
+            out.append(f"{head}: the {noun} is fine for this recording.")
+        elif o.get("error_estimate", 0.0) > 0.0:
+            out.append(f"{head}, but refitted it improves little ({fit}{moved}): counted "
+                       f"as a {noun} error of {_x(o['error_estimate'] / sigma)}x the noise, "
+                       "not blamed on physics.")
+        else:
+            out.append(f"{head}, but refitted it is no closer to the data ({fit}): the {noun} "
+                       "is not what the model misses.")
+    return out
+
+
+def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
+    """report.json's ``numerics``: ``findings`` (sentences), ``recommendation`` (a sentence or
+    None) and ``mesh`` (tets of the user's and the final model, and the recommended count).
+
+    Parameters
+    ----------
+    diag : Diagnosis
+    num : dict
+        :func:`~petsoft.diagnosis.numerics.numerics_check` of the final model (may be empty).
+    rounds : list of dict
+        The rounds of :func:`~petsoft.diagnosis.numerics.resolve_numerics`, in order.
+    base, final : Fit
+        The user's calibrated model and the final one.
+    """
+    sigma = diag.sigma
+    findings: list[str] = []
+    said_not_tried: set[str] = set()
+    for i, r in enumerate(rounds):
+        findings += _round_sentences(r, sigma, first=i == 0)
+        for label, why in r.get("not_tried", {}).items():
+            if label not in said_not_tried:
+                said_not_tried.add(label)
+                again = " again" if any(label in q["options"] for q in rounds) else ""
+                findings.append(f"The {_words(label)[1]} was not refined{again}: {why}.")
+    remaining = {}
+    for r in rounds:
+        label = r.get("adopted")
+        if label:
+            remaining[label] = r["options"][label]
+    for label, o in remaining.items():
+        noun = _words(label)[1]
+        rem, bound = o["remaining_estimate"], o.get("remaining_bound", o["remaining_estimate"])
+        counted = label in diag.model_error and any(
+            q.get("adopted") == label and q.get("remaining_counted") for q in rounds)
+        share = rem / o["change_rms"] if o["change_rms"] > 0 else 0.0
+        text = (f"What remains: the adopted {noun}'s own error is estimated at {_x(rem / sigma)}x "
+                f"the noise (Richardson: {share:.2g} of the change refining made)")
+        if bound < 0.05 * sigma:
+            text += ", but the refined fit leaves nothing above the noise"
+        elif bound < 0.8 * rem:
+            text += (f", at most {_x(bound / sigma)}x as the refined fit leaves no more above "
+                     "the noise")
+        if counted:
+            text += ("; it is counted in the verdict's noise budget, since the next refinement "
+                     "was not made")
+            if bound > sigma:
+                text += (f", so a missing effect smaller than about {_x(bound / sigma)}x the "
+                         f"noise cannot be told apart from the {noun}")
+        findings.append(text + ".")
+    for label, v in num.items():
+        if isinstance(v, dict) and "change" in v:
+            action, noun = _words(label)
+            limits = ("" if v["resolved"] else f": more than the noise, so the {noun} still "
+                      "limits what this diagnosis can tell apart")
+            findings.append(f"On the final model, the simulation changes by "
+                            f"{_x(v['change_over_noise'])}x the noise when {action} "
+                            f"({v['how']}){limits}.")
+    out = {"findings": findings, "recommendation": None}
+    if base.experiment.is_mass_spring:
+        return out
+    user, now = mesh_cells(base.experiment), mesh_cells(final.experiment)
+    mesh = {"tets": user, "tets_final": now}
+    advice = []
+    if "mesh x2" in remaining or now > user:
+        o = remaining.get("mesh x2", {})
+        rem = o.get("remaining_bound", o.get("remaining_estimate", 0.0)) / sigma
+        extra = levels_needed(rem)
+        need = now * 8 ** extra
+        levels = 0
+        while user * 8 ** levels < need:
+            levels += 1
+        how = (f"box cells x{2 ** levels} per axis" if base.experiment.mesh.box is not None
+               else f"[mesh] refine = {levels + base.experiment.mesh.refine}, or a mesh file "
+                    f"with the element size divided by {2 ** levels}")
+        advice.append(f"Refine the mesh to at least {need} tets (yours has {user}: {how})"
+                      + (f"; the diagnosis used {now}, whose own error is estimated at "
+                         f"{_x(rem)}x the noise" if extra else "") + ".")
+        mesh["recommended_tets"] = need
+    elif any("mesh x2" in r["options"] for r in rounds) or isinstance(num.get("mesh x2"), dict):
+        advice.append(f"Your mesh ({user} tets) is fine for this recording.")
+    elif any("mesh x2" in r.get("not_tried", {}) for r in rounds) or "mesh x2" in num:
+        advice.append(f"Your mesh ({user} tets) could not be checked within diagnose's limit: "
+                      "check the calibrated parameters with `petsoft calibrate --check-mesh`.")
+    if final.experiment.time.step < base.experiment.time.step:
+        advice.append(f"Use a time step of at most {final.experiment.time.step:.4g} s (yours is "
+                      f"{base.experiment.time.step:.4g} s).")
+    out["recommendation"] = " ".join(advice) or None
+    out["mesh"] = mesh
+    return out

@@ -1,0 +1,69 @@
+"""A tapered cantilever as a mesh *file* (not a box) for the file-mesh refinement tests.
+
+0.3 m long, its 0.04 x 0.04 m section tapering to half at the tip, 8 x 2 x 2 hexahedra split
+into 6 tetrahedra each (192 tets), written as gmsh 2.2 with the 3D group ``body`` and the 2D
+group ``clamp`` (the face x = 0), without gmsh; clamped at x = 0 and released under gravity.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import meshio
+import numpy as np
+
+from petsoft.mesh.serial import box_mesh
+from petsoft.mesh.topology import exterior_faces
+
+#: Calibrate Young's modulus only (the user's model as given).
+CALIBRATE = '[calibrate]\n"material.youngs_modulus" = [1e6, 1e8]\n'
+
+
+def write_taper_mesh(path: Path, cells=(8, 2, 2)) -> int:
+    """Write the tapered bar's mesh file; returns its number of tetrahedra."""
+    m = box_mesh([0.3, 0.04, 0.04], list(cells))
+    p = m.points.copy()
+    shrink = 1.0 - 0.5 * p[:, 0] / 0.3
+    p[:, 1:] = (p[:, 1:] - 0.02) * shrink[:, None] + 0.02
+    faces, _ = exterior_faces(m.tets)
+    clamp = faces[np.isclose(p[faces][:, :, 0], 0.0).all(axis=1)]
+    tags = [np.ones(len(m.tets), int), np.full(len(clamp), 2)]
+    meshio.write(path, meshio.Mesh(p, [("tetra", m.tets), ("triangle", clamp)],
+                                   cell_data={"gmsh:physical": tags, "gmsh:geometrical": tags},
+                                   field_data={"body": np.array([1, 3]),
+                                               "clamp": np.array([2, 2])}),
+                 file_format="gmsh22", binary=False)
+    return len(m.tets)
+
+
+def taper(E: float, *, mesh: str = "taper.msh", extra: str = "", end: float = 0.2,
+          step: float = 0.004, gravity=(0.0, 0.0, -9.81), calibrate: str = "") -> str:
+    """The experiment text (generalized-alpha, radius 0.9)."""
+    gx, gy, gz = gravity
+    return f"""
+[mesh]
+file = "{mesh}"
+
+[material]
+model = "linear"
+youngs_modulus = {E}
+poisson_ratio = 0.3
+density = 1000.0
+{extra}
+[gravity]
+acceleration = [{gx}, {gy}, {gz}]
+
+[[boundary]]
+kind = "fixed"
+where = "x < 1e-9"
+
+[time]
+end = {end}
+step = {step}
+integrator = "alpha"
+alpha_radius = 0.9
+
+[output]
+directory = "out"
+{calibrate}
+"""
