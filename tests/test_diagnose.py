@@ -67,8 +67,10 @@ def case(tmp_path_factory):
 def _damped_result(case):
     if "damped" not in case["results"]:
         out = case["dir"] / "out_damped"
+        lines = case["results"]["damped lines"] = []
         case["results"]["damped"] = run_diagnose(load_experiment(case["user"]), case["damped"],
-                                                 out=out, comm=PETSc.COMM_WORLD)
+                                                 out=out, comm=PETSc.COMM_WORLD,
+                                                 say=lines.append)
     return case["results"]["damped"]
 
 
@@ -196,6 +198,11 @@ def test_concealed_mass_damping_is_found(case):
     contenders = [s for s in res.scores if s["round"] == 1 and "fitted_chi2" in s]
     assert len(contenders) >= 2
     assert "ambiguous" in res.added[0]["evidence"]
+    # every fit says where it is, iteration by iteration, naming itself (a candidate fit on a
+    # group of ranks is reported by that group's first rank)
+    lines = sum(PETSc.COMM_WORLD.tompi4py().allgather(case["results"]["damped lines"]), [])
+    assert any("base fit: it" in line for line in lines)
+    assert any("candidate damping.mass: it" in line for line in lines)
     alpha = res.added[0]["parameters"]["damping.mass"]
     std = res.added[0]["std"]["damping.mass"]
     assert abs(alpha - TRUE_ALPHA) < max(3 * std, 0.5), (alpha, std)

@@ -248,17 +248,20 @@ class Diagnosis:
             self.say(f"[{time.perf_counter() - self.t0:7.1f} s] {line}")
 
     # -- fitting ----------------------------------------------------------------------------
-    def calibrate(self, experiment, comm=None) -> Fit:
+    def calibrate(self, experiment, comm=None, label: str = "fit") -> Fit:
         """Calibrate ``experiment`` on the identification window; predict the held-out one.
 
         ``comm`` (default: the diagnosis' communicator) lets candidate fits run on groups of
-        ranks (:func:`petsoft.calibration.groups.map_on_groups`)."""
+        ranks (:func:`petsoft.calibration.groups.map_on_groups`). Each iteration of the fit is
+        a progress line naming it by ``label`` (printed by the first rank of ``comm``: fits on
+        groups of ranks report side by side), so a round of fits is never silent for long."""
         comm = self.comm if comm is None else petsc_comm(comm)
         # the identification window travels with the data, not as a rewritten [time] end
         observations = Observations(self.recording, noise=self.sigma, end=self.cut)
         res = run_calibration(experiment, observations, method=self.method,
                               gradient=gradient_for(experiment, self.gradient),
-                              integrator=self.integrator, comm=comm, say=None)
+                              integrator=self.integrator, comm=comm,
+                              say=self._iteration_lines(label))
         gc.collect()                    # every rank, same point (see run_diagnose)
         names, _, _ = calibration_parameters(experiment)
         calibrated = with_parameters(experiment, dict(zip(names, res.values, strict=True)))
@@ -270,13 +273,27 @@ class Diagnosis:
                    heldout_rms=rms(sim[self.held], self.data[self.held]) if self.held.any()
                    else None, sim=sim, iterations=res.iterations, evaluations=res.evaluations)
 
+    def _iteration_lines(self, label: str):
+        """What a fit's ``say`` gets: its iteration lines, labelled and timed, to ``self.say``
+        (the fit's header and final table stay quiet: the diagnosis reports the result)."""
+        if self.say is None:
+            return None
+
+        def say(line: str) -> None:
+            text = line.strip()
+            if text.startswith(("it ", "start ")):
+                self.say(f"[{time.perf_counter() - self.t0:7.1f} s]   {label}: {text}")
+
+        return say
+
     def fit_candidates(self, scored: list, current: Fit) -> None:
         """Calibrate each candidate of ``scored`` ((score entry, candidate) pairs) not fitted
         yet, extending ``current``'s model, concurrently on groups of ranks; each entry gains
         ``fit`` (None when the fit failed) and ``fit_error``."""
         need = [(s, c) for s, c in scored if "fit" not in s]
         fits = map_on_groups(
-            lambda item, sub: self.calibrate(item[1].extend(current.experiment), comm=sub),
+            lambda item, sub: self.calibrate(item[1].extend(current.experiment), comm=sub,
+                                             label=f"candidate {item[1].physics}"),
             need, self.comm)
         gc.collect()                    # every rank, same point (see run_diagnose)
         for (s, _), f in zip(need, fits, strict=True):

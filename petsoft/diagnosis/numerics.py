@@ -131,7 +131,8 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
         tried = [r for r in REFINEMENTS
                  if not (r.kind == "mesh" and mesh_done) and _why_not(r, exp) is None]
         options = [r.label for r in tried]
-        fits = map_on_groups(lambda what, sub, exp=exp: _refit(diag, refined(exp, what), sub),
+        fits = map_on_groups(lambda what, sub, exp=exp: _refit(diag, refined(exp, what), sub,
+                                                               what),
                              options, diag.comm)
         gc.collect()
         dof = max(int(np.isfinite(diag.data[diag.ident]).sum()) - len(fit.names), 1)
@@ -209,10 +210,10 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
     return fit, ev, rounds
 
 
-def _refit(diag: Diagnosis, experiment, comm):
+def _refit(diag: Diagnosis, experiment, comm, what: str):
     """The refined ``experiment`` calibrated, and simulated before, at the current parameters."""
     moved = diag.simulate(experiment, comm=comm)
-    return diag.calibrate(experiment, comm=comm), moved
+    return diag.calibrate(experiment, comm=comm, label=f"numerics {what}"), moved
 
 
 class NumericsChecks:
