@@ -231,7 +231,7 @@ def test_concealed_mass_damping_is_found(case):
     assert len(kept) >= len([line for line in user_lines if line.strip()]) - 4
     md = (out / "report.md").read_text()
     assert "damping.mass" in md and "friction.dry" in md          # not-modelled terms listed
-    assert (out / "summary.json").exists() and (out / "trajectories.png").exists()
+    assert (out / "summary.json").exists() and (out / "displacement.png").exists()
 
 
 def test_control_without_missing_physics_is_consistent(case):

@@ -350,8 +350,6 @@ def test_report_markdown_and_figures(tmp_path):
         report.plot_residual_time(tmp_path / "time.png", t, win),
         report.plot_spectra(tmp_path / "spectra.png", t, data, sim,
                             spectral.dominant_modes(t, data), spectral.dominant_modes(t, sim)),
-        report.plot_candidate_scores(tmp_path / "scores.png", rep["added"], rep["rejected"]),
-        report.plot_trajectories(tmp_path / "traj.png", t, data, sim, sim, names, [0, 20]),
     ]
     for f in figs:
         assert f.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -265,20 +265,15 @@ def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
 
 
 def write_figures(out: str | Path, evidence: dict, times: np.ndarray, data: np.ndarray,
-                  sim: np.ndarray, after: np.ndarray | None = None, added=(),
-                  rejected=()) -> list[Path]:
-    """The report's standard figures from :func:`collect_evidence` output; returns the PNGs."""
+                  sim: np.ndarray) -> list[Path]:
+    """The evidence's figures (residual per marker, over time, the identification window's
+    spectra with the fitted modes) from :func:`collect_evidence` output; returns the PNGs.
+    The diagnosis adds its own (:mod:`petsoft.diagnosis.figures`)."""
     out = Path(out)
     figs = [report.plot_marker_residuals(out / "residual_markers.png", evidence["markers"],
                                          evidence["noise_std"]),
             report.plot_residual_time(out / "residual_time.png", times, evidence["windows"])]
     if evidence["data_modes"] is not None and evidence["sim_modes"] is not None:
-        figs.append(report.plot_spectra(out / "spectra.png", times, data, sim,
+        figs.append(report.plot_spectra(out / "modes.png", times, data, sim,
                                         evidence["data_modes"], evidence["sim_modes"]))
-    if added or rejected:
-        figs.append(report.plot_candidate_scores(out / "candidates.png", added, rejected))
-    res = evidence["markers"]
-    worst = [int(i) for i in np.argsort(-np.nan_to_num(res.rms, nan=-1.0))[:3]]
-    figs.append(report.plot_trajectories(out / "trajectories.png", times, data, sim, after,
-                                         res.names, worst))
     return figs

@@ -1,14 +1,25 @@
-"""What a diagnosis writes: report.json (formats.md section 3), report.md, the figures, the
-residual field for ParaView, diagnosed.toml and summary.json."""
+"""What a diagnosis writes: report.json (formats.md section 3), report.md, report.html, the
+figures, the residual field for ParaView, diagnosed.toml and summary.json."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from petsoft.diagnosis.context import Diagnosis, Fit
+from petsoft.diagnosis.figures import (
+    plot_candidates,
+    plot_displacement,
+    plot_residual_on_body,
+    plot_spectra_before_after,
+    rms_per_marker,
+)
+from petsoft.diagnosis.html import write_report_html
 from petsoft.experiment.writer import write_experiment_update
 from petsoft.io.summary import write_summary
+from petsoft.mesh.topology import boundary_facets
 from petsoft.physics.model import load_mesh
 
 
@@ -54,6 +65,32 @@ def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict,
         region=region, added=added, rejected=rejected, numerics=numerics or None)
 
 
+def write_diagnosis_figures(out: Path, diag: Diagnosis, result: DiagnoseResult) -> list[Path]:
+    """displacement.png, residual_on_body.png, spectra.png and (when candidates were scored)
+    candidates.png: the mismatch over the whole record, where it is, the candidates, and the
+    frequencies (:mod:`petsoft.diagnosis.figures`)."""
+    rec = diag.recording
+    names = list(rec.names)
+    before, after = result.base.sim, result.final.sim
+    figs = []
+    plot_displacement(out / "displacement.png", diag.times, diag.data, before, after,
+                      rec.reference, diag.cut, names)
+    figs.append(out / "displacement.png")
+    if not result.base.experiment.is_mass_spring:
+        mesh = load_mesh(result.base.experiment)
+        surface = mesh.points[np.unique(boundary_facets(mesh.tets))]
+        plot_residual_on_body(out / "residual_on_body.png", surface, rec.reference,
+                              rms_per_marker(diag.data, before), diag.sigma, names)
+        figs.append(out / "residual_on_body.png")
+    plot_spectra_before_after(out / "spectra.png", diag.times, diag.data, before, after)
+    figs.append(out / "spectra.png")
+    if result.scores:
+        plot_candidates(out / "candidates.png", result.scores,
+                        [a["physics"] for a in result.added])
+        figs.append(out / "candidates.png")
+    return figs
+
+
 def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: dict,
                   wall_time: float, spelled_out: bool = False) -> None:
     """report.json, report.md, figures, diagnosed.toml, summary.json (rank 0 writes)."""
@@ -72,8 +109,8 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
                              diag.recording.reference, base_ev["markers"])
     write_report(out / "report.json", result.report)
     t = diag.times[diag.ident]
-    figs = write_figures(out, base_ev, t, diag.data[diag.ident], result.base.sim[diag.ident],
-                         result.final.sim[diag.ident], result.added, result.rejected)
+    figs = write_figures(out, base_ev, t, diag.data[diag.ident], result.base.sim[diag.ident])
+    figs += write_diagnosis_figures(out, diag, result)
     notes = list(result.evidence.get("notes", [])) if result.evidence else []
     notes.append(f"identification window t <= {diag.cut:.4g} s; held out: "
                  f"{int(diag.held.sum())} later frames")
@@ -112,6 +149,7 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
     ev = dict(result.evidence or {})
     ev["notes"] = notes
     write_report_md(out / "report.md", result.report, ev, [f.name for f in figs])
+    write_report_html(out / "report.html", out / "report.md", figs)
     write_experiment_update(diag.base_experiment, result.final.experiment,
                             out / "diagnosed.toml", spelled_out=spelled_out)
     results = {
@@ -129,7 +167,7 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
                   "heldout_rms": result.final.heldout_rms},
         "scores": [{k: v for k, v in s.items() if k != "gradient"} for s in result.scores],
         "not_modelled": result.not_modelled, "numerics": result.numerics,
-        "files": {"report": "report.json", "markdown": "report.md",
+        "files": {"report": "report.json", "markdown": "report.md", "html": "report.html",
                   "experiment": "diagnosed.toml", "figures": [f.name for f in figs],
                   "residual_field": ("residual_field.xdmf"
                                      if (out / "residual_field.xdmf").exists() else None)},

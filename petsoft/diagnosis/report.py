@@ -31,8 +31,7 @@ from petsoft.errors import PetsoftError
 
 __all__ = ["PHYSICS", "VERDICTS", "ReportError", "fit_summary", "build_report",
            "validate_report", "write_report", "read_report", "write_report_md",
-           "plot_marker_residuals", "plot_residual_time", "plot_spectra",
-           "plot_candidate_scores", "plot_trajectories"]
+           "plot_marker_residuals", "plot_residual_time", "plot_spectra"]
 
 FORMAT = "petsoft-diagnosis"
 VERSION = 1
@@ -545,43 +544,4 @@ def plot_spectra(path, times, data, sim, data_modes=(), sim_modes=()) -> Path:
     ax.set_ylabel("amplitude spectrum")
     ax.set_title("Spectra (dotted: fitted modes)")
     ax.legend(fontsize=8)
-    return _save(fig, path)
-
-
-def plot_candidate_scores(path, added: Sequence[Mapping], rejected: Sequence[Mapping]) -> Path:
-    """Horizontal bars of candidate scores, added in green and rejected in grey."""
-    plt = _pyplot()
-    items = [(a["physics"], a["score"], "tab:green") for a in added] + \
-            [(r["physics"], r["score"], "0.6") for r in rejected]
-    fig, ax = plt.subplots(figsize=(6, 0.4 * max(len(items), 1) + 1.5))
-    if items:
-        names, scores, colours = zip(*items, strict=True)
-        ax.barh(np.arange(len(items)), scores, color=colours)
-        ax.set_yticks(np.arange(len(items)))
-        ax.set_yticklabels(names)
-        ax.invert_yaxis()
-    ax.set_xlabel("score")
-    ax.set_title("Candidate physics (green: added)")
-    return _save(fig, path)
-
-
-def plot_trajectories(path, times, data, before, after=None, names=None,
-                      markers: Sequence[int] | None = None) -> Path:
-    """Positions of a few markers over time: data (dots), model before and after (lines)."""
-    plt = _pyplot()
-    data = np.asarray(data, dtype=float)
-    if markers is None:
-        markers = list(range(min(3, data.shape[1])))
-    fig, axes = plt.subplots(len(markers), 1, figsize=(7, 2.2 * len(markers)), squeeze=False,
-                             sharex=True)
-    t = np.asarray(times)
-    for ax, m in zip(axes[:, 0], markers, strict=True):
-        for a, c in zip(range(3), ("tab:blue", "tab:green", "tab:purple"), strict=True):
-            ax.plot(t, data[:, m, a], ".", ms=2, c=c)
-            ax.plot(t, np.asarray(before)[:, m, a], "-", lw=0.8, c=c, alpha=0.5)
-            if after is not None:
-                ax.plot(t, np.asarray(after)[:, m, a], "--", lw=1, c=c)
-        ax.set_ylabel(f"{names[m] if names else m} (m)")
-    axes[-1, 0].set_xlabel("time (s)")
-    axes[0, 0].set_title("Trajectories: data (dots), before (thin), after (dashed); x y z")
     return _save(fig, path)

@@ -1,0 +1,157 @@
+"""``report.html``: the diagnosis report as one self-contained page (no network, no scripts).
+
+The page is made from ``report.md`` (so the two never say different things): its headings,
+paragraphs, lists, tables, **bold** and ``code`` become HTML, and every figure is embedded as a
+base64 PNG under the section it belongs to (the displacement and the residual on the body under
+"Where and when", the spectra under the modes, the candidates under "Physics"); figures no section
+claims close the page. Only the subset of Markdown that :func:`~petsoft.diagnosis.report.
+write_report_md` writes is understood.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import os
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+__all__ = ["FIGURE_SECTIONS", "markdown_to_html", "write_report_html"]
+
+#: Which figures (file stems) go under which section heading of report.md.
+FIGURE_SECTIONS = {
+    "Where and when": ("displacement", "residual_on_body", "residual_markers", "residual_time"),
+    "Modes: data vs simulation": ("spectra", "modes"),
+    "Physics": ("candidates",),
+}
+
+_CSS = """
+body { font-family: sans-serif; max-width: 1100px; margin: 2em auto; padding: 0 1em;
+       line-height: 1.45; color: #222; }
+h1 { border-bottom: 2px solid #444; }
+h2 { border-bottom: 1px solid #bbb; margin-top: 1.8em; }
+table { border-collapse: collapse; margin: 0.8em 0; }
+td, th { border: 1px solid #bbb; padding: 0.25em 0.6em; text-align: left; }
+th { background: #eee; }
+figure { margin: 1em 0; }
+figure img { max-width: 100%; border: 1px solid #ddd; }
+figcaption { font-size: 0.85em; color: #555; }
+.verdict { font-size: 1.15em; background: #f4f4f4; padding: 0.8em; border-left: 5px solid #c33; }
+.verdict.consistent { border-left-color: #3a3; }
+code { background: #f2f2f2; padding: 0 0.2em; }
+"""
+
+
+def _inline(text: str) -> str:
+    """Escape, then **bold** and `code`."""
+    out = html.escape(text, quote=False)
+    out = re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", out)
+    return re.sub(r"`([^`]+)`", r"<code>\1</code>", out)
+
+
+def _table(rows: list[str]) -> str:
+    cells = [[c.strip() for c in r.strip().strip("|").split("|")] for r in rows]
+    head, body = cells[0], [c for c in cells[1:] if not all(set(x) <= {"-", ":"} for x in c)]
+    out = ["<table>", "<tr>" + "".join(f"<th>{_inline(c)}</th>" for c in head) + "</tr>"]
+    out += ["<tr>" + "".join(f"<td>{_inline(c)}</td>" for c in r) + "</tr>" for r in body]
+    return "\n".join(out + ["</table>"])
+
+
+def markdown_to_html(md: str, figure=None) -> tuple[str, list[str]]:
+    """(HTML body, figure file names met) of report.md's Markdown subset.
+
+    ``figure(name, alt) -> str`` renders an image reference; images are otherwise dropped.
+    """
+    blocks: list[str] = []
+    images: list[str] = []
+    para: list[str] = []
+    items: list[str] = []
+    table: list[str] = []
+
+    def flush():
+        if para:
+            text = " ".join(para)
+            cls = ""
+            if text.startswith("**Verdict:"):
+                cls = ' class="verdict consistent"' if "consistent" in text[:30] else \
+                    ' class="verdict"'
+            blocks.append(f"<p{cls}>{_inline(text)}</p>")
+            para.clear()
+        if items:
+            blocks.append("<ul>\n" + "\n".join(f"<li>{_inline(i)}</li>" for i in items)
+                          + "\n</ul>")
+            items.clear()
+        if table:
+            blocks.append(_table(table))
+            table.clear()
+
+    for line in md.splitlines():
+        image = re.fullmatch(r"!\[(.*?)\]\((.+?)\)", line.strip())
+        if image:
+            flush()
+            images.append(image.group(2))
+            if figure is not None:
+                blocks.append(figure(image.group(2), image.group(1)))
+        elif line.startswith("#"):
+            flush()
+            level = len(line) - len(line.lstrip("#"))
+            blocks.append(f"<h{level}>{_inline(line[level:].strip())}</h{level}>")
+        elif line.startswith("- "):
+            if para or table:
+                flush()
+            items.append(line[2:])
+        elif line.startswith("|"):
+            if para or items:
+                flush()
+            table.append(line)
+        elif not line.strip():
+            flush()
+        else:
+            if items or table:
+                flush()
+            para.append(line.strip())
+    flush()
+    return "\n".join(blocks), images
+
+
+def _figure_html(path: Path, caption: str) -> str:
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    return (f'<figure><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
+def write_report_html(path: str | Path, md_path: str | Path,
+                      figures: Sequence[str | Path] = ()) -> Path:
+    """Write ``report.html`` from ``report.md`` and the figures (PNG files beside it).
+
+    The figures are placed by :data:`FIGURE_SECTIONS`; the file is written atomically.
+    """
+    path, md_path = Path(path), Path(md_path)
+    figures = [Path(f) if Path(f).is_absolute() else md_path.parent / f for f in figures]
+    by_stem = {f.stem: f for f in figures if f.exists()}
+    placed: set[str] = set()
+    md = md_path.read_text()
+    # the Markdown's own figure list is replaced by the placement below
+    md = md.split("\n## Figures\n")[0]
+    sections = re.split(r"(?m)^(?=## )", md)
+    body = []
+    for section in sections:
+        part, _ = markdown_to_html(section)
+        body.append(part)
+        heading = section.splitlines()[0][3:].strip() if section.startswith("## ") else ""
+        for stem in FIGURE_SECTIONS.get(heading, ()):
+            if stem in by_stem:
+                body.append(_figure_html(by_stem[stem], stem.replace("_", " ")))
+                placed.add(stem)
+    rest = [s for s in by_stem if s not in placed]
+    if rest:
+        body.append("<h2>Other figures</h2>")
+        body += [_figure_html(by_stem[s], s.replace("_", " ")) for s in rest]
+    page = ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+            "<title>petsoft diagnosis report</title>\n<style>" + _CSS + "</style>\n</head>\n"
+            "<body>\n" + "\n".join(body) + "\n</body>\n</html>\n")
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(page, encoding="utf-8")
+    os.replace(tmp, path)
+    return path
