@@ -3,6 +3,7 @@ browser (Debian's chromium, headless; scripts/bootstrap.sh installs it)."""
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 import subprocess
@@ -27,7 +28,9 @@ def _report_dir(tmp_path):
                     added=["damping.mass"])
     figures = ["displacement.png", "candidates.png"]
     md = report.write_report_md(tmp_path / "report.md", example_report(), {}, figures)
-    return write_report_html(tmp_path / "report.html", md, figures)
+    # as the diagnosis passes them: paths as the caller has them (relative to the working dir)
+    return write_report_html(tmp_path / "report.html", md,
+                             [os.path.relpath(tmp_path / f) for f in figures])
 
 
 def test_markdown_subset_becomes_html():

@@ -128,7 +128,8 @@ def write_report_html(path: str | Path, md_path: str | Path,
     The figures are placed by :data:`FIGURE_SECTIONS`; the file is written atomically.
     """
     path, md_path = Path(path), Path(md_path)
-    figures = [Path(f) if Path(f).is_absolute() else md_path.parent / f for f in figures]
+    # a figure is a path (as the caller has it) or a name beside report.md
+    figures = [Path(f) if Path(f).exists() else md_path.parent / Path(f).name for f in figures]
     by_stem = {f.stem: f for f in figures if f.exists()}
     placed: set[str] = set()
     md = md_path.read_text()
