@@ -8,7 +8,6 @@ import re
 import shutil
 import subprocess
 
-import numpy as np
 import pytest
 from test_diagnosis_analysis import example_report
 from test_figures import _record
