@@ -266,3 +266,23 @@ def test_order_on_nonlinear_bar(method, order):
         assert abs(rates[-1] - order) < 0.15
     else:
         assert overall > 1.6   # clearly beyond first order, pre-asymptotic (see above)
+
+
+def test_progress_lines_estimate_what_is_left():
+    """With a line every step (progress_every = 0), each one but the last says how long is
+    left, in units a person reads."""
+    import re
+
+    exp = _bar(time={"end": 0.01, "step": 1e-3, "integrator": "be"})
+    lines = []
+    sim = Simulation(build_model(exp), exp, monitor=lines.append, progress_every=0.0)
+    sim.run()
+    sim.destroy()
+    steps = [line for line in lines if line.startswith("step ")]
+    if not steps:                       # not rank 0: the monitor is rank 0's
+        return
+    assert len(steps) == 10 and "left" not in steps[-1]
+    assert all(re.search(r"  ~[0-9.]+ (s|min|h) left$", line) for line in steps[:-1])
+    from petsoft.dynamics.simulate import _duration
+
+    assert [_duration(x) for x in (42.4, 210.0, 9000.0)] == ["42 s", "3.5 min", "2.5 h"]

@@ -28,6 +28,15 @@ from petsoft.solvers.static import StaticSolver
 MAX_HALVINGS = 6
 
 
+def _duration(seconds: float) -> str:
+    """A time left, as a person reads it: 42 s, 3.5 min, 1.2 h."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.1f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
 @dataclass
 class SimulationResult:
     """The outcome of a run: final state, statistics and the energy table."""
@@ -219,7 +228,7 @@ class Simulation:
                   f"t = {exp.time.end:g} s; {len(dm.mesh.tets)} tets on {dm.comm.size} rank(s); "
                   f"E0 = {row['kinetic'] + row['elastic'] + row['gravitational']:.6g} J"
                   + (f"; restarted at step {first - 1}, t = {t:g} s" if restart else ""))
-        last_print = time.perf_counter()
+        last_print = loop_start = time.perf_counter()
         checkpoint_every = exp.output.checkpoint_every if self.out is not None else 0
         for n in range(first, nsteps + 1):
             reports = self._advance(n, t, q, v, h, q1, v1)
@@ -241,9 +250,11 @@ class Simulation:
                 last_print = now
                 total = row["kinetic"] + row["elastic"] + row["gravitational"]
                 its = reports[-1].newton_iterations
+                left = (now - loop_start) / (n - first + 1) * (nsteps - n)
                 self._say(f"step {n}/{nsteps}  t = {t:.6g} s  Newton {its}  E = {total:.6g} J "
                           f"(kinetic {row['kinetic']:.4g}, dissipated {row['dissipated']:.4g}, "
-                          f"numerical {row['numerical']:.3g})")
+                          f"numerical {row['numerical']:.3g})"
+                          + (f"  ~{_duration(left)} left" if n < nsteps else ""))
         if writer is not None:
             writer.close()
         result.time, result.steps = t, nsteps
