@@ -212,7 +212,8 @@ def _petsc_comm(comm):
     return comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm)
 
 
-def build_forward(experiment, names, recording, frame_times, comm, integrator=None, h=None):
+def build_forward(experiment, names, recording, frame_times, comm, integrator=None, h=None,
+                  mesh=None):
     """The forward model of ``experiment`` observing the recording's markers on ``comm``.
 
     The one factory of calibration's forward models (calibrate, diagnose's fits and scoring
@@ -233,7 +234,7 @@ def build_forward(experiment, names, recording, frame_times, comm, integrator=No
     # the experiment's [petsc] solver choice also for the forward model's own solvers
     return ForwardModel(experiment, names, observer, frame_times, comm=comm,
                         integrator=integrator, h=h, system=system,
-                        solver_options=experiment.petsc, recording=recording)
+                        solver_options=experiment.petsc, recording=recording, mesh=mesh)
 
 
 def mass_spring_system(experiment, comm, recording=None):
@@ -253,7 +254,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
                     gradient: str = "adjoint", integrator: str | None = None, starts: int = 0,
                     seed: int = 0, regularization: float = 0.0, noise: float | None = None,
                     out: Path | None = None, comm=None, say=None,
-                    spelled_out: bool = False) -> CalibrationResult:
+                    spelled_out: bool = False, mesh=None) -> CalibrationResult:
     """Calibrate the ``[calibrate]`` parameters of ``experiment`` against a recording.
 
     Parameters
@@ -281,6 +282,9 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         the calibrated values replaced.
     say : callable(str), optional
         Progress lines (called on rank 0 only).
+    mesh : Mesh, optional
+        The body's reference mesh instead of the experiment's (the rest shape of
+        :func:`petsoft.calibration.rest_shape.calibrate_rest_shape`).
     """
     from petsoft.calibration.multistart import multistart, random_starts
     from petsoft.calibration.objective import MarkerMisfit
@@ -326,7 +330,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
          f"gradient {gradient}; {mpi.size} rank(s)")
 
     def make_problem(subcomm):
-        fm = build_forward(experiment, names, recording, times, subcomm, integrator)
+        fm = build_forward(experiment, names, recording, times, subcomm, integrator, mesh=mesh)
         return MarkerMisfit(fm, data, scaling, sigma=sigma, gradient=gradient,
                             regularization=regularization)
 
