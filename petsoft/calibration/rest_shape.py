@@ -29,7 +29,7 @@ from petsoft.calibration.calibrate import (
     calibration_parameters,
     run_calibration,
 )
-from petsoft.calibration.observation import _locate_in_tets
+from petsoft.calibration.observation import locate_in_tets
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.experiment import with_parameters
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
@@ -123,7 +123,7 @@ def write_rest_mesh(path: str | Path, rest: RestShape) -> Path:
 def rest_markers(recording: Recording, captured, rest) -> Recording:
     """The recording with its marker reference positions carried from the captured shape to
     the rest shape (same barycentric coordinates in the same cell)."""
-    cells, weights = _locate_in_tets(captured.points, captured.tets, recording.reference,
+    cells, weights = locate_in_tets(captured.points, captured.tets, recording.reference,
                                      recording.names, str(recording.source))
     ref = np.einsum("mk,mki->mi", weights, rest.points[captured.tets[cells]])
     return dataclasses.replace(recording, reference=ref)
@@ -332,3 +332,28 @@ def _alternate(experiment, observations, names, values, rounds, rtol, load_steps
                               load_steps=load_steps)
     return SplittingResult(names, values, rest, rms_before, calib.rms_after, history, converged,
                            calib)
+
+
+def write_splitting_outputs(out: Path, experiment, result: SplittingResult, wall_time: float,
+                            comm, spelled_out: bool = False) -> None:
+    """calibrated.toml, rest.vtu (the rest mesh of the calibrated parameters) and summary.json
+    (rank 0 writes)."""
+    from petsoft.experiment.writer import write_experiment_update
+    from petsoft.io.summary import write_summary
+
+    if comm.rank == 0:
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        calibrated = with_parameters(experiment, dict(zip(result.names, result.values.tolist(),
+                                                          strict=True)))
+        write_experiment_update(experiment, calibrated, out / "calibrated.toml",
+                                spelled_out=spelled_out)
+        write_rest_mesh(out / "rest.vtu", result.rest)
+    results = {"rest_shape": True,
+               "parameters": {n: float(v) for n, v in zip(result.names, result.values,
+                                                          strict=True)},
+               "rms_before": result.rms_before, "rms_after": result.rms_after,
+               "rounds": result.rounds,
+               "files": {"experiment": "calibrated.toml", "rest_mesh": "rest.vtu"}}
+    solver = {"iterations": len(result.rounds), "converged": result.converged}
+    write_summary(Path(out), "calibrate", results, solver, wall_time, comm)

@@ -32,7 +32,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.errors import PetsoftError, SolverError
+from petsoft.errors import MeshError, PetsoftError, SolverError
 from petsoft.fem.assembly import MatrixAssembler
 from petsoft.fem.kernels import elastic as kernels
 from petsoft.fem.kernels.scatter import scatter_add_vector
@@ -139,7 +139,12 @@ class RestShapeSolver:
         ksp.setType(PETSc.KSP.Type.PREONLY)   # the Jacobian is not symmetric: a direct solve
         pc = ksp.getPC()
         pc.setType(PETSc.PC.Type.LU)
-        pc.setFactorSolverType("mumps" if PETSc.Sys.hasExternalPackage("mumps") else "petsc")
+        # SuperLU_dist before MUMPS: after a diverged solve on 2 ranks (an inverted trial
+        # element), destroying the MUMPS factor hung on one rank (PETSc 3.18; seen in
+        # tests/test_rest_shape.py::test_no_rest_shape_is_a_clear_error); SuperLU_dist did not.
+        has = PETSc.Sys.hasExternalPackage
+        pc.setFactorSolverType("superlu_dist" if has("superlu_dist")
+                               else "mumps" if has("mumps") else "petsc")
         # A full Newton step (basic): the residual norm is no merit function for this
         # non-symmetric problem, and backtracking on it crawled (40 steps of ~1 % on a cantilever
         # sagging a third of its length; basic: 6 iterations). A failed solve is retried with a
@@ -306,6 +311,9 @@ class RestShapeSolver:
         return abs(self.scale) * self._gravity_norm
 
     def _reason_text(self, reason) -> str:
+        if isinstance(self._failure, MeshError):
+            # shape_gradients' wording is about input meshes; here it is a Newton trial
+            return "a trial rest shape had an inverted or degenerate element (volume <= 0)"
         if self._failure is not None:
             return f"{self._failure}"
         return f"SNES {reason_name(self.snes)}" if reason != -1 else "Jacobian failed"

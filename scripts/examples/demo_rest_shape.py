@@ -67,7 +67,7 @@ end = 0.15
 step = 0.005
 integrator = "be"
 [calibrate]
-"material.youngs_modulus" = [{E / 20}, {E * 20}]
+"material.youngs_modulus" = [{E / 1000}, {E * 20}]
 """
 
 
