@@ -255,7 +255,7 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
               integrator: str | None = None, starts: int = 0, seed: int = 0,
               regularization: float = 0.0, noise: float | None = None,
               out: str | Path | None = None, spelled_out: bool = False,
-              say=_quiet) -> CalibrationResult:
+              say=_quiet, misfit: str = "l2") -> CalibrationResult:
     """Fit the ``[calibrate]`` parameters of ``experiment`` to a recording (``petsoft calibrate``).
 
     Parameters
@@ -285,6 +285,8 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
         the calibrated values changed.
     say : callable(str)
         Progress lines (rank 0); default silent.
+    misfit : {"l2", "spectral"}
+        "spectral": the phase-robust spectral misfit first, then an l2 polish.
 
     Returns
     -------
@@ -296,7 +298,7 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
                                integrator=integrator, starts=starts, seed=seed,
                                regularization=regularization, noise=noise,
                                out=None if out is None else Path(out), say=say,
-                               spelled_out=spelled_out)
+                               spelled_out=spelled_out, misfit=misfit)
 
 
 def rest_shape(experiment: Experiment, *, out: str | Path | None = None, load_steps: int = 1,

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.calibration.misfit import make_misfit
 from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
 from petsoft.dynamics.simulate import initial_state
 from petsoft.errors import ExperimentError
@@ -254,7 +255,8 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
                     gradient: str = "adjoint", integrator: str | None = None, starts: int = 0,
                     seed: int = 0, regularization: float = 0.0, noise: float | None = None,
                     out: Path | None = None, comm=None, say=None,
-                    spelled_out: bool = False, mesh=None) -> CalibrationResult:
+                    spelled_out: bool = False, mesh=None,
+                    misfit: str = "l2") -> CalibrationResult:
     """Calibrate the ``[calibrate]`` parameters of ``experiment`` against a recording.
 
     Parameters
@@ -282,6 +284,10 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         the calibrated values replaced.
     say : callable(str), optional
         Progress lines (called on rank 0 only).
+    misfit : {"l2", "spectral"}
+        "spectral": first minimise the phase-robust spectral misfit
+        (:mod:`petsoft.calibration.misfit`, a wider basin), then polish with l2 from there, so
+        the result is l2's minimiser.
     mesh : Mesh, optional
         The body's reference mesh instead of the experiment's (the rest shape of
         :func:`petsoft.calibration.rest_shape.calibrate_rest_shape`).
@@ -329,10 +335,10 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
          f"({int(np.isfinite(data).all(axis=2).sum())} seen samples); method {method}, "
          f"gradient {gradient}; {mpi.size} rank(s)")
 
-    def make_problem(subcomm):
+    def make_problem(subcomm, transform=None):
         fm = build_forward(experiment, names, recording, times, subcomm, integrator, mesh=mesh)
         return MarkerMisfit(fm, data, scaling, sigma=sigma, gradient=gradient,
-                            regularization=regularization)
+                            regularization=regularization, misfit=transform)
 
     def monitor_for(index):
         def monitor(rec):
@@ -343,6 +349,18 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         return monitor
 
     z0 = scaling.to_scaled(start)
+    transform = make_misfit(misfit, data, f"{experiment.source}: misfit")
+    if transform is not None:
+        if starts > 0:
+            raise ExperimentError("misfit = \"spectral\" with random starts: choose one")
+        wide = make_problem(comm, transform)
+        opt = minimize(wide, z0, method=method, bounds=(zlo, zhi), scaling=scaling,
+                       monitor=monitor_for(0))
+        wide.forward.destroy()
+        tell("spectral misfit: minimum at " + ", ".join(
+            f"{n}={v:.6g}" for n, v in zip(names, scaling.to_physical(opt.z), strict=True))
+             + "; polishing with l2")
+        z0 = opt.z
     all_starts: list[dict] = []
     if starts > 0:
         zs = random_starts(zlo, zhi, starts, seed=seed, include=z0)
@@ -358,7 +376,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         tell(f"multistart: best of {len(zs)} starts is start {ms.best.index} "
              f"(f = {opt.f:.6e})")
     problem = make_problem(comm)
-    before = problem.simulate(z0)
+    before = problem.simulate(scaling.to_scaled(start))   # the user's start, not a polish start
     f_before = 0.5 * float(np.sum(problem._data_residual(before) ** 2))
     if starts == 0:
         opt = minimize(problem, z0, method=method, bounds=(zlo, zhi), scaling=scaling,

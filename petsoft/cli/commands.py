@@ -83,7 +83,7 @@ def run(args) -> int:
                             gradient=args.gradient, integrator=args.integrator,
                             starts=args.multistart, seed=args.seed,
                             regularization=args.regularization, out=out, say=_print,
-                            spelled_out=args.spelled_out)
+                            spelled_out=args.spelled_out, misfit=args.misfit)
         return 0
     if args.command == "diagnose":
         experiment = load_experiment(args.experiment)

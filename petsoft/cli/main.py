@@ -256,6 +256,9 @@ def _add_calibrate_parser(sub) -> None:
     c.add_argument("--regularization", type=float, default=0.0, metavar="LAMBDA",
                    help="Tikhonov weight on the scaled parameters' distance from the start")
     c.add_argument("--out", help="output directory (default: [output] directory)")
+    c.add_argument("--misfit", choices=("l2", "spectral"), default="l2",
+                   help="spectral: fit the markers' power spectra first (a phase-robust misfit "
+                        "with a wider basin, for starts off by a period), then polish with l2")
     c.add_argument("--rest-shape", action="store_true",
                    help="the mesh is the captured equilibrium, not the rest shape: fit the "
                         "parameters with the rest shape solved for each trial (writes rest.vtu)")
