@@ -16,6 +16,7 @@ of an experiment, and writing the rest mesh.
 from __future__ import annotations
 
 import dataclasses
+import gc
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,7 +35,7 @@ from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.experiment import with_parameters
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.physics.model import build_model, load_mesh, on_root
-from petsoft.solvers.rest_shape import RestShapeSolver
+from petsoft.solvers.rest_shape import RestShapeError, RestShapeSolver
 
 
 @dataclass
@@ -87,11 +88,23 @@ def compute_rest_shape(experiment, comm=None, *, captured=None, initial=None,
     model = build_model(experiment, comm, mesh=captured)
     solver = RestShapeSolver(model, load_steps=load_steps,
                              monitor=say if comm.rank == 0 else None)
+    guess = None if initial is None else np.asarray(initial)[model.dmesh.vertex_ids]
+    error = None
     try:
-        guess = None if initial is None else np.asarray(initial)[model.dmesh.vertex_ids]
         result = solver.solve(guess)
+    except RestShapeError as exc:
+        error = exc
     finally:
         solver.destroy()
+    if error is not None:
+        # Drop the traceback's frames: they hold the model's PETSc objects, which a later
+        # garbage collection would destroy at different times on different ranks (a hang at
+        # exit on 2 ranks); free them here, collectively.
+        del solver, model
+        gc.collect()               # on every rank at the same point
+        if hasattr(PETSc, "garbage_cleanup"):
+            PETSc.garbage_cleanup(comm)
+        raise error.with_traceback(None)
     points = model.dmesh.gather(result.points)
     points = comm.tompi4py().bcast(points, root=0)
     rest = dataclasses.replace(captured, points=np.ascontiguousarray(points))

@@ -136,15 +136,18 @@ class RestShapeSolver:
         snes.setTolerances(rtol=1e-12, atol=0.0, stol=0.0, max_it=40)
         snes.setMonitor(lambda s, it, norm: self._norms.append(float(norm)))
         ksp = snes.getKSP()
-        ksp.setType(PETSc.KSP.Type.PREONLY)   # the Jacobian is not symmetric: a direct solve
         pc = ksp.getPC()
-        pc.setType(PETSc.PC.Type.LU)
-        # SuperLU_dist before MUMPS: after a diverged solve on 2 ranks (an inverted trial
-        # element), destroying the MUMPS factor hung on one rank (PETSc 3.18; seen in
-        # tests/test_rest_shape.py::test_no_rest_shape_is_a_clear_error); SuperLU_dist did not.
-        has = PETSc.Sys.hasExternalPackage
-        pc.setFactorSolverType("superlu_dist" if has("superlu_dist")
-                               else "mumps" if has("mumps") else "petsc")
+        if comm.size == 1:
+            ksp.setType(PETSc.KSP.Type.PREONLY)   # the Jacobian is not symmetric: a direct solve
+            pc.setType(PETSc.PC.Type.LU)
+        else:
+            # In parallel, GMRES with block-Jacobi ILU: after a diverged trial (an inverted
+            # element, an infinite residual) both parallel direct solvers hung on 2 ranks here
+            # (PETSc 3.18: MUMPS in its destroy, SuperLU_dist in the next factorisation).
+            ksp.setType(PETSc.KSP.Type.GMRES)
+            ksp.setGMRESRestart(200)
+            ksp.setTolerances(rtol=1e-12, atol=0.0, max_it=2000)
+            pc.setType(PETSc.PC.Type.BJACOBI)
         # A full Newton step (basic): the residual norm is no merit function for this
         # non-symmetric problem, and backtracking on it crawled (40 steps of ~1 % on a cantilever
         # sagging a third of its length; basic: 6 iterations). A failed solve is retried with a
@@ -340,5 +343,9 @@ class RestShapeSolver:
             self.monitor(line)
 
     def destroy(self) -> None:
+        self.snes.cancelMonitor()    # the monitor's closure holds self: break the cycle
         for obj in ("snes", "J", "F"):
             getattr(self, obj).destroy()
+        # drop the model (its DM and vectors) now, not at some later garbage collection
+        # that need not happen at the same moment on every rank
+        self.model = self.dmesh = self.term = self.assembler = None
