@@ -22,8 +22,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from petsc4py import PETSc
 
 from petsoft.calibration.calibrate import CalibrationResult, run_calibration
+from petsoft.calibration.rest_shape import calibrate_rest_shape as _calibrate_rest_shape
+from petsoft.calibration.rest_shape import compute_rest_shape, write_rest_mesh
 from petsoft.calibration.synth import SynthOptions, SynthResult
 from petsoft.calibration.synth import synth as _synth
 from petsoft.diagnosis.diagnose import DiagnoseResult, run_diagnose
@@ -36,7 +39,8 @@ from petsoft.solvers.options import experiment_options
 from petsoft.solvers.run_static import StaticOutcome, solve_experiment
 
 __all__ = ["load_experiment", "with_parameters", "read_recording", "static", "simulate", "synth",
-           "calibrate", "diagnose", "Experiment", "Recording", "StaticResult", "SimulationRun",
+           "calibrate", "calibrate_rest_shape", "rest_shape", "diagnose", "Experiment",
+           "Recording", "StaticResult", "SimulationRun",
            "SynthOptions", "SynthResult", "CalibrationResult", "DiagnoseResult"]
 
 
@@ -251,7 +255,8 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
               integrator: str | None = None, starts: int = 0, seed: int = 0,
               regularization: float = 0.0, noise: float | None = None,
               out: str | Path | None = None, spelled_out: bool = False,
-              check_mesh: bool = False, say=_quiet) -> CalibrationResult:
+              check_mesh: bool = False, say=_quiet,
+              misfit: str = "l2") -> CalibrationResult:
     """Fit the ``[calibrate]`` parameters of ``experiment`` to a recording (``petsoft calibrate``).
 
     Parameters
@@ -285,6 +290,8 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
         (``result.mesh_check``: values, shifts in standard deviations, warnings).
     say : callable(str)
         Progress lines (rank 0); default silent.
+    misfit : {"l2", "spectral"}
+        "spectral": the phase-robust spectral misfit first, then an l2 polish.
 
     Returns
     -------
@@ -296,7 +303,29 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
                                integrator=integrator, starts=starts, seed=seed,
                                regularization=regularization, noise=noise,
                                out=None if out is None else Path(out), say=say,
-                               spelled_out=spelled_out, check_mesh=check_mesh)
+                               spelled_out=spelled_out, check_mesh=check_mesh,
+                               misfit=misfit)
+
+
+def rest_shape(experiment: Experiment, *, out: str | Path | None = None, load_steps: int = 1,
+               say=_quiet):
+    """The rest mesh whose static equilibrium is the experiment's (captured) mesh
+    (``petsoft rest-shape``): returns a :class:`~petsoft.calibration.rest_shape.RestShape`
+    (``.mesh``, ``.points``); ``out`` also writes it (``.vtu``, ``.msh``)."""
+    with experiment_options(experiment.petsc):
+        rest = compute_rest_shape(experiment, load_steps=load_steps, say=say)
+    if out is not None and PETSc.COMM_WORLD.rank == 0:
+        write_rest_mesh(out, rest)
+    return rest
+
+
+def calibrate_rest_shape(experiment: Experiment, recording: Recording | str | Path, *,
+                         noise: float | None = None, mode: str = "reduced", say=_quiet):
+    """Calibrate when the mesh is a captured equilibrium (``petsoft calibrate --rest-shape``):
+    the X/u splitting of :func:`petsoft.calibration.rest_shape.calibrate_rest_shape`; returns
+    its ``SplittingResult`` (``values``, ``rest``, ``rms_after``, ``rounds``)."""
+    with experiment_options(experiment.petsc):
+        return _calibrate_rest_shape(experiment, recording, noise=noise, mode=mode, say=say)
 
 
 def diagnose(experiment: Experiment, recording: Recording | str | Path, *,

@@ -17,6 +17,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.calibration.check_mesh import check_mesh as check_mesh_refinement
+from petsoft.calibration.misfit import make_misfit
 from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
 from petsoft.dynamics.simulate import initial_state
 from petsoft.errors import ExperimentError
@@ -217,7 +218,8 @@ def _petsc_comm(comm):
     return comm if isinstance(comm, PETSc.Comm) else PETSc.Comm(comm)
 
 
-def build_forward(experiment, names, recording, frame_times, comm, integrator=None, h=None):
+def build_forward(experiment, names, recording, frame_times, comm, integrator=None, h=None,
+                  mesh=None):
     """The forward model of ``experiment`` observing the recording's markers on ``comm``.
 
     The one factory of calibration's forward models (calibrate, diagnose's fits and scoring
@@ -238,7 +240,7 @@ def build_forward(experiment, names, recording, frame_times, comm, integrator=No
     # the experiment's [petsc] solver choice also for the forward model's own solvers
     return ForwardModel(experiment, names, observer, frame_times, comm=comm,
                         integrator=integrator, h=h, system=system,
-                        solver_options=experiment.petsc, recording=recording)
+                        solver_options=experiment.petsc, recording=recording, mesh=mesh)
 
 
 def mass_spring_system(experiment, comm, recording=None):
@@ -258,7 +260,8 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
                     gradient: str = "adjoint", integrator: str | None = None, starts: int = 0,
                     seed: int = 0, regularization: float = 0.0, noise: float | None = None,
                     out: Path | None = None, comm=None, say=None,
-                    spelled_out: bool = False, check_mesh: bool = False) -> CalibrationResult:
+                    spelled_out: bool = False, check_mesh: bool = False, mesh=None,
+                    misfit: str = "l2") -> CalibrationResult:
     """Calibrate the ``[calibrate]`` parameters of ``experiment`` against a recording.
 
     Parameters
@@ -290,6 +293,13 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         After the fit, calibrate again on the mesh refined once (from the calibrated values)
         and warn when that moves a parameter by more than its standard deviation
         (:func:`petsoft.calibration.check_mesh.check_mesh`; ``result.mesh_check``).
+    misfit : {"l2", "spectral"}
+        "spectral": first minimise the phase-robust spectral misfit
+        (:mod:`petsoft.calibration.misfit`, a wider basin), then polish with l2 from there, so
+        the result is l2's minimiser.
+    mesh : Mesh, optional
+        The body's reference mesh instead of the experiment's (the rest shape of
+        :func:`petsoft.calibration.rest_shape.calibrate_rest_shape`).
     """
     from petsoft.calibration.multistart import multistart, random_starts
     from petsoft.calibration.objective import MarkerMisfit
@@ -334,10 +344,10 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
          f"({int(np.isfinite(data).all(axis=2).sum())} seen samples); method {method}, "
          f"gradient {gradient}; {mpi.size} rank(s)")
 
-    def make_problem(subcomm):
-        fm = build_forward(experiment, names, recording, times, subcomm, integrator)
+    def make_problem(subcomm, transform=None):
+        fm = build_forward(experiment, names, recording, times, subcomm, integrator, mesh=mesh)
         return MarkerMisfit(fm, data, scaling, sigma=sigma, gradient=gradient,
-                            regularization=regularization)
+                            regularization=regularization, misfit=transform)
 
     def monitor_for(index):
         def monitor(rec):
@@ -348,6 +358,18 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         return monitor
 
     z0 = scaling.to_scaled(start)
+    transform = make_misfit(misfit, data, f"{experiment.source}: misfit")
+    if transform is not None:
+        if starts > 0:
+            raise ExperimentError("misfit = \"spectral\" with random starts: choose one")
+        wide = make_problem(comm, transform)
+        opt = minimize(wide, z0, method=method, bounds=(zlo, zhi), scaling=scaling,
+                       monitor=monitor_for(0))
+        wide.forward.destroy()
+        tell("spectral misfit: minimum at " + ", ".join(
+            f"{n}={v:.6g}" for n, v in zip(names, scaling.to_physical(opt.z), strict=True))
+             + "; polishing with l2")
+        z0 = opt.z
     all_starts: list[dict] = []
     if starts > 0:
         zs = random_starts(zlo, zhi, starts, seed=seed, include=z0)
@@ -363,7 +385,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         tell(f"multistart: best of {len(zs)} starts is start {ms.best.index} "
              f"(f = {opt.f:.6e})")
     problem = make_problem(comm)
-    before = problem.simulate(z0)
+    before = problem.simulate(scaling.to_scaled(start))   # the user's start, not a polish start
     f_before = 0.5 * float(np.sum(problem._data_residual(before) ** 2))
     if starts == 0:
         opt = minimize(problem, z0, method=method, bounds=(zlo, zhi), scaling=scaling,

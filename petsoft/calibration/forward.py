@@ -161,6 +161,9 @@ class ForwardModel:
     system : optional
         A prebuilt system offering the same interface (e.g. a mass-spring system); then
         ``initial_state`` is taken from ``system.initial_state()``.
+    mesh : petsoft.mesh.serial.Mesh, optional
+        Use this mesh instead of the experiment's (a computed rest shape,
+        :mod:`petsoft.calibration.rest_shape`).
     checkpoints : int, optional
         The most states the adjoint holds at once (>= 2; None or 0: all of them while they fit
         :data:`ADJOINT_MEMORY`, else as many as fit).
@@ -173,7 +176,7 @@ class ForwardModel:
     def __init__(self, experiment, names, observer, frame_times, comm=None, integrator=None,
                  h=None, system=None, observe: str = "position",
                  solver_options: dict | None = None, recording=None,
-                 checkpoints: int | None = None):
+                 checkpoints: int | None = None, mesh=None):
         exp = self.experiment = experiment
         self.checkpoints = checkpoints
         if observe not in ("position", "acceleration"):
@@ -209,7 +212,7 @@ class ForwardModel:
             self.model = build_mass_spring_model(exp, comm, recording=recording)
             system = MassSpringSystem(self.model, exp.damping.mass, exp.damping.stiffness)
         else:
-            self.model = build_model(exp, comm, recording=recording)
+            self.model = build_model(exp, comm, recording=recording, mesh=mesh)
             system = DynamicSystem(self.model, exp.damping.mass, exp.damping.stiffness)
         self.system = s = system
         self.comm = s.comm

@@ -37,10 +37,15 @@ class MarkerMisfit:
         finite differences.
     regularization : float
         lambda of the Tikhonov term in scaled parameters (0: none).
+    misfit : optional
+        A residual transform of the simulated positions (``residual(sim)``, ``jvp``, ``vjp``,
+        ``value_gradient``; :class:`petsoft.calibration.misfit.SpectralMisfit`) used instead of
+        the position differences over sigma; None: those (l2).
     """
 
     def __init__(self, forward, data: np.ndarray, scaling, sigma: float = 1.0,
-                 gradient: str = "adjoint", regularization: float = 0.0):
+                 gradient: str = "adjoint", regularization: float = 0.0, misfit=None):
+        self.misfit = misfit
         if gradient not in ("adjoint", "sensitivity", "fd"):
             raise ValueError(f"unknown gradient method {gradient!r}")
         self.forward, self.scaling = forward, scaling
@@ -60,10 +65,14 @@ class MarkerMisfit:
     @property
     def num_residuals(self) -> int:
         """Seen data entries (plus one per parameter with regularisation)."""
+        if self.misfit is not None:
+            return len(self.misfit.F_data) + (self.n if self.regularization > 0.0 else 0)
         return int(self.seen.sum()) + (self.n if self.regularization > 0.0 else 0)
 
     # -- pieces -------------------------------------------------------------------------------
     def _data_residual(self, sim: np.ndarray) -> np.ndarray:
+        if self.misfit is not None:
+            return self.misfit.residual(sim)
         return (sim[self.seen] - self.data[self.seen]) / self.sigma
 
     def _regularization_residual(self, z: np.ndarray) -> np.ndarray:
@@ -111,10 +120,13 @@ class MarkerMisfit:
         self.evaluations += 1
         if self.gradient_method == "fd":
             sim = self.forward.simulate(p)
-            J = self._fd_scaled(z, sim)[self.seen] / self.sigma   # (m, P) in z
+            dsim = self._fd_scaled(z, sim)
+            J = (self.misfit.jvp(sim, dsim) if self.misfit is not None
+                 else dsim[self.seen] / self.sigma)                # (m, P) in z
         else:
             sim, dsim = self.forward.jacobian(p)
-            J = dsim[self.seen] / self.sigma                       # (m, P) in physical p
+            J = (self.misfit.jvp(sim, dsim) if self.misfit is not None
+                 else dsim[self.seen] / self.sigma)                # (m, P) in physical p
             J = J * self.scaling.dp_dz(z)[None, :]              # chain rule dp/dz (diagonal)
         self.last_simulation = sim
         r = self._data_residual(sim)
@@ -133,6 +145,8 @@ class MarkerMisfit:
 
         def dphi(sim):
             self.last_simulation = sim
+            if self.misfit is not None:
+                return self.misfit.value_gradient(sim)
             diff = np.where(seen, sim - np.where(seen, data, 0.0), 0.0) / sigma
             return 0.5 * float(np.sum(diff * diff)), diff / sigma
 

@@ -80,6 +80,17 @@ def _locate_in_tets(points, tets, reference, names, source, tol=1e-9):
     return cells, weights
 
 
+def locate_in_tets(points, tets, reference, names, source, tol=1e-9):
+    """Containing cell (M,) and barycentric weights (M, 4) of each marker in a tet mesh.
+
+    Raises
+    ------
+    ObservationError
+        A marker lies outside the mesh (named, with its distance to the surface).
+    """
+    return _locate_in_tets(points, tets, reference, names, source, tol)
+
+
 class MarkerObserver:
     """The linear observation operator of a recording's markers on a system.
 

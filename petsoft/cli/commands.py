@@ -9,6 +9,12 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.calibration.calibrate import Observations, run_calibration
+from petsoft.calibration.rest_shape import (
+    calibrate_rest_shape,
+    compute_rest_shape,
+    write_rest_mesh,
+    write_splitting_outputs,
+)
 from petsoft.calibration.synth import run_synth
 from petsoft.diagnosis.demo import run_diagnosis_demo
 from petsoft.diagnosis.diagnose import run_diagnose
@@ -64,16 +70,21 @@ def run(args) -> int:
         return run_import(args)
     if args.command == "synth":
         return run_synth(args)
+    if args.command == "rest-shape":
+        return run_rest_shape(args)
     if args.command == "calibrate":
         experiment = load_experiment(args.experiment)
         out = Path(args.out) if args.out else experiment.output.directory
         observations = Observations(read_recording_on_all_ranks(args.recording), noise=args.noise)
+        if getattr(args, "rest_shape", False):
+            return run_rest_shape_calibration(experiment, observations, out, args)
         with experiment_options(experiment.petsc):
             run_calibration(experiment, observations, method=args.method,
                             gradient=args.gradient, integrator=args.integrator,
                             starts=args.multistart, seed=args.seed,
                             regularization=args.regularization, out=out, say=_print,
-                            spelled_out=args.spelled_out, check_mesh=args.check_mesh)
+                            spelled_out=args.spelled_out, check_mesh=args.check_mesh,
+                            misfit=args.misfit)
         return 0
     if args.command == "diagnose":
         experiment = load_experiment(args.experiment)
@@ -100,6 +111,34 @@ def run(args) -> int:
             run_diagnosis_demo(out / "diagnose", say=_print)
         return 0
     raise AssertionError(args.command)
+
+
+def run_rest_shape(args) -> int:
+    """``petsoft rest-shape``: write the rest mesh of the experiment's captured mesh."""
+    experiment = load_experiment(args.experiment)
+    with experiment_options(experiment.petsc):
+        rest = compute_rest_shape(experiment, load_steps=args.load_steps, say=_print)
+    if PETSc.COMM_WORLD.rank == 0:
+        path = write_rest_mesh(args.out, rest)
+        shift = float(np.abs(rest.captured.points - rest.points).max())
+        _print(f"wrote {path}: rest mesh ({rest.newton_iterations} Newton iterations; the "
+               f"captured shape lies up to {shift:.4g} m from it)")
+    return 0
+
+
+def run_rest_shape_calibration(experiment, observations, out: Path, args) -> int:
+    """``petsoft calibrate --rest-shape``: the X/u splitting."""
+    if args.method != "gauss-newton" or args.multistart or args.regularization:
+        raise ExperimentError("--rest-shape fits by Levenberg-Marquardt on the reduced problem: "
+                           "it takes no --method, --multistart or --regularization")
+    t0 = time.perf_counter()
+    with experiment_options(experiment.petsc):
+        result = calibrate_rest_shape(experiment, observations, say=_print)
+    write_splitting_outputs(out, experiment, result, time.perf_counter() - t0, PETSc.COMM_WORLD,
+                            spelled_out=args.spelled_out)
+    _print(f"rms {result.rms_before:.4e} m -> {result.rms_after:.4e} m; wrote {out}/ "
+           "(calibrated.toml, rest.vtu, summary.json)")
+    return 0
 
 
 def solve_static(experiment, out: Path, method: str, load_steps: int, spd: bool,

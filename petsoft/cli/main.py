@@ -260,7 +260,22 @@ def _add_calibrate_parser(sub) -> None:
                    help="after the fit, calibrate again on the mesh refined once (box cells "
                         "doubled, a mesh file split 1->8) and warn when a parameter moves by "
                         "more than its standard deviation")
+    c.add_argument("--misfit", choices=("l2", "spectral"), default="l2",
+                   help="spectral: fit the markers' power spectra first (a phase-robust misfit "
+                        "with a wider basin, for starts off by a period), then polish with l2")
+    c.add_argument("--rest-shape", action="store_true",
+                   help="the mesh is the captured equilibrium, not the rest shape: fit the "
+                        "parameters with the rest shape solved for each trial (writes rest.vtu)")
     _spelled_out_option(c)
+    r = sub.add_parser(
+        "rest-shape", help="the rest mesh whose equilibrium is the experiment's (captured) mesh",
+        description="Inverse statics: find rest positions X such that the experiment's mesh is "
+                    "the static equilibrium under its gravity, materials and fixed supports; "
+                    "writes the rest mesh. SNES options take the prefix rest_shape_.")
+    r.add_argument("experiment", help="experiment file (TOML) whose mesh is the captured shape")
+    r.add_argument("--out", default="rest.vtu", help="rest mesh file (default %(default)s)")
+    r.add_argument("--load-steps", type=int, default=1,
+                   help="gravity increments of the continuation (default %(default)s)")
 
 
 def _add_diagnose_parser(sub) -> None:
