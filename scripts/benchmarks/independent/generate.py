@@ -192,8 +192,10 @@ def velocity_fn(exprs):
 # ---------------------------------------------------------------------------------------------
 # the truth: DOLFINx
 
-def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say) -> dict:
-    """Simulate the truth of ``case`` and return marker displacements at the user's frames."""
+def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
+                   h_fine: float | None = None, substeps: int = SUBSTEPS) -> dict:
+    """Simulate the truth of ``case`` and return marker displacements at the user's frames
+    (``h_fine``, ``substeps``: the fine mesh size and steps per frame, default the suite's)."""
     # imported here: DOLFINx is in the system python only, and --list works without it
     import ufl
     from dolfinx import fem, geometry
@@ -206,7 +208,7 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say) -> dic
     shape = case["shape"]
     sh = SHAPES[shape]
     truth = case["truth"]
-    mesh_shape(gmsh, shape, sh["h_fine"])
+    mesh_shape(gmsh, shape, h_fine or sh["h_fine"])
     msh, _, _ = gmshio.model_to_mesh(gmsh.model, MPI.COMM_SELF, 0, gdim=3)
     gmsh.model.remove()
     ncells = msh.topology.index_map(3).size_local
@@ -290,7 +292,7 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say) -> dic
     rinf = ALPHA_RADIUS
     am, af = (2 * rinf - 1) / (rinf + 1), rinf / (rinf + 1)
     gamma, beta = 0.5 - am + af, 0.25 * (1 - am + af) ** 2
-    h = STEP / SUBSTEPS
+    h = STEP / substeps
     u, u0, v0, a0, z0 = (fem.Function(V) for _ in range(5))
     v0.interpolate(velocity_fn(case.get("velocity", sh["velocity"])))
     w = ufl.TestFunction(V)
@@ -369,7 +371,7 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say) -> dic
             1 + r / 2)
         a0.x.array[:] = a_new
         u0.x.array[:] = u.x.array
-        if step % SUBSTEPS == 0:
+        if step % substeps == 0:
             disp = np.zeros((len(markers), 3))
             disp[found] = u.eval(markers[found], cells[found])
             frames.append(disp)
@@ -517,16 +519,46 @@ def make_case(gmsh, name: str, meshes: dict, say) -> dict:
     return truth
 
 
+def convergence(gmsh, name: str, meshes: dict) -> None:
+    """The truth's own discretisation error at the markers: the suite's truth against one with
+    the step halved and one on a 1.4x finer P2 mesh (differences over the noise)."""
+    case = CASES[name]
+    points, tets = meshes[case["shape"]]
+    cand = surface_nodes(tets)
+    markers = points[cand[~clamp_mask(case["shape"], points[cand].T)]]
+
+    def say(line):
+        print(line, flush=True)
+
+    h = SHAPES[case["shape"]]["h_fine"]
+    runs = {"suite": simulate_truth(gmsh, name, case, markers, say),
+            "step/2": simulate_truth(gmsh, name, case, markers, say, substeps=2 * SUBSTEPS),
+            "mesh/1.4": simulate_truth(gmsh, name, case, markers, say, h_fine=h / 1.4)}
+    found = np.logical_and.reduce([r["found"] for r in runs.values()])
+    ref = runs["suite"]["displacements"][:, found]
+    print(f"{name}: truth's discretisation error at {found.sum()} surface nodes, "
+          f"{len(ref)} frames (noise {NOISE:g} m, max displacement {np.abs(ref).max():.3g} m)")
+    for label in ("step/2", "mesh/1.4"):
+        d = runs[label]["displacements"][:, found] - ref
+        print(f"  suite vs {label} ({runs[label]['fine_tets']} P2 tets, step "
+              f"{runs[label]['step']:g} s): max |diff| {np.abs(d).max():.3g} m = "
+              f"{np.abs(d).max() / NOISE:.3f} x noise, rms {np.sqrt(np.mean(d ** 2)):.3g} m",
+              flush=True)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", default=",".join(CASES))
     ap.add_argument("--list", action="store_true")
+    ap.add_argument("--convergence", metavar="CASE",
+                    help="write nothing: the truth of CASE against the step halved and a finer "
+                         "mesh (its discretisation error over the noise)")
     args = ap.parse_args()
     if args.list:
         for k, c in CASES.items():
             print(f"{k:<20} {c['shape']:<8} {'+'.join(c['physics']) or '-'}")
         return 0
-    names = args.cases.split(",")
+    names = [args.convergence] if args.convergence else args.cases.split(",")
     bad = [n for n in names if n not in CASES]
     if bad:
         print(f"unknown case(s) {bad}; valid: {', '.join(CASES)}")
@@ -540,6 +572,10 @@ def main() -> int:
         meshes[shape] = coarse_mesh(gmsh, shape)
         print(f"{shape}: coarse mesh {len(meshes[shape][1])} tets -> meshes/{shape}.msh",
               flush=True)
+    if args.convergence:
+        convergence(gmsh, args.convergence, meshes)
+        gmsh.finalize()
+        return 0
     for name in names:
         t0 = time.perf_counter()
         print(f"case {name} ({CASES[name]['shape']}, concealed "
