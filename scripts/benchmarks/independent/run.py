@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -71,6 +72,31 @@ def mesh_check(numerics: dict, noise: float) -> str:
     return "; ".join(parts) or json.dumps(numerics)[:120]
 
 
+def partial_log(log: Path, noise: float) -> dict:
+    """What a diagnose stopped before its report got to: the base fit and the numerics check
+    (from its progress lines)."""
+    got: dict = {}
+    if not log.exists():
+        return got
+    checks = []
+    for line in log.read_text().splitlines():
+        m = re.search(r"base fit: .*chi2/dof ([0-9.eE+-]+), held-out rms ([0-9.eE+-]+) m", line)
+        if m:
+            got["chi2_base"] = float(m.group(1))
+            got["heldout_base_over_noise"] = float(m.group(2)) / noise
+        m = re.search(r"material\.youngs_modulus=([0-9.eE+-]+);", line)
+        if m and "base fit" in line:
+            got["E_base"] = float(m.group(1))
+        if "numerics:" in line:
+            checks.append(line.split("numerics:", 1)[1].strip())
+        m = re.search(r"round (\d+): ranking", line)
+        if m:
+            got["last_round_started"] = int(m.group(1))
+    if checks:
+        got["mesh_check"] = "; ".join(checks)
+    return got
+
+
 def score_case(name: str, out: Path, wall: float, status: str) -> dict:
     truth = json.loads((CASES_DIR / name / "truth.json").read_text())
     concealed = truth["concealed"]
@@ -81,6 +107,7 @@ def score_case(name: str, out: Path, wall: float, status: str) -> dict:
            "mesh_check": None, "ranking": None}
     rep_path, sum_path = out / "report.json", out / "summary.json"
     if not rep_path.exists():
+        row.update(partial_log(out / "diagnose.log", truth["noise"]["position_std"]))
         return row
     rep = json.loads(rep_path.read_text())
     summ = json.loads(sum_path.read_text()) if sum_path.exists() else {}
@@ -169,7 +196,8 @@ def main() -> int:
         d = out / name
         if args.collect:
             if (d / "row.json").exists():
-                rows.append(json.loads((d / "row.json").read_text()))
+                old = json.loads((d / "row.json").read_text())
+                rows.append(score_case(name, d, old["wall_s"], old["status"]))
             continue
         d.mkdir(parents=True, exist_ok=True)
         truth = json.loads((CASES_DIR / name / "truth.json").read_text())
@@ -186,7 +214,9 @@ def main() -> int:
             try:
                 proc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
                                       cwd=str(CASES_DIR / name), timeout=args.timeout)
-                if proc.returncode != 0:
+                if proc.returncode < 0:
+                    status = f"stopped (signal {-proc.returncode})"
+                elif proc.returncode != 0:
                     status = f"failed (exit {proc.returncode})"
             except subprocess.TimeoutExpired:
                 status = "timeout"
