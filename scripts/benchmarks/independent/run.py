@@ -78,8 +78,11 @@ def partial_log(log: Path, noise: float) -> dict:
     got: dict = {}
     if not log.exists():
         return got
-    checks = []
+    checks, scores = [], []
     for line in log.read_text().splitlines():
+        m = re.search(r"score (\S+)\s+S =\s+([0-9.eE+-]+)\s+dof (\d+)\s+p = ([0-9.eE+-]+)", line)
+        if m and got.get("last_round_started") == 1:
+            scores.append((m.group(1), float(m.group(2)), float(m.group(4))))
         m = re.search(r"base fit: .*chi2/dof ([0-9.eE+-]+), held-out rms ([0-9.eE+-]+) m", line)
         if m:
             got["chi2_base"] = float(m.group(1))
@@ -94,6 +97,10 @@ def partial_log(log: Path, noise: float) -> dict:
             got["last_round_started"] = int(m.group(1))
     if checks:
         got["mesh_check"] = "; ".join(checks)
+    if scores:
+        # the first round's score tests only (diagnose then orders close ones by their fits)
+        got["score_ranking"] = [f"{n} (S {v:.3g})" for n, v, p in
+                                sorted(scores, key=lambda t: -t[1]) if p < 0.01][:4]
     return got
 
 
