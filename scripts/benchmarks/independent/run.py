@@ -141,16 +141,29 @@ def _f(x, fmt):
     return "-" if x is None else format(x, fmt)
 
 
+def verdict(r: dict) -> str:
+    """``first -> final`` verdict, or what a run that wrote no report got to."""
+    if r["verdict"]:
+        final = r.get("final_verdict")
+        return f"{r['verdict']} -> {final}" if final and final != r["verdict"] else r["verdict"]
+    got = [f"{r['status']}"]
+    if r.get("chi2_base") is not None:
+        got.append(f"base chi2/dof {r['chi2_base']:.3g}, E {r['E_base']:.3g}")
+    if r.get("score_ranking"):
+        got.append("round-1 scores: " + ", ".join(r["score_ranking"]))
+    return "; ".join(got)
+
+
 def table_md(rows: list[dict]) -> str:
-    head = ("| case | shape | concealed | verdict | added | truth rank (round 1) | found, no extra "
-            "| held-out rms / noise (base -> final) | chi2/dof final | E err | mesh/step check "
+    head = ("| case | shape | concealed | verdict (first -> final) | added | truth rank (round 1) "
+            "| found, no extra | held-out rms / noise (base -> final) | chi2/dof final | E err | mesh/step check "
             "| wall s |\n|" + "---|" * 12)
     lines = [head]
     for r in rows:
         extra = f", extra {'+'.join(r['extra'])}" if r["extra"] else ""
         ok = "-" if r["found"] is None else f"{'yes' if r['found'] else 'NO'}{extra}"
         lines.append(
-            f"| {r['case']} | {r['shape']} | {r['concealed']} | {r['verdict'] or r['status']} "
+            f"| {r['case']} | {r['shape']} | {r['concealed']} | {verdict(r)} "
             f"| {r['added'] or '-'} | {_f(r['rank'], 'd')} | {ok} | "
             f"{_f(r['heldout_base_over_noise'], '.2f')} -> {_f(r['heldout_over_noise'], '.2f')} "
             f"| {_f(r['chi2_final'], '.3g')} | {_f(r['E_rel_err'], '+.1%')} "
