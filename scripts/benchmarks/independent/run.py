@@ -156,8 +156,8 @@ def verdict(r: dict) -> str:
 
 def table_md(rows: list[dict]) -> str:
     head = ("| case | shape | concealed | verdict (first -> final) | added | truth rank (round 1) "
-            "| found, no extra | held-out rms / noise (base -> final) | chi2/dof final | E err | mesh/step check "
-            "| wall s |\n|" + "---|" * 12)
+            "| found, no extra | held-out rms / noise (base -> final) | chi2/dof final | E err "
+            "| mesh/step check | wall s |\n|" + "---|" * 12)
     lines = [head]
     for r in rows:
         extra = f", extra {'+'.join(r['extra'])}" if r["extra"] else ""
