@@ -9,6 +9,7 @@ is also run rank-locally (COMM_SELF) and must agree with the 2-rank run.
 """
 
 import gc
+import re
 from pathlib import Path
 
 import numpy as np
@@ -203,6 +204,10 @@ def test_concealed_mass_damping_is_found(case):
     lines = sum(PETSc.COMM_WORLD.tompi4py().allgather(case["results"]["damped lines"]), [])
     assert any("base fit: it" in line for line in lines)
     assert any("candidate damping.mass: it" in line for line in lines)
+    # and a round of candidate fits says how long it will roughly take, from the fits so far
+    if PETSc.COMM_WORLD.getRank() == 0:
+        assert any(re.search(r"fitting \d+ candidate\(s\) .* roughly \d+ s", line)
+                   for line in lines)
     alpha = res.added[0]["parameters"]["damping.mass"]
     std = res.added[0]["std"]["damping.mass"]
     assert abs(alpha - TRUE_ALPHA) < max(3 * std, 0.5), (alpha, std)

@@ -206,6 +206,8 @@ class Diagnosis:
         self.scales: dict | None = None
         #: cell centroids of the last sensitivity maps (None before the first)
         self.centroids: np.ndarray | None = None
+        #: wall time of every fit so far (what a round of fits is estimated from)
+        self.fit_seconds: list[float] = []
         if rec.noise and rec.noise.get("position_std"):
             self.sigma = float(rec.noise["position_std"])
             self.sigma_source = "given by the recording"
@@ -256,6 +258,7 @@ class Diagnosis:
         a progress line naming it by ``label`` (printed by the first rank of ``comm``: fits on
         groups of ranks report side by side), so a round of fits is never silent for long."""
         comm = self.comm if comm is None else petsc_comm(comm)
+        started = time.perf_counter()
         # the identification window travels with the data, not as a rewritten [time] end
         observations = Observations(self.recording, noise=self.sigma, end=self.cut)
         res = run_calibration(experiment, observations, method=self.method,
@@ -266,12 +269,25 @@ class Diagnosis:
         names, _, _ = calibration_parameters(experiment)
         calibrated = with_parameters(experiment, dict(zip(names, res.values, strict=True)))
         sim = self.simulate(calibrated, comm=comm)
+        self.fit_seconds.append(time.perf_counter() - started)
         return Fit(experiment=calibrated, names=names, values=np.asarray(res.values),
                    std=np.asarray(res.std), chi2=chi2(sim[self.ident], self.data[self.ident],
                                                         self.sigma),
                    rms=rms(sim[self.ident], self.data[self.ident]) or 0.0,
                    heldout_rms=rms(sim[self.held], self.data[self.held]) if self.held.any()
                    else None, sim=sim, iterations=res.iterations, evaluations=res.evaluations)
+
+    def round_estimate(self, names: list[str]) -> str:
+        """A line announcing a round of fits and roughly how long it takes: the fits so far
+        (the longest) times the fits per group of ranks (they run side by side)."""
+        groups = max(1, min(self.comm.getSize(), len(names)))
+        per_group = -(-len(names) // groups)
+        line = f"fitting {len(names)} candidate(s) ({', '.join(names)}) on {groups} group(s)"
+        if self.fit_seconds:
+            guess = max(self.fit_seconds) * per_group
+            line += (f"; roughly {guess:.0f} s (a fit so far took up to "
+                     f"{max(self.fit_seconds):.0f} s; a candidate has more parameters)")
+        return line
 
     def _iteration_lines(self, label: str):
         """What a fit's ``say`` gets: its iteration lines, labelled and timed, to ``self.say``
@@ -291,6 +307,8 @@ class Diagnosis:
         yet, extending ``current``'s model, concurrently on groups of ranks; each entry gains
         ``fit`` (None when the fit failed) and ``fit_error``."""
         need = [(s, c) for s, c in scored if "fit" not in s]
+        if need:
+            self.tell(self.round_estimate([c.physics for _, c in need]))
         fits = map_on_groups(
             lambda item, sub: self.calibrate(item[1].extend(current.experiment), comm=sub,
                                              label=f"candidate {item[1].physics}"),

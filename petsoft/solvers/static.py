@@ -252,8 +252,11 @@ class StaticSolver:
             result.newton_iterations += its
             result.linear_iterations += lits + lin
             result.history.append((scale, its, lits))
+            # what is left, at the pace of the load so far (later steps bend further: roughly)
+            left = (time.perf_counter() - t0) / done * (1.0 - done)
             self._say(f"load factor {scale:.4g}: {its} Newton iterations, {lits} linear "
-                      f"iterations, |u|max = {x.norm(PETSc.NormType.INFINITY):.6g} m")
+                      f"iterations, |u|max = {x.norm(PETSc.NormType.INFINITY):.6g} m"
+                      + (f"; ~{left:.0f} s left" if done < 1.0 - 1e-12 else ""))
         result.retries = retries
         result.wall_time = time.perf_counter() - t0
         return result
