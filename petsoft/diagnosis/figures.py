@@ -22,28 +22,12 @@ from pathlib import Path
 
 import numpy as np
 
+from petsoft.diagnosis.report import pyplot_agg, save_figure
+
 __all__ = ["plot_candidates", "plot_displacement", "plot_residual_on_body",
            "plot_spectra_before_after", "rms_per_marker"]
 
 _COMPONENT_COLOURS = ("tab:blue", "tab:orange", "tab:green")
-
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig, path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    _pyplot().close(fig)
-    return path
 
 
 def rms_per_marker(data: np.ndarray, sim: np.ndarray) -> np.ndarray:
@@ -76,7 +60,7 @@ def plot_displacement(path, times, data, before, after, reference, cut: float,
         ``markers`` (indices drawn), ``ylim`` per panel, ``data_range`` (min, max of the drawn
         recorded displacement per panel), ``held_out`` (the shaded interval).
     """
-    plt = _pyplot()
+    plt = pyplot_agg()
     t = np.asarray(times, float)
     data, before = np.asarray(data, float), np.asarray(before, float)
     after = None if after is None else np.asarray(after, float)
@@ -114,7 +98,7 @@ def plot_displacement(path, times, data, before, after, reference, cut: float,
         handles.append(Patch(color="0.85", label="held out (prediction)"))
     axes[0, 0].legend(handles=handles, fontsize=7, ncol=4, loc="upper right")
     axes[0, 0].set_title("Markers with the largest mismatch: displacement from the reference")
-    _save(fig, path)
+    save_figure(fig, path)
     return drawn
 
 
@@ -131,7 +115,7 @@ def plot_residual_on_body(path, surface_points, marker_positions, marker_rms, no
     Returns ``views`` (the coordinate pairs drawn), ``values`` (rms / noise per marker) and
     ``colour_range``.
     """
-    plt = _pyplot()
+    plt = pyplot_agg()
     pts = np.asarray(surface_points, float)
     pos = np.asarray(marker_positions, float)
     values = np.asarray(marker_rms, float) / noise
@@ -165,7 +149,7 @@ def plot_candidates(path, scores: Sequence[Mapping], added: Sequence[str]) -> di
 
     Returns ``names`` and ``scores`` in the drawn order (largest first) and ``added``.
     """
-    plt = _pyplot()
+    plt = pyplot_agg()
     best: dict[str, float] = {}
     for s in scores:
         if "score" in s and np.isfinite(s["score"]):
@@ -189,7 +173,7 @@ def plot_candidates(path, scores: Sequence[Mapping], added: Sequence[str]) -> di
         ax.set_xscale("log")
     ax.set_xlabel("score-test statistic (log scale; larger: the data ask more for the term)")
     ax.set_title("Candidate physics, sorted (green: added)")
-    _save(fig, path)
+    save_figure(fig, path)
     return {"names": names, "scores": values, "added": [n for n, a in zip(names, is_added,
                                                                          strict=True) if a]}
 
@@ -201,7 +185,7 @@ def plot_spectra_before_after(path, times, data, before, after) -> dict:
     """
     from petsoft.diagnosis.spectral import fill_gaps
 
-    plt = _pyplot()
+    plt = pyplot_agg()
     t = np.asarray(times, float)
     f = np.fft.rfftfreq(len(t), t[1] - t[0])
     fig, ax = plt.subplots(figsize=(7, 3.6))
@@ -222,5 +206,5 @@ def plot_spectra_before_after(path, times, data, before, after) -> dict:
     ax.set_ylabel("amplitude spectrum (m)")
     ax.set_title("Spectra of the marker motion")
     ax.legend(fontsize=8)
-    _save(fig, path)
+    save_figure(fig, path)
     return {"frequency": f, "spectra": spectra}

@@ -469,7 +469,8 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
 # figures
 
 
-def _pyplot():
+def pyplot_agg():
+    """matplotlib's pyplot on the Agg backend (files only, no display)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -478,18 +479,19 @@ def _pyplot():
     return plt
 
 
-def _save(fig, path) -> Path:
+def save_figure(fig, path) -> Path:
+    """Lay out, write (110 dpi, parent directories made) and close a figure."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    _pyplot().close(fig)
+    pyplot_agg().close(fig)
     return path
 
 
 def plot_marker_residuals(path, res, noise_std: float | None = None) -> Path:
     """Bar chart of each marker's rms residual; flagged markers in red, the robust bar dashed."""
-    plt = _pyplot()
+    plt = pyplot_agg()
     fig, ax = plt.subplots(figsize=(max(5, 0.25 * len(res.names) + 2), 3.5))
     colours = np.where(res.flagged, "tab:red", "tab:blue")
     ax.bar(np.arange(len(res.names)), np.nan_to_num(res.rms), color=colours)
@@ -501,12 +503,12 @@ def plot_marker_residuals(path, res, noise_std: float | None = None) -> Path:
     ax.set_ylabel("rms residual (m)")
     ax.set_title("Residual per marker (red: stands out)")
     ax.legend(fontsize=8)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_residual_time(path, times, windows: Mapping) -> Path:
     """Windowed chi2/dof against time with its noise threshold and the flagged intervals."""
-    plt = _pyplot()
+    plt = pyplot_agg()
     fig, ax = plt.subplots(figsize=(7, 3.5))
     t = np.asarray(times)
     ax.plot(t, windows["frame_chi2_per_dof"], lw=0.5, c="0.7", label="per frame")
@@ -519,14 +521,14 @@ def plot_residual_time(path, times, windows: Mapping) -> Path:
     ax.set_ylabel("chi2 / dof")
     ax.set_title("Residual over time (red: mismatch windows)")
     ax.legend(fontsize=8)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_spectra(path, times, data, sim, data_modes=(), sim_modes=()) -> Path:
     """Amplitude spectra (sum over channels) of data and simulation, modes marked."""
     from petsoft.diagnosis.spectral import fill_gaps
 
-    plt = _pyplot()
+    plt = pyplot_agg()
     t = np.asarray(times, dtype=float)
     dt = t[1] - t[0]
     fig, ax = plt.subplots(figsize=(7, 3.5))
@@ -544,4 +546,4 @@ def plot_spectra(path, times, data, sim, data_modes=(), sim_modes=()) -> Path:
     ax.set_ylabel("amplitude spectrum")
     ax.set_title("Spectra (dotted: fitted modes)")
     ax.legend(fontsize=8)
-    return _save(fig, path)
+    return save_figure(fig, path)
