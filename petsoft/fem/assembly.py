@@ -114,7 +114,7 @@ def owned_rows_nnz(dmesh, pattern: BlockPattern) -> tuple[np.ndarray, np.ndarray
     """
     gblock = np.asarray(dmesh.global_vertex, dtype=np.int64)
     mpi = dmesh.comm.tompi4py()
-    lo, hi = (x // 3 for x in dmesh.create_global_vec().getOwnershipRange())
+    lo, hi = dmesh.owned_range
     nglobal = dmesh.nglobal_vertices
     rows = np.repeat(gblock, np.diff(pattern.bptr))
     cols = gblock[pattern.bcol]

@@ -96,6 +96,8 @@ class DistributedMesh:
         self.points = mesh.points[self.vertex_ids]
         self.nvertices = len(global_of_local)
         self.nowned = hi - lo
+        #: global numbers [start, stop) of the vertices this rank owns
+        self.owned_range = (lo, hi)
         self.owned = np.arange(self.nvertices) < self.nowned
         self.global_vertex = global_of_local
         self.global_dof = 3 * global_of_local[:, None] + np.arange(3)
