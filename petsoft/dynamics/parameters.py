@@ -55,6 +55,7 @@ from petsc4py import PETSc
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, key_part
+from petsoft.fem.element import cell_integrals
 from petsoft.fem.kernels.scatter import scatter_add_vector
 from petsoft.mesh.ordering import morton_order
 from petsoft.physics.model import cell_materials
@@ -319,7 +320,6 @@ class ParameterDerivatives:
         u, vl, al = dm.to_local(q), dm.to_local(v), dm.to_local(a)  # (nv, 3)
         wl = dm.to_local(w) if w is not None else None
         n = len(dm.cells)
-        vol = dm.cell_volumes
         # the elastic term's own parameter derivatives (+ K w, + beta K0 v)
         self.E_mu, self.E_lam = s.elastic.lame_derivatives(u, wl, vl, s.beta)
         if k0x is not None:
@@ -329,18 +329,19 @@ class ParameterDerivatives:
             extra = s.elastic.lame_derivatives(zero, None, dm.to_local(k0x), 1.0)
             self.E_mu += extra[0]
             self.E_lam += extra[1]
-        # mass (consistent: rho V/20 (sum_b y_b + y_a)) and gravity (rho V/4 g) per unit density
-        y = (al + s.alpha * vl)[dm.cells]                       # (n, 4, 3)
-        Em = (vol / 20.0)[:, None, None] * (y + y.sum(axis=1, keepdims=True))
+        # mass (consistent) and gravity (int N_a g dV) per unit density
+        unit = cell_integrals(dm)
+        y = (al + s.alpha * vl)[dm.cells]                       # (n, k, 3)
+        Em = np.einsum("nab,nbi->nai", unit.mass, y)
         g = np.asarray([pm.values[f"gravity.acceleration.{c}"] for c in "xyz"])
-        Em -= (vol / 4.0)[:, None, None] * g[None, None, :]
+        Em -= unit.load[:, :, None] * g[None, None, :]
         vt = s.velocity_terms
         if vt.coef["friction.dry"] != 0.0:
-            # the friction force is proportional to the lumped mass (V/4 rho per cell vertex)
+            # the friction force is proportional to the lumped mass
             vll = dm.to_local(v_lin) if v_lin is not None else None
             yf = vt.coef["friction.dry"] * s.friction_unit_mass_local(vl, vll)
-            Em += (vol / 4.0)[:, None, None] * yf[dm.cells]
-        self.E_rho = Em.reshape(n, 12)
+            Em += unit.lumped[:, :, None] * yf[dm.cells]
+        self.E_rho = Em.reshape(n, -1)
         self.v = v.copy()   # the caller may destroy its state vectors
         # nodal terms: d/dp of K_s (u + w) + beta K_s v (supports), of the contact gradient
         self.u = u
@@ -404,7 +405,7 @@ class ParameterDerivatives:
         """[d r / d p_j . mu for j], mu with zero prescribed entries (collective)."""
         refuse_viscoelastic(names)
         s, dm = self.system, self.system.dmesh
-        mul = dm.to_local(mu)[dm.cells].reshape(-1, 12)
+        mul = dm.to_local(mu)[dm.cells].reshape(len(dm.cells), -1)
         per_cell = {k: np.einsum("ni,ni->n", e, mul)
                     for k, e in (("mu", self.E_mu), ("lam", self.E_lam), ("rho", self.E_rho))}
         result = np.zeros(len(names))
@@ -445,7 +446,7 @@ class ParameterDerivatives:
         per-cell sensitivity maps to Young's modulus and to the density."""
         s, dm = self.system, self.system.dmesh
         pm = s.parameters
-        mul = dm.to_local(mu)[dm.cells].reshape(-1, 12)
+        mul = dm.to_local(mu)[dm.cells].reshape(len(dm.cells), -1)
         nu = pm.nu
         dmu, dlam = 1.0 / (2.0 * (1.0 + nu)), nu / ((1 + nu) * (1 - 2 * nu))
         out = np.empty((len(mul), 2))

@@ -85,6 +85,7 @@ from petsoft.experiment.ranges import (
     NONNEGATIVE,
     POSITIVE,
     UNIT,
+    Range,
     format_number,
 )
 from petsoft.experiment.spec import (
@@ -366,7 +367,7 @@ def _read_mesh(r: TableReader | None, top: TableReader, base: Path) -> MeshSpec:
             ' is missing: add [mesh] with file = "<mesh file>" or box = { size = [lx, ly, lz], '
             "cells = [nx, ny, nz] }",
         )
-    r.check_keys(("file", "box", "scale", "refine"))
+    r.check_keys(("file", "box", "scale", "refine", "order"))
     if ("file" in r.data) == ("box" in r.data):
         both = "both are given" if "file" in r.data else "neither is given"
         raise ExperimentError(
@@ -375,6 +376,7 @@ def _read_mesh(r: TableReader | None, top: TableReader, base: Path) -> MeshSpec:
         )
     scale = r.number("scale", 1.0, POSITIVE)
     refine = r.integer("refine", 0, INT_NONNEGATIVE)
+    order = r.integer("order", 1, Range(lo=1, hi=2))
     if "file" in r.data:
         name = r.string("file", what="a path to a mesh file, relative to the experiment file")
         file = (base / name).resolve()
@@ -386,7 +388,7 @@ def _read_mesh(r: TableReader | None, top: TableReader, base: Path) -> MeshSpec:
             )
         if not file.is_file():
             r.fail("file", f' = "{name}": {file} is not a file')
-        return MeshSpec(file=file, scale=scale, refine=refine)
+        return MeshSpec(file=file, scale=scale, refine=refine, order=order)
     box = r.table("box", header="an inline table { size = [lx, ly, lz], cells = [nx, ny, nz] }")
     assert box is not None
     box.check_keys(("size", "cells"))
@@ -404,7 +406,8 @@ def _read_mesh(r: TableReader | None, top: TableReader, base: Path) -> MeshSpec:
     for i, c in enumerate(cells_raw):
         item = TableReader({f"cells[{i}]": c}, box.name, box.source)
         cells.append(item.integer(f"cells[{i}]", rng=INT_POSITIVE))
-    return MeshSpec(box=BoxSpec(size=size, cells=tuple(cells)), scale=scale, refine=refine)
+    return MeshSpec(box=BoxSpec(size=size, cells=tuple(cells)), scale=scale, refine=refine,
+                    order=order)
 
 
 def _material_values(r: TableReader) -> dict[str, Any]:

@@ -62,12 +62,14 @@ class BoxSpec:
 class MeshSpec:
     """``[mesh]``: exactly one of ``file`` (absolute, existing) and ``box``; ``scale`` > 0;
     ``refine`` >= 0: the mesh is split 1 -> 8 that many times after reading
-    (:func:`petsoft.mesh.refine.refine_mesh`)."""
+    (:func:`petsoft.mesh.refine.refine_mesh`); ``order``: 1 for 4-node, 2 for 10-node
+    tetrahedra (:mod:`petsoft.mesh.quadratic`)."""
 
     file: Path | None = None
     box: BoxSpec | None = None
     scale: float = 1.0
     refine: int = 0
+    order: int = 1
 
 
 @dataclass(frozen=True)
@@ -424,6 +426,8 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
     mesh["scale"] = exp.mesh.scale
     if exp.mesh.refine:
         mesh["refine"] = exp.mesh.refine
+    if exp.mesh.order != 1:
+        mesh["order"] = exp.mesh.order
     d["mesh"] = mesh
     if exp.material:
         default = exp.material["default"]

@@ -10,6 +10,7 @@ import numpy as np
 
 from petsoft.errors import ExperimentError
 from petsoft.experiment.expressions import Expression
+from petsoft.mesh.quadratic import face_nodes
 from petsoft.mesh.topology import exterior_faces
 
 
@@ -42,7 +43,9 @@ class RegionResolver:
             "(or give a condition of x, y, z such as \"x < 1e-6\")")
 
     def vertex_mask(self, where: str | Expression, key: str = "where") -> np.ndarray:
-        """(N,) bool: vertices in the selection."""
+        """(N,) bool: nodes in the selection (edge nodes of 10-node tetrahedra included: a
+        condition tests their position, a region or facet group holds the edge nodes of its
+        cells or triangles)."""
         m = self.mesh
         if isinstance(where, Expression):
             return where.evaluate_at(m.points).astype(bool)
@@ -50,10 +53,10 @@ class RegionResolver:
             return self.regions[where].where.evaluate_at(m.points).astype(bool)
         mask = np.zeros(len(m.points), dtype=bool)
         if where in m.regions:
-            mask[m.tets[m.cell_tags == m.regions[where]].ravel()] = True
+            mask[m.cells[m.cell_tags == m.regions[where]].ravel()] = True
             return mask
         if where in m.facet_groups:
-            mask[np.asarray(m.facet_groups[where]).ravel()] = True
+            mask[face_nodes(m, m.facet_groups[where]).ravel()] = True
             return mask
         raise self._unknown(where, key)
 

@@ -1,4 +1,7 @@
-"""The tetrahedral mesh distributed over MPI ranks, and its P1 vector dofs (3 per vertex).
+"""The tetrahedral mesh distributed over MPI ranks, and its vector dofs (3 per node).
+
+The nodes are the mesh's vertices for 4-node (P1) tetrahedra, and the vertices and edge nodes for
+10-node (P2) ones (:attr:`~petsoft.mesh.serial.Mesh.cells`); "vertex" below means any node.
 
 Every rank keeps the validated serial mesh (rank 0 reads it, the others receive it): regions,
 boundary selections and output gathering are then simple vectorised lookups, and every rank can
@@ -43,8 +46,10 @@ class DistributedMesh:
     ----------
     mesh : Mesh
         The full serial mesh (on every rank).
-    cells : ndarray (ne, 4) int64
-        Local connectivity of the cells this rank assembles.
+    cells : ndarray (ne, 4) or (ne, 10) int64
+        Local connectivity of the cells this rank assembles (corners first).
+    order : int
+        Element order, 1 or 2.
     cell_ids : ndarray (ne,) int64
         File number of each local cell.
     vertex_ids : ndarray (nv,) int64
@@ -65,9 +70,10 @@ class DistributedMesh:
         self.mesh = mesh = mpi.bcast(mesh if mpi.rank == 0 else None, root=0)
         ncells, nvert = len(mesh.tets), len(mesh.points)
         size, rank = mpi.size, mpi.rank
+        self.order = mesh.order
 
         cell_perm = morton_order(cell_centroids(mesh.points, mesh.tets))
-        sfc_tets = mesh.tets[cell_perm]
+        sfc_tets = mesh.cells[cell_perm]
         # global vertex g = vertex_perm[g] in file numbers, first touched by cell first_cell[g]
         vertex_perm, first_cell = first_touch(sfc_tets, nvert)
         global_of_file = np.empty(nvert, dtype=np.int64)
@@ -174,7 +180,7 @@ class DistributedMesh:
     def cell_volumes(self) -> np.ndarray:
         """(ne,) reference volumes of the local cells."""
         if self._volumes is None:
-            X = self.points[self.cells]
+            X = self.points[self.cells[:, :4]]
             self._volumes = np.einsum("ij,ij->i", np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]),
                                       X[:, 3] - X[:, 0]) / 6.0
         return self._volumes

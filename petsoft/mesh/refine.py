@@ -27,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from petsoft.errors import MeshError
+from petsoft.mesh.quadratic import corner_mesh, raise_order
 from petsoft.mesh.serial import Mesh, validate
 
 __all__ = ["CHILDREN_PER_TET", "refine_mesh", "refine_triangles", "refined_cell_count"]
@@ -127,6 +128,9 @@ def refine_mesh(mesh: Mesh, levels: int = 1) -> Mesh:
     if isinstance(levels, bool) or not isinstance(levels, (int, np.integer)) or levels < 0:
         raise MeshError(f"{mesh.source}: refinement levels must be an integer >= 0 (number of "
                         f"1->8 subdivisions), got {levels!r}")
+    if mesh.order == 2 and levels > 0:
+        # refine the corners' mesh; the children get straight edges at their own midpoints
+        return raise_order(refine_mesh(corner_mesh(mesh), levels))
     for _ in range(int(levels)):
         mesh = _refine_once(mesh)
     return mesh

@@ -16,8 +16,12 @@ Conventions
 * Facet groups are 2D physical groups of triangles, kept as node triples. Triangles that lie on the
   boundary of the mesh are oriented with their normal pointing out of the body, so tractions can
   use them directly; interior ones (interfaces) keep the file's orientation.
-* Quadratic tetrahedra (``tetra10``) are accepted by using their 4 corner nodes, with a warning; the
-  mid-edge nodes then become unreferenced and are dropped.
+* Quadratic tetrahedra (``tetra10``) are read as their 4 corner nodes; with ``order=2`` the file's
+  mid-edge nodes are kept as the nodes of 10-node tetrahedra (curved edges allowed), otherwise
+  they are dropped with a warning. A mesh of order 2 (:attr:`Mesh.edge_nodes` set; made by
+  :func:`petsoft.mesh.quadratic.raise_order`) lists its corner nodes first, numbered as in the
+  linear mesh, then one node per edge; ``tets`` stays the corner connectivity, so everything that
+  only needs the geometry (volumes, faces, locating points) reads it unchanged.
 * Element indices in messages count tetrahedra only, in file order; node indices are 0-based
   positions in the file's node list (gmsh node *tags* are usually these plus one).
 """
@@ -77,6 +81,9 @@ class Mesh:
         Name to ``(F, 3)`` int64 triangles (indices into ``points``) of each 2D physical group.
     source : str
         Where the mesh came from (file path or ``"box(...)"``), used in messages.
+    edge_nodes : numpy.ndarray or None
+        For 10-node (P2) tetrahedra: ``(E, 6)`` int64 node of each edge, in the VTK/gmsh (meshio)
+        order of edges (0,1), (1,2), (0,2), (0,3), (1,3), (2,3); None for linear tetrahedra.
     """
 
     points: np.ndarray
@@ -85,6 +92,24 @@ class Mesh:
     regions: dict[str, int] = field(default_factory=dict)
     facet_groups: dict[str, np.ndarray] = field(default_factory=dict)
     source: str = "<mesh>"
+    edge_nodes: np.ndarray | None = None
+
+    @property
+    def order(self) -> int:
+        """Polynomial order of the elements: 1 (4-node) or 2 (10-node tetrahedra)."""
+        return 1 if self.edge_nodes is None else 2
+
+    @property
+    def cells(self) -> np.ndarray:
+        """``(E, 4)`` or ``(E, 10)`` nodes of each element (the dofs' connectivity)."""
+        if self.edge_nodes is None:
+            return self.tets
+        return np.concatenate([self.tets, self.edge_nodes], axis=1)
+
+    @property
+    def num_corners(self) -> int:
+        """Number of corner (vertex) nodes; they come first in ``points``."""
+        return int(self.tets.max()) + 1 if self.edge_nodes is not None else self.num_points
 
     @property
     def num_points(self) -> int:
@@ -97,8 +122,9 @@ class Mesh:
         return int(self.tets.shape[0])
 
     def __repr__(self) -> str:
+        kind = "tetrahedra" if self.order == 1 else "10-node tetrahedra"
         return (
-            f"Mesh({self.source}: {self.num_points} nodes, {self.num_cells} tetrahedra, "
+            f"Mesh({self.source}: {self.num_points} nodes, {self.num_cells} {kind}, "
             f"regions={sorted(self.regions)}, facet_groups={sorted(self.facet_groups)})"
         )
 
@@ -107,7 +133,7 @@ class Mesh:
 # Reading
 
 
-def read_mesh(path: str | Path, scale: float = 1.0) -> Mesh:
+def read_mesh(path: str | Path, scale: float = 1.0, order: int = 1) -> Mesh:
     """Read a tetrahedral mesh from any file meshio reads, scale it to metres and validate it.
 
     Parameters
@@ -116,6 +142,10 @@ def read_mesh(path: str | Path, scale: float = 1.0) -> Mesh:
         The mesh file. The format is deduced from the extension by meshio.
     scale : float, optional
         Factor that turns the file's coordinates into metres (e.g. 1e-3 for millimetres).
+    order : {1, 2}, optional
+        Element order of the result. With 2 a file of 10-node tetrahedra keeps its mid-edge
+        nodes where they are (curved edges), and a file of linear ones gets straight-edged
+        10-node tetrahedra (:func:`petsoft.mesh.quadratic.raise_order`).
 
     Returns
     -------
@@ -161,6 +191,7 @@ def read_mesh(path: str | Path, scale: float = 1.0) -> Mesh:
     found: dict[str, int] = {}  # every cell type in the file, for messages
     kept: dict[str, int] = {}  # triangles used as facets, by type (the rest are ignored)
     n_quadratic = 0
+    mid_blocks: list[np.ndarray | None] = []  # the mid-edge nodes of each tetra10 block
     for i, block in enumerate(raw.cells):
         data = np.asarray(block.data)
         found[block.type] = found.get(block.type, 0) + len(data)
@@ -169,6 +200,7 @@ def read_mesh(path: str | Path, scale: float = 1.0) -> Mesh:
             # gmsh and VTK both list the 4 corners first in a tetra10.
             tet_blocks.append(data[:, :4].astype(np.int64))
             tet_tags.append(tags)
+            mid_blocks.append(data[:, 4:10].astype(np.int64) if block.type == "tetra10" else None)
             if block.type == "tetra10":
                 n_quadratic += len(data)
         elif block.type in ("triangle", "triangle6"):
@@ -209,16 +241,33 @@ def read_mesh(path: str | Path, scale: float = 1.0) -> Mesh:
                 "groups)"
             )
         warnings.warn(msg, MeshWarning, stacklevel=2)
-    if n_quadratic:
+    if n_quadratic and order != 2:
         warnings.warn(
-            f"{source}: {n_quadratic} quadratic tetrahedra (tetra10): petsoft supports only linear "
-            "tetrahedra, so it uses their 4 corner nodes and drops the mid-edge nodes",
+            f"{source}: {n_quadratic} quadratic tetrahedra (tetra10): the model is linear (4-node "
+            "tetrahedra), so petsoft uses their 4 corner nodes and drops the mid-edge nodes; "
+            "set [mesh] order = 2 to use them",
             MeshWarning,
             stacklevel=2,
         )
 
-    mesh = Mesh(points, tets, cell_tags, regions, facet_groups, source)
-    return validate(mesh)
+    mesh = validate(Mesh(points, tets, cell_tags, regions, facet_groups, source))
+    if order == 1:
+        return mesh
+    from petsoft.mesh.quadratic import raise_order
+
+    edge_points = None
+    if n_quadratic == len(tets):
+        mids = np.concatenate(mid_blocks)
+        bad = (mids < 0) | (mids >= len(points))
+        if bad.any():
+            e = int(np.flatnonzero(bad.any(axis=1))[0])
+            raise MeshError(f"{source}: tetra10 {e} (0-based) refers to a mid-edge node that "
+                            f"does not exist (the file has {len(points)} nodes)")
+        edge_points = points[mids]
+        if (signed_volumes(points, tets) < 0).all():
+            # validate() swapped corners 1 and 2 of every tetrahedron: follow with the edges
+            edge_points = edge_points[:, [2, 1, 0, 3, 5, 4]]
+    return raise_order(mesh, edge_points=edge_points)
 
 
 def _check_scale(scale: object, path: Path) -> float:

@@ -1,4 +1,9 @@
-"""The hyperelastic term: elastic energy of tetrahedral P1 elements, per-region materials."""
+"""The hyperelastic term: elastic energy of 4- or 10-node tetrahedra, per-region materials.
+
+4-node (P1) elements use the closed-form kernels (one point, the element's constant gradient);
+10-node (P2) ones are integrated by Keast's 4-point rule (:mod:`petsoft.fem.element`), exact for
+the linear law on straight-edged elements.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +13,7 @@ import numpy as np
 
 from petsoft.errors import InvertedElementError
 from petsoft.fem.assembly import CHUNK, MatrixAssembler
+from petsoft.fem.element import quadratic_geometry, tet_rule
 from petsoft.fem.kernels import elastic as kernels
 from petsoft.fem.kernels.scatter import scatter_add_vector
 from petsoft.fem.kernels.tet import shape_gradients
@@ -20,11 +26,28 @@ class ElementGroup:
     name: str
     model: str
     cells: np.ndarray        # local cell indices into DistributedMesh.cells
-    conn: np.ndarray         # (n, 4) local vertex indices
-    dN: np.ndarray           # (n, 4, 3)
-    volume: np.ndarray       # (n,)
+    conn: np.ndarray         # (n, k) local vertex indices, k = 4 or 10
+    dN: np.ndarray           # (n, 4, 3) for P1; (n, nq, 10, 3) at the points for P2
+    volume: np.ndarray       # (n,) for P1; (n, nq) point weights (times det J) for P2
     mu: np.ndarray           # (n,)
     lam: np.ndarray          # (n,)
+
+    def evaluate(self, start: int, stop: int, ue: np.ndarray, energy=None, g=None, H=None,
+                 project_spd: bool = False, mu=None, lam=None) -> None:
+        """Energies, gradients, Hessians of elements [start, stop) into the given buffers
+        (Lamé parameters overridden by ``mu``, ``lam`` when given)."""
+        mu = self.mu[start:stop] if mu is None else mu
+        lam = self.lam[start:stop] if lam is None else lam
+        dN, vol = self.dN[start:stop], self.volume[start:stop]
+        if self.dN.ndim == 4:
+            kernels.quadrature_into(self.model, dN, vol, ue, mu, lam, energy, g, H,
+                                    project_spd=project_spd)
+            return
+        if energy is not None:
+            energy[...] = kernels.element_energy(self.model, dN, vol, ue, mu, lam)
+        if g is not None or H is not None:
+            kernels.element_gradient_hessian_into(self.model, dN, vol, ue, mu, lam, g, H,
+                                                  project_spd=project_spd)
 
 
 class ElasticTerm:
@@ -48,7 +71,10 @@ class ElasticTerm:
         self.project_spd = project_spd
         models = np.asarray(models)
         X = dmesh.points[dmesh.cells]
-        dN, volume = shape_gradients(X)
+        if dmesh.order == 2:
+            dN, volume = quadratic_geometry(X, *tet_rule(2), cell_ids=dmesh.cell_ids)
+        else:
+            dN, volume = shape_gradients(X)
         mu, lam = kernels.lame_parameters(np.asarray(youngs_modulus, float),
                                           np.asarray(poisson_ratio, float))
         self.groups: list[ElementGroup] = []
@@ -58,8 +84,11 @@ class ElasticTerm:
                 f"elastic:{model}", model, cells, np.ascontiguousarray(dmesh.cells[cells]),
                 np.ascontiguousarray(dN[cells]), np.ascontiguousarray(volume[cells]),
                 np.ascontiguousarray(mu[cells]), np.ascontiguousarray(lam[cells])))
-        self._H = np.empty((CHUNK, 12, 12))
-        self._g = np.empty((CHUNK, 12))
+        #: dofs per element
+        self.nd = 3 * dmesh.cells.shape[1]
+        self._H = np.empty((CHUNK, self.nd, self.nd))
+        self._g = np.empty((CHUNK, self.nd))
+        self._e = np.empty(CHUNK)
 
     def connectivities(self) -> dict[str, np.ndarray]:
         return {g.name: g.conn for g in self.groups}
@@ -78,9 +107,9 @@ class ElasticTerm:
         total = 0.0
         for g in self.groups:
             for start, stop, ue in self._chunks(g, u_local):
+                e = self._e[:stop - start]
                 try:
-                    e = kernels.element_energy(g.model, g.dN[start:stop], g.volume[start:stop], ue,
-                                               g.mu[start:stop], g.lam[start:stop])
+                    g.evaluate(start, stop, ue, energy=e)
                 except InvertedElementError as err:
                     raise self._file_error(g, start, err) from None
                 total += float(e.sum())
@@ -94,9 +123,7 @@ class ElasticTerm:
                 n = stop - start
                 H = self._H[:n] if assembler is not None else None
                 try:
-                    kernels.element_gradient_hessian_into(
-                        g.model, g.dN[start:stop], g.volume[start:stop], ue, g.mu[start:stop],
-                        g.lam[start:stop], self._g[:n], H, project_spd=self.project_spd)
+                    g.evaluate(start, stop, ue, g=self._g[:n], H=H, project_spd=self.project_spd)
                 except InvertedElementError as err:
                     raise self._file_error(g, start, err) from None
                 if out is not None:
@@ -118,7 +145,7 @@ class ElasticTerm:
 
         Every law is linear in (mu, lambda), so d g_e / d mu_e is g_e evaluated with
         (mu, lambda) = (1, 0), and likewise for lambda. Returns two (ncells, 12) arrays in local
-        cell order (``dmesh.cells``): d/dmu and d/dlambda of
+        cell order (``dmesh.cells``; (ncells, 30) for 10-node elements): d/dmu and d/dlambda of
 
             g_e(u) [+ H_e(u) w_e] [+ beta K0_e v_e],
 
@@ -126,25 +153,27 @@ class ElasticTerm:
         stiffness-proportional damping (K0_e v_e is the linear law's gradient at v: the Hessian
         of every law at the reference is the linear one).
         """
-        n = len(self.dmesh.cells)
-        d_mu, d_lam = np.zeros((n, 12)), np.zeros((n, 12))
+        n, nd = len(self.dmesh.cells), self.nd
+        d_mu, d_lam = np.zeros((n, nd)), np.zeros((n, nd))
         for g in self.groups:
+            linear = ElementGroup(g.name, "linear", g.cells, g.conn, g.dN, g.volume, g.mu, g.lam)
             for start, stop, ue in self._chunks(g, u_local):
+                m = stop - start
                 cells = g.cells[start:stop]
-                dN, vol = g.dN[start:stop], g.volume[start:stop]
                 conn = g.conn[start:stop]
-                one, zero = np.ones(stop - start), np.zeros(stop - start)
+                one, zero = np.ones(m), np.zeros(m)
                 for mu, lam, out in ((one, zero, d_mu), (zero, one, d_lam)):
+                    grad = np.empty((m, nd))
+                    H = np.empty((m, nd, nd)) if w_local is not None else None
                     try:
-                        grad, H = kernels.element_gradient_hessian(
-                            g.model, dN, vol, ue, mu, lam, hessian=w_local is not None)
+                        g.evaluate(start, stop, ue, g=grad, H=H, mu=mu, lam=lam)
                     except InvertedElementError as err:
                         raise self._file_error(g, start, err) from None
                     if w_local is not None:
-                        grad += np.einsum("nij,nj->ni", H, w_local[conn].reshape(-1, 12))
+                        grad += np.einsum("nij,nj->ni", H, w_local[conn].reshape(-1, nd))
                     if v_local is not None and beta != 0.0:
-                        k0v, _ = kernels.element_gradient_hessian(
-                            "linear", dN, vol, v_local[conn], mu, lam, hessian=False)
+                        k0v = np.empty((m, nd))
+                        linear.evaluate(start, stop, v_local[conn], g=k0v, mu=mu, lam=lam)
                         grad += beta * k0v
                     out[cells] = grad
         return d_mu, d_lam

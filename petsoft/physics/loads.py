@@ -1,24 +1,28 @@
-"""External loads: gravity (body force) and surface tractions, as consistent nodal forces.
+"""External loads (gravity, surface tractions) as consistent nodal forces, and the mass matrices.
 
-For P1 elements a constant body force b gives each vertex of a tet V b / 4, and a traction t
-(constant or linear on a face; evaluated at the face's vertices) gives each face vertex the
-consistent share of the integral of t N_a.
+A constant body force b gives node a of a cell b int N_a dV (V/4 at each vertex of a P1 tet;
+-V/20 at the corners and V/5 at the edge nodes of a straight P2 one); a traction t, linear on a
+face (evaluated at its corners), gives each face node the integral of t N_a
+(:func:`petsoft.fem.element.face_integrals`). The integrals themselves live in
+:mod:`petsoft.fem.element`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from petsoft.fem.element import cell_integrals, face_integrals
 from petsoft.fem.kernels.scatter import scatter_add_vector
-from petsoft.mesh.topology import face_cells, triangle_areas_normals
+from petsoft.mesh.quadratic import face_nodes
+from petsoft.mesh.topology import face_cells
 
 
 def gravity_forces(dmesh, density: np.ndarray, acceleration) -> np.ndarray:
     """Local (nv, 3) nodal forces of the body force density * acceleration on local cells."""
-    volume = dmesh.cell_volumes
-    fe = (density * volume / 4.0)[:, None, None] * np.asarray(acceleration, float)[None, None, :]
+    load = cell_integrals(dmesh).load                                   # (ne, k)
+    fe = (density[:, None] * load)[:, :, None] * np.asarray(acceleration, float)[None, None, :]
     out = np.zeros(3 * dmesh.nvertices)
-    scatter_add_vector(dmesh.cells, np.broadcast_to(fe, (len(volume), 4, 3)), out)
+    scatter_add_vector(dmesh.cells, np.ascontiguousarray(fe), out)
     return out.reshape(-1, 3)
 
 
@@ -30,8 +34,9 @@ def traction_forces(dmesh, faces: np.ndarray, traction_at_vertices: np.ndarray) 
     faces : ndarray (F, 3)
         Faces in file vertex numbering (all ranks pass the same faces).
     traction_at_vertices : ndarray (F, 3, 3)
-        Traction vector (Pa) at each face vertex; linear interpolation on the face is integrated
-        exactly: f_a = A/12 (2 t_a + t_b + t_c).
+        Traction vector (Pa) at each face vertex; its linear interpolation on the face is
+        integrated exactly against the face's shape functions (P1: f_a = A/12 (2 t_a + t_b +
+        t_c); P2: the 6-node triangle's).
     """
     faces = np.asarray(faces, dtype=np.int64)
     out = np.zeros((dmesh.nvertices, 3))
@@ -50,24 +55,29 @@ def traction_forces(dmesh, faces: np.ndarray, traction_at_vertices: np.ndarray) 
         ok[ok] = dmesh.owned[owner0[ok]] & (dmesh.file_to_local[faces[stray][ok]] >= 0).all(1)
         mine[np.flatnonzero(stray)[ok]] = True
     faces, t = faces[mine], np.asarray(traction_at_vertices, float)[mine]
-    area, _ = triangle_areas_normals(dmesh.mesh.points, faces)
-    fe = area[:, None, None] / 12.0 * (t + t.sum(axis=1, keepdims=True))
-    scatter_add_vector(dmesh.file_to_local[faces], fe, out.reshape(-1))
+    nodes = face_nodes(dmesh.mesh, faces)
+    fe = np.einsum("fac,fci->fai", face_integrals(dmesh.order, dmesh.mesh.points, nodes), t)
+    scatter_add_vector(dmesh.file_to_local[nodes], np.ascontiguousarray(fe), out.reshape(-1))
     return out
 
 
-def consistent_mass_matrices(dmesh, density: np.ndarray) -> np.ndarray:
-    """(ne, 12, 12) consistent P1 mass matrices rho V / 20 (1 + delta_ab) I3 of local cells."""
-    volume = dmesh.cell_volumes
-    scalar = (np.ones((4, 4)) + np.eye(4)) / 20.0
-    block = np.kron(scalar, np.eye(3))
-    return (density * volume)[:, None, None] * block[None]
+def consistent_mass_matrices(dmesh, density: np.ndarray, start: int = 0,
+                             stop: int | None = None) -> np.ndarray:
+    """(n, 3k, 3k) consistent mass matrices of local cells [start, stop) (all by default;
+    P1: rho V / 20 (1 + delta_ab) I3)."""
+    scalar = cell_integrals(dmesh).mass[start:stop]                      # (n, k, k)
+    n, k, _ = scalar.shape
+    scalar = np.asarray(density, float)[start:stop, None, None] * scalar
+    # kron(scalar, I3) per cell: dof 3a+i couples to 3b+k with scalar[a, b] delta_ik
+    block = scalar[:, :, None, :, None] * np.eye(3)[None, None, :, None, :]
+    return np.ascontiguousarray(block.reshape(n, 3 * k, 3 * k))
 
 
 def lumped_masses(dmesh, density: np.ndarray) -> np.ndarray:
-    """Local (nv,) lumped (row-sum) vertex masses rho V / 4 of local cells (ghosts partial)."""
-    volume = dmesh.cell_volumes
+    """Local (nv,) lumped node masses of local cells (ghosts partial): rho V / 4 per P1 vertex,
+    HRZ for P2 (:mod:`petsoft.fem.element`); all positive."""
+    lumped = cell_integrals(dmesh).lumped                                # (ne, k)
     out = np.zeros(3 * dmesh.nvertices)
-    fe = np.repeat((density * volume / 4.0)[:, None], 12, axis=1)
-    scatter_add_vector(dmesh.cells, fe, out)
+    fe = np.repeat(density[:, None] * lumped, 3, axis=1)
+    scatter_add_vector(dmesh.cells, np.ascontiguousarray(fe), out)
     return out.reshape(-1, 3)[:, 0].copy()

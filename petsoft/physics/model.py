@@ -12,6 +12,7 @@ from petsoft.fem.boundary import DirichletConditions
 from petsoft.fem.regions import RegionResolver
 from petsoft.io.recording import read_input_series
 from petsoft.mesh.distributed import DistributedMesh
+from petsoft.mesh.quadratic import with_order
 from petsoft.mesh.refine import refine_mesh
 from petsoft.mesh.serial import box_mesh, read_mesh
 from petsoft.physics.contact import build_contact
@@ -41,8 +42,13 @@ def load_mesh(experiment):
     spec = experiment.mesh
     if spec.box is not None:
         size = [s * spec.scale for s in spec.box.size]
-        return refine_mesh(box_mesh(size, spec.box.cells), spec.refine)
-    return refine_mesh(read_mesh(spec.file, scale=spec.scale), spec.refine)
+        mesh = box_mesh(size, spec.box.cells)
+    elif spec.refine == 0:
+        # a tetra10 file keeps its own (possibly curved) edge nodes
+        return read_mesh(spec.file, scale=spec.scale, order=spec.order)
+    else:
+        mesh = read_mesh(spec.file, scale=spec.scale)
+    return with_order(refine_mesh(mesh, spec.refine), spec.order)
 
 
 @dataclass

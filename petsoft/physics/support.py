@@ -26,19 +26,22 @@ from __future__ import annotations
 import numpy as np
 
 from petsoft.errors import ExperimentError
-from petsoft.mesh.topology import triangle_areas_normals
+from petsoft.fem.element import face_lumped_areas
+from petsoft.mesh.quadratic import face_nodes
 
 #: The experiment's name of the supports' shared compliance (see :func:`shared_compliance`).
 COMPLIANCE = "boundary.compliance"
 
 
-def lumped_face_areas(points: np.ndarray, faces: np.ndarray, nvertices: int) -> np.ndarray:
-    """(N,) per vertex: the sum of A_f / 3 over the faces (F, 3) touching it."""
+def lumped_face_areas(mesh, faces: np.ndarray) -> np.ndarray:
+    """(N,) per node: the lumped areas of the faces (F, 3) touching it (A_f / 3 per vertex for
+    4-node tetrahedra; :func:`petsoft.fem.element.face_lumped_areas` for 10-node ones)."""
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
-        return np.zeros(nvertices)
-    area, _ = triangle_areas_normals(points, faces)
-    return np.bincount(faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=nvertices)
+        return np.zeros(len(mesh.points))
+    nodes = face_nodes(mesh, faces)
+    share = face_lumped_areas(mesh.order, mesh.points, nodes)
+    return np.bincount(nodes.ravel(), weights=share.ravel(), minlength=len(mesh.points))
 
 
 class ElasticSupport:
@@ -126,7 +129,7 @@ def build_support(experiment, dmesh, resolver, dirichlet) -> ElasticSupport | No
     for i, b in compliant:
         key = f"boundary[{i}].where"
         faces = resolver.faces(b.where, key)
-        lumped = lumped_face_areas(mesh.points, faces, len(mesh.points))
+        lumped = lumped_face_areas(mesh, faces)
         if not lumped.any():
             raise ExperimentError(
                 f"{experiment.source}: {key}: the elastic support (compliance = {b.compliance:g} "

@@ -30,7 +30,6 @@ must stay below max(1e-6, 100 tol), else a SolverError is raised.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 
 import numpy as np
 from petsc4py import PETSc
@@ -121,14 +120,10 @@ def assemble_operators(model) -> tuple[PETSc.Mat, PETSc.Mat, float]:
 
     mass = MatrixAssembler(dmesh, {"mass": dmesh.cells})
     mass.begin()
-    rho_volume = np.asarray(model.density, float) * dmesh.cell_volumes
-    # The element mass matrix is rho V times a fixed 12x12 block: take the block from the loads
-    # module (one definition of the consistent mass) and scale it chunk by chunk, so memory stays
-    # at CHUNK element matrices however large the mesh.
-    unit = consistent_mass_matrices(SimpleNamespace(cell_volumes=np.ones(1)), np.ones(1))[0]
-    for start in range(0, len(rho_volume), CHUNK):
-        stop = min(start + CHUNK, len(rho_volume))
-        mass.add("mass", rho_volume[start:stop, None, None] * unit[None], start)
+    # chunk by chunk, so memory stays at CHUNK element matrices however large the mesh
+    for start in range(0, len(dmesh.cells), CHUNK):
+        stop = min(start + CHUNK, len(dmesh.cells))
+        mass.add("mass", consistent_mass_matrices(dmesh, model.density, start, stop), start)
     M = mass.finish(mass.create_matrix())
 
     dK, dM = K.getDiagonal(), M.getDiagonal()

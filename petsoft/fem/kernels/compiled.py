@@ -27,6 +27,9 @@ _lib.petsoft_elastic_gradient_hessian.argtypes = [_i32, _i64] + [_ptr] * 5 + [_i
 _lib.petsoft_elastic_gradient_hessian.restype = _i64
 _lib.petsoft_material_response.argtypes = [_i32, _i64] + [_ptr] * 7
 _lib.petsoft_material_response.restype = _i64
+_lib.petsoft_elastic_quadrature.argtypes = ([_i32, _i64, _i32, _i32] + [_ptr] * 5 + [_i32]
+                                            + [_ptr] * 4)
+_lib.petsoft_elastic_quadrature.restype = _i64
 _lib.petsoft_project_spd9.argtypes = [_i64, _ptr]
 _lib.petsoft_project_spd9.restype = None
 
@@ -39,6 +42,7 @@ __all__ = [
     "element_gradient_hessian_into",
     "material_response",
     "project_spd",
+    "quadrature_into",
 ]
 
 
@@ -216,3 +220,39 @@ def project_spd(dPdF) -> np.ndarray:
         raise ValueError(f"dPdF must have shape (n, 3, 3, 3, 3) or (n, 9, 9), got {shape}")
     _lib.petsoft_project_spd9(shape[0], addr(A))
     return A
+
+
+def quadrature_into(model: str, dN, weight, u, mu, lam, energy_out: np.ndarray | None,
+                    g_out: np.ndarray | None, H_out: np.ndarray | None,
+                    project_spd: bool = False) -> None:
+    """Energies, gradients and Hessians of elements integrated by quadrature, into buffers.
+
+    Same contract as :func:`petsoft.fem.kernels.reference.quadrature`: ``dN`` (n, nq, k, 3),
+    ``weight`` (n, nq), ``u`` (n, k, 3) or (n, 3k); outputs ``energy_out`` (n,), ``g_out``
+    (n, 3k), ``H_out`` (n, 3k, 3k), each float64 C-contiguous or None to skip it.
+
+    Raises
+    ------
+    InvertedElementError
+        neo-Hookean with det F <= 0 at a point of an element (the first such element).
+    """
+    code = check_model(model)
+    dN = np.asarray(dN)
+    if dN.ndim != 4 or dN.shape[3] != 3 or not 1 <= dN.shape[2] <= 10:
+        raise ValueError(f"dN must have shape (n, nq, k, 3) with k <= 10, got {dN.shape}")
+    n, nq, k, _ = dN.shape
+    dN = _c_array(dN, (n, nq, k, 3), "dN")
+    weight = _c_array(weight, (n, nq), "weight")
+    u = _c_array(np.reshape(u, (n, k, 3)), (n, k, 3), "u")
+    mu, lam = _per_element(mu, n, "mu"), _per_element(lam, n, "lam")
+    for out, shape, name in ((energy_out, (n,), "energy_out"), (g_out, (n, 3 * k), "g_out"),
+                             (H_out, (n, 3 * k, 3 * k), "H_out")):
+        if out is not None:
+            _check_output(out, shape, name)
+    bad_J = ctypes.c_double(0.0)
+    status = _lib.petsoft_elastic_quadrature(
+        code, n, k, nq, addr(dN), addr(weight), addr(u), addr(mu), addr(lam),
+        int(bool(project_spd)), _ptr_of(energy_out), _ptr_of(g_out), _ptr_of(H_out),
+        ctypes.addressof(bad_J),
+    )  # fmt: skip
+    _check_status(status, bad_J)

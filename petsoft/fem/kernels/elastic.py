@@ -21,6 +21,7 @@ __all__ = [
     "element_gradient_hessian",
     "element_gradient_hessian_into",
     "lame_parameters",
+    "quadrature_into",
 ]
 
 BACKENDS = ("c", "numpy")
@@ -148,3 +149,40 @@ def element_gradient_hessian_into(
     _backend(backend).element_gradient_hessian_into(
         model, dN, volume, u, mu, lam, g_out, H_out, project_spd=project_spd
     )
+
+
+def quadrature_into(model: str, dN, weight, u, mu, lam, energy_out: np.ndarray | None,
+                    g_out: np.ndarray | None, H_out: np.ndarray | None,
+                    project_spd: bool = False, *, backend: str = "c") -> None:
+    """Energies, gradients and Hessians of elements integrated by quadrature (10-node
+    tetrahedra), written into preallocated arrays (any may be None to skip it).
+
+    Parameters
+    ----------
+    model : str
+        One of :data:`MODELS`.
+    dN : ndarray (n, nq, k, 3)
+        Shape gradients at the points (:func:`petsoft.fem.element.quadratic_geometry`).
+    weight : ndarray (n, nq)
+        Quadrature weights times det J.
+    u : ndarray (n, k, 3) or (n, 3k)
+    mu, lam : float or ndarray (n,)
+    energy_out, g_out, H_out : ndarray (n,), (n, 3k), (n, 3k, 3k), float64 C-contiguous
+    project_spd : bool
+        Project dP/dF to PSD at every point (then H is PSD).
+    backend : {"c", "numpy"}
+
+    Raises
+    ------
+    InvertedElementError
+        neo-Hookean with det F <= 0 at a point (the first such element).
+    """
+    if backend == "numpy":
+        W, g, H = reference.quadrature(model, dN, weight, u, mu, lam, project_spd=project_spd,
+                                       hessian=H_out is not None)
+        for out, value in ((energy_out, W), (g_out, g), (H_out, H)):
+            if out is not None:
+                out[...] = value
+        return
+    _backend(backend).quadrature_into(model, dN, weight, u, mu, lam, energy_out, g_out, H_out,
+                                      project_spd=project_spd)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from petsoft.errors import MeshError
+from petsoft.errors import InvertedElementError, MeshError
 from petsoft.fem.kernels import materials
 
 
@@ -141,3 +141,54 @@ def element_gradient_hessian(
     H = np.einsum("eaj,eijbk->eaibk", dN, T).reshape(n, 12, 12)
     H = volume[:, None, None] * 0.5 * (H + np.swapaxes(H, 1, 2))
     return g, H
+
+
+def quadrature(model: str, dN, weight, u, mu, lam, project_spd: bool = False,
+               hessian: bool = True):
+    """Energy, gradient and Hessian of elements integrated by quadrature (10-node tetrahedra).
+
+    Parameters
+    ----------
+    model : str
+        One of :data:`petsoft.fem.kernels.materials.MODELS`.
+    dN : ndarray, shape (n, nq, k, 3)
+        Shape-function gradients of the k nodes at the nq points of each element.
+    weight : ndarray, shape (n, nq)
+        Quadrature weights times |det J| at the points.
+    u : ndarray, shape (n, k, 3) or (n, 3k)
+        Nodal displacements.
+    mu, lam : float or ndarray, shape (n,)
+        Lamé parameters per element.
+    project_spd, hessian : bool
+        As :func:`element_gradient_hessian`.
+
+    Returns
+    -------
+    W : ndarray (n,)
+        ``sum_q weight_q psi(F_q)``, ``F_q = I + sum_a u_a (x) dN_qa``.
+    g : ndarray (n, 3k)
+    H : ndarray (n, 3k, 3k) or None
+    """
+    dN = np.asarray(dN, dtype=np.float64)
+    n, nq, k, _ = dN.shape
+    u = np.asarray(u, dtype=np.float64).reshape(n, k, 3)
+    weight = np.asarray(weight, dtype=np.float64).reshape(n, nq)
+    mu = np.repeat(np.broadcast_to(np.asarray(mu, float), (n,)), nq)
+    lam = np.repeat(np.broadcast_to(np.asarray(lam, float), (n,)), nq)
+    F = np.eye(3) + np.einsum("eai,eqaj->eqij", u, dN).reshape(n * nq, 3, 3)
+    try:
+        psi, P, dPdF = materials._response(model, F, mu, lam, 2 if hessian else 1)
+    except InvertedElementError as err:   # numbered by point: name the element
+        raise InvertedElementError(err.element // nq, err.jacobian) from None
+    w = weight.reshape(-1)
+    W = (w * psi).reshape(n, nq).sum(axis=1)
+    P = (w[:, None, None] * P).reshape(n, nq, 3, 3)
+    g = np.einsum("eqij,eqaj->eai", P, dN).reshape(n, 3 * k)
+    if not hessian:
+        return W, g, None
+    if project_spd:
+        dPdF = materials.project_spd(dPdF)
+    A = (w[:, None, None, None, None] * dPdF.reshape(n * nq, 3, 3, 3, 3)).reshape(
+        n, nq, 3, 3, 3, 3)
+    H = np.einsum("eqaj,eqijkl,eqbl->eaibk", dN, A, dN).reshape(n, 3 * k, 3 * k)
+    return W, g, 0.5 * (H + np.swapaxes(H, 1, 2))

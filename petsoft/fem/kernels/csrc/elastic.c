@@ -719,3 +719,76 @@ void petsoft_project_spd9(int64_t n, double *A)
 {
     for (int64_t e = 0; e < n; ++e) project_psd9(A + 81 * e);
 }
+
+/* ------------------------------------------------------------------------------------------ */
+/* Elements integrated by quadrature (10-node tetrahedra)                                     */
+/* ------------------------------------------------------------------------------------------ */
+
+/* Per element e and quadrature point q the deformation gradient is F = I + sum_a u_a (x) dN_qa,
+ * and the energy, gradient and Hessian are the weighted sums over q of the pointwise
+ * W psi(F), W P dN_a and W dN_a . dP/dF . dN_b. The Hessian uses the generic 9x9 tangent (the
+ * closed forms of the P1 loop pay off only for 4 nodes); with project_spd the tangent is
+ * projected at every point, which keeps each point's contribution, hence H, PSD. */
+int64_t petsoft_elastic_quadrature(int32_t model, int64_t n, int32_t nnodes, int32_t nq,
+                                   const double *dN, const double *weight, const double *u,
+                                   const double *mu, const double *lam, int32_t project_spd,
+                                   double *energy, double *gradient, double *hessian,
+                                   double *bad_jacobian)
+{
+    if (model < PETSOFT_MODEL_LINEAR || model > PETSOFT_MODEL_NEOHOOKEAN) return PETSOFT_BAD_MODEL;
+    if (nnodes < 1 || nnodes > PETSOFT_MAX_NODES) return PETSOFT_BAD_SHAPE;
+    const int nd = 3 * nnodes;
+    const int want_P = gradient != NULL || hessian != NULL;
+    double T[9][3 * PETSOFT_MAX_NODES];
+    for (int64_t e = 0; e < n; ++e) {
+        const double *ue = u + (int64_t)nd * e;
+        double *ge = gradient ? gradient + (int64_t)nd * e : NULL;
+        double *He = hessian ? hessian + (int64_t)nd * nd * e : NULL;
+        if (energy) energy[e] = 0.0;
+        if (ge) memset(ge, 0, sizeof(double) * nd);
+        if (He) memset(He, 0, sizeof(double) * nd * nd);
+        for (int q = 0; q < nq; ++q) {
+            const double *d = dN + ((int64_t)e * nq + q) * nd;
+            const double W = weight[(int64_t)e * nq + q];
+            State s;
+            for (int i = 0; i < 3; ++i)
+                for (int j = 0; j < 3; ++j) {
+                    double f = (i == j) ? 1.0 : 0.0;
+                    for (int a = 0; a < nnodes; ++a) f += ue[3 * a + i] * d[3 * a + j];
+                    s.F[3 * i + j] = f;
+                }
+            if (evaluate(model, &s, mu[e], lam[e], want_P)) {
+                if (bad_jacobian) *bad_jacobian = s.J;
+                return e;
+            }
+            if (energy) energy[e] += W * s.psi;
+            if (ge)
+                for (int a = 0; a < nnodes; ++a)
+                    for (int i = 0; i < 3; ++i)
+                        ge[3 * a + i] += W * (s.P[3 * i] * d[3 * a] + s.P[3 * i + 1] * d[3 * a + 1] +
+                                              s.P[3 * i + 2] * d[3 * a + 2]);
+            if (!He) continue;
+            double A[81];
+            tangent9(model, &s, mu[e], lam[e], A);
+            if (project_spd) project_psd9(A);
+            for (int r = 0; r < 9; ++r)
+                for (int b = 0; b < nnodes; ++b)
+                    for (int k = 0; k < 3; ++k)
+                        T[r][3 * b + k] = W * (A[9 * r + 3 * k] * d[3 * b] +
+                                               A[9 * r + 3 * k + 1] * d[3 * b + 1] +
+                                               A[9 * r + 3 * k + 2] * d[3 * b + 2]);
+            for (int a = 0; a < nnodes; ++a)
+                for (int i = 0; i < 3; ++i) {
+                    const int row = 3 * a + i;
+                    double *Hrow = He + (int64_t)nd * row;
+                    for (int col = row; col < nd; ++col)
+                        Hrow[col] += d[3 * a] * T[3 * i][col] + d[3 * a + 1] * T[3 * i + 1][col] +
+                                     d[3 * a + 2] * T[3 * i + 2][col];
+                }
+        }
+        if (He)
+            for (int row = 0; row < nd; ++row)
+                for (int col = row + 1; col < nd; ++col) He[nd * col + row] = He[nd * row + col];
+    }
+    return -1;
+}

@@ -1,4 +1,5 @@
-/* Compiled hyperelastic element kernels for linear (P1) tetrahedra.
+/* Compiled hyperelastic element kernels for linear (P1) tetrahedra, and for any element
+ * integrated by quadrature (10-node tetrahedra).
  *
  * The formulas are those of petsoft/kernels/materials.py and reference.py (the numpy
  * specification, which the tests compare against). Every function loops over all n elements
@@ -25,6 +26,8 @@
 #define PETSOFT_MODEL_COROTATED 2
 #define PETSOFT_MODEL_NEOHOOKEAN 3
 #define PETSOFT_BAD_MODEL (-2)
+#define PETSOFT_BAD_SHAPE (-3)
+#define PETSOFT_MAX_NODES 10
 
 /* Element energies. */
 int64_t petsoft_elastic_energy(int32_t model, int64_t n, const double *dN, const double *volume,
@@ -45,6 +48,17 @@ int64_t petsoft_elastic_gradient_hessian(int32_t model, int64_t n, const double 
 int64_t petsoft_material_response(int32_t model, int64_t n, const double *F, const double *mu,
                                   const double *lam, double *psi, double *P, double *dPdF,
                                   double *bad_jacobian);
+
+/* Elements of nnodes nodes integrated by nq quadrature points: dN (n, nq, nnodes, 3) shape
+ * gradients at the points, weight (n, nq) their weights times |det J|, u (n, nnodes, 3).
+ * Outputs (any may be NULL): energy (n,), gradient (n, 3 nnodes), hessian (n, 3 nnodes, 3 nnodes).
+ * Returns -1, the first element with a point where neo-Hookean J <= 0, PETSOFT_BAD_MODEL, or
+ * PETSOFT_BAD_SHAPE (nnodes outside 1..PETSOFT_MAX_NODES). */
+int64_t petsoft_elastic_quadrature(int32_t model, int64_t n, int32_t nnodes, int32_t nq,
+                                   const double *dN, const double *weight, const double *u,
+                                   const double *mu, const double *lam, int32_t project_spd,
+                                   double *energy, double *gradient, double *hessian,
+                                   double *bad_jacobian);
 
 /* In-place positive semi-definite projection of n symmetric 9x9 matrices (n, 81). */
 void petsoft_project_spd9(int64_t n, double *A);
