@@ -17,6 +17,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.errors import PetsoftError
+from petsoft.mesh.quadratic import shape_values
 from petsoft.mesh.topology import exterior_faces
 
 
@@ -167,8 +168,11 @@ class MarkerObserver:
         mesh = dm.mesh
         cells, weights = _locate_in_tets(mesh.points, mesh.tets, self.reference, self.names,
                                          self.source)
+        # the element's own interpolation: barycentric for 4 nodes, quadratic for 10 (a
+        # curved 10-node element is located by its corners' straight tetrahedron)
+        weights = shape_values(mesh.order, weights)
         self.cells, self.weights = cells, weights
-        file_vertices = mesh.tets[cells]                           # (M, 4)
+        file_vertices = mesh.cells[cells]                          # (M, 4 or 10)
         local = dm.file_to_local[file_vertices]
         ok = local >= 0
         ok[ok] &= dm.owned[local[ok]]

@@ -199,7 +199,7 @@ def run_modes(args) -> int:
            f"rank(s); {args.num_modes} mode(s)")
     with experiment_options(experiment.petsc):
         result = compute_modes(model, args.num_modes)
-    writer = XdmfWriter(out / "modes.xdmf", mesh.points, mesh.tets) if comm.rank == 0 else None
+    writer = XdmfWriter(out / "modes.xdmf", mesh.points, mesh.cells) if comm.rank == 0 else None
     for k, x in enumerate(result.modes):
         shape = model.dmesh.gather_global(x)       # collective; None off rank 0
         if writer is not None:

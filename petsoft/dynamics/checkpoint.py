@@ -18,7 +18,7 @@ Layout of ``checkpoint-<step>.h5``::
     /ledger/rows                     (S, 7)  energies so far; attrs dissipated, external_work,
                                              initial
     /probes/time, /probes/displacement       probe history
-    /mesh/points, /mesh/tets
+    /mesh/points, /mesh/tets (the cells: 4 or 10 nodes each)
     /experiment                      the experiment's TOML text
 """
 
@@ -89,7 +89,7 @@ def write_checkpoint(directory: Path, *, step: int, time: float, step_size: floa
         f["probes/displacement"] = (disp.reshape(len(times), -1, 3) if disp.size
                                     else np.zeros((len(times), 0, 3)))
         f["mesh/points"] = mesh.points
-        f["mesh/tets"] = mesh.tets
+        f["mesh/tets"] = mesh.cells
         f["experiment"] = experiment_text
         f.attrs["complete"] = 1
         f.flush()

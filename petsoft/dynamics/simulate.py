@@ -22,7 +22,7 @@ from petsoft.errors import ExperimentError, PetsoftError, SolverError
 from petsoft.io.recording import write_recording
 from petsoft.io.summary import write_summary
 from petsoft.io.xdmf import XdmfWriter
-from petsoft.mesh.probes import interpolate, locate
+from petsoft.mesh.probes import embed, interpolate
 from petsoft.solvers.static import StaticSolver
 
 MAX_HALVINGS = 6
@@ -151,8 +151,7 @@ class Simulation:
         self.progress_every = progress_every
         mesh = model.dmesh.mesh
         self.probes = experiment.output.probes
-        self.probe_cells = self.probe_weights = None
-        self.probe_connectivity = mesh.tets
+        self.probe_cells = self.probe_weights = self.probe_connectivity = None
         if self.probes and experiment.is_mass_spring:
             # mass-spring probes sit on nodes: "cells" of one node each, weight 1
             from petsoft.dynamics.mass_spring import locate_nodes
@@ -162,8 +161,9 @@ class Simulation:
                                             source=f"{experiment.source}: output.probes")
             self.probe_weights = np.ones((len(self.probe_cells), 1))
         elif self.probes:
-            self.probe_cells, self.probe_weights = locate(
-                mesh.points, mesh.tets, self.probes, source=f"{experiment.source}: output.probes")
+            self.probe_connectivity = mesh.cells
+            self.probe_cells, self.probe_weights = embed(
+                mesh, self.probes, source=f"{experiment.source}: output.probes")
 
     def _say(self, line: str) -> None:
         if self.monitor is not None and self.model.dmesh.comm.rank == 0:
@@ -214,7 +214,7 @@ class Simulation:
             self.out.mkdir(parents=True, exist_ok=True)
             if restart:
                 self._archive_trajectory()
-            writer = XdmfWriter(self.out / "trajectory.xdmf", dm.mesh.points, dm.mesh.tets)
+            writer = XdmfWriter(self.out / "trajectory.xdmf", dm.mesh.points, dm.mesh.cells)
         t = (first - 1) * h
         if restart:
             u0, w0 = dm.gather_global(q), dm.gather_global(v)   # collective
@@ -300,7 +300,7 @@ class Simulation:
             try:
                 data = read_latest(self.out / "checkpoints")
                 if (data["mesh_points"].shape != dm.mesh.points.shape
-                        or not np.array_equal(data["mesh_tets"], dm.mesh.tets)
+                        or not np.array_equal(data["mesh_tets"], dm.mesh.cells)
                         or not np.array_equal(data["mesh_points"], dm.mesh.points)):
                     raise PetsoftError(f"{data['path']}: the checkpoint's mesh differs from the "
                                        "experiment's mesh; restart with the same mesh")

@@ -27,7 +27,7 @@ import numpy as np
 from scipy.special import roots_jacobi
 
 from petsoft.errors import MeshError
-from petsoft.mesh.quadratic import TET10_EDGES, TRI6_EDGES
+from petsoft.mesh.quadratic import TET10_EDGES, shape_values
 
 __all__ = ["CellIntegrals", "cell_integrals", "face_integrals", "face_lumped_areas",
            "nodes_per_cell",
@@ -79,20 +79,6 @@ def triangle_rule(degree: int) -> tuple[np.ndarray, np.ndarray]:
     W = np.outer(wa, wb).ravel() * 2.0
     x1, x2 = A.ravel(), (B * (1 - A)).ravel()
     return np.column_stack([1 - x1 - x2, x1, x2]), W
-
-
-def shape_values(order: int, bary: np.ndarray) -> np.ndarray:
-    """Shape functions (m, k) of a tetrahedron (bary (m, 4)) or triangle (bary (m, 3)).
-
-    Order 1: the barycentric coordinates. Order 2: ``L_i (2 L_i - 1)`` at the corners and
-    ``4 L_i L_j`` at the edge nodes (edge order of :mod:`petsoft.mesh.quadratic`).
-    """
-    L = np.asarray(bary, dtype=float)
-    if order == 1:
-        return L.copy()
-    edges = TET10_EDGES if L.shape[-1] == 4 else TRI6_EDGES
-    return np.concatenate([L * (2 * L - 1), 4 * L[..., edges[:, 0]] * L[..., edges[:, 1]]],
-                          axis=-1)
 
 
 def _tet10_reference_gradients(bary: np.ndarray) -> np.ndarray:

@@ -120,9 +120,11 @@ def _check_path(path: Path, h5_path: Path) -> None:
         raise ValueError(f"XDMF output name {path.name!r} must not contain ':'")
 
 
-#: XDMF topology of cells by nodes per cell: tetrahedra, and the vertices, lines and triangles of
+#: XDMF topology of cells by nodes per cell: tetrahedra (4-node, and 10-node in the VTK node order
+#: petsoft uses, which ParaView draws with curved edges), and the vertices, lines and triangles of
 #: mass-spring models.
-TOPOLOGIES = {4: "Tetrahedron", 3: "Triangle", 2: "Polyline", 1: "Polyvertex"}
+TOPOLOGIES = {10: "Tetrahedron_10", 4: "Tetrahedron", 3: "Triangle", 2: "Polyline",
+              1: "Polyvertex"}
 
 
 def _check_mesh(points: object, tets: object) -> tuple[np.ndarray, np.ndarray]:
@@ -131,7 +133,7 @@ def _check_mesh(points: object, tets: object) -> tuple[np.ndarray, np.ndarray]:
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must be an (N, 3) array, got shape {pts.shape}")
     if cells.ndim != 2 or cells.shape[1] not in TOPOLOGIES or cells.dtype.kind not in "iu":
-        raise ValueError(f"tets must be an (E, 4) integer array (or (E, 1|2|3) vertices, lines, "
+        raise ValueError(f"tets must be an (E, 4|10) integer array (or (E, 1|2|3) vertices, lines, "
                          f"triangles of a mass-spring model), got {cells.shape} {cells.dtype}")
     cells = cells.astype(np.int64)
     if cells.size and (cells.min() < 0 or cells.max() >= len(pts)):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from petsoft.errors import ExperimentError
+from petsoft.mesh.quadratic import shape_values
 
 
 def locate(points: np.ndarray, tets: np.ndarray, probes: np.ndarray, *, source: str = "probes",
@@ -38,3 +39,12 @@ def interpolate(field: np.ndarray, tets: np.ndarray, cells: np.ndarray,
                 weights: np.ndarray) -> np.ndarray:
     """Values of a nodal field (N, k) at located probes: (P, k)."""
     return np.einsum("pa,pak->pk", weights, np.asarray(field)[tets[cells]])
+
+
+def embed(mesh, probes: np.ndarray, *, source: str = "probes",
+          tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+    """Cell and node weights of each probe over ``mesh.cells`` (4 or 10 nodes per cell): the
+    barycentric weights for 4-node tetrahedra, the quadratic shape functions for 10-node ones.
+    Use with ``interpolate(field, mesh.cells, cells, weights)``."""
+    cells, bary = locate(mesh.points, mesh.tets, probes, source=source, tol=tol)
+    return cells, shape_values(mesh.order, bary)

@@ -9,7 +9,9 @@ construction and the lookups that follow from it:
   elsewhere (curved edges of a gmsh second-order mesh);
 * :func:`corner_mesh` is the inverse: the linear mesh of the corners (what refinement and the
   P1 view of outputs work on);
-* :func:`face_nodes` gives the 6 nodes of triangles (tractions, Dirichlet faces, surface nodes).
+* :func:`face_nodes` gives the 6 nodes of triangles (tractions, Dirichlet faces, surface nodes);
+* :func:`shape_values` interpolates within an element from barycentric coordinates (markers,
+  probes, and the element module's quadrature).
 
 Edge order within a tetrahedron is VTK's and gmsh's (as meshio reads both): (0,1), (1,2), (0,2),
 (0,3), (1,3), (2,3); triangle6 order is the corners then edges (0,1), (1,2), (2,0).
@@ -23,7 +25,7 @@ from petsoft.errors import MeshError
 from petsoft.mesh.serial import Mesh
 
 __all__ = ["TET10_EDGES", "TRI6_EDGES", "corner_mesh", "edge_table", "face_nodes", "raise_order",
-           "with_order"]
+           "shape_values", "with_order"]
 
 #: The corners joined by the edge of each mid-edge node 4..9 of a 10-node tetrahedron.
 TET10_EDGES = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])
@@ -143,6 +145,20 @@ def with_order(mesh: Mesh, order: int) -> Mesh:
         raise MeshError(f"{mesh.source}: element order must be 1 (4-node) or 2 (10-node "
                         f"tetrahedra), got {order!r}")
     return raise_order(mesh) if order == 2 else corner_mesh(mesh)
+
+
+def shape_values(order: int, bary: np.ndarray) -> np.ndarray:
+    """Shape functions (m, k) of a tetrahedron (bary (m, 4)) or triangle (bary (m, 3)).
+
+    Order 1: the barycentric coordinates. Order 2: ``L_i (2 L_i - 1)`` at the corners and
+    ``4 L_i L_j`` at the edge nodes (edge order of :mod:`petsoft.mesh.quadratic`).
+    """
+    L = np.asarray(bary, dtype=float)
+    if order == 1:
+        return L.copy()
+    edges = TET10_EDGES if L.shape[-1] == 4 else TRI6_EDGES
+    return np.concatenate([L * (2 * L - 1), 4 * L[..., edges[:, 0]] * L[..., edges[:, 1]]],
+                          axis=-1)
 
 
 def face_nodes(mesh: Mesh, faces: np.ndarray) -> np.ndarray:

@@ -40,6 +40,11 @@ class SpringMesh:
         return np.arange(len(self.points), dtype=np.int64)[:, None]
 
     @property
+    def cells(self) -> np.ndarray:
+        """The output cells (as ``tets``: a spring mesh's nodes are all corners)."""
+        return self.tets
+
+    @property
     def cell_tags(self) -> np.ndarray:
         return np.zeros(len(self.tets), dtype=np.int64)
 

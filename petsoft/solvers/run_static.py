@@ -17,7 +17,7 @@ from petsc4py import PETSc
 
 from petsoft.io.summary import write_summary
 from petsoft.io.xdmf import write_xdmf
-from petsoft.mesh.probes import interpolate, locate
+from petsoft.mesh.probes import embed, interpolate
 from petsoft.physics.model import build_model
 from petsoft.solvers.options import experiment_options
 from petsoft.solvers.static import StaticSolver
@@ -80,8 +80,7 @@ def solve_experiment(experiment, *, out: Path | None = None, method: str = "snes
         model = build_model(experiment, comm, project_spd=spd)
         mesh = model.dmesh.mesh
         probe_cells, probe_weights = (
-            locate(mesh.points, mesh.tets, experiment.output.probes,
-                   source=f"{experiment.source}: output.probes")
+            embed(mesh, experiment.output.probes, source=f"{experiment.source}: output.probes")
             if experiment.output.probes else (None, None))
         tell(f"petsoft {command}: {len(mesh.tets)} tets, {len(mesh.points)} nodes, "
              f"{3 * len(mesh.points)} dofs on {comm.size} rank(s); {method.upper()}, "
@@ -90,7 +89,7 @@ def solve_experiment(experiment, *, out: Path | None = None, method: str = "snes
         try:
             result = solver.solve()
             u = comm.tompi4py().bcast(model.dmesh.gather_global(result.displacement), root=0)
-            probes = (interpolate(u, mesh.tets, probe_cells, probe_weights)
+            probes = (interpolate(u, mesh.cells, probe_cells, probe_weights)
                       if probe_cells is not None else np.zeros((0, 3)))
             outcome = StaticOutcome(
                 mesh=mesh, displacement=u, probes=np.asarray(probes),
@@ -102,7 +101,7 @@ def solve_experiment(experiment, *, out: Path | None = None, method: str = "snes
             solver.destroy()
     if out is not None and comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
-        write_xdmf(out / "displacement.xdmf", mesh.points, mesh.tets,
+        write_xdmf(out / "displacement.xdmf", mesh.points, mesh.cells,
                    point_data={"displacement": u})
         summary = {"max_displacement": float(np.linalg.norm(u, axis=1).max()),
                    "probes": [{"point": list(map(float, p)), "displacement": list(map(float, v))}
