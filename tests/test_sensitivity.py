@@ -59,9 +59,9 @@ def _print(*args):
         print(*args)
 
 
-def _bar(model="corotated", integrator="be", **extra):
+def _bar(model="corotated", integrator="be", order=1, **extra):
     data = {
-        "mesh": {"box": {"size": [0.3, 0.04, 0.04], "cells": [4, 1, 1]}},
+        "mesh": {"box": {"size": [0.3, 0.04, 0.04], "cells": [4, 1, 1]}, "order": order},
         "material": {"model": model, "youngs_modulus": 1e5, "poisson_ratio": 0.3,
                      "density": 1000.0},
         "gravity": {"acceleration": [0.0, 0.0, -9.81]},
@@ -105,8 +105,8 @@ def test_reference_stiffness_of_every_law_is_the_linear_one():
             np.testing.assert_allclose(np.einsum("nij,nj->ni", H, v), g, atol=1e-12 * abs(g).max())
 
 
-def _two_material_system():
-    exp = _bar(material={"model": "corotated", "youngs_modulus": 1e5, "poisson_ratio": 0.3,
+def _two_material_system(order=1):
+    exp = _bar(order=order, material={"model": "corotated", "youngs_modulus": 1e5, "poisson_ratio": 0.3,
                          "density": 1000.0, "tip": {"youngs_modulus": 2e5, "density": 800.0}},
                region={"tip": {"where": "x > 0.2"}})
     s = DynamicSystem(build_model(exp), exp.damping.mass, exp.damping.stiffness)
@@ -126,11 +126,12 @@ def _state(s, seed=1):
 
 
 
-def test_residual_parameter_derivatives_taylor_and_central_differences():
+@pytest.mark.parametrize("order", [1, 2])
+def test_residual_parameter_derivatives_taylor_and_central_differences(order):
     """r(p + eps d) - r(p) - eps R_p d falls as eps^2 (all parameters at once, Poisson's ratio
     and the E-nu coupling make r nonlinear in p); each derivative matches a central
-    difference to 1e-6 (round-off of r / step)."""
-    s = _two_material_system()
+    difference to 1e-6 (round-off of r / step). For 4- and 10-node tetrahedra."""
+    s = _two_material_system(order)
     names = s.parameter_names()
     assert "material.tip.youngs_modulus" in names and "material.youngs_modulus#2" in names
     q, v, a = _state(s)
@@ -169,8 +170,8 @@ def test_residual_parameter_derivatives_taylor_and_central_differences():
 
 
 # -- 2. forward model -----------------------------------------------------------------------------
-def _forward(method, model, comm=None):
-    exp = _bar(model, method)
+def _forward(method, model, comm=None, order=1):
+    exp = _bar(model, method, order)
     return ForwardModel(exp, NAMES, lambda s: MarkerObserver(s, MARKERS), FRAMES, comm=comm)
 
 
@@ -181,15 +182,18 @@ def _misfit(target):
     return dphi
 
 
-CASES = [(m, mat) for m in ("be", "si", "alpha") for mat in ("corotated", "linear")]
+CASES = [(m, mat, 1) for m in ("be", "si", "alpha") for mat in ("corotated", "linear")]
+# 10-node tetrahedra through each integrator, with a nonlinear law
+CASES += [(m, mat, 2) for m, mat in (("be", "neohookean"), ("si", "corotated"),
+                                     ("alpha", "stvk"))]
 
 
-@pytest.mark.parametrize("method,model", CASES)
-def test_taylor_adjoint_and_forward_sensitivities(method, model, light_forward_solver):
+@pytest.mark.parametrize("method,model,order", CASES)
+def test_taylor_adjoint_and_forward_sensitivities(method, model, order, light_forward_solver):
     """Adjoint gradient and forward-sensitivity directional derivative: remainders of order 2;
     adjoint == forward sensitivities (1e-10, scaled by the parameters); forward sensitivities
     == central differences (1e-5)."""
-    fm = _forward(method, model)
+    fm = _forward(method, model, order=order)
     p = fm.p0.copy()
     sim0 = fm.simulate(p)
     # a target the run does not meet, so the misfit's gradient is not small
@@ -218,8 +222,8 @@ def test_taylor_adjoint_and_forward_sensitivities(method, model, light_forward_s
     assert np.all((o_phi > 1.8) & (o_phi < 2.2)), o_phi
     assert np.all((o_sim > 1.8) & (o_sim < 2.2)), o_sim
     # finite differences as a method, on two parameters
-    fm2 = ForwardModel(_bar(model, method), NAMES[:2], lambda s: MarkerObserver(s, MARKERS),
-                       FRAMES)
+    fm2 = ForwardModel(_bar(model, method, order), NAMES[:2],
+                       lambda s: MarkerObserver(s, MARKERS), FRAMES)
     fd = fm2.fd_jacobian(fm2.p0)
     rel = np.abs(fd - jac[..., :2]).max(axis=(0, 1, 2)) / np.abs(jac[..., :2]).max(axis=(0, 1, 2))
     assert np.all(rel < 1e-5), rel

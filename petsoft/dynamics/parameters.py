@@ -58,6 +58,7 @@ from petsoft.experiment import get_parameter, key_part
 from petsoft.fem.element import cell_integrals
 from petsoft.fem.kernels.scatter import scatter_add_vector
 from petsoft.mesh.ordering import morton_order
+from petsoft.physics.loads import gravity_forces
 from petsoft.physics.model import cell_materials
 from petsoft.physics.support import shared_compliance
 
@@ -372,9 +373,11 @@ class ParameterDerivatives:
             out.getArray().reshape(-1, 3)[:] = s.velocity_terms.unit_linearised(
                 name, self.v.getArray(readonly=True).reshape(-1, 3), lin)
         else:
-            c = "xyz".index(name[-1])
-            arr = out.getArray()
-            arr.reshape(-1, 3)[:, c] = -s.lumped.getArray(readonly=True).reshape(-1, 3)[:, c]
+            # gravity.acceleration.<c>: minus the body-force load of a unit acceleration (the
+            # consistent load int rho N_a dV: the lumped mass only for 4-node tetrahedra)
+            unit = np.zeros(3)
+            unit["xyz".index(name[-1])] = 1.0
+            s.dmesh.add_to_global(-gravity_forces(s.dmesh, s.model.density, unit), out)
 
     def vectors(self, names) -> list[PETSc.Vec]:
         refuse_viscoelastic(names)

@@ -35,7 +35,9 @@ from petsc4py import PETSc
 from petsoft.dynamics.interfaces import SystemDefaults
 from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
 from petsoft.fem.assembly import MatrixAssembler
+from petsoft.fem.element import face_lumped_areas
 from petsoft.fem.kernels.materials import lame_parameters
+from petsoft.mesh.quadratic import face_nodes
 from petsoft.physics import friction
 from petsoft.physics.drag import face_pairs
 from petsoft.physics.loads import (
@@ -117,7 +119,10 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
         nown = len(self._own_local)
         node_of = np.full(dm.nglobal_vertices, -1, dtype=np.int64)
         node_of[dm.vertex_ids[self._own_local]] = self._own_pos
-        pairs = face_pairs(dm.mesh.points, dm.exterior[0], node_of)
+        exterior = dm.exterior[0]
+        nodes = face_nodes(dm.mesh, exterior)
+        pairs = face_pairs(dm.mesh.points, exterior, node_of, nodes,
+                           face_lumped_areas(dm.order, dm.mesh.points, nodes))
         self._friction_mask = np.ones(nown, dtype=bool)
         self._friction_mask_local = np.ones(dm.nvertices, dtype=bool)
         where = exp.friction.where

@@ -29,7 +29,7 @@ from scipy.special import roots_jacobi
 from petsoft.errors import MeshError
 from petsoft.mesh.quadratic import TET10_EDGES, shape_values
 
-__all__ = ["CellIntegrals", "cell_integrals", "face_integrals", "face_lumped_areas",
+__all__ = ["CellIntegrals", "cell_integrals", "integrals_of", "face_integrals", "face_lumped_areas",
            "nodes_per_cell",
            "quadratic_geometry", "shape_values", "tet_rule", "triangle_rule"]
 
@@ -145,27 +145,30 @@ class CellIntegrals:
     lumped: np.ndarray
 
 
+def integrals_of(X: np.ndarray, order: int) -> CellIntegrals:
+    """The :class:`CellIntegrals` of cells with node coordinates ``X`` (n, 4 or 10, 3)."""
+    if order == 1:
+        V = np.einsum("ij,ij->i", np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0]),
+                      X[:, 3] - X[:, 0]) / 6.0
+        mass = V[:, None, None] * ((np.ones((4, 4)) + np.eye(4)) / 20.0)[None]
+        load = np.repeat((V / 4.0)[:, None], 4, axis=1)
+        return CellIntegrals(mass, load, load.copy())
+    bary, w = tet_rule(5)
+    N = shape_values(2, bary)                                      # (nq, 10)
+    _, weight = quadratic_geometry(X, bary, w)
+    mass = np.einsum("nq,qa,qb->nab", weight, N, N)
+    load = weight @ N
+    diag = np.einsum("naa->na", mass)
+    lumped = diag * (weight.sum(axis=1) / diag.sum(axis=1))[:, None]
+    return CellIntegrals(mass, load, lumped)
+
+
 def cell_integrals(dmesh) -> CellIntegrals:
     """The :class:`CellIntegrals` of a distributed mesh's local cells (computed once)."""
     cached = getattr(dmesh, "_cell_integrals", None)
-    if cached is not None:
-        return cached
-    if dmesh.order == 1:
-        V = dmesh.cell_volumes
-        mass = V[:, None, None] * ((np.ones((4, 4)) + np.eye(4)) / 20.0)[None]
-        load = np.repeat((V / 4.0)[:, None], 4, axis=1)
-        result = CellIntegrals(mass, load, load.copy())
-    else:
-        bary, w = tet_rule(5)
-        N = shape_values(2, bary)                                 # (nq, 10)
-        _, weight = quadratic_geometry(dmesh.points[dmesh.cells], bary, w)
-        mass = np.einsum("nq,qa,qb->nab", weight, N, N)
-        load = weight @ N
-        diag = np.einsum("naa->na", mass)
-        lumped = diag * (weight.sum(axis=1) / diag.sum(axis=1))[:, None]
-        result = CellIntegrals(mass, load, lumped)
-    dmesh._cell_integrals = result
-    return result
+    if cached is None:
+        cached = dmesh._cell_integrals = integrals_of(dmesh.points[dmesh.cells], dmesh.order)
+    return cached
 
 
 def face_integrals(order: int, points: np.ndarray, faces: np.ndarray) -> np.ndarray:

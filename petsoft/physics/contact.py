@@ -34,7 +34,8 @@ from __future__ import annotations
 import numpy as np
 
 from petsoft.errors import ExperimentError
-from petsoft.fem.kernels.tet import shape_gradients
+from petsoft.fem.element import integrals_of
+from petsoft.mesh.quadratic import face_nodes
 from petsoft.mesh.topology import exterior_faces
 from petsoft.physics.colliders import DEFAULT_STEP_FACTOR, Collider
 
@@ -58,8 +59,8 @@ def default_fem_stiffness(mesh, density: np.ndarray, youngs: np.ndarray, surface
     ``density`` and ``youngs`` are per cell of the whole mesh (file numbering): the value is the
     same on every rank. ``explicit``: the rule for the explicit integrator (lightest node).
     """
-    _, volume = shape_gradients(mesh.points[mesh.tets])
-    lumped = np.bincount(mesh.tets.ravel(), weights=np.repeat(density * volume / 4.0, 4),
+    share = integrals_of(mesh.points[mesh.cells], mesh.order).lumped       # (E, k)
+    lumped = np.bincount(mesh.cells.ravel(), weights=(density[:, None] * share).ravel(),
                          minlength=len(mesh.points))
     m_max = float(lumped[surface].max())
     if step is not None and m_max > 0.0:
@@ -176,7 +177,8 @@ def build_contact(experiment, dmesh, density_file: np.ndarray, youngs_file: np.n
                 "friction is implemented for [springs] models only; on a [material] (FEM) body "
                 "a collider is frictionless: remove friction or set it to 0")
     mesh = dmesh.mesh
-    surface = surface_vertices(mesh.tets, dmesh.exterior[0], len(mesh.points))
+    # the nodes of the exterior faces: edge nodes too for 10-node tetrahedra
+    surface = surface_vertices(mesh.tets, face_nodes(mesh, dmesh.exterior[0]), len(mesh.points))
     default_k = None
     if any(spec.stiffness is None for spec in experiment.colliders):
         step = experiment.time.step if experiment.time is not None else None

@@ -25,7 +25,8 @@ import numpy as np
 from petsoft.mesh.topology import triangle_areas_normals
 
 
-def face_pairs(points: np.ndarray, faces: np.ndarray, node_of: np.ndarray):
+def face_pairs(points: np.ndarray, faces: np.ndarray, node_of: np.ndarray,
+               nodes: np.ndarray | None = None, node_weights: np.ndarray | None = None):
     """(node, weight, normal) pairs of surface triangles, for the nodes a caller holds.
 
     Parameters
@@ -36,20 +37,26 @@ def face_pairs(points: np.ndarray, faces: np.ndarray, node_of: np.ndarray):
         Triangles (file numbering); each counts once (both sides of a cloth together).
     node_of : ndarray (N,) int
         The caller's row of each file node, -1 for nodes it does not hold (pairs dropped).
+    nodes, node_weights : ndarray (F, kf), optional
+        The faces' nodes and their lumped areas when they are not the corners with A_f / 3
+        (6-node faces of 10-node tetrahedra: :func:`petsoft.fem.element.face_lumped_areas`).
 
     Returns
     -------
     node : ndarray (P,) int64
     weight : ndarray (P,)
-        A_f / 3.
+        The node's lumped area of the face (A_f / 3 for 3-node faces).
     normal : ndarray (P, 3)
         Unit reference normals.
     """
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     area, normal = triangle_areas_normals(points, faces)
-    node = np.asarray(node_of)[faces].ravel()
-    weight = np.repeat(area / 3.0, 3)
-    normal = np.repeat(normal, 3, axis=0)
+    if nodes is None:
+        nodes, node_weights = faces, np.repeat((area / 3.0)[:, None], 3, axis=1)
+    kf = nodes.shape[1]
+    node = np.asarray(node_of)[nodes].ravel()
+    weight = np.asarray(node_weights, float).ravel()
+    normal = np.repeat(normal, kf, axis=0)
     keep = node >= 0
     return node[keep].astype(np.int64), weight[keep], normal[keep]
 

@@ -166,6 +166,12 @@ class RestShapeSolver:
 
     @staticmethod
     def _refuse_unsupported(exp) -> None:
+        if exp.mesh.order != 1:
+            raise PetsoftError(
+                f"{exp.source}: [mesh] order = {exp.mesh.order}: the rest-shape solve is "
+                "implemented for 4-node tetrahedra only (its Jacobian with respect to the "
+                "reference shape is derived for the P1 element); use order = 1 (refine the mesh "
+                "instead)")
         for i, b in enumerate(exp.boundaries):
             what = None
             if b.kind == "traction":
