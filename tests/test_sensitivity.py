@@ -106,7 +106,8 @@ def test_reference_stiffness_of_every_law_is_the_linear_one():
 
 
 def _two_material_system(order=1):
-    exp = _bar(order=order, material={"model": "corotated", "youngs_modulus": 1e5, "poisson_ratio": 0.3,
+    exp = _bar(order=order,
+               material={"model": "corotated", "youngs_modulus": 1e5, "poisson_ratio": 0.3,
                          "density": 1000.0, "tip": {"youngs_modulus": 2e5, "density": 800.0}},
                region={"tip": {"where": "x > 0.2"}})
     s = DynamicSystem(build_model(exp), exp.damping.mass, exp.damping.stiffness)
