@@ -22,6 +22,7 @@ reduced or broadcast, so assertions hold on every rank. ``pytest -s`` prints mea
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,7 @@ from scipy.spatial import cKDTree
 
 from petsoft.dynamics.simulate import Simulation
 from petsoft.dynamics.system import DynamicSystem
+from petsoft.errors import MeshWarning
 from petsoft.experiment import experiment_from_dict
 from petsoft.fem.element import cell_integrals, quadratic_geometry, shape_values, tet_rule
 from petsoft.fem.kernels import elastic as kernels
@@ -563,3 +565,205 @@ def test_mass_matrices():
     assert masses.min() > 0
     assert total == pytest.approx(750.0 * 1.0, rel=1e-12)
 
+
+
+# ================================================================================================
+# More: tetra10 files, parameter derivatives, curved elements, linear tractions, explicit steps
+
+
+@pytest.mark.parametrize("fmt", ["vtu", "msh"])
+def test_cook_from_tetra10_file(fmt, tmp_path):
+    """Cook's membrane read from a tetra10 file (DOLFINx's own P2 nodes, VTK order in .vtu;
+    gmsh order in .msh, converted by meshio) through an experiment file with ``[mesh] order =
+    2``: the same displacement as DOLFINx within 1e-8 of max |u|."""
+    import meshio
+
+    data = np.load(DATA / "cook.npz")
+    path = tmp_path / f"cook.{fmt}"
+    meshio.write(path, meshio.Mesh(np.asarray(data["dof_coords"]),
+                                   [("tetra10", np.asarray(data["tets10"]))]),
+                 **({"file_format": "gmsh22", "binary": False} if fmt == "msh" else {}))
+    toml = tmp_path / "cook.toml"
+    toml.write_text(f"""
+[mesh]
+file = "{path.name}"
+order = 2
+
+[material]
+model = "linear"
+youngs_modulus = {float(data["E"])!r}
+poisson_ratio = {float(data["nu"])!r}
+density = 1000.0
+
+[[boundary]]
+kind = "fixed"
+where = "x < 1e-9"
+
+[[boundary]]
+kind = "traction"
+where = "x > 0.048 - 1e-9"
+value = [0.0, 1e3, 0.0]
+
+[output]
+directory = "out"
+""")
+    from petsoft.experiment import load_experiment
+
+    model = build_model(load_experiment(toml))
+    mesh = model.dmesh.mesh
+    assert mesh.order == 2 and len(mesh.points) == len(data["dof_coords"])
+    u, _ = solve(model, options={"snes_rtol": "1e-14", **MUMPS})
+    ref = np.asarray(data["u"])[_match(mesh.points, np.asarray(data["dof_coords"]))]
+    diff = _rank_consistent(float(np.abs(u - ref).max() / np.abs(ref).max()))
+    _print(f"\nCook from a tetra10 .{fmt}: relative difference to DOLFINx {diff:.2e}")
+    assert diff < 1e-8
+
+
+@pytest.mark.parametrize("material", MODELS)
+def test_lame_derivatives_recombine_to_the_gradient(material):
+    """Every law is linear in (mu, lambda): per P2 cell, mu d_mu + lam d_lam equals the element
+    gradient (assembled, relative 1e-12), and d_mu, d_lam are (ncells, 30)."""
+    mesh, _ = jittered_unit_cube(2, amplitude=0.2, seed=4)
+    model = build_model(_experiment(material), mesh=raise_order(mesh))
+    term, dm = model.elastic.term, model.dmesh
+    u = 0.02 * np.random.default_rng(9).standard_normal((dm.nvertices, 3))
+    u = np.ascontiguousarray(u)
+    d_mu, d_lam = term.lame_derivatives(u)
+    assert d_mu.shape == (len(dm.cells), 30)
+    mu, lam = np.empty(len(dm.cells)), np.empty(len(dm.cells))
+    for g in term.groups:
+        mu[g.cells], lam[g.cells] = g.mu, g.lam
+    combined = np.zeros((dm.nvertices, 3))
+    np.add.at(combined, dm.cells.ravel(),
+              (mu[:, None] * d_mu + lam[:, None] * d_lam).reshape(-1, 3))
+    g_local = np.zeros(3 * dm.nvertices)
+    term.add_gradient(u, g_local)
+    assert np.abs(combined.ravel() - g_local).max() <= 1e-12 * np.abs(g_local).max()
+
+
+def _curved_mesh():
+    """A 2^3 box raised to order 2 with its interior edge nodes moved off the midpoints by up to
+    8 % of the cell size (curved edges)."""
+    mesh = box_mesh([1.0, 1.0, 1.0], [2, 2, 2])
+    p2 = raise_order(mesh)
+    edge_points = p2.points[p2.edge_nodes].copy()
+    rng = np.random.default_rng(12)
+    inside = np.all((edge_points > 1e-9) & (edge_points < 1 - 1e-9), axis=2)
+    moves = rng.uniform(-0.04, 0.04, (len(p2.points), 3))[p2.edge_nodes]
+    edge_points[inside] += moves[inside]
+    curved = raise_order(mesh, edge_points=edge_points)
+    assert np.abs(curved.points - p2.points).max() > 0.01
+    return curved
+
+
+@pytest.mark.parametrize("material", ["stvk", "corotated", "neohookean"])
+def test_curved_elements_rigid_motion_is_free(material):
+    """Curved P2 elements reproduce linear fields exactly (isoparametric): a finite rotation plus
+    a translation has F = R at every quadrature point, so the elastic energy and the internal
+    forces vanish to round-off for the rotation-invariant laws; the consistent mass still sums
+    to the element volumes (the quadrature weights) and the volume of the curved mesh is 1 (the
+    boundary is straight: only interior nodes moved)."""
+    mesh = _curved_mesh()
+    model = build_model(_experiment(material), mesh=mesh)
+    dm, term = model.dmesh, model.elastic.term
+    R = np.eye(3) + _affine_gradient()
+    U, _, Vt = np.linalg.svd(R)
+    R = U @ Vt                                                    # a pure rotation
+    u = np.ascontiguousarray(dm.points @ (R - np.eye(3)).T + C_SHIFT)
+    energy = dm.comm.tompi4py().allreduce(term.energy(u), op=MPI.SUM)
+    g_local = np.zeros(3 * dm.nvertices)
+    term.add_gradient(u, g_local)
+    stretch = np.ascontiguousarray(0.01 * dm.points)               # 1 % dilation: scale
+    g_ref = np.zeros(3 * dm.nvertices)
+    term.add_gradient(stretch, g_ref)
+    scale = dm.comm.tompi4py().allreduce(float(np.abs(g_ref).max()), op=MPI.MAX)
+    gmax = dm.comm.tompi4py().allreduce(float(np.abs(g_local).max()), op=MPI.MAX)
+    ci = cell_integrals(dm)
+    volume = dm.comm.tompi4py().allreduce(float(ci.mass.sum()), op=MPI.SUM)
+    _print(f"\ncurved P2 {material}: rigid energy {energy:.2e}, max force {gmax / scale:.2e} of "
+           f"a 1 % dilation's, volume {volume:.15f}")
+    assert abs(energy) < 1e-10 * 1e6 * 1e-4
+    assert gmax < 1e-10 * scale
+    assert volume == pytest.approx(1.0, rel=1e-13)
+    assert (ci.lumped > 0).all()
+
+
+def test_linear_traction_is_integrated_exactly():
+    """A traction varying linearly over the loaded face (value = [0, 0, 1e3 (1 + y + 2 z)] on the
+    face x = 1 of a P2 bar): the nodal forces' sum and their first moments equal the exact
+    integrals int t dA and int t y dA, int t z dA (relative 1e-12)."""
+    exp = _experiment("linear", size=(1.0, 0.4, 0.3), cells=(2, 2, 2),
+                      boundary=[{"kind": "fixed", "where": "x < 1e-9"},
+                                {"kind": "traction", "where": "x > 1 - 1e-9",
+                                 "value": ["0", "0", "1e3 * (1 + y + 2 * z)"]}])
+    model = build_model(exp)
+    f = bcast_gathered(model, model.external)
+    p = model.dmesh.mesh.points
+    assert np.abs(f[p[:, 0] < 1 - 1e-9]).max() == 0.0
+    b, c = 0.4, 0.3
+    total = 1e3 * (b * c + b**2 / 2 * c + 2 * b * c**2 / 2)
+    moment_y = 1e3 * (b**2 / 2 * c + b**3 / 3 * c + 2 * b**2 / 2 * c**2 / 2)
+    moment_z = 1e3 * (b * c**2 / 2 + b**2 / 2 * c**2 / 2 + 2 * b * c**3 / 3)
+    fz = f[:, 2]
+    assert np.abs(f[:, :2]).max() == 0.0
+    assert fz.sum() == pytest.approx(total, rel=1e-12)
+    assert (fz * p[:, 1]).sum() == pytest.approx(moment_y, rel=1e-12)
+    assert (fz * p[:, 2]).sum() == pytest.approx(moment_z, rel=1e-12)
+    # the 6-node triangle's loads reach the edge nodes (P1 would load only the corners)
+    assert np.abs(fz[model.dmesh.mesh.num_corners:]).max() > 0.1 * np.abs(fz).max()
+
+
+def test_explicit_serial_equals_parallel():
+    """Explicit (Verlet, HRZ lumped P2 mass) steps of a P2 bar: COMM_WORLD == COMM_SELF within
+    1e-10 and the run is stable (bounded) at a step below the lumped-mass limit."""
+    step = 2e-5
+    exp = _bar_experiment(time={"end": 20 * step, "step": step, "integrator": "explicit"})
+    finals = []
+    for comm in (PETSc.COMM_SELF, PETSc.COMM_WORLD):
+        model = build_model(exp, comm)
+        sim = Simulation(model, exp)
+        result = sim.run()
+        finals.append(MPI.COMM_WORLD.bcast(model.dmesh.gather_global(result.q)))
+        sim.destroy()
+    a, b = finals
+    diff = float(np.abs(a - b).max() / np.abs(a).max())
+    _print(f"\nP2 explicit on {PETSc.COMM_WORLD.getSize()} ranks vs 1: {diff:.2e} "
+           f"(|u|max {np.abs(a).max():.3e} m)")
+    assert 0 < np.abs(a).max() < 1e-3
+    assert diff < 1e-10
+
+
+@pytest.mark.parametrize("flipped", [False, True], ids=["positive", "all-negative"])
+def test_tetra10_file_nodes_land_on_their_edges(flipped, tmp_path):
+    """read_mesh(order=2) of a tetra10 .vtu (the beam's DOLFINx nodes; with ``flipped`` every
+    element written negatively oriented, corners 1 and 2 and their edges swapped, which
+    validate() flips back): every element's edge node is the midpoint of its two corners, and
+    a moved (curved) interior-edge node keeps its file position."""
+    import meshio
+
+    from petsoft.mesh.serial import read_mesh
+
+    data = np.load(DATA / "beam_modes.npz")
+    coords = np.asarray(data["dof_coords"]).copy()
+    tets10 = np.asarray(data["tets10"]).copy()
+    # curve one edge shared by several elements: move its node 1 % of the beam's width in y
+    node = int(tets10[0, 9])
+    coords[node, 1] += 1e-4
+    if flipped:
+        tets10 = tets10[:, [0, 2, 1, 3, 6, 5, 4, 7, 9, 8]]
+    path = tmp_path / "beam.vtu"
+    meshio.write(path, meshio.Mesh(coords, [("tetra10", tets10)]))
+    with warnings.catch_warnings():   # the flip (and the corner renumbering) are reported
+        warnings.simplefilter("ignore", MeshWarning)
+        mesh = read_mesh(path, order=2)
+    assert mesh.order == 2 and len(mesh.points) == len(coords)
+    X = mesh.points[mesh.tets]
+    _, vol = shape_gradients(X)
+    assert (vol > 0).all()
+    edges = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])
+    mid = 0.5 * (X[:, edges[:, 0]] + X[:, edges[:, 1]])
+    off = np.linalg.norm(mesh.points[mesh.edge_nodes] - mid, axis=2)
+    moved = np.linalg.norm(mesh.points[mesh.edge_nodes] - coords[node], axis=2) < 1e-15
+    assert moved.sum() >= 2                      # shared by several elements, found in each
+    assert np.abs(off[moved] - 1e-4).max() < 1e-12
+    assert off[~moved].max() < 1e-15
