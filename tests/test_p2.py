@@ -41,14 +41,13 @@ from scipy.spatial import cKDTree
 
 from petsoft.dynamics.simulate import Simulation
 from petsoft.dynamics.system import DynamicSystem
-from petsoft.errors import MeshWarning
 from petsoft.experiment import experiment_from_dict
 from petsoft.fem.element import cell_integrals, quadratic_geometry, shape_values, tet_rule
 from petsoft.fem.kernels import elastic as kernels
 from petsoft.fem.kernels.materials import MODELS
 from petsoft.fem.kernels.tet import shape_gradients
 from petsoft.mesh.quadratic import raise_order
-from petsoft.mesh.serial import Mesh, box_mesh, validate
+from petsoft.mesh.serial import Mesh, MeshWarning, box_mesh, validate
 from petsoft.physics.loads import lumped_masses
 from petsoft.physics.model import build_model
 from petsoft.solvers.modes import compute_modes
