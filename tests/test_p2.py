@@ -766,3 +766,54 @@ def test_tetra10_file_nodes_land_on_their_edges(flipped, tmp_path):
     assert moved.sum() >= 2                      # shared by several elements, found in each
     assert np.abs(off[moved] - 1e-4).max() < 1e-12
     assert off[~moved].max() < 1e-15
+
+
+def test_rules_and_shape_functions():
+    """tet_rule(d) integrates every monomial x^a y^b z^c of degree <= d over the reference
+    tetrahedron exactly (a! b! c! / (a+b+c+3)!, relative 1e-13) and triangle_rule(d) likewise
+    (a! b! / (a+b+2)!); the P2 shape functions are 1 at their own node and 0 at the others,
+    and their gradients (quadratic_geometry on a curved element) equal central differences of
+    the isoparametric map."""
+    from math import factorial
+
+    from petsoft.fem.element import triangle_rule
+
+    for degree in range(1, 8):
+        bary, w = tet_rule(degree)
+        assert abs(w.sum() - 1.0) < 1e-14 and (w > 0).all()
+        for a in range(degree + 1):
+            for b in range(degree + 1 - a):
+                for c in range(degree + 1 - a - b):
+                    got = (w * bary[:, 1] ** a * bary[:, 2] ** b * bary[:, 3] ** c).sum() / 6
+                    exact = factorial(a) * factorial(b) * factorial(c) / factorial(a + b + c + 3)
+                    assert got == pytest.approx(exact, rel=1e-13), (degree, a, b, c)
+        bary, w = triangle_rule(degree)
+        for a in range(degree + 1):
+            for b in range(degree + 1 - a):
+                got = (w * bary[:, 1] ** a * bary[:, 2] ** b).sum() / 2
+                exact = factorial(a) * factorial(b) / factorial(a + b + 2)
+                assert got == pytest.approx(exact, rel=1e-13), (degree, a, b)
+    # nodes of the reference element in barycentric coordinates: corners, then edge midpoints
+    corners = np.eye(4)
+    edges = np.array([[0, 1], [1, 2], [0, 2], [0, 3], [1, 3], [2, 3]])
+    nodes = np.concatenate([corners, 0.5 * (corners[edges[:, 0]] + corners[edges[:, 1]])])
+    np.testing.assert_allclose(shape_values(2, nodes), np.eye(10), atol=1e-15)
+    tri = np.eye(3)
+    tri_nodes = np.concatenate([tri, 0.5 * (tri[[0, 1, 2]] + tri[[1, 2, 0]])])
+    np.testing.assert_allclose(shape_values(2, tri_nodes), np.eye(6), atol=1e-15)
+    # gradients on a curved element against differences of N(xi) mapped through X(xi)
+    rng = np.random.default_rng(2)
+    X = np.concatenate([REF_TET, 0.5 * (REF_TET[edges[:, 0]] + REF_TET[edges[:, 1]])])
+    X = X + 0.05 * rng.uniform(-1, 1, X.shape) * (np.arange(10) >= 4)[:, None]
+    xi = np.array([[0.2, 0.3, 0.1]])
+    bary = np.column_stack([1 - xi.sum(axis=1), xi])
+    dN, _ = quadratic_geometry(X[None], bary, np.ones(1))
+    h, dN_dxi, dX_dxi = 1e-6, np.empty((10, 3)), np.empty((3, 3))
+    for m in range(3):
+        e = np.zeros(3)
+        e[m] = h
+        Np, Nm = (shape_values(2, np.column_stack([1 - (xi + s * e).sum(axis=1), xi + s * e]))[0]
+                  for s in (1, -1))
+        dN_dxi[:, m] = (Np - Nm) / (2 * h)
+        dX_dxi[:, m] = (Np - Nm) @ X / (2 * h)
+    np.testing.assert_allclose(dN[0, 0], dN_dxi @ np.linalg.inv(dX_dxi), rtol=0, atol=1e-8)
