@@ -15,6 +15,10 @@
 7. Serial == 2 ranks: a P2 static solve and a short P2 dynamic run (alpha, backward Euler).
 8. Mass: HRZ lumped masses positive and summing to rho V; the consistent mass sums to rho V and
    integrates a linear field exactly.
+9. More: tetra10 files (.vtu, .msh, all-negatively oriented, a curved edge) keep their edge
+   nodes; d/dmu, d/dlambda of the element forces recombine to the gradient; curved elements
+   leave rigid motions free; a linearly varying traction's resultant and moments are exact;
+   explicit (HRZ lumped) steps 1 rank == 2 ranks; quadrature rules and shape functions.
 
 Every test runs collectively (serially and under ``mpiexec -n 2``); checked quantities are
 reduced or broadcast, so assertions hold on every rank. ``pytest -s`` prints measured numbers.
