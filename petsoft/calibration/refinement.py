@@ -10,10 +10,11 @@ numerics check (:mod:`petsoft.diagnosis.numerics`) and ``petsoft calibrate --che
 (:mod:`petsoft.calibration.check_mesh`) use it.
 
 **Adding a refinement** (the hook): append one :class:`Refinement` to :data:`REFINEMENTS`. The
-P1 -> P2 raise of ``[mesh] order = 2`` goes there as ``kind="order"`` with ``applies`` true for
-an order-1 continuum model, ``make`` setting the order, ``ratio`` unused and ``error_factors``
-(1, 0): the P2 model's own error is far below P1's, so the whole change is the P1 model's
-error and almost none remains.
+P1 -> P2 raise (``[mesh] order = 2``, :data:`ORDER_RAISED`) is one: it applies to an order-1
+continuum model, and its error factors are (1, 0) (``factors``): the P2 model's own error is far
+below P1's on the same mesh (h^3 against h^2), so the whole change is the P1 model's error and
+almost none remains. Its cost is that of P1 on the 1->8 refined mesh (the same nodes), which is
+what the cell limits compare (``cost``).
 """
 
 from __future__ import annotations
@@ -78,6 +79,11 @@ class Refinement:
         Convergence order p of the simulated marker positions in the refined quantity.
     ratio : float
         Factor the refined quantity (step, mesh size) is divided by.
+    cost : callable(experiment) -> int or None, optional
+        The refined model's size as 4-node tetrahedra of the same node count, which the cell
+        limits compare (default: ``cells``).
+    factors : tuple of float, optional
+        Fixed :meth:`error_factors` instead of Richardson's.
     """
 
     label: str
@@ -88,10 +94,14 @@ class Refinement:
     describe: Callable
     order: Callable
     ratio: float = 2.0
+    cost: Callable | None = None
+    factors: tuple[float, float] | None = None
 
     def error_factors(self, experiment, integrator: str | None = None) -> tuple[float, float]:
         """Richardson: (error of the current model, error left in the refined one) per unit of
         the change between them, with k = ratio^p: (k / (k - 1), 1 / (k - 1))."""
+        if self.factors is not None:
+            return self.factors
         k = self.ratio ** self.order(experiment, integrator)
         return k / (k - 1.0), 1.0 / (k - 1.0)
 
@@ -123,6 +133,20 @@ def _mesh_applies(experiment) -> str | None:
     return None
 
 
+def _order_applies(experiment) -> str | None:
+    if experiment.is_mass_spring:
+        return "a [springs] model has no finite elements"
+    if experiment.mesh.order != 1:
+        return "the elements are already quadratic (order 2)"
+    return None
+
+
+def _raise_order(experiment):
+    def change(d):
+        d["mesh"]["order"] = 2
+    return _with(experiment, change)
+
+
 def _mesh_describe(experiment) -> str:
     n = mesh_cells(experiment)
     if experiment.mesh.box is not None:
@@ -138,15 +162,27 @@ STEP_HALVED = Refinement(
     describe=lambda e: f"step {e.time.step:.4g} s -> {e.time.step / 2:.4g} s",
     order=_step_order)
 
+def _nodes_factor(experiment) -> int:
+    """Nodes of a model per node of the P1 model on its mesh (about 8 for 10-node tets)."""
+    return 1 if experiment.is_mass_spring or experiment.mesh.order == 1 else 8
+
+
 MESH_HALVED = Refinement(
     label="mesh x2", kind="mesh", make=_refine_mesh, applies=_mesh_applies,
     cells=lambda e: 8 * mesh_cells(e), describe=_mesh_describe,
-    # P1 displacements converge as h^2
-    order=lambda e, integrator=None: 2)
+    # displacements converge as h^2 with 4-node tetrahedra, h^3 with 10-node ones
+    order=lambda e, integrator=None: 2 if e.mesh.order == 1 else 3,
+    cost=lambda e: 8 * mesh_cells(e) * _nodes_factor(e))
 
-#: The refinements the numerics checks try, in order. The hook for more: P1 -> P2
-#: (``[mesh] order = 2``) is one more entry here (module docstring).
-REFINEMENTS: list[Refinement] = [STEP_HALVED, MESH_HALVED]
+ORDER_RAISED = Refinement(
+    label="P2", kind="order", make=_raise_order, applies=_order_applies,
+    cells=lambda e: mesh_cells(e),
+    describe=lambda e: f"4-node -> 10-node tetrahedra on the same {mesh_cells(e)} tets",
+    order=lambda e, integrator=None: 2, cost=lambda e: 8 * mesh_cells(e),
+    factors=(1.0, 0.0))
+
+#: The refinements the numerics checks try, in order (module docstring: adding one).
+REFINEMENTS: list[Refinement] = [STEP_HALVED, MESH_HALVED, ORDER_RAISED]
 
 
 def refinement(label: str) -> Refinement:
@@ -166,9 +202,15 @@ def why_not(r: Refinement, experiment, max_cells: int | None,
     reason = r.applies(experiment)
     if reason is not None:
         return reason
-    cells = r.cells(experiment)
-    if max_cells is not None and cells is not None and cells > max_cells:
-        return f"the refined mesh would have {cells} tets, over {whose} limit of {max_cells}"
+    cost = (r.cost or r.cells)(experiment)
+    if max_cells is not None and cost is not None and cost > max_cells:
+        if r.kind == "order":
+            return (f"10-node tetrahedra on {r.cells(experiment)} tets have as many nodes as "
+                    f"{cost} 4-node ones, over {whose} limit of {max_cells}")
+        if _nodes_factor(experiment) > 1:
+            return (f"the refined mesh of 10-node tetrahedra would have as many nodes as "
+                    f"{cost} 4-node ones, over {whose} limit of {max_cells}")
+        return f"the refined mesh would have {cost} tets, over {whose} limit of {max_cells}"
     return None
 
 

@@ -2,7 +2,8 @@
 
 Before physics is blamed, the model is refined in every way of
 :data:`~petsoft.calibration.refinement.REFINEMENTS` (the step halved; the mesh size halved: a box's
-cells doubled, a file mesh split 1 -> 8) and re-calibrated (:func:`resolve_numerics`); a
+cells doubled, a file mesh split 1 -> 8; 4-node elements raised to 10-node ones) and
+re-calibrated (:func:`resolve_numerics`); a
 refinement that changes the fit by more than the noise explains is adopted, and the error it
 leaves is estimated (Richardson) and counted in the verdict's noise budget. On a mesh file the
 check runs first even when the verdict is consistent: a coarse mesh's stiffness hides in the
@@ -20,6 +21,7 @@ import numpy as np
 from petsoft.calibration.groups import map_on_groups
 from petsoft.calibration.refinement import REFINEMENTS, mesh_cells, refinement, why_not
 from petsoft.diagnosis.context import Diagnosis, Fit, evidence_of, rms
+from petsoft.errors import PetsoftError
 
 #: The numerics check refines a mesh only while the refined mesh has at most this many
 #: tetrahedra. 6000 admits one 1->8 refinement of a user's 648-tet mesh file (issue 14: its
@@ -31,7 +33,8 @@ MESH_CELLS = 6000
 
 def _why_not(r, experiment) -> str | None:
     """Why diagnose does not try refinement ``r`` on ``experiment`` (None: it does)."""
-    return why_not(r, experiment, MESH_CELLS if r.kind == "mesh" else None, "diagnose's")
+    return why_not(r, experiment, MESH_CELLS if r.kind in ("mesh", "order") else None,
+                   "diagnose's")
 
 
 def is_mesh_file(experiment) -> bool:
@@ -58,7 +61,11 @@ def numerics_check(diag: Diagnosis, fit: Fit) -> dict:
         if reason is not None:
             out[r.label] = f"not done: {reason}"
             continue
-        sim = diag.simulate(r.make(exp))
+        try:
+            sim = diag.simulate(r.make(exp))
+        except PetsoftError as err:   # the same on every rank: the run is collective
+            out[r.label] = f"not done: the refined simulation failed ({err})"
+            continue
         change = float(np.sqrt(np.mean((sim[seen] - fit.sim[seen]) ** 2)))
         out[r.label] = {"rms": rms(sim, diag.data), "change": change,
                         "change_over_noise": change / diag.sigma, "how": r.describe(exp),

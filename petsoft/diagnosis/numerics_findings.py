@@ -154,6 +154,10 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
     elif any("mesh x2" in r.get("not_tried", {}) for r in rounds) or "mesh x2" in num:
         advice.append(f"Your mesh ({user} tets) could not be checked within diagnose's limit: "
                       "check the calibrated parameters with `petsoft calibrate --check-mesh`.")
+    if final.experiment.mesh.order > base.experiment.mesh.order:
+        advice.append("Use 10-node tetrahedra ([mesh] order = 2): on your mesh they remove "
+                      "what the 4-node ones' stiffness in bending hid.")
+        mesh["order_final"] = final.experiment.mesh.order
     if final.experiment.time.step < base.experiment.time.step:
         advice.append(f"Use a time step of at most {final.experiment.time.step:.4g} s (yours is "
                       f"{base.experiment.time.step:.4g} s).")

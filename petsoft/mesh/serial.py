@@ -250,13 +250,8 @@ def read_mesh(path: str | Path, scale: float = 1.0, order: int = 1) -> Mesh:
             stacklevel=2,
         )
 
-    mesh = validate(Mesh(points, tets, cell_tags, regions, facet_groups, source))
-    if order == 1:
-        return mesh
-    from petsoft.mesh.quadratic import raise_order
-
     edge_points = None
-    if n_quadratic == len(tets):
+    if order == 2 and n_quadratic == len(tets):
         mids = np.concatenate(mid_blocks)
         bad = (mids < 0) | (mids >= len(points))
         if bad.any():
@@ -265,8 +260,21 @@ def read_mesh(path: str | Path, scale: float = 1.0, order: int = 1) -> Mesh:
                             f"does not exist (the file has {len(points)} nodes)")
         edge_points = points[mids]
         if (signed_volumes(points, tets) < 0).all():
-            # validate() swapped corners 1 and 2 of every tetrahedron: follow with the edges
+            # validate() swaps corners 1 and 2 of every tetrahedron: follow with the edges
             edge_points = edge_points[:, [2, 1, 0, 3, 5, 4]]
+        # the mid-edge nodes are not the corner mesh's: leave them out of its validation (which
+        # would call them unused), then give them back as edge nodes
+        mid_only = np.zeros(len(points), bool)
+        mid_only[mids.ravel()] = True
+        mid_only[tets.ravel()] = False
+        new_index = np.cumsum(~mid_only) - 1
+        points, tets = points[~mid_only], new_index[tets]
+        facet_groups = {k: new_index[v] for k, v in facet_groups.items()}
+    mesh = validate(Mesh(points, tets, cell_tags, regions, facet_groups, source))
+    if order == 1:
+        return mesh
+    from petsoft.mesh.quadratic import raise_order
+
     return raise_order(mesh, edge_points=edge_points)
 
 

@@ -43,11 +43,10 @@ def load_mesh(experiment):
     if spec.box is not None:
         size = [s * spec.scale for s in spec.box.size]
         mesh = box_mesh(size, spec.box.cells)
-    elif spec.refine == 0:
-        # a tetra10 file keeps its own (possibly curved) edge nodes
-        return read_mesh(spec.file, scale=spec.scale, order=spec.order)
     else:
-        mesh = read_mesh(spec.file, scale=spec.scale)
+        # a tetra10 file keeps its own (possibly curved) edge nodes; refinement then splits the
+        # corners' tetrahedra and puts the children's edge nodes at their midpoints
+        mesh = read_mesh(spec.file, scale=spec.scale, order=spec.order)
     return with_order(refine_mesh(mesh, spec.refine), spec.order)
 
 
