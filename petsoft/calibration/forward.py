@@ -87,6 +87,7 @@ from petsoft.calibration.observation import MarkerObserver, time_interpolation
 from petsoft.dynamics.alpha import GeneralizedAlpha, alpha_parameters
 from petsoft.dynamics.implicit import ImplicitIntegrator
 from petsoft.dynamics.integrators import check_viscoelastic, scheme, with_gradients
+from petsoft.dynamics.interfaces import length_scale
 from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
 from petsoft.dynamics.parameters import VISCOELASTIC
 from petsoft.dynamics.simulate import initial_state
@@ -264,14 +265,7 @@ class ForwardModel:
             self.J.setNearNullSpace(modes)
         self._K = None
         # a length scale for the SI third-derivative difference: mean cell size or spring length
-        vol = s.dmesh.cell_volumes if s.elastic is not None else None
-        if vol is not None:
-            self.cell_size = float(np.cbrt(s.dmesh.allreduce_sum(vol.sum())
-                                           / s.dmesh.comm.tompi4py().allreduce(len(vol))))
-        elif s.rest_lengths is not None and len(s.rest_lengths):
-            self.cell_size = float(np.mean(s.rest_lengths))   # replicated on every rank
-        else:
-            self.cell_size = 1.0
+        self.cell_size = length_scale(s)
         # the SI third-derivative term vanishes for the linear law (K constant)
         elastic = s.elastic
         self.linear_material = elastic is not None and all(g.model == "linear"

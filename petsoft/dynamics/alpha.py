@@ -31,10 +31,10 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.dynamics.implicit import NoBranch, SolverReuse, StepReport, branch_of
-from petsoft.dynamics.interfaces import StepperDefaults
+from petsoft.dynamics.interfaces import StepperDefaults, length_scale
 from petsoft.errors import InvertedElementError
 from petsoft.physics.viscoelastic import MaxwellRule
-from petsoft.solvers.convergence import outcome, reason_name
+from petsoft.solvers.convergence import outcome, reason_name, stop_at_round_off
 from petsoft.solvers.options import scoped_defaults
 
 
@@ -52,6 +52,7 @@ class AlphaTSIntegrator(StepperDefaults):
 
     def __init__(self, system, radius: float = 0.5, prefix: str = ""):
         self.system, self.radius = system, float(radius)
+        self.length = length_scale(system)   # the round-off floor of Newton's residual
         s = system
         self.moving = bool(s.moving_boundary)
         self.J = s.create_matrix()
@@ -73,6 +74,7 @@ class AlphaTSIntegrator(StepperDefaults):
         snes = ts.getSNES()
         # stol: the residual carries 1/h^2 round-off; a Newton update below 1e-12 |q| is converged
         snes.setTolerances(rtol=1e-10, atol=1e-12, stol=1e-12, max_it=25)
+        stop_at_round_off(snes, self.J, self.length)
         ksp = snes.getKSP()
         s.linear_defaults(ksp)
         if self.moving:
@@ -205,6 +207,7 @@ class GeneralizedAlpha(SolverReuse):
 
     def __init__(self, system, radius: float = 0.5, prefix: str = ""):
         self.system, self.radius = system, float(radius)
+        self.length = length_scale(system)   # the round-off floor of Newton's residual
         self.am, self.af, self.gamma, self.beta = alpha_parameters(radius)
         s = system
         self.J = s.create_matrix()
@@ -232,6 +235,7 @@ class GeneralizedAlpha(SolverReuse):
         snes.setJacobian(self._jacobian_cb, self.J, self.J)
         # stol: the residual carries 1/h^2 round-off; a Newton update below 1e-12 |q| is converged
         snes.setTolerances(rtol=1e-10, atol=1e-12, stol=1e-12, max_it=25)
+        stop_at_round_off(snes, self.J, self.length)
         self.ksp = snes.getKSP()
         s.linear_defaults(self.ksp)
         with scoped_defaults(**{self.prefix + "snes_linesearch_type": "basic"}):

@@ -35,9 +35,9 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.dynamics.integrators import SCHEMES, scheme
-from petsoft.dynamics.interfaces import StepperDefaults
+from petsoft.dynamics.interfaces import StepperDefaults, length_scale
 from petsoft.errors import InvertedElementError
-from petsoft.solvers.convergence import outcome
+from petsoft.solvers.convergence import outcome, stop_at_round_off
 from petsoft.solvers.options import scoped_defaults
 
 METHODS = ("be", "si", "midpoint", "trapezoidal")
@@ -167,6 +167,7 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
         if solver == "tao" and not self.scheme.minimization:
             raise ValueError("the optimisation form (TAO) exists for backward Euler only")
         self.system, self.method, self.solver = system, method, solver
+        self.length = length_scale(system)   # the round-off floor of Newton's residual
         s = system
         self.J = s.create_matrix()
         modes = s.near_nullspace()
@@ -202,6 +203,7 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
             # stol: the residual carries 1/h^2 round-off; a Newton update below 1e-12 |q| is
             # converged
             snes.setTolerances(rtol=1e-10, atol=1e-12, stol=1e-12, max_it=25)
+            stop_at_round_off(snes, self.J, self.length)
             self.ksp = snes.getKSP()
             linear(self.ksp)
             # The mass term keeps the step's energy convex near the old state: full Newton steps.

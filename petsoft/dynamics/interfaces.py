@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from typing import Any, Protocol, runtime_checkable
 
+import numpy as np
 from petsc4py import PETSc
 
 
@@ -139,3 +140,16 @@ class StepperDefaults:
 
     def restore(self, t: float, q: PETSc.Vec, v: PETSc.Vec, state: dict) -> None:
         """Nothing to restore: the next step starts from (t, q, v) alone."""
+
+
+def length_scale(system) -> float:
+    """A cell size of a system (m): the cube root of the mean cell volume of a continuum body,
+    the mean rest length of a spring network, else 1 (collective)."""
+    if system.elastic is not None and system.dmesh is not None:
+        dm = system.dmesh
+        vol = dm.cell_volumes
+        count = dm.comm.tompi4py().allreduce(len(vol))
+        return float(np.cbrt(dm.allreduce_sum(vol.sum()) / max(count, 1)))
+    if system.rest_lengths is not None and len(system.rest_lengths):
+        return float(np.mean(system.rest_lengths))   # replicated on every rank
+    return 1.0
