@@ -205,7 +205,7 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
         above = float(np.sqrt(max(fit.rms ** 2 - diag.sigma ** 2, 0.0)))
         chosen["remaining_bound"] = min(chosen["remaining_estimate"], above)
         again = _why_not(r, fit.experiment)
-        if again is not None:
+        if again is not None and chosen["remaining_bound"] > 0.0:
             # the next round cannot measure it: keep the estimate in the verdict's budget
             diag.model_error[r.label] = chosen["remaining_bound"]
             entry["remaining_counted"] = again

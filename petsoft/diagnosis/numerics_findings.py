@@ -102,6 +102,16 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
             remaining[label] = r["options"][label]
     for label, o in remaining.items():
         noun = _words(label)[1]
+        if o["remaining_estimate"] == 0.0:
+            # a refinement whose own error is taken as nil (10-node elements on the same mesh:
+            # their error falls as h^3), not estimated from the change it made
+            at = next(i for i, q in enumerate(rounds) if q.get("adopted") == label)
+            measured = any("mesh x2" in q["options"] for q in rounds[at + 1:])
+            findings.append(f"What remains: the adopted {noun} is taken as resolved on this mesh "
+                            "(10-node elements' error falls as h^3)"
+                            + ("; the mesh refinement above measured it." if measured else
+                               "; the mesh split 1->8 that would measure it was not made."))
+            continue
         rem, bound = o["remaining_estimate"], o.get("remaining_bound", o["remaining_estimate"])
         counted = label in diag.model_error and any(
             q.get("adopted") == label and q.get("remaining_counted") for q in rounds)
