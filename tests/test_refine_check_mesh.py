@@ -19,6 +19,7 @@ from mpi4py import MPI
 import petsoft
 from petsoft.calibration.refinement import (
     MESH_HALVED,
+    ORDER_RAISED,
     REFINEMENTS,
     STEP_HALVED,
     levels_needed,
@@ -67,12 +68,30 @@ def test_the_refined_experiment_is_a_value_that_reads_back(case):
     assert mesh_cells(user) == 192 and mesh_cells(fine) == 1536 == MESH_HALVED.cells(user)
     assert len(load_mesh(fine).tets) == 1536
     assert STEP_HALVED.make(user).time.step == user.time.step / 2
-    assert [r.label for r in REFINEMENTS] == ["step/2", "mesh x2"]
+    assert [r.label for r in REFINEMENTS] == ["step/2", "mesh x2", "P2"]
     assert why_not(MESH_HALVED, fine, 6000, "diagnose's") == (
         "the refined mesh would have 12288 tets, over diagnose's limit of 6000")
     assert why_not(MESH_HALVED, user, 6000) is None
     # Richardson factors: P1 displacements converge as h^2 -> error 4/3 and 1/3 of the change
     assert MESH_HALVED.error_factors(user) == pytest.approx((4 / 3, 1 / 3))
+    # 10-node elements on the same mesh: the experiment reads back with order 2; they cost the
+    # nodes of the 1->8 refined P1 mesh; the whole change is the P1 model's error
+    quadratic = ORDER_RAISED.make(user)
+    assert quadratic.mesh.order == 2 and quadratic.mesh.refine == 0
+    assert experiment_from_dict(quadratic.to_dict(), source="back").mesh == quadratic.mesh
+    assert load_mesh(quadratic).order == 2 and len(load_mesh(quadratic).tets) == 192
+    assert ORDER_RAISED.error_factors(user) == (1.0, 0.0)
+    assert why_not(ORDER_RAISED, user, 6000) is None
+    assert why_not(ORDER_RAISED, quadratic, 6000) == ("the elements are already quadratic "
+                                                      "(order 2)")
+    assert why_not(ORDER_RAISED, fine, 6000, "diagnose's") == (
+        "10-node tetrahedra on 1536 tets have as many nodes as 12288 4-node ones, over "
+        "diagnose's limit of 6000")
+    # the mesh refinement of a 10-node model converges as h^3 and costs 8x the nodes
+    assert MESH_HALVED.error_factors(quadratic) == pytest.approx((8 / 7, 1 / 7))
+    assert why_not(MESH_HALVED, quadratic, 6000, "diagnose's") == (
+        "the refined mesh of 10-node tetrahedra would have as many nodes as 12288 4-node ones, "
+        "over diagnose's limit of 6000")
     assert levels_needed(0.5) == 0 and levels_needed(3.0) == 1 and levels_needed(5.0) == 2
 
 
