@@ -23,7 +23,7 @@ from petsoft.version import __version__ as __version__  # noqa: E402
 
 #: The names :mod:`petsoft.api` exports, loaded lazily (PEP 562).
 _API = ("load_experiment", "with_parameters", "read_recording", "static", "simulate", "synth",
-        "calibrate", "diagnose")
+        "calibrate", "calibrate_modes", "diagnose")
 
 
 def __getattr__(name: str):

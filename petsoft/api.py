@@ -39,7 +39,8 @@ from petsoft.solvers.options import experiment_options
 from petsoft.solvers.run_static import StaticOutcome, solve_experiment
 
 __all__ = ["load_experiment", "with_parameters", "read_recording", "static", "simulate", "synth",
-           "calibrate", "calibrate_rest_shape", "rest_shape", "diagnose", "Experiment",
+           "calibrate", "calibrate_modes", "calibrate_rest_shape", "rest_shape", "diagnose",
+           "Experiment",
            "Recording", "StaticResult", "SimulationRun",
            "SynthOptions", "SynthResult", "CalibrationResult", "DiagnoseResult"]
 
@@ -305,6 +306,41 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
                                out=None if out is None else Path(out), say=say,
                                spelled_out=spelled_out, check_mesh=check_mesh,
                                misfit=misfit)
+
+
+def calibrate_modes(experiment: Experiment, frequencies, *, out: str | Path | None = None,
+                    spelled_out: bool = False, say=_quiet):
+    """Fit the ``[calibrate]`` material parameters to measured natural frequencies
+    (``petsoft calibrate --modes``).
+
+    Parameters
+    ----------
+    experiment : Experiment
+        A [material] model with its supports; ``[calibrate]`` names material parameters
+        (``material[.<region>].youngs_modulus``, ``poisson_ratio``, ``density``).
+    frequencies : MeasuredFrequencies, str or Path
+        The measured frequencies (Hz, ascending, optionally with std), or their file
+        (:mod:`petsoft.io.frequencies`).
+    out : str or Path, optional
+        Write calibrated.toml, summary.json and frequencies.png here; None writes nothing.
+    say : callable(str)
+        Progress lines (rank 0); default silent.
+
+    Returns
+    -------
+    FrequencyFit
+        ``names``, ``values``, ``std``, the frequencies before and after.
+    """
+    from petsoft.calibration.frequencies import calibrate_frequencies, write_frequency_outputs
+    from petsoft.io.frequencies import MeasuredFrequencies, read_frequencies
+
+    if not isinstance(frequencies, MeasuredFrequencies):
+        frequencies = read_frequencies(frequencies)
+    with experiment_options(experiment.petsc):
+        fit = calibrate_frequencies(experiment, frequencies, say=say)
+    if out is not None and PETSc.COMM_WORLD.rank == 0:
+        write_frequency_outputs(out, experiment, fit, spelled_out=spelled_out)
+    return fit
 
 
 def rest_shape(experiment: Experiment, *, out: str | Path | None = None, load_steps: int = 1,

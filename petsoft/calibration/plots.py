@@ -82,3 +82,29 @@ def plot_residuals(path: Path, times, data, before, after, names, sigma: float) 
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
+
+
+def plot_frequencies(path: Path, measured, before, after, std=None) -> Path:
+    """Measured natural frequencies against the model's before and after a fit: the values,
+    and the relative error of each mode (the quantity the fit drives to the noise)."""
+    plt = _pyplot()
+    k = np.arange(1, len(measured) + 1)
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    top.errorbar(k, measured, yerr=std, fmt="o", color="k", label="measured")
+    top.plot(k, before, "x", color="tab:red", label="model before")
+    top.plot(k, after, "+", ms=10, color="tab:blue", label="model calibrated")
+    top.set_ylabel("frequency (Hz)")
+    top.legend(fontsize=8)
+    for values, color, label in ((before, "tab:red", "before"), (after, "tab:blue", "calibrated")):
+        bottom.plot(k, (np.asarray(values) - measured) / measured, "o-", color=color, label=label)
+    if std is not None:
+        bottom.fill_between(k, -np.asarray(std) / measured, np.asarray(std) / measured,
+                            color="0.85", label="measurement std")
+    bottom.axhline(0.0, color="k", lw=0.5)
+    bottom.set_xlabel("elastic mode")
+    bottom.set_ylabel("(model - measured) / measured")
+    bottom.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)

@@ -9,6 +9,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.calibration.calibrate import Observations, run_calibration
+from petsoft.calibration.frequencies import calibrate_frequencies, write_frequency_outputs
 from petsoft.calibration.rest_shape import (
     calibrate_rest_shape,
     compute_rest_shape,
@@ -20,8 +21,9 @@ from petsoft.diagnosis.demo import run_diagnosis_demo
 from petsoft.diagnosis.diagnose import run_diagnose
 from petsoft.dynamics import damping_analysis as damping
 from petsoft.dynamics.run_simulation import simulate_experiment
-from petsoft.errors import ExperimentError
+from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.experiment import experiment_from_dict, load_experiment
+from petsoft.io.frequencies import read_frequencies
 from petsoft.io.importers import run_import
 from petsoft.io.recording import read_recording_on_all_ranks
 from petsoft.io.summary import write_summary
@@ -75,6 +77,11 @@ def run(args) -> int:
     if args.command == "calibrate":
         experiment = load_experiment(args.experiment)
         out = Path(args.out) if args.out else experiment.output.directory
+        if (args.modes is None) == (args.recording is None):
+            raise PetsoftError("petsoft calibrate needs exactly one of a RECORDING (marker "
+                               "trajectories) and --modes FILE (measured natural frequencies)")
+        if args.modes is not None:
+            return run_frequency_calibration(experiment, args.modes, out, args)
         observations = Observations(read_recording_on_all_ranks(args.recording), noise=args.noise)
         if getattr(args, "rest_shape", False):
             return run_rest_shape_calibration(experiment, observations, out, args)
@@ -111,6 +118,17 @@ def run(args) -> int:
             run_diagnosis_demo(out / "diagnose", say=_print)
         return 0
     raise AssertionError(args.command)
+
+
+def run_frequency_calibration(experiment, path: str, out: Path, args) -> int:
+    """``petsoft calibrate --modes FILE``: material parameters from natural frequencies."""
+    measured = read_frequencies(path)
+    with experiment_options(experiment.petsc):
+        fit = calibrate_frequencies(experiment, measured, say=_print)
+    if PETSc.COMM_WORLD.rank == 0:
+        write_frequency_outputs(out, experiment, fit, spelled_out=args.spelled_out)
+        _print(f"wrote {out}/ (calibrated.toml, summary.json, frequencies.png)")
+    return 0
 
 
 def run_rest_shape(args) -> int:

@@ -239,7 +239,13 @@ def _add_calibrate_parser(sub) -> None:
                     "prefix cal_ (e.g. -cal_tao_gatol 1e-10), the forward Newton fm_ and the "
                     "gradient solves fm_grad_.")
     c.add_argument("experiment", help="experiment file (TOML) with [time] and [calibrate]")
-    c.add_argument("recording", help=f"recording (HDF5; the layout: {FORMATS}, section 2)")
+    c.add_argument("recording", nargs="?",
+                   help=f"recording (HDF5; the layout: {FORMATS}, section 2); not with --modes")
+    c.add_argument("--modes", metavar="FILE",
+                   help="fit the [calibrate] material parameters to measured natural "
+                        "frequencies instead of a recording: a text/CSV file of frequency_hz "
+                        "[, std_hz] per line (ascending) or JSON {\"frequencies_hz\": [...], "
+                        "\"std_hz\": [...]}")
     c.add_argument("--method", default="gauss-newton",
                    choices=("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead"),
                    help="optimizer (default %(default)s)")
