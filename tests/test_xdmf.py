@@ -408,3 +408,23 @@ def test_writing_while_another_process_reads(tmp_path, mesh):
         reader.communicate("", timeout=60)
     out.close()
     assert [f[0] for f in _read_series(path)[2]] == [0.0, 1.0]
+
+
+def test_ten_node_tetrahedra_are_written_as_tetrahedron_10(tmp_path):
+    """A mesh of order 2 is written with its 10-node cells (XDMF Tetrahedron_10, VTK node order,
+    which ParaView and meshio read): meshio reads tetra10 back, every edge node at the midpoint
+    of the corners VTK's order puts it between, and the field on all nodes."""
+    from petsoft.mesh.quadratic import TET10_EDGES, raise_order
+
+    mesh = raise_order(box_mesh([1.0, 0.5, 0.5], [2, 1, 1]))
+    path = tmp_path / "p2.xdmf"
+    write_xdmf(path, mesh.points, mesh.cells, point_data={"u": mesh.points ** 2})
+    assert 'TopologyType="Tetrahedron_10"' in path.read_text()
+    back = meshio.read(path)
+    assert [c.type for c in back.cells] == ["tetra10"]
+    cells = back.cells[0].data
+    np.testing.assert_array_equal(cells, mesh.cells)
+    p = back.points
+    mid = 0.5 * (p[cells[:, TET10_EDGES[:, 0]]] + p[cells[:, TET10_EDGES[:, 1]]])
+    np.testing.assert_allclose(p[cells[:, 4:]], mid, atol=1e-15)
+    np.testing.assert_allclose(back.point_data["u"], mesh.points ** 2)
