@@ -129,6 +129,14 @@ def test_check_mesh_warns_when_refining_moves_the_parameter_beyond_its_std(case)
     if MPI.COMM_WORLD.rank == 0:
         assert any(line.startswith("warning: refining the mesh (every tet split 1->8")
                    for line in lines)
+    # 10-node elements on the same mesh: bending stiffness removed the same way, a larger move
+    # (the truth here is P1 refined twice, itself 12 % stiff: E2 overshoots TRUE_E)
+    order = check["order"]
+    assert order["done"] and "10-node tetrahedra on the same 192 tets" in order["how"]
+    E2 = order["values"]["material.youngs_modulus"]
+    assert E2 > E1 > E0 and order["shift_sigmas"]["material.youngs_modulus"] > 1.0
+    assert any(w.startswith("raising the elements to order 2") and "[mesh] order = 2" in w
+               for w in order["warnings"]), order["warnings"]
 
 
 @pytest.mark.serial_only      # a second calibration + check (~10 s serial): once is enough
