@@ -283,6 +283,26 @@ def test_progress_lines_estimate_what_is_left():
         return
     assert len(steps) == 10 and "left" not in steps[-1]
     assert all(re.search(r"  ~[0-9.]+ (s|min|h) left$", line) for line in steps[:-1])
-    from petsoft.dynamics.simulate import _duration
+    from petsoft.io.progress import duration
 
-    assert [_duration(x) for x in (42.4, 210.0, 9000.0)] == ["42 s", "3.5 min", "2.5 h"]
+    assert [duration(x) for x in (42.4, 210.0, 9000.0)] == ["42 s", "3.5 min", "2.5 h"]
+
+
+def test_iteration_pace_bounds_what_is_left():
+    """The calibration's progress: time per iteration, and a bound on the iterations left from
+    the shrinking relative decrease of the objective (none promised while it does not shrink)."""
+    import re
+
+    from petsoft.io.progress import IterationPace
+
+    pace = IterationPace(ftol=1e-10)
+    assert "iteration" not in pace.update(0, 1.0)
+    assert "at most" not in pace.update(1, 0.5)             # one decrease: no rate yet
+    text = pace.update(2, 0.45)                              # d: 0.5 -> 0.1, q = 0.2
+    left = int(re.search(r"at most ~(\d+) more", text).group(1))
+    assert left == int(np.ceil(np.log(1e-10 / 0.1) / np.log(0.2)))    # 13
+    assert "at most" in pace.update(3, 0.449)                # d = 0.0022 < 0.1: shrinking
+    stalled = IterationPace()
+    for k, f in enumerate([1.0, 0.9, 0.81, 0.729]):            # d constant 0.1: no bound
+        text = stalled.update(k, f)
+    assert "at most" not in text

@@ -23,6 +23,7 @@ from petsoft.dynamics.simulate import initial_state
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, with_parameters
 from petsoft.experiment.writer import write_experiment_update
+from petsoft.io.progress import IterationPace
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.io.summary import write_summary
 
@@ -350,11 +351,13 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
                             regularization=regularization, misfit=transform)
 
     def monitor_for(index):
+        pace = IterationPace()
+
         def monitor(rec):
             label = f"start {index}: " if starts else ""
             params = ", ".join(f"{n}={v:.6g}" for n, v in zip(names, rec.p, strict=True))
             tell(f"  {label}it {rec.iteration:3d}  f {rec.f:.6e}  |g| {rec.gnorm:.3e}  "
-                 f"sims {rec.evaluations:3d}  {params}")
+                 f"sims {rec.evaluations:3d}  {params}  ({pace.update(rec.iteration, rec.f)})")
         return monitor
 
     z0 = scaling.to_scaled(start)

@@ -36,6 +36,7 @@ from petsoft.calibration.uncertainty import UnidentifiableError, uncertainty
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.fem.element import cell_integrals
+from petsoft.io.progress import IterationPace
 from petsoft.physics.model import build_model
 from petsoft.solvers.modes import compute_modes
 
@@ -239,11 +240,13 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
                            comm=comm.tompi4py())
     before, _ = model.evaluate(start, jacobian=False)
 
+    pace = IterationPace()
+
     def monitor(rec):
         p = np.asarray(rec.p)
         tell(f"  it {rec.iteration:3d}  f {rec.f:.6e}  " + "  ".join(
             f"{n}={v:.6g}" for n, v in zip(names, p, strict=True))
-             + f"  ({time.perf_counter() - t0:.1f} s)")
+             + f"  ({pace.update(rec.iteration, rec.f)})")
 
     result = minimize(problem, np.zeros(len(names)), method="gauss-newton",
                       bounds=scaling.bounds(), monitor=monitor, scaling=scaling,

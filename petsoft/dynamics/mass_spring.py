@@ -568,6 +568,41 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
             self.dirichlet.eliminate(out)
         return out
 
+    def combination_blocks(self, q: PETSc.Vec, a_mass: float, b_tangent: float,
+                           c_reference: float, velocity: float = 0.0):
+        """The matrix of :meth:`assemble_combination`, unassembled (matrix-free products).
+
+        Returns ``(springs, nodes)``: (St, 3, 3) blocks B_s of the springs touching the owned
+        nodes (``edges[touch]``; spring s adds [[B_s, -B_s], [-B_s, B_s]] on its two nodes) and
+        (nloc, 3, 3) blocks of the owned nodes (mass, contact, friction, drag). No elimination
+        of prescribed components. Same terms as :meth:`assemble_combination`, which is kept as
+        it is so that assembled runs do not change by a bit.
+        """
+        t = self.touch
+        lo, hi = self.node_range
+        springs = np.zeros((len(t), 3, 3))
+        nodes = np.zeros((hi - lo, 3, 3))
+        if b_tangent != 0.0:
+            x = self.positions(q)
+            springs += b_tangent * spring_hessian_blocks(
+                x, self.edges[t], self.rest_lengths[t], self.stiffness[t], clamp=self.clamp,
+                fallback=self._ref_dirs[t])
+            for c in self.colliders:
+                nodes += b_tangent * c.hessian(x[lo:hi], clamp=self.clamp)
+        if a_mass != 0.0:
+            nodes += a_mass * self.masses[lo:hi, None, None] * np.eye(3)
+        if c_reference != 0.0:
+            springs += c_reference * (
+                self.damping_stiffness * spring_hessian_blocks(
+                    self.points, self.edges[t], self.rest_lengths[t], self.stiffness[t])
+                + dashpot_blocks(self.points, self.edges[t], self.damping_coefficients[t]))
+            for c in self.colliders:
+                if c.friction > 0.0:
+                    nodes += c_reference * c.friction_damping(self._x_last[lo:hi], self._v_last)
+        if velocity != 0.0 and self.velocity_terms.active:
+            nodes += velocity * self.velocity_terms.blocks(self._v_last)
+        return springs, nodes
+
     @staticmethod
     def linear_defaults(ksp: PETSc.KSP) -> None:
         """A direct solve (LU; MUMPS on several ranks): spring networks are small, their

@@ -19,6 +19,7 @@ from petsoft.dynamics.explicit import ExplicitIntegrator
 from petsoft.dynamics.integrators import SCHEMES, IntegratorOptions, check_viscoelastic, scheme
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, PetsoftError, SolverError
+from petsoft.io.progress import duration
 from petsoft.io.recording import write_recording
 from petsoft.io.summary import write_summary
 from petsoft.io.xdmf import XdmfWriter
@@ -26,15 +27,6 @@ from petsoft.mesh.probes import embed, interpolate
 from petsoft.solvers.static import StaticSolver
 
 MAX_HALVINGS = 6
-
-
-def _duration(seconds: float) -> str:
-    """A time left, as a person reads it: 42 s, 3.5 min, 1.2 h."""
-    if seconds < 90:
-        return f"{seconds:.0f} s"
-    if seconds < 5400:
-        return f"{seconds / 60:.1f} min"
-    return f"{seconds / 3600:.1f} h"
 
 
 @dataclass
@@ -254,7 +246,7 @@ class Simulation:
                 self._say(f"step {n}/{nsteps}  t = {t:.6g} s  Newton {its}  E = {total:.6g} J "
                           f"(kinetic {row['kinetic']:.4g}, dissipated {row['dissipated']:.4g}, "
                           f"numerical {row['numerical']:.3g})"
-                          + (f"  ~{_duration(left)} left" if n < nsteps else ""))
+                          + (f"  ~{duration(left)} left" if n < nsteps else ""))
         if writer is not None:
             writer.close()
         result.time, result.steps = t, nsteps
