@@ -34,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.dynamics import matrix_free, nonlinear_gs
 from petsoft.dynamics.integrators import SCHEMES, scheme
 from petsoft.dynamics.interfaces import StepperDefaults, length_scale
 from petsoft.errors import InvertedElementError
@@ -181,6 +182,8 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
         self._branch = NoBranch()
         self.prefix = prefix
         self.snes = self.tao = None
+        self.operator = self.shell = None   # the matrix-free Jacobian, when the options ask
+        self.ngs = None                     # the per-node update of SNES ngs
         self._new_solver()
         self.new_run()
 
@@ -199,11 +202,18 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
             else:
                 snes.setType(PETSc.SNES.Type.NEWTONLS)
             snes.setFunction(self._residual_cb, self.R)
-            snes.setJacobian(self._jacobian_cb, self.J, self.J)
+            # -<prefix>petsoft_jacobian shell: Newton on an unassembled Jacobian (MatShell),
+            # CG + Jacobi unless the options say otherwise (petsoft.dynamics.matrix_free)
+            shell = matrix_free.requested(prefix)
+            if shell and self.shell is None:
+                self.operator = matrix_free.StepOperator(s)
+                self.shell = self.operator.create_mat()
+            J = self.shell if shell else self.J
+            snes.setJacobian(self._jacobian_cb, J, J)
             # stol: the residual carries 1/h^2 round-off; a Newton update below 1e-12 |q| is
             # converged
             snes.setTolerances(rtol=1e-10, atol=1e-12, stol=1e-12, max_it=25)
-            stop_at_round_off(snes, self.J, self.length)
+            stop_at_round_off(snes, self.operator if shell else self.J, self.length)
             self.ksp = snes.getKSP()
             linear(self.ksp)
             # The mass term keeps the step's energy convex near the old state: full Newton steps.
@@ -212,8 +222,13 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
             # backtracking on the residual norm converges (the step's potential is convex).
             terms = s.velocity_terms
             search = "bt" if terms is not None and terms.nonlinear else "basic"
-            with scoped_defaults(**{prefix + "snes_linesearch_type": search}):
+            defaults = {prefix + "snes_linesearch_type": search}
+            if shell:
+                defaults.update({prefix + "ksp_type": "cg", prefix + "pc_type": "jacobi"})
+            with scoped_defaults(**defaults):
                 snes.setFromOptions()
+            # -<prefix>snes_type ngs: petsoft's per-node update (petsoft.dynamics.nonlinear_gs)
+            self.ngs = nonlinear_gs.install(self, snes, prefix)
         else:
             self.tao = tao = PETSc.TAO().create(comm=s.comm)
             tao.setOptionsPrefix(prefix)
@@ -319,8 +334,9 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
         else:
             state = q1
         # the damping term is evaluated at v1 (be, si) or vm = (q1 - q0)/h: dv/dq1 = 1/h either
-        # way; the velocity terms are linearised at the velocity of the last residual
-        self.system.assemble_combination(state, a, b, c, P, velocity=1.0 / self.h, reuse=True)
+        # way; the velocity terms are linearised at the velocity of the last residual.
+        # P: an assembled matrix, the matrix-free MatShell or a StepOperator (NGS blocks)
+        matrix_free.fill_jacobian(self.system, state, a, b, c, P, 1.0 / self.h)
 
     # PETSc callbacks (thin)
     def _residual_cb(self, snes, x, F):
@@ -444,6 +460,6 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
 
     def destroy(self) -> None:
         for obj in (self.snes, self.tao, self.J, self.R, self.q0, self.v0, self.f0, self.f1,
-                    self._a, self._b, self._c):
+                    self._a, self._b, self._c, self.shell):
             if obj is not None:
                 obj.destroy()
