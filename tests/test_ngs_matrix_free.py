@@ -14,6 +14,10 @@ and a cloth (6x6 nodes, bending springs, dashpots, a sphere collider it rests in
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 from petsc4py import PETSc
@@ -205,3 +209,16 @@ def test_wrong_option_values_are_refused(key, value, message):
             ImplicitIntegrator(s, "be", prefix=PREFIX)
     finally:
         clear_options(opts)
+
+
+@pytest.mark.serial_only
+def test_benchmark_script_quick():
+    """``bench_be_solvers.py --quick`` exits 0 and every solver converges to the MUMPS step."""
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run(
+        [sys.executable, str(root / "scripts" / "benchmarks" / "bench_be_solvers.py"), "--quick"],
+        cwd=root, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    for solver in ("ngs-gs", "ngs-jacobi", "shell-cg", "newton-mumps", "newton-gamg"):
+        assert proc.stdout.count(solver) >= 4, proc.stdout      # 2 tables, 2 winner lines
+    assert "False" not in proc.stdout, proc.stdout                # all converged
