@@ -21,6 +21,12 @@ gains the branch force g K0 w(q1) (backward Euler: w = (q1 - z0)/(1 + h/tau); mi
 trapezoidal: w = ((q0 + q1)/2 - z0)/(1 + h/(2 tau))), the Jacobian the matching multiple of K0,
 and an accepted step updates the branch's internal variable z and books its dissipation.
 
+Solvers by options (``prefix`` the integrator's): Newton (SNES ``newtonls``) on the assembled
+Jacobian by default; ``-<prefix>petsoft_jacobian shell`` keeps the Jacobian unassembled, a
+MatShell with CG + Jacobi (:mod:`petsoft.dynamics.matrix_free`); ``-<prefix>snes_type ngs`` is
+nonlinear Gauss-Seidel, or with ``-<prefix>petsoft_ngs jacobi`` nonlinear Jacobi, one 3x3 Newton
+update per node (:mod:`petsoft.dynamics.nonlinear_gs`). TAO keeps the assembled Hessian.
+
 Every step also returns the work terms paired with dq = q1 - q0 by the method itself (damping,
 tractions, the reactions of moving supports), so that the energy balance of
 :mod:`petsoft.dynamics.energy` closes exactly for the midpoint rule and exposes the numerical
