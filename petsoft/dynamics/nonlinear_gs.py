@@ -69,26 +69,32 @@ def greedy_colouring(n: int, src: np.ndarray, dst: np.ndarray, seed: int = 0) ->
     ndarray (n,) of int
     """
     keep = src != dst
-    src, dst = src[keep], dst[keep]
+    # edges grouped by their first node: per-node reductions are reduceat over segments
+    order = np.argsort(src[keep], kind="stable")
+    src, dst = src[keep][order], dst[keep][order]
+    has = np.bincount(src, minlength=n) > 0
+    starts = np.searchsorted(src, np.flatnonzero(has))
     priority = np.random.default_rng(seed).permutation(n)
     colour = np.full(n, -1, dtype=np.int64)
     used = np.zeros(n, dtype=np.uint64)          # bit c: a neighbour has colour c
+    one = np.uint64(1)
     while (colour < 0).any():
         open_ = colour < 0
-        live = open_[src] & open_[dst]
-        best = np.full(n, -1, dtype=np.int64)
-        np.maximum.at(best, src[live], priority[dst[live]])
+        best = np.full(n, -1, dtype=np.int64)    # the highest open neighbour's priority
+        if len(src):
+            best[has] = np.maximum.reduceat(np.where(open_[dst], priority[dst], -1), starts)
         pick = np.flatnonzero(open_ & (priority > best))
         m = used[pick]
         if (m == np.iinfo(np.uint64).max).any():
             raise ValueError(f"the node graph needs more than {MAX_COLOURS} colours")
-        low = ~m & (m + np.uint64(1))                # the lowest zero bit of the mask
+        low = ~m & (m + one)                         # the lowest zero bit of the mask
         colour[pick] = np.log2(low.astype(float)).astype(np.int64)
         chosen = np.zeros(n, dtype=bool)
         chosen[pick] = True
-        e = chosen[src]
-        np.bitwise_or.at(used, dst[e], np.left_shift(np.uint64(1),
-                                                     colour[src[e]].astype(np.uint64)))
+        if len(src):
+            bits = np.where(chosen[dst], np.left_shift(one, np.maximum(colour[dst], 0)
+                                                       .astype(np.uint64)), np.uint64(0))
+            used[has] |= np.bitwise_or.reduceat(bits, starts)
     return colour
 
 
