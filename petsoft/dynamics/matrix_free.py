@@ -44,7 +44,10 @@ CHOICES = ("assembled", "shell")
 
 class ElementCapture:
     """Stands in for a :class:`~petsoft.fem.assembly.MatrixAssembler`: keeps the element
-    matrices the physics terms add (``add(name, matrices, start)``) instead of summing them."""
+    matrices the physics terms add (``add(name, matrices, start)``) instead of summing them.
+
+    Every term adds each element range of its set once per evaluation, so the buffers are
+    overwritten, not zeroed and summed (they are reused from one evaluation to the next)."""
 
     def __init__(self, connectivity: dict[str, np.ndarray]):
         self.connectivity = connectivity
@@ -53,12 +56,32 @@ class ElementCapture:
     def add(self, name: str, element_matrices: np.ndarray, start: int = 0) -> None:
         if name not in self.sets:
             n, nd = len(self.connectivity[name]), 3 * self.connectivity[name].shape[1]
-            self.sets[name] = np.zeros((n, nd, nd))
-        self.sets[name][start:start + len(element_matrices)] += element_matrices
+            self.sets[name] = np.empty((n, nd, nd))
+        self.sets[name][start:start + len(element_matrices)] = element_matrices
+
+
+def local_diagonal_blocks(sets: dict, connectivity: dict, nv: int) -> np.ndarray:
+    """(nv, 9) sums of the element matrices' (a, a) 3x3 blocks at the local vertices."""
+    local = np.zeros((nv, 9))
+    for name, E in sets.items():
+        conn = connectivity[name]
+        k = conn.shape[1]
+        blocks = np.diagonal(E.reshape(len(conn), k, 3, k, 3), axis1=1, axis2=3)
+        blocks = np.moveaxis(blocks, -1, 1).reshape(-1, 9)     # (ne k, 9)
+        idx = conn.ravel()
+        for j in range(9):
+            local[:, j] += np.bincount(idx, weights=blocks[:, j], minlength=nv)
+    return local
 
 
 class ContinuumElements:
-    """J of a :class:`~petsoft.dynamics.system.DynamicSystem` as element matrices per set."""
+    """J of a :class:`~petsoft.dynamics.system.DynamicSystem` as element matrices per set.
+
+    The tangent's element matrices are kept apart from the constant mass and K0 ones; the
+    products combine them once per linearisation (on first use), the diagonal blocks (all
+    nonlinear Gauss-Seidel needs, once per colour) add the constant parts' blocks, computed
+    once.
+    """
 
     def __init__(self, system: DynamicSystem):
         self.system = system
@@ -66,11 +89,14 @@ class ContinuumElements:
         self.connectivity = system.assembler.connectivity
         self.nv = self.dmesh.nvertices
         self._version = None          # the parameters the constant parts were computed for
-        self.sets: dict[str, np.ndarray] = {}
+        self._tangent = ElementCapture(self.connectivity)
+        self._coef = (0.0, 0.0, 0.0)
+        self._combined = None
         self.node_blocks = np.zeros((self.nv, 3, 3))
 
     def _constants(self) -> None:
-        """The mass and K0 element matrices, again after ``set_parameters``."""
+        """The mass and K0 element matrices (and their diagonal blocks), again after
+        ``set_parameters``."""
         s = self.system
         version = s._parameter_version
         if version == self._version:
@@ -82,27 +108,38 @@ class ContinuumElements:
         k0 = ElementCapture(self.connectivity)
         s.elastic.add_reference_hessian(k0)
         self._mass, self._k0, self._version = mass.sets, k0.sets, version
+        self._mass_diag = local_diagonal_blocks(self._mass, self.connectivity, self.nv)
+        self._k0_diag = local_diagonal_blocks(self._k0, self.connectivity, self.nv)
 
     def update(self, q, a: float, b: float, c: float, velocity: float) -> None:
         s = self.system
         self._constants()
-        parts = ElementCapture(self.connectivity)
+        self._coef = (a, b, c)
+        self._combined = None
         if b != 0.0:
-            s.elastic.add_hessian(self.dmesh.to_local(q), parts)
-        sets = {}
-        for name in set(parts.sets) | set(self._mass) | set(self._k0):
-            E = b * parts.sets[name] if name in parts.sets else 0.0
-            if name in self._mass:
-                E = E + a * self._mass[name]
-            if name in self._k0:
-                E = E + c * self._k0[name]
-            sets[name] = np.ascontiguousarray(E)
-        self.sets = sets
+            s.elastic.add_hessian(self.dmesh.to_local(q), self._tangent)
         self.node_blocks[:] = 0.0
         if velocity != 0.0 and s.velocity_terms.active:
             # owned vertices come first in the local numbering, in the global vector's order
             own = self.dmesh.nowned
             self.node_blocks[:own] = velocity * s.velocity_terms.blocks(s._v_last)
+
+    @property
+    def sets(self) -> dict[str, np.ndarray]:
+        """a M_e + b K_e(q) + c K0_e per element set (combined on first use)."""
+        if self._combined is None:
+            a, b, c = self._coef
+            tangent = self._tangent.sets if b != 0.0 else {}
+            combined = {}
+            for name in set(tangent) | set(self._mass) | set(self._k0):
+                E = b * tangent[name] if name in tangent else 0.0
+                if name in self._mass:
+                    E = E + a * self._mass[name]
+                if name in self._k0:
+                    E = E + c * self._k0[name]
+                combined[name] = np.ascontiguousarray(E)
+            self._combined = combined
+        return self._combined
 
     def mult(self, x: PETSc.Vec, y: PETSc.Vec) -> None:
         u = self.dmesh.to_local(x)
@@ -116,16 +153,10 @@ class ContinuumElements:
 
     def diagonal_blocks(self, work: PETSc.Vec) -> np.ndarray:
         """(nowned, 3, 3) diagonal blocks of J without elimination (sums over the ranks)."""
-        local = self.node_blocks.reshape(self.nv, 9).copy()
-        for name, E in self.sets.items():
-            conn = self.connectivity[name]
-            k = conn.shape[1]
-            # E's (a, a) 3x3 blocks, (ne, k, 3, 3)
-            blocks = np.diagonal(E.reshape(len(conn), k, 3, k, 3), axis1=1, axis2=3)
-            blocks = np.moveaxis(blocks, -1, 1).reshape(-1, 9)
-            idx = conn.ravel()
-            for j in range(9):
-                local[:, j] += np.bincount(idx, weights=blocks[:, j], minlength=self.nv)
+        a, b, c = self._coef
+        local = self.node_blocks.reshape(self.nv, 9) + a * self._mass_diag + c * self._k0_diag
+        if b != 0.0:
+            local += b * local_diagonal_blocks(self._tangent.sets, self.connectivity, self.nv)
         own = self.dmesh.nowned
         out = np.empty((own, 3, 3))
         for col in range(3):
