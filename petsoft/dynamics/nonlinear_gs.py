@@ -39,6 +39,7 @@ from petsc4py import PETSc
 from petsoft.dynamics.mass_spring import MassSpringSystem
 from petsoft.dynamics.matrix_free import StepOperator
 from petsoft.dynamics.system import DynamicSystem
+from petsoft.solvers.convergence import stop_at_round_off
 
 OPTION = "petsoft_ngs"
 OMEGA_OPTION = "petsoft_ngs_omega"
@@ -212,6 +213,9 @@ def install(integrator, snes: PETSc.SNES, prefix: str) -> NodeSweeps | None:
     variant, omega = requested_variant(prefix)
     sweeps = NodeSweeps(integrator, variant, omega)
     snes.setNGS(sweeps)
+    # the round-off stop needs ||J||: the assembled matrix is never filled under NGS, the
+    # blocks' operator is (a residual stalled at round-off would otherwise sweep to max_it)
+    stop_at_round_off(snes, sweeps.operator, integrator.length)
     if not PETSc.Options(prefix).hasName("snes_max_it"):
         snes.setTolerances(max_it=MAX_SWEEPS)
     return sweeps
