@@ -25,6 +25,10 @@ as not converged). Cases:
   stiffness 200 N/m, bending 2 N/m, held at two corners, gravity, from rest; step
   ``--cloth-step`` (default 1/100 s).
 
+Every case also runs at its step / ``--small`` (default 10): the sweeps of Gauss-Seidel and
+Jacobi grow with the ratio of stiffness to mass in the step matrix (k h^2 / m, (c h / dx)^2),
+so small steps are where they can compete.
+
 Timing: one untimed warm-up step per solver, then ``--repeat`` rounds each timing every solver
 once in turn (so a slow phase of a shared machine hits all alike); best time reported, ratios
 are to newton-mumps's best time of the same run. ``agree`` is ||q1 - q1_mumps|| / ||q1_mumps||.
@@ -185,6 +189,8 @@ def main(argv=None) -> None:
                    help="nodes per side of the cloth")
     p.add_argument("--bar-step", type=float, default=1e-3)
     p.add_argument("--cloth-step", type=float, default=1e-2)
+    p.add_argument("--small", type=float, default=10.0,
+                   help="also run every case at step / SMALL (1: only the given steps)")
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--max-sweeps", type=int, default=5000)
     args = p.parse_args(argv)
@@ -195,17 +201,23 @@ def main(argv=None) -> None:
         + ("  (BUSY: the timings are not meaningful, the iterations are)"
            if load[0] > 0.5 else ""))
     rows = []
+    # each case at its step and at step / --small (mass-dominated: few sweeps)
+    steps = lambda h: [h] + ([h / args.small] if args.small > 1 else [])  # noqa: E731
     for m in args.bar_cells:
-        rows += run_case(f"bar {m} cells", bar_system(m), args.bar_step, args)
+        system = bar_system(m)
+        for h in steps(args.bar_step):
+            rows += run_case(f"bar {m} h={h:g}", system, h, args)
     directory = COMM.bcast(tempfile.mkdtemp() if COMM.rank == 0 else None, root=0)
     for n in args.cloth_nodes:
-        rows += run_case(f"cloth {n}x{n}", cloth_system(n, directory), args.cloth_step, args)
+        system = cloth_system(n, directory)
+        for h in steps(args.cloth_step):
+            rows += run_case(f"cloth {n}x{n} h={h:g}", system, h, args)
     say("\nwinner per case (converged solvers only):")
     for case in dict.fromkeys(r["case"] for r in rows):
         ok = [r for r in rows if r["case"] == case and r["converged"] and r["agree"] < 1e-6]
         if ok:
             order = sorted(ok, key=lambda r: r["ms"])
-            say(f"  {case:18s} " + " < ".join(f"{r['solver']} {r['ms']:.1f}" for r in order))
+            say(f"  {case:24s} " + " < ".join(f"{r['solver']} {r['ms']:.1f}" for r in order))
 
 
 if __name__ == "__main__":
