@@ -104,6 +104,11 @@ def partial_log(log: Path, noise: float) -> dict:
     return got
 
 
+def _final(row: dict) -> str | None:
+    """The verdict a case ended with (the first one when the summary has no final verdict)."""
+    return row.get("final_verdict") or row["verdict"]
+
+
 def score_case(name: str, out: Path, wall: float, status: str) -> dict:
     truth = json.loads((CASES_DIR / name / "truth.json").read_text())
     concealed = truth["concealed"]
@@ -174,7 +179,7 @@ def table_md(rows: list[dict]) -> str:
     lines.append("")
     if controls:
         lines.append(f"- controls adding nothing and ending consistent: "
-                     f"{sum(r['added'] == '-' and r['verdict'] == 'consistent' for r in controls)}"
+                     f"{sum(r['added'] == '-' and _final(r) == 'consistent' for r in controls)}"
                      f"/{len(controls)}")
     if singles:
         lines.append(f"- single-effect cases with the truth ranked first: "
