@@ -361,3 +361,20 @@ def test_cli_writes_frequencies_and_mode_shapes(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "petsoft.cli.main", "modes", "exp.toml", "-n", "0"],
                          cwd=tmp_path, capture_output=True, text=True, env=child_env(), timeout=60)
     assert bad.returncode == 2 and "must be >= 1" in bad.stderr
+
+
+def test_progress_lines_say_how_many_pairs_converged(monkeypatch):
+    """With a monitor, the eigensolver reports its iterations: converged pairs of those wanted
+    and, once some converged, the time left at that pace (every line here: interval 0)."""
+    import petsoft.solvers.modes as modes
+
+    monkeypatch.setattr(modes, "PROGRESS_SECONDS", 0.0)
+    lines = []
+    model = _bar([0.4, 0.04, 0.04], [20, 2, 2])
+    result = compute_modes(model, 4, monitor=lines.append)
+    result.destroy()
+    if MPI.COMM_WORLD.rank != 0:
+        assert lines == []           # rank 0 prints
+        return
+    assert lines and all(line.startswith("modes: Krylov-Schur iteration ") for line in lines)
+    assert all(" of 4 eigenpairs converged (" in line for line in lines)

@@ -216,7 +216,7 @@ def run_modes(args) -> int:
            f"{3 * len(mesh.points)} dofs ({model.dirichlet.count} constrained) on {comm.size} "
            f"rank(s); {args.num_modes} mode(s)")
     with experiment_options(experiment.petsc):
-        result = compute_modes(model, args.num_modes)
+        result = compute_modes(model, args.num_modes, monitor=_print)
     writer = XdmfWriter(out / "modes.xdmf", mesh.points, mesh.cells) if comm.rank == 0 else None
     for k, x in enumerate(result.modes):
         shape = model.dmesh.gather_global(x)       # collective; None off rank 0

@@ -29,6 +29,7 @@ must stay below max(1e-6, 100 tol), else a SolverError is raised.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,6 +38,7 @@ from slepc4py import SLEPc
 
 from petsoft.errors import PetsoftError, SolverError
 from petsoft.fem.assembly import CHUNK, MatrixAssembler
+from petsoft.io.progress import duration
 from petsoft.physics.loads import consistent_mass_matrices
 from petsoft.solvers.convergence import reason_name
 
@@ -242,7 +244,33 @@ def _solver_info(eps: SLEPc.EPS) -> dict:
     return info
 
 
-def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "") -> ModesResult:
+#: Seconds between two progress lines of the eigensolver.
+PROGRESS_SECONDS = 2.0
+
+
+def _progress(eps: SLEPc.EPS, wanted: int, say, rank0: bool) -> None:
+    """Progress lines of the Krylov-Schur iterations: converged pairs of ``wanted``, and the
+    time left at the pace so far (the first line comes after the factorization of K - sigma M,
+    which is most of a small problem's time)."""
+    t0 = time.perf_counter()
+    last = [t0]
+
+    def cb(eps, its, nconv, eig, err):
+        now = time.perf_counter()
+        if not rank0 or now - last[0] < PROGRESS_SECONDS:
+            return
+        last[0] = now
+        done = min(int(nconv), wanted)
+        left = (f", ~{duration((now - t0) / done * (wanted - done))} left" if 0 < done < wanted
+                else "")
+        say(f"modes: Krylov-Schur iteration {its}: {done} of {wanted} eigenpairs converged "
+            f"({duration(now - t0)}{left})")
+
+    eps.setMonitor(cb)
+
+
+def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "",
+                  monitor=None) -> ModesResult:
     """The ``nmodes`` eigenpairs of K x = omega^2 M x nearest ``target`` (all ranks call).
 
     Parameters
@@ -259,6 +287,9 @@ def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "") 
         Options prefix of the EPS (its ST, KSP and PC use ``prefix + "st_"``). Defaults set here
         (Krylov-Schur, shift-and-invert, preonly + LU with MUMPS, tol 1e-10) are overridden by
         the options database: ``-eps_type``, ``-eps_tol``, ``-eps_ncv``, ``-st_pc_type`` ...
+    monitor : callable(str), optional
+        Progress lines (rank 0): the factorization, then at most one line per
+        :data:`PROGRESS_SECONDS` with the converged count and the time left at that pace.
 
     Returns
     -------
@@ -306,6 +337,8 @@ def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "") 
         nconv = iterations = 0
         if nelastic > 0:
             eps.setDimensions(nev=nelastic)
+            if monitor is not None:
+                _progress(eps, nelastic, monitor, dmesh.comm.getRank() == 0)
             try:
                 eps.solve()
             except PETSc.Error as exc:
