@@ -28,20 +28,15 @@ from scipy.special import roots_jacobi
 
 from petsoft.errors import MeshError
 from petsoft.mesh.quadratic import TET10_EDGES, shape_values
+from petsoft.mesh.topology import triangle_areas_normals
 
-__all__ = ["CellIntegrals", "cell_integrals", "integrals_of", "face_integrals", "face_lumped_areas",
-           "nodes_per_cell",
-           "quadratic_geometry", "shape_values", "tet_rule", "triangle_rule"]
+__all__ = ["CellIntegrals", "cell_integrals", "face_integrals", "face_lumped_areas",
+           "integrals_of", "quadratic_geometry", "shape_values", "tet_rule", "triangle_rule"]
 
 #: Keast's 4-point rule of degree 2 in barycentric coordinates (weights sum to 1).
 _A, _B = 0.5854101966249685, 0.1381966011250105
 KEAST4 = (np.array([[_A, _B, _B, _B], [_B, _A, _B, _B], [_B, _B, _A, _B], [_B, _B, _B, _A]]),
           np.full(4, 0.25))
-
-
-def nodes_per_cell(order: int) -> int:
-    """4 for order 1, 10 for order 2."""
-    return {1: 4, 2: 10}[order]
 
 
 def _gauss_jacobi01(n: int, alpha: float) -> tuple[np.ndarray, np.ndarray]:
@@ -178,14 +173,10 @@ def face_integrals(order: int, points: np.ndarray, faces: np.ndarray) -> np.ndar
     ``sum_c result[f, a, c] t_c``. Faces are ``(F, 3)`` corners or ``(F, 6)`` for order 2; the
     area is that of the straight triangle of the corners.
     """
-    faces = np.asarray(faces, np.int64)
-    p = np.asarray(points)[faces[:, :3]]
-    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    area, _ = triangle_areas_normals(points, np.asarray(faces, np.int64)[:, :3])
     bary, w = triangle_rule(3)
     N = shape_values(order, bary)                                  # (nq, kf)
     unit = np.einsum("q,qa,qc->ac", w, N, bary)                    # (kf, 3), for unit area
-    if not np.isfinite(unit).all():
-        raise MeshError("face quadrature failed")
     return area[:, None, None] * unit[None]
 
 
@@ -193,9 +184,7 @@ def face_lumped_areas(order: int, points: np.ndarray, faces: np.ndarray) -> np.n
     """(F, kf) positive area of each face node: A/3 at the corners of a 3-node triangle; HRZ
     for a 6-node one (A/19 at the corners, 16A/57 at the edge nodes: the diagonal of the face's
     mass matrix scaled to its area; plain row sums would be 0 at the corners)."""
-    faces = np.asarray(faces, np.int64)
-    p = np.asarray(points)[faces[:, :3]]
-    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    area, _ = triangle_areas_normals(points, np.asarray(faces, np.int64)[:, :3])
     if order == 1:
         return np.repeat((area / 3.0)[:, None], 3, axis=1)
     share = np.array([3.0, 3.0, 3.0, 16.0, 16.0, 16.0]) / 57.0

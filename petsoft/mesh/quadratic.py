@@ -65,8 +65,12 @@ class EdgeTable:
 
 
 def edge_table(mesh: Mesh) -> EdgeTable:
-    """The edge table of a mesh's corner connectivity."""
-    return EdgeTable(mesh.tets, mesh.num_corners)
+    """The edge table of a mesh's corner connectivity, built once per mesh (time-dependent
+    tractions ask for their faces' nodes every step)."""
+    table = mesh.__dict__.get("_edge_table")
+    if table is None:
+        table = mesh.__dict__["_edge_table"] = EdgeTable(mesh.tets, mesh.num_corners)
+    return table
 
 
 def raise_order(mesh: Mesh, edge_points: np.ndarray | None = None) -> Mesh:
