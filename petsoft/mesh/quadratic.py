@@ -42,11 +42,13 @@ class EdgeTable:
         Corner connectivity.
     num_corners : int
         Number of corner nodes (edge keys are ``a * num_corners + b``).
+    edges : ndarray (6, 2), optional
+        The order of a tetrahedron's edges in :attr:`of_tets` (default :data:`TET10_EDGES`).
     """
 
-    def __init__(self, tets: np.ndarray, num_corners: int):
+    def __init__(self, tets: np.ndarray, num_corners: int, edges: np.ndarray = TET10_EDGES):
         self.n = int(num_corners)
-        pairs = np.sort(np.asarray(tets, np.int64)[:, TET10_EDGES].reshape(-1, 2), axis=1)
+        pairs = np.sort(np.asarray(tets, np.int64)[:, edges].reshape(-1, 2), axis=1)
         self.keys, inverse = np.unique(pairs[:, 0] * self.n + pairs[:, 1], return_inverse=True)
         #: (E, 6) index of each tetrahedron's edges among the distinct edges
         self.of_tets = inverse.reshape(-1, 6)

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from petsoft.errors import MeshError
-from petsoft.mesh.quadratic import corner_mesh, raise_order
+from petsoft.mesh.quadratic import EdgeTable, corner_mesh, raise_order
 from petsoft.mesh.serial import Mesh, validate
 
 __all__ = ["CHILDREN_PER_TET", "refine_mesh", "refine_triangles", "refined_cell_count"]
@@ -63,29 +63,26 @@ def refined_cell_count(num_cells: int, levels: int = 1) -> int:
     return int(num_cells) * CHILDREN_PER_TET ** int(levels)
 
 
-class _Midpoints:
+class _Midpoints(EdgeTable):
     """The edges of a tetrahedral mesh, numbered, and the node number of each edge's midpoint
     (the original nodes first, then one new node per edge in the order of the sorted edges)."""
 
     def __init__(self, tets: np.ndarray, num_points: int):
-        n = self.n = int(num_points)
-        edges = np.sort(tets[:, _EDGES].reshape(-1, 2), axis=1)
-        self.keys, inverse = np.unique(edges[:, 0] * n + edges[:, 1], return_inverse=True)
+        super().__init__(tets, num_points, edges=_EDGES)
         #: (E, 6) midpoint node of each tetrahedron's edges, in the order of _EDGES
-        self.of_tets = n + inverse.reshape(-1, 6)
+        self.of_tets = self.n + self.of_tets
 
     def of(self, u: np.ndarray, v: np.ndarray, source: str) -> np.ndarray:
         """Midpoint nodes of the edges (u, v); raises if one is no edge of the mesh."""
-        k = np.minimum(u, v) * self.n + np.maximum(u, v)
-        pos = np.minimum(np.searchsorted(self.keys, k), len(self.keys) - 1)
-        missing = np.flatnonzero(self.keys[pos] != k)
+        found = self.find(u, v)
+        missing = np.flatnonzero(found < 0)
         if len(missing):
             i = missing[0]
             raise MeshError(f"{source}: the triangle edge ({int(u[i])}, {int(v[i])}) (0-based "
                             "nodes) is not an edge of any tetrahedron, so its facet group "
                             "cannot be refined with the mesh: the surface mesh does not match "
                             "the volume mesh")
-        return self.n + pos
+        return self.n + found
 
 
 def refine_triangles(tris: np.ndarray, midpoints: _Midpoints, source: str = "<mesh>"):
