@@ -340,7 +340,8 @@ class Simulation:
         return q, v, int(data["step"]) + 1, result
 
     def _archive_trajectory(self) -> None:
-        """Move an earlier segment's trajectory.xdmf/.h5 into segments/<k>/ (kept readable)."""
+        """Move an earlier segment's trajectory (.xdmf, .h5, frame files) into segments/<k>/,
+        where it stays readable (the .xdmf refers to its data by relative paths)."""
         xdmf = self.out / "trajectory.xdmf"
         if not xdmf.exists():
             return
@@ -349,7 +350,7 @@ class Simulation:
             k += 1
         dest = self.out / "segments" / str(k)
         dest.mkdir(parents=True)
-        for name in ("trajectory.xdmf", "trajectory.h5"):
+        for name in ("trajectory.xdmf", "trajectory.h5", "trajectory_frames"):
             if (self.out / name).exists():
                 (self.out / name).replace(dest / name)
         self._say(f"earlier trajectory moved to {dest}/")

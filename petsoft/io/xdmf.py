@@ -7,13 +7,15 @@ calls it there only.
 
 Crash consistency is the point of the design. Nothing that looks complete is ever half written:
 
-* The HDF5 file is first written (mesh and static cell data) under a temporary name and renamed
-  into place; an existing ``.xdmf`` of the same name is removed before, so an old series never
-  points into the new data.
-* Each frame's arrays are appended to the HDF5 file, which is opened for that frame only and
-  closed (so flushed, and readable by ParaView between frames) before the ``.xdmf`` mentions the
-  frame. The ``.xdmf`` on disk therefore only ever references frames whose data are complete; a
-  crash leaves a consistent prefix of the series.
+* Every HDF5 file is written under a temporary name and renamed into place, complete or absent:
+  the mesh file (mesh and static cell data) first, then one small file per frame in the
+  directory ``<stem>_frames/`` beside it. An existing ``.xdmf`` of the same name is removed
+  before, and an old series' frame files with it, so an old series never points into new data.
+  (Appending every frame to one HDF5 file was tried and is not crash-safe: a process killed
+  while HDF5 updates its group metadata leaves a file whose *earlier* frames can no longer be
+  opened, "bad heap free list"; measured in tests/test_xdmf.py.)
+* The ``.xdmf`` mentions a frame only after its file is in place, so it only ever references
+  complete data; a crash leaves a consistent prefix of the series.
 * The ``.xdmf`` is created with its first frame through a temporary file and :func:`os.replace`.
   Every later frame is added in place, in O(1): one ``pwrite`` puts the frame's ``<Grid>`` and
   the document's closing tags where the closing tags were (the file before them is never
@@ -23,14 +25,14 @@ Crash consistency is the point of the design. Nothing that looks complete is eve
   a frame: 13.6 ms a frame between frames 2000 and 4000.) A power loss in the middle of the write
   may tear it, even with ``fsync``.
 
-Layout of the HDF5 file::
+Layout (``out/run.xdmf``)::
 
-    /mesh/geometry                (N, 3) float64   node coordinates (reference configuration)
-    /mesh/topology                (E, 4) int64     tetrahedra
-    /mesh/cell_data/<name>        (E, ...)         cell data given once, repeated in every frame
-    /frames/<k>/point/<name>      (N, ...)         point data of frame k (k = 0, 1, ...)
-    /frames/<k>/cell/<name>       (E, ...)         cell data of frame k
-    /frames/<k>                   attrs: time
+    out/run.h5:/mesh/geometry               (N, 3) float64   node coordinates (reference)
+    out/run.h5:/mesh/topology               (E, 4|10) int64  tetrahedra
+    out/run.h5:/mesh/cell_data/<name>       (E, ...)         cell data given once, in every frame
+    out/run_frames/<k>.h5:/point/<name>     (N, ...)         point data of frame k (k = 0, 1, ...)
+    out/run_frames/<k>.h5:/cell/<name>      (E, ...)         cell data of frame k
+    out/run_frames/<k>.h5:/                 attrs: time
 
 Each frame is a ``Uniform`` grid of a ``Temporal`` collection, with its own ``<Time>`` and
 references to the shared geometry and topology (no ``xi:include``), which both ParaView's XDMF3
@@ -42,13 +44,15 @@ from __future__ import annotations
 
 import os
 import re
+import xml.etree.ElementTree as ET
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
 
-__all__ = ["XdmfWriter", "write_xdmf"]
+__all__ = ["Series", "XdmfWriter", "read_series", "write_xdmf"]
 
 # XDMF number type and precision of each dtype we store (others are converted, see _as_storable).
 _XDMF_TYPES = {
@@ -225,20 +229,18 @@ def _write_h5_atomically(path: Path, fill, fsync: bool) -> None:
             tmp.unlink()
 
 
-def _open_for_append(path: Path):
-    """Open the HDF5 file to add a frame, without HDF5's file lock.
-
-    Someone watching the run (ParaView, a script with h5py) holds a shared lock on the file; the
-    exclusive lock HDF5 wants for writing would then fail and kill the simulation. The frames a
-    reader can know of (through the .xdmf) are complete and never modified, so writing without
-    the lock is safe for them.
-    """
-    import h5py
-
+def _remove_old_frames(frames_dir: Path) -> None:
+    """Delete an earlier series' frame files (``<k>.h5`` and left-over temporaries), then the
+    directory if that emptied it; anything else a user put there is left alone."""
+    if not frames_dir.is_dir():
+        return
+    for f in frames_dir.iterdir():
+        if re.fullmatch(r"\d+\.h5|\.\d+\.h5\.tmp-\d+", f.name):
+            f.unlink(missing_ok=True)
     try:
-        return h5py.File(path, "r+", locking=False)
-    except TypeError:  # h5py < 3.5 has no `locking`: fall back to HDF5's default
-        return h5py.File(path, "r+")
+        frames_dir.rmdir()
+    except OSError:  # not empty: the user's own files stay
+        pass
 
 
 def _xdmf_document(grids: str) -> str:
@@ -277,8 +279,9 @@ class XdmfWriter:
     Parameters
     ----------
     path : str or pathlib.Path
-        The ``.xdmf`` file to write; the data go to ``path.with_suffix(".h5")``. Existing files of
-        these names are replaced. Missing parent directories are created.
+        The ``.xdmf`` file to write; the mesh goes to ``path.with_suffix(".h5")``, each frame to
+        ``<stem>_frames/<k>.h5`` beside it. Existing files of these names are replaced. Missing
+        parent directories are created.
     points : numpy.ndarray
         ``(N, 3)`` node coordinates (written once).
     tets : numpy.ndarray
@@ -309,6 +312,7 @@ class XdmfWriter:
     ) -> None:
         self.path = Path(path)
         self.h5_path = self.path.with_suffix(".h5")
+        self.frames_dir = self.path.with_name(f"{self.path.stem}_frames")
         _check_path(self.path, self.h5_path)
         self.points, self.tets = _check_mesh(points, tets)
         self.static_cell_data = _check_fields(cell_data, len(self.tets), "cell_data")
@@ -320,6 +324,7 @@ class XdmfWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         # An old .xdmf would reference frames the new .h5 does not have: remove it first.
         self.path.unlink(missing_ok=True)
+        _remove_old_frames(self.frames_dir)
         static = self.static_cell_data
         keys = _dataset_names(list(static))
 
@@ -328,7 +333,6 @@ class XdmfWriter:
             f["mesh/topology"] = self.tets
             for key, arr in zip(keys, static.values(), strict=True):
                 f[f"mesh/cell_data/{key}"] = arr
-            f.create_group("frames")
 
         _write_h5_atomically(self.h5_path, fill, self.fsync)
 
@@ -384,33 +388,31 @@ class XdmfWriter:
         cdata = _check_fields(cell_data, len(self.tets), "cell_data")
 
         k = len(self.times)
-        group = f"frames/{k}"
         pkeys = _dataset_names(list(pdata))
         ckeys = _dataset_names(list(cdata))
-        with _open_for_append(self.h5_path) as f:
-            if group in f:  # left over by a write that failed half-way: never referenced
-                del f[group]
-            g = f.create_group(group)
-            g.attrs["time"] = t
-            for key, arr in zip(pkeys, pdata.values(), strict=True):
-                g[f"point/{key}"] = arr
-            for key, arr in zip(ckeys, cdata.values(), strict=True):
-                g[f"cell/{key}"] = arr
-        # Closing the file flushed it; only now may the .xdmf mention the frame.
-        if self.fsync:
-            _fsync_path(self.h5_path)
 
-        h5 = self.h5_path.name
+        def fill(f):
+            f.attrs["time"] = t
+            for key, arr in zip(pkeys, pdata.values(), strict=True):
+                f[f"point/{key}"] = arr
+            for key, arr in zip(ckeys, cdata.values(), strict=True):
+                f[f"cell/{key}"] = arr
+
+        self.frames_dir.mkdir(exist_ok=True)
+        # The frame's file is complete (renamed into place) before the .xdmf mentions it.
+        _write_h5_atomically(self.frames_dir / f"{k}.h5", fill, self.fsync)
+
+        frame_h5 = f"{self.frames_dir.name}/{k}.h5"
         # A per-frame cell field replaces a static one of the same name.
         static = [xml for name, xml in self._static_xml.items() if name not in cdata]
         fields = (
             static
             + [
-                _attribute(name, "Node", h5, f"/{group}/point/{key}", arr)
+                _attribute(name, "Node", frame_h5, f"/point/{key}", arr)
                 for key, (name, arr) in zip(pkeys, pdata.items(), strict=True)
             ]
             + [
-                _attribute(name, "Cell", h5, f"/{group}/cell/{key}", arr)
+                _attribute(name, "Cell", frame_h5, f"/cell/{key}", arr)
                 for key, (name, arr) in zip(ckeys, cdata.items(), strict=True)
             ]
         )
@@ -501,3 +503,63 @@ def write_xdmf(
     ]
     grid = _grid("mesh", _mesh_xml(h5, pts, cells), fields)
     _replace_text(path, _xdmf_document(grid), fsync)
+
+
+@dataclass
+class Series:
+    """A time series as written by :class:`XdmfWriter` (see :func:`read_series`)."""
+
+    points: np.ndarray
+    cells: np.ndarray
+    times: np.ndarray
+    point_data: list[dict[str, np.ndarray]]
+    cell_data: list[dict[str, np.ndarray]]
+
+
+def read_series(path: str | Path) -> Series:
+    """Read the frames a ``.xdmf`` written by :class:`XdmfWriter` references (only those: the
+    frames a crashed run completed), with the mesh.
+
+    Parameters
+    ----------
+    path : str or pathlib.Path
+        The ``.xdmf`` file.
+
+    Returns
+    -------
+    Series
+        Points (N, 3), cells (E, 4|10), frame times (K,), and per frame the point and cell data
+        by field name.
+    """
+    import h5py
+
+    path = Path(path)
+    root = ET.parse(path).getroot()
+    grids = [g for g in root.iter("Grid") if g.get("GridType") == "Uniform"]
+    if not grids:
+        raise ValueError(f"{path}: no grid in this XDMF file")
+    files: dict[str, h5py.File] = {}
+
+    def data(item) -> np.ndarray:
+        name, h5path = item.text.strip().rsplit(":", 1)
+        if name not in files:
+            files[name] = h5py.File(path.parent / name, "r")
+        return files[name][h5path][()]
+
+    try:
+        first = grids[0]
+        points = data(first.find("Geometry/DataItem"))
+        cells = data(first.find("Topology/DataItem"))
+        times, pdata, cdata = [], [], []
+        for grid in grids:
+            when = grid.find("Time")
+            times.append(float(when.get("Value")) if when is not None else np.nan)
+            fields = {"Node": {}, "Cell": {}}
+            for att in grid.findall("Attribute"):
+                fields[att.get("Center")][att.get("Name")] = data(att.find("DataItem"))
+            pdata.append(fields["Node"])
+            cdata.append(fields["Cell"])
+    finally:
+        for f in files.values():
+            f.close()
+    return Series(points, cells, np.array(times), pdata, cdata)

@@ -123,14 +123,11 @@ def run_method(method: str, exp, out: Path, stiffness_scale=None, spd: bool = Fa
 
 
 def frames(out: Path):
-    """Times and (N, 3) displacements of every frame of ``out/trajectory.h5`` (rank 0)."""
-    import h5py
+    """Times and (N, 3) displacements of every frame of ``out/trajectory.xdmf`` (rank 0)."""
+    from petsoft.io.xdmf import read_series
 
-    with h5py.File(out / "trajectory.h5", "r") as f:
-        keys = sorted(f["frames"], key=int)
-        times = np.array([f[f"frames/{k}"].attrs.get("time", np.nan) for k in keys])
-        disp = [f[f"frames/{k}/point/displacement"][...] for k in keys]
-    return times, disp
+    series = read_series(out / "trajectory.xdmf")
+    return series.times, [p["displacement"] for p in series.point_data]
 
 
 def max_penetration(points, displacements, radius: float) -> float:
