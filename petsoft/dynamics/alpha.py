@@ -35,6 +35,7 @@ from petsoft.dynamics.interfaces import StepperDefaults, length_scale
 from petsoft.errors import InvertedElementError
 from petsoft.physics.viscoelastic import MaxwellRule
 from petsoft.solvers.convergence import outcome, reason_name, stop_at_round_off
+from petsoft.solvers.linear import factor_once_per_step, solve_newton
 from petsoft.solvers.options import scoped_defaults
 
 
@@ -240,6 +241,7 @@ class GeneralizedAlpha(SolverReuse):
         s.linear_defaults(self.ksp)
         with scoped_defaults(**{self.prefix + "snes_linesearch_type": "basic"}):
             snes.setFromOptions()
+        self._lagged = factor_once_per_step(snes)
 
     def consistent_acceleration(self, t0, q0, v0, out) -> None:
         """out = M^-1 (f(t0) - grad W(q0) - D v0) (zero on supports)."""
@@ -381,7 +383,7 @@ class GeneralizedAlpha(SolverReuse):
         # Except with a constant Jacobian (keeps_solver).
         if not self.keeps_solver():
             self._new_solver()
-        self.snes.solve(None, q1)
+        solve_newton(self.snes, q1, self._lagged)
         report = StepReport()
         report.newton_iterations = self.snes.getIterationNumber()
         report.linear_iterations = self.snes.getLinearSolveIterations()

@@ -45,6 +45,7 @@ from petsoft.dynamics.integrators import SCHEMES, scheme
 from petsoft.dynamics.interfaces import StepperDefaults, length_scale
 from petsoft.errors import InvertedElementError
 from petsoft.solvers.convergence import outcome, stop_at_round_off
+from petsoft.solvers.linear import factor_once_per_step, solve_newton
 from petsoft.solvers.options import scoped_defaults
 
 METHODS = ("be", "si", "midpoint", "trapezoidal")
@@ -233,6 +234,7 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
                 defaults.update({prefix + "ksp_type": "cg", prefix + "pc_type": "jacobi"})
             with scoped_defaults(**defaults):
                 snes.setFromOptions()
+            self._lagged = not shell and factor_once_per_step(snes)
             # -<prefix>snes_type ngs: petsoft's per-node update (petsoft.dynamics.nonlinear_gs)
             self.ngs = nonlinear_gs.install(self, snes, prefix)
         else:
@@ -426,7 +428,7 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
         if not self.keeps_solver():
             self._new_solver()
         if self.solver == "snes":
-            self.snes.solve(None, q1)
+            solve_newton(self.snes, q1, self._lagged)
             report.newton_iterations = self.snes.getIterationNumber()
             report.linear_iterations = self.snes.getLinearSolveIterations()
             done = outcome(self.snes)
