@@ -268,7 +268,9 @@ def test_user_errors():
 def test_covariance_matches_monte_carlo_linear_model():
     sigma = 0.1
     prob = LinearModel(WORLD, noise=sigma)
-    res = minimize(prob, np.zeros(3), "gauss-newton", scaling=prob.scaling)
+    # lm_dtol 0: the optimum to round-off, not only to a thousandth of a std
+    res = minimize(prob, np.zeros(3), "gauss-newton", scaling=prob.scaling,
+                   options={"lm_dtol": 0.0})
     np.testing.assert_allclose(res.p, np.linalg.lstsq(prob.A, prob.b, rcond=None)[0], atol=1e-9)
     r, J = prob.residual_jacobian(res.z)
     unc = uncertainty(J, r, prob.scaling, res.z, noise_std=sigma)
@@ -317,7 +319,8 @@ def _global_minimum(prob):
     F = prob.landscape(w, s)
     i, j = np.unravel_index(np.argmin(F), F.shape)
     z = prob.scaling.to_scaled([w[i], s[j]])
-    return minimize(prob, z, "gauss-newton", bounds=prob.scaling.bounds(), scaling=prob.scaling)
+    return minimize(prob, z, "gauss-newton", bounds=prob.scaling.bounds(), scaling=prob.scaling,
+                    options={"lm_dtol": 0.0})   # to round-off: the others are compared at 1e-6
 
 
 @pytest.mark.parametrize("method", ["gd", "lbfgs", "gauss-newton", "brgn", "newton"])
