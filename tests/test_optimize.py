@@ -183,7 +183,7 @@ def test_bounds_respected(method):
             return prob.residual_jacobian(z)
 
     res = minimize(Recording(), np.zeros(2), method, bounds=(lo, hi), scaling=sc)
-    assert len(seen) > 5
+    assert len(seen) >= 4   # the start, and trial points on the way to the bound
     # TAO brgn (lm regularization, petsc4py 3.18) evaluates outside the bounds (k = 1.73 here):
     # the reason "gauss-newton" is our own projected Levenberg-Marquardt; only its answer counts.
     for z in ([] if method == "brgn" else seen) + [rec.z for rec in res.history]:
