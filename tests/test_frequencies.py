@@ -10,11 +10,19 @@
    derivative of its mean, which is also Taylor-tested.
 4. The file: text with header, comments and std; JSON; errors that name the line.
 5. The command line: outputs written; exactly one of a recording and --modes.
+6. Pairing by MAC (issue 17.1): DOLFINx modes 1, 2, 4 and 5 of the beam, with their shapes at 32
+   markers (random scale and sign per mode, one component unseen). Paired in ascending order
+   (measured 4th and 5th with the model's 3rd and 4th) the fit is wrong (E off by > 10 %, rms
+   relative misfit > 5 %); paired by MAC, E and nu come back to 1e-6 (measured ~1e-11) with
+   MAC 1 on the diagonal, on 1 and 2 ranks. Modes evaluated at markers on 2 ranks equal the
+   serial interpolation. A doubtful pair (MAC < 0.6) warns. JSON shape errors name the key,
+   mode and marker; a marker outside the mesh is named when the model is built.
 """
 
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import meshio
@@ -23,7 +31,12 @@ import pytest
 from mpi4py import MPI
 
 import petsoft
-from petsoft.calibration.frequencies import FrequencyModel, calibrate_frequencies
+from petsoft.calibration.frequencies import (
+    FrequencyModel,
+    PairingWarning,
+    calibrate_frequencies,
+    mac_matrix,
+)
 from petsoft.cli.main import main
 from petsoft.experiment import experiment_from_dict, load_experiment
 from petsoft.io.frequencies import FrequencyFileError, MeasuredFrequencies, read_frequencies
@@ -198,3 +211,179 @@ def test_calibrate_modes_command(beam, tmp_path, capsys):
     assert back.material["default"].youngs_modulus == pytest.approx(1e6, rel=1e-6)
     assert main(["calibrate", str(beam["dir"] / "beam.toml")]) != 0
     assert "exactly one of a RECORDING" in capsys.readouterr().err
+
+
+# -- pairing by MAC (issue 17.1) ---------------------------------------------------------------
+#: DOLFINx elastic modes measured (0-based): the third is skipped, so ascending order mis-pairs.
+SUBSET = [0, 1, 3, 4]
+
+
+def _markers(ref):
+    """32 vertices along the top edge (y = 0, z = 0.02) and a bottom side edge (y = 0.01, z =
+    0) for x >= 0.05: they see bending in y and z and torsion."""
+    P = ref["points"]
+    top = (np.abs(P[:, 2] - 0.02) < 1e-9) & (np.abs(P[:, 1]) < 1e-9)
+    side = (np.abs(P[:, 2]) < 1e-9) & (np.abs(P[:, 1] - 0.01) < 1e-9)
+    return np.flatnonzero((top | side) & (P[:, 0] > 0.04))
+
+
+def _subset_with_shapes(source="dolfinx modes 1, 2, 4, 5"):
+    """The DOLFINx frequencies of SUBSET and their shapes at the markers, each scaled by a
+    random factor and sign; one component not seen."""
+    ref = np.load(DATA)
+    nodes = _markers(ref)
+    shapes = ref["modes"][SUBSET][:, ref["vertex_dof"][nodes]]        # (4, 32, 3)
+    rng = np.random.default_rng(3)
+    shapes = shapes * rng.choice([-1.0, 1.0], (4, 1, 1)) * rng.uniform(0.1, 10.0, (4, 1, 1))
+    shapes[2, 5, 1] = np.nan
+    return MeasuredFrequencies(ref["frequencies_hz"][SUBSET], None, source,
+                               markers=ref["points"][nodes], shapes=shapes)
+
+
+def test_mac_matrix_ignores_scale_sign_phase_and_unseen_components():
+    rng = np.random.default_rng(0)
+    phi = rng.normal(size=(3, 5, 3))
+    psi = np.array([-2.5 * phi[1], (0.3 - 0.7j) * phi[2]])
+    psi[0, 1, 2] = np.nan
+    phi_seen = phi.copy()
+    mac = mac_matrix(phi, psi)
+    np.testing.assert_allclose(mac[[0, 1], [1, 2]], 1.0, rtol=1e-12)
+    assert np.all(mac >= 0) and np.all(mac <= 1 + 1e-12)
+    # the unseen component is left out of the model's norm too
+    phi_seen[:, 1, 2] = 0.0
+    num = np.einsum("mc,nmc->n", np.nan_to_num(psi[0]), phi_seen) ** 2
+    den = np.einsum("nmc,nmc->n", phi_seen, phi_seen) * np.nansum(psi[0] ** 2)
+    np.testing.assert_allclose(mac[0], num / den, rtol=1e-12)
+
+
+def test_mac_pairing_recovers_E_and_nu_where_ascending_order_fails(beam):
+    measured = _subset_with_shapes()
+    f = measured.frequencies
+    ascending = calibrate_frequencies(beam["experiment"], MeasuredFrequencies(f, None, "asc"))
+    assert ascending.pairing.mac is None
+    assert abs(ascending.values[0] / beam["E"] - 1.0) > 0.1, ascending.values
+    assert np.sqrt(np.mean((ascending.after / f - 1.0) ** 2)) > 0.05
+    fit = calibrate_frequencies(beam["experiment"], measured)
+    E, nu = fit.values
+    assert abs(E / beam["E"] - 1.0) < 1e-6, E
+    assert abs(nu - beam["nu"]) < 1e-6, nu
+    assert np.max(np.abs(fit.after / f - 1.0)) < 1e-8
+    np.testing.assert_array_equal(fit.pairing.model_modes, SUBSET)
+    np.testing.assert_array_equal(fit.pairing_before.model_modes, SUBSET)
+    assert np.all(fit.pairing.mac > 0.999), fit.pairing.mac
+    off = fit.pairing.matrix.copy()
+    off[np.arange(4), fit.pairing.model_modes] = 0.0
+    assert off.max() < 0.1, off.max()
+    assert fit.pairing.doubtful == []
+    summary = fit.summary()["pairing"]
+    assert summary["method"] == "mac" and summary["model_modes"] == [1, 2, 4, 5]
+    assert summary["model_modes_computed"] == 8
+
+
+def test_modes_at_markers_are_the_serial_interpolation(beam):
+    """On any number of ranks: the owned-node sums equal gathering the mode and interpolating
+    it at the (off-node) markers with the element's own shape functions."""
+    from petsoft.mesh.probes import embed, interpolate
+    from petsoft.solvers.modes import compute_modes
+
+    X = np.array([[0.1234, 0.0031, 0.0177], [0.19, 0.005, 0.01], [0.05, 0.0, 0.02]])
+    measured = MeasuredFrequencies([1.0, 2.0], None, "m", markers=X,
+                                   shapes=np.ones((2, 3, 3)))
+    model = FrequencyModel(beam["experiment"], ["material.youngs_modulus"], 2,
+                           measured=measured)
+    res = compute_modes(model.system.model, 3)
+    phi = model.at_markers(res.modes)
+    full = [model.system.dmesh.gather_global(x) for x in res.modes]
+    res.destroy()
+    if MPI.COMM_WORLD.rank == 0:
+        mesh = model.system.dmesh.mesh
+        cells, weights = embed(mesh, X)
+        expected = np.array([interpolate(u, mesh.cells, cells, weights) for u in full])
+        np.testing.assert_allclose(phi, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+
+
+def test_a_doubtful_pair_warns(beam):
+    measured = _subset_with_shapes()
+    shapes = measured.shapes.copy()
+    shapes[3] = np.random.default_rng(5).normal(size=shapes[3].shape)   # a shape of nothing
+    bad = MeasuredFrequencies(measured.frequencies, None, "noise", markers=measured.markers,
+                              shapes=shapes)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        fit = calibrate_frequencies(beam["experiment"], bad)
+    assert 3 in fit.pairing.doubtful
+    if MPI.COMM_WORLD.rank == 0:
+        messages = [str(w.message) for w in caught if issubclass(w.category, PairingWarning)]
+        assert any("measured mode 4" in m and "doubtful" in m for m in messages), messages
+
+
+def test_a_marker_outside_the_mesh_is_named(beam):
+    measured = MeasuredFrequencies([1.0, 2.0], None, "shapes.json",
+                                   markers=[[0.1, 0.0, 0.02], [0.3, 0.0, 0.0]],
+                                   marker_names=["mid", "beyond"], shapes=np.ones((2, 2, 3)))
+    with pytest.raises(petsoft.errors.ExperimentError,
+                       match=r'shapes.json: markers\["beyond"\] = \[0.3, 0.0, 0.0\] lies outside'):
+        FrequencyModel(beam["experiment"], ["material.youngs_modulus"], 2, measured=measured)
+
+
+@pytest.mark.serial_only
+def test_mode_shape_files(tmp_path):
+    q = tmp_path / "shapes.json"
+    good = {"frequencies_hz": [3.0, 1.0], "std_hz": [0.1, 0.1],
+            "markers": {"tip": [0.2, 0.0, 0.0], "mid": [0.1, 0.0, 0.0]},
+            "mode_shapes": [[[0.0, 1.0, None], [0.0, 0.4, 0.0]],
+                            [[0.0, 0.0, 1.0], [0.0, 0.0, 0.3]]]}
+    q.write_text(json.dumps(good))
+    m = read_frequencies(q)          # not ascending: paired by shape
+    assert m.marker_names == ("tip", "mid") and m.shapes.shape == (2, 2, 3)
+    assert np.isnan(m.shapes[0, 0, 2]) and m.markers[0, 0] == 0.2
+
+    def case(**change):
+        data = {**good, **change}
+        q.write_text(json.dumps({k: v for k, v in data.items() if v is not ...}))
+        with pytest.raises(FrequencyFileError) as info:
+            read_frequencies(q)
+        return str(info.value)
+
+    shapes = good["mode_shapes"]
+    assert "lists 1 modes for 2 frequencies" in case(mode_shapes=shapes[:1])
+    assert 'mode 2 has 1 markers, "markers" has 2' in case(
+        mode_shapes=[shapes[0], shapes[1][:1]])
+    assert 'mode 1, marker "mid" is [0.0, 0.4]' in case(
+        mode_shapes=[[shapes[0][0], [0.0, 0.4]], shapes[1]])
+    assert 'mode 2, marker "tip" is [0.0, \'a\', 1.0]' in case(
+        mode_shapes=[shapes[0], [[0.0, "a", 1.0], shapes[1][1]]])
+    assert '"mode_shapes" is given without "markers"' in case(markers=...)
+    assert '"markers" is given without "mode_shapes"' in case(mode_shapes=...)
+    assert 'markers["tip"] is [0.2, 0.0]' in case(markers={"tip": [0.2, 0.0],
+                                                            "mid": [0.1, 0.0, 0.0]})
+    assert "mode 2 (1 Hz) has 1 seen component(s)" in case(
+        mode_shapes=[shapes[0], [[None, None, 1.0], [None, None, None]]])
+    assert "mode 1 (3 Hz) has 6 seen component(s), all zero" in case(
+        mode_shapes=[[[0.0] * 3] * 2, shapes[1]])
+    assert 'unknown key "mode_shape"' in case(mode_shape=shapes)
+    q.write_text('{"frequencies_hz": [1.0, 2.0], "markers": {"a": [0, 0, 0], "b": [1, 0, 0]}, '
+                 '"mode_shapes": [[[1, 0, 0], [Infinity, 0, 0]], [[1, 0, 0], [0, 1, 0]]]}')
+    with pytest.raises(FrequencyFileError, match='mode 1, marker "b" has an infinite'):
+        read_frequencies(q)
+
+
+@pytest.mark.serial_only
+def test_calibrate_modes_command_pairs_by_mac(beam, tmp_path, capsys):
+    measured = _subset_with_shapes()
+    names = [f"n{i}" for i in range(len(measured.markers))]
+    f = tmp_path / "measured.json"
+    f.write_text(json.dumps({
+        "frequencies_hz": measured.frequencies.tolist(),
+        "markers": dict(zip(names, measured.markers.tolist(), strict=True)),
+        "mode_shapes": np.where(np.isnan(measured.shapes), None, measured.shapes).tolist()}))
+    out = tmp_path / "out"
+    assert main(["calibrate", str(beam["dir"] / "beam.toml"), "--modes", str(f),
+                 "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["parameters"]["material.youngs_modulus"] == pytest.approx(1e6, rel=1e-6)
+    assert summary["pairing"]["model_modes"] == [1, 2, 4, 5]
+    assert min(summary["pairing"]["mac"]) > 0.999
+    printed = capsys.readouterr().out
+    assert "pairing by MAC of the mode shapes at 32 markers" in printed
+    assert "model mode" in printed and "MAC" in printed

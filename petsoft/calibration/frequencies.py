@@ -13,11 +13,18 @@ This module owns the frequency model and its fit:
   each named parameter is the one the dynamic sensitivities use
   (:meth:`petsoft.dynamics.parameters.ParameterMap.coefficients`). f = sqrt(lambda) / (2 pi),
   so df = d lambda / (8 pi^2 f).
-* pairing: the measured frequencies, ascending, are the body's lowest elastic modes in order
-  (rigid-body modes of a free body are skipped). A cluster of (nearly) equal model eigenvalues
-  (a square section's two bending modes) has no derivative per mode; each of its members gets the
-  derivative of the cluster's mean, which exists and is what a symmetric change of E, nu or rho
-  moves. Mode shapes at markers (MAC pairing) are not read yet.
+* pairing: without mode shapes the measured frequencies, ascending, are the body's lowest
+  elastic modes in order (rigid-body modes of a free body are skipped). With mode shapes at
+  markers (a JSON file's ``mode_shapes``, or the operational shapes estimated from a recording)
+  more model modes are computed than were measured (``count + max(4, count)``), each is
+  evaluated at the markers (embedded once in the serial mesh; on several ranks each rank adds
+  the nodes it owns and the sums are reduced), and the measured modes are paired with distinct
+  model modes maximising the total MAC (:func:`mac_matrix`; Hungarian assignment). The pairing
+  is redone at every evaluation, since modes can change order as the parameters move. A pair
+  with MAC below :data:`DOUBTFUL_MAC` is reported as doubtful. A cluster of (nearly) equal model
+  eigenvalues (a square section's two bending modes) has no derivative per mode; each of its
+  members gets the derivative of the cluster's mean, which exists and is what a symmetric change
+  of E, nu or rho moves.
 * :func:`calibrate_frequencies`: Gauss-Newton (Levenberg-Marquardt) in scaled parameters on the
   residuals (f_model - f_measured) / std, standard deviations from the Gauss-Newton covariance.
 """
@@ -25,10 +32,12 @@ This module owns the frequency model and its fit:
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 from petsc4py import PETSc
+from scipy.optimize import linear_sum_assignment
 
 from petsoft.calibration.optimize import LeastSquares, minimize
 from petsoft.calibration.scaling import ParameterScaling
@@ -37,18 +46,97 @@ from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.fem.element import cell_integrals
 from petsoft.io.progress import IterationPace
+from petsoft.mesh.probes import embed
 from petsoft.physics.model import build_model
 from petsoft.solvers.modes import compute_modes
 
-__all__ = ["FrequencyFit", "FrequencyModel", "calibrate_frequencies", "write_frequency_outputs"]
+__all__ = ["FrequencyFit", "FrequencyModel", "PairingWarning", "calibrate_frequencies",
+           "mac_matrix", "write_frequency_outputs"]
 
 #: Model eigenvalues closer than this (relative) form a cluster (module docstring).
 CLUSTER_RTOL = 1e-6
+#: A measured mode paired at a MAC below this is reported as a doubtful pair.
+DOUBTFUL_MAC = 0.6
+
+
+class PairingWarning(UserWarning):
+    """A measured mode pairs with a model mode of low MAC: the pairing is doubtful."""
+
+
+def mac_matrix(model: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """Modal assurance criterion of every measured shape against every model shape.
+
+    MAC_ij = |psi_i^H phi_j|^2 / ((psi_i^H psi_i)(phi_j^T phi_j)), both sums over the components
+    seen in measured mode i only (a component not seen, NaN, is left out of all three sums, so a
+    partly seen shape is compared with the model's shape on the same components). 1 for shapes
+    equal up to scale and sign (or a complex factor, for operational shapes), 0 for orthogonal
+    ones.
+
+    Parameters
+    ----------
+    model : ndarray (n, m, 3)
+        Model mode shapes at the m markers (real).
+    measured : ndarray (k, m, 3)
+        Measured shapes, real or complex, NaN where not seen.
+
+    Returns
+    -------
+    ndarray (k, n)
+        In [0, 1]; 0 where either shape vanishes on the seen components.
+    """
+    phi = np.asarray(model, dtype=float)
+    psi = np.asarray(measured)
+    seen = np.isfinite(psi)
+    psi = np.where(seen, psi, 0.0)
+    num = np.abs(np.einsum("kmc,nmc->kn", np.conj(psi), phi)) ** 2
+    den = (np.einsum("kmc,nmc->kn", seen.astype(float), phi * phi)
+           * np.sum(np.abs(psi) ** 2, axis=(1, 2))[:, None])
+    return np.divide(num, den, out=np.zeros_like(num), where=den > 0)
+
+
+@dataclass
+class Pairing:
+    """Which model mode each measured mode is paired with, at one evaluation.
+
+    Attributes
+    ----------
+    model_modes : ndarray (k,) int
+        0-based index among the model's elastic modes (ascending) of each measured mode's pair.
+    mac : ndarray (k,) or None
+        The MAC of each pair (None without shapes: pairing in ascending order).
+    matrix : ndarray (k, n) or None
+        MAC of every measured mode against every computed model mode.
+    model_hz : ndarray (n,)
+        All computed elastic model frequencies.
+    """
+
+    model_modes: np.ndarray
+    mac: np.ndarray | None
+    matrix: np.ndarray | None
+    model_hz: np.ndarray
+
+    @property
+    def doubtful(self) -> list[int]:
+        """0-based measured modes whose pair has MAC < :data:`DOUBTFUL_MAC`."""
+        if self.mac is None:
+            return []
+        return [int(i) for i in np.flatnonzero(self.mac < DOUBTFUL_MAC)]
+
+    def summary(self) -> dict:
+        """JSON-able: the method, 1-based model modes, MAC of each pair and the matrix."""
+        mac = self.mac is not None
+        return {"method": "mac" if mac else "ascending",
+                "model_modes": [int(i) + 1 for i in self.model_modes],
+                "mac": self.mac.tolist() if mac else None,
+                "mac_matrix": self.matrix.tolist() if mac else None,
+                "model_modes_computed": int(len(self.model_hz)),
+                "model_hz_computed": self.model_hz.tolist(),
+                "doubtful": [i + 1 for i in self.doubtful], "doubtful_below": DOUBTFUL_MAC}
 
 
 class FrequencyModel:
-    """The lowest ``count`` elastic natural frequencies of an experiment's model as a function
-    of named material parameters (collective on ``comm``).
+    """The elastic natural frequencies of an experiment's model paired with measured modes, as a
+    function of named material parameters (collective on ``comm``).
 
     Parameters
     ----------
@@ -59,9 +147,20 @@ class FrequencyModel:
     count : int
         How many elastic frequencies (the measured ones).
     comm : PETSc.Comm, optional
+    measured : MeasuredFrequencies, optional
+        With ``shapes`` (and ``markers``): pair by MAC (module docstring); else in ascending
+        order.
+    model_modes : int, optional
+        Elastic model modes computed for the MAC pairing (default ``count + max(4, count)``).
+
+    Raises
+    ------
+    ExperimentError
+        A spring model, parameters that are not material ones, a marker outside the mesh.
     """
 
-    def __init__(self, experiment, names, count: int, comm=None):
+    def __init__(self, experiment, names, count: int, comm=None, *, measured=None,
+                 model_modes: int | None = None):
         self.comm = comm if comm is not None else PETSc.COMM_WORLD
         self.names, self.count = list(names), int(count)
         if experiment.is_mass_spring:
@@ -83,42 +182,86 @@ class FrequencyModel:
             raise ExperimentError(f"{experiment.source}: [calibrate] \"{unknown[0]}\" is not a "
                                   f"parameter of this model; known: {', '.join(sorted(known))}")
         self.evaluations = 0
+        self.shapes = None if measured is None else measured.shapes
+        self.pairing: Pairing | None = None
+        if self.shapes is not None:
+            if len(self.shapes) != self.count:
+                raise ValueError(f"{len(self.shapes)} measured shapes for {self.count} modes")
+            self.model_modes = int(model_modes or self.count + max(4, self.count))
+            if self.model_modes < self.count:
+                raise ValueError(f"model_modes = {self.model_modes} < {self.count} measured")
+            self._embed_markers(measured)
+        else:
+            self.model_modes = self.count
+
+    def _embed_markers(self, measured) -> None:
+        """The local owned nodes and weights of each marker: a mode at the markers is then the
+        sum over ranks of the owned nodes' weighted values (each node is owned once)."""
+        dm = self.system.dmesh
+        cells, weights = embed(dm.mesh, measured.markers, source=f"{measured.source}: markers",
+                               names=measured.marker_names)
+        local = dm.file_to_local[dm.mesh.cells[cells]]               # (m, nodes), -1 elsewhere
+        mine = local >= 0
+        mine[mine] = dm.owned[local[mine]]
+        self._marker_nodes = np.where(mine, local, 0)
+        self._marker_weights = np.where(mine, weights, 0.0)
+
+    def at_markers(self, modes) -> np.ndarray:
+        """Global mode vectors evaluated at the markers: (n, m, 3), the same on every rank."""
+        dm = self.system.dmesh
+        part = np.array([np.einsum("ma,mac->mc", self._marker_weights,
+                                   dm.to_local(x)[self._marker_nodes]) for x in modes])
+        return np.asarray(dm.comm.tompi4py().allreduce(part.reshape(len(modes), -1, 3)))
 
     def _modes(self):
         model = self.system.model
-        res = compute_modes(model, self.count)
+        res = compute_modes(model, self.model_modes)
         if res.rigid_modes:
             rigid = res.rigid_modes
             res.destroy()
-            res = compute_modes(model, self.count + rigid)
+            res = compute_modes(model, self.model_modes + rigid)
         return res
 
     def evaluate(self, p, jacobian: bool = True):
-        """Frequencies (count,) in Hz at parameters ``p``, and df/dp (count, n) or None."""
+        """Frequencies (count,) in Hz of the model modes paired with the measured ones, at
+        parameters ``p``, and df/dp (count, n) or None. The pairing is kept in
+        :attr:`pairing`."""
         s = self.system
         s.set_parameters(dict(zip(self.names, map(float, p), strict=True)))
         self.evaluations += 1
         res = self._modes()
         try:
-            lam = res.eigenvalues[res.rigid_modes:res.rigid_modes + self.count]
-            modes = res.modes[res.rigid_modes:res.rigid_modes + self.count]
-            if len(lam) < self.count:
+            first = res.rigid_modes
+            lam = res.eigenvalues[first:first + self.model_modes]
+            modes = res.modes[first:first + self.model_modes]
+            if len(lam) < self.model_modes:
                 raise ExperimentError(f"the model has only {len(lam)} elastic modes; "
-                                      f"{self.count} frequencies were measured")
-            f = np.sqrt(np.maximum(lam, 0.0)) / (2.0 * np.pi)
+                                      f"{self.model_modes} are needed for {self.count} measured "
+                                      "frequencies")
+            f_all = np.sqrt(np.maximum(lam, 0.0)) / (2.0 * np.pi)
+            if self.shapes is None:
+                pair, mac, matrix = np.arange(self.count), None, None
+            else:
+                matrix = mac_matrix(self.at_markers(modes), self.shapes)
+                rows, pair = linear_sum_assignment(matrix, maximize=True)
+                pair = pair[np.argsort(rows)]
+                mac = matrix[np.arange(self.count), pair]
+            self.pairing = Pairing(pair, mac, matrix, f_all)
+            f = f_all[pair]
             if not jacobian:
                 return f, None
-            dlam = np.array([self._eigenvalue_gradient(x, lv) for x, lv in zip(modes, lam,
-                                                                                 strict=True)])
-            # clusters: the derivative of their mean (module docstring)
-            start = 0
-            while start < len(lam):
-                stop = start + 1
-                while stop < len(lam) and lam[stop] - lam[start] <= CLUSTER_RTOL * lam[stop]:
-                    stop += 1
-                dlam[start:stop] = dlam[start:stop].mean(axis=0)
-                start = stop
-            return f, dlam / (8.0 * np.pi ** 2 * f[:, None])
+            # clusters: the derivative of their mean (module docstring); only the clusters of
+            # paired modes are differentiated
+            cluster = np.zeros(len(lam), dtype=int)
+            for i in range(1, len(lam)):
+                close = lam[i] - lam[i - 1] <= CLUSTER_RTOL * lam[i]
+                cluster[i] = cluster[i - 1] + (0 if close else 1)
+            needed = np.flatnonzero(np.isin(cluster, cluster[pair]))
+            dlam = {int(i): self._eigenvalue_gradient(modes[i], lam[i]) for i in needed}
+            mean = {c: np.mean([dlam[int(i)] for i in needed[cluster[needed] == c]], axis=0)
+                    for c in np.unique(cluster[pair])}
+            dl = np.array([mean[cluster[i]] for i in pair])
+            return f, dl / (8.0 * np.pi ** 2 * f[:, None])
         finally:
             res.destroy()
 
@@ -162,6 +305,11 @@ class FrequencyFit:
     reason: str
     wall_time: float
     bounds: list = field(default_factory=list)
+    #: the pairing of measured and model modes at the start and at the fitted values
+    pairing_before: Pairing | None = None
+    pairing: Pairing | None = None
+    #: how the measured frequencies were obtained (MeasuredFrequencies.details), if known
+    measured_details: dict | None = None
 
     def summary(self) -> dict:
         """A JSON-able dict of the fit (summary.json)."""
@@ -178,6 +326,10 @@ class FrequencyFit:
             "noise_hz": self.sigma, "noise_source": self.sigma_source,
             "iterations": self.iterations, "evaluations": self.evaluations,
             "reason": self.reason, "wall_time_s": self.wall_time,
+            "pairing": None if self.pairing is None else self.pairing.summary(),
+            "pairing_before": (None if self.pairing_before is None
+                               else self.pairing_before.summary()),
+            "measured": self.measured_details,
         }
 
 
@@ -191,13 +343,19 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
         Its ``[calibrate]`` table gives the names, bounds and (its values) the start, unless
         ``names`` (and ``start``, ``bounds``) are given.
     measured : MeasuredFrequencies
-        Ascending frequencies (Hz), optionally with standard deviations.
+        Frequencies (Hz), optionally with standard deviations; with mode shapes at markers the
+        modes are paired by MAC (module docstring), else in ascending order.
     say : callable(str), optional
         Progress lines (rank 0).
 
     Returns
     -------
     FrequencyFit
+
+    Warns
+    -----
+    PairingWarning
+        (rank 0) When a measured mode's pair at the fitted values has MAC < :data:`DOUBTFUL_MAC`.
     """
     from petsoft.calibration.calibrate import calibration_parameters
 
@@ -218,7 +376,7 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
     f_meas = measured.frequencies
     std = measured.std
     weight = 1.0 / (std if std is not None else f_meas)   # relative error without a std
-    model = FrequencyModel(experiment, names, len(f_meas), comm)
+    model = FrequencyModel(experiment, names, len(f_meas), comm, measured=measured)
     lower = np.array([b[0] for b in bounds])
     upper = np.array([b[1] for b in bounds])
     positive = [n for n in names if not n.endswith("poisson_ratio")]
@@ -227,6 +385,9 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
          f"({f_meas[0]:.5g} .. {f_meas[-1]:.5g} Hz) from {measured.source}; "
          f"{len(model.system.dmesh.mesh.tets)} tets on {comm.size} rank(s); fitting "
          + ", ".join(names))
+    if measured.shapes is not None:
+        tell(f"pairing by MAC of the mode shapes at {len(measured.markers)} markers with the "
+             f"model's {model.model_modes} lowest elastic modes")
 
     def residual(p):
         f, _ = model.evaluate(p, jacobian=False)
@@ -239,6 +400,7 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
     problem = LeastSquares(residual, len(names), jacobian, scaling=scaling,
                            comm=comm.tompi4py())
     before, _ = model.evaluate(start, jacobian=False)
+    pairing_before = model.pairing
 
     pace = IterationPace()
 
@@ -254,6 +416,7 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
     z = np.asarray(result.z)
     values = scaling.to_physical(z)
     after, J = model.evaluate(values, jacobian=True)
+    pairing = model.pairing
     r = (after - f_meas) * weight
     Jz = scaling.jacobian_to_scaled(z, J * weight[:, None])
     sigma_source = "the file's std" if std is not None else "estimated from the fit"
@@ -269,12 +432,30 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
                        sigma=float(sigma), sigma_source=sigma_source,
                        iterations=int(result.iterations), evaluations=model.evaluations,
                        reason=str(result.reason), wall_time=time.perf_counter() - t0,
-                       bounds=bounds)
-    tell(f"{'mode':>4} {'measured Hz':>13} {'before Hz':>13} {'after Hz':>13} {'rel.err':>9}")
+                       bounds=bounds, pairing_before=pairing_before, pairing=pairing,
+                       measured_details=measured.details)
+    mac = pairing.mac is not None
+    tell(f"{'mode':>4} {'measured Hz':>13} {'before Hz':>13} {'after Hz':>13} {'rel.err':>9}"
+         + (f" {'model mode':>10} {'MAC':>6}" if mac else ""))
     for i, (fm, fb, fa) in enumerate(zip(f_meas, before, after, strict=True)):
-        tell(f"{i + 1:>4} {fm:13.6g} {fb:13.6g} {fa:13.6g} {(fa - fm) / fm:9.2e}")
+        tell(f"{i + 1:>4} {fm:13.6g} {fb:13.6g} {fa:13.6g} {(fa - fm) / fm:9.2e}"
+             + (f" {pairing.model_modes[i] + 1:>10d} {pairing.mac[i]:6.3f}"
+                + ("  doubtful" if i in pairing.doubtful else "") if mac else ""))
+    if mac and not np.array_equal(pairing.model_modes, pairing_before.model_modes):
+        tell("the pairing changed during the fit: at the start the measured modes paired with "
+             "model modes " + ", ".join(str(int(m) + 1) for m in pairing_before.model_modes))
+    for i in pairing.doubtful:
+        message = (f"measured mode {i + 1} ({f_meas[i]:.6g} Hz) pairs with model elastic mode "
+                   f"{pairing.model_modes[i] + 1} ({after[i]:.6g} Hz) at MAC "
+                   f"{pairing.mac[i]:.3f} < {DOUBTFUL_MAC}: the pairing is doubtful (too few or "
+                   "badly placed markers, a noisy shape, or a mode the model lacks or that lies "
+                   f"above the {model.model_modes} model modes computed)")
+        tell(f"warning: {message}")
+        if comm.rank == 0:
+            warnings.warn(message, PairingWarning, stacklevel=2)
     for n, v, sd in zip(names, values, std_p, strict=True):
-        tell(f"{n:<34} {v:14.8g}  std {sd:.3g} ({sd / abs(v):.2%})")
+        rel = f"{sd / abs(v):.2%}" if v != 0 else "of a zero value"
+        tell(f"{n:<34} {v:14.8g}  std {sd:.3g} ({rel})")
     tell(f"{fit.iterations} iterations, {fit.evaluations} eigen-solves, {fit.reason}, "
          f"{fit.wall_time:.1f} s")
     return fit

@@ -9,13 +9,18 @@ from petsoft.mesh.quadratic import shape_values
 
 
 def locate(points: np.ndarray, tets: np.ndarray, probes: np.ndarray, *, source: str = "probes",
-           tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+           tol: float = 1e-9, names=None) -> tuple[np.ndarray, np.ndarray]:
     """Cell and barycentric weights of each probe point in a tet mesh.
+
+    Parameters
+    ----------
+    names : sequence of str, optional
+        Names of the probes for the error message (default: their index in ``source``).
 
     Raises
     ------
     ExperimentError
-        Naming the probe (index and coordinates) that lies outside the mesh.
+        Naming the probe (index or name, and coordinates) that lies outside the mesh.
     """
     probes = np.asarray(probes, dtype=float).reshape(-1, 3)
     X = points[tets]
@@ -29,7 +34,8 @@ def locate(points: np.ndarray, tets: np.ndarray, probes: np.ndarray, *, source: 
         worst = bary.min(axis=1)
         best = int(np.argmax(worst))
         if worst[best] < -tol:
-            raise ExperimentError(f"{source}[{i}] = {p.tolist()} lies outside the mesh "
+            label = f"{source}[{i}]" if names is None else f"{source}[\"{names[i]}\"]"
+            raise ExperimentError(f"{label} = {p.tolist()} lies outside the mesh "
                                   "(probes are reference-configuration points inside the body)")
         cells[i], weights[i] = best, bary[best]
     return cells, weights
@@ -41,10 +47,10 @@ def interpolate(field: np.ndarray, tets: np.ndarray, cells: np.ndarray,
     return np.einsum("pa,pak->pk", weights, np.asarray(field)[tets[cells]])
 
 
-def embed(mesh, probes: np.ndarray, *, source: str = "probes",
-          tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+def embed(mesh, probes: np.ndarray, *, source: str = "probes", tol: float = 1e-9,
+          names=None) -> tuple[np.ndarray, np.ndarray]:
     """Cell and node weights of each probe over ``mesh.cells`` (4 or 10 nodes per cell): the
     barycentric weights for 4-node tetrahedra, the quadratic shape functions for 10-node ones.
-    Use with ``interpolate(field, mesh.cells, cells, weights)``."""
-    cells, bary = locate(mesh.points, mesh.tets, probes, source=source, tol=tol)
+    Use with ``interpolate(field, mesh.cells, cells, weights)``; ``names`` as in :func:`locate`."""
+    cells, bary = locate(mesh.points, mesh.tets, probes, source=source, tol=tol, names=names)
     return cells, shape_values(mesh.order, bary)
