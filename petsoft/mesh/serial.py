@@ -28,6 +28,8 @@ Conventions
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import numbers
 import warnings
@@ -300,13 +302,20 @@ def _read_meshio(path: Path):
     try:
         # meshio reports problems with all sorts of exceptions (ReadError, KeyError, ValueError,
         # UnicodeDecodeError, ...) depending on the format, and even sys.exit() when no reader
-        # for the extension accepts the file: catch them all and say which file.
-        return meshio.read(path)
+        # for the extension accepts the file: catch them all and say which file. meshio
+        # prints each reader it tried that failed (a .msh is tried as gmsh 2.2 and 4.1: one
+        # empty line on stdout per mesh read, seen in every diagnose log): keep those in the
+        # error message instead.
+        with contextlib.redirect_stdout(io.StringIO()) as tried:
+            return meshio.read(path)
     except (Exception, SystemExit) as exc:
         if isinstance(exc, SystemExit):
             detail = "no meshio reader for this extension accepted it"
         else:
             detail = f"{str(exc).strip() or 'error'} ({type(exc).__name__})"
+        said = " ".join(tried.getvalue().split())
+        if said:
+            detail += f"; meshio said: {said}"
         raise MeshError(
             f"cannot read mesh file {path}: {detail}; petsoft reads any format meshio reads "
             "(gmsh .msh, .vtu, .vtk, .xdmf, medit .mesh, ...), chosen by the file extension"
