@@ -20,9 +20,8 @@ import numpy as np
 
 from petsoft.calibration.groups import map_on_groups
 from petsoft.calibration.refinement import REFINEMENTS, mesh_cells, refinement, why_not
-from petsoft.diagnosis.context import Diagnosis, Fit, evidence_of, petsc_comm, rms
+from petsoft.diagnosis.context import Diagnosis, Fit, evidence_of, rms
 from petsoft.errors import PetsoftError
-from petsoft.experiment import get_parameter, with_parameters
 
 #: The numerics check refines a mesh only while the refined mesh has at most this many
 #: tetrahedra. 6000 admits one 1->8 refinement of a user's 648-tet mesh file (issue 14: its
@@ -139,8 +138,8 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
         tried = [r for r in REFINEMENTS
                  if not (r.kind == "mesh" and mesh_done) and _why_not(r, exp) is None]
         options = [r.label for r in tried]
-        fits = map_on_groups(lambda what, sub, exp=exp: _refit(diag, exp, refined(exp, what),
-                                                               sub, what),
+        fits = map_on_groups(lambda what, sub, exp=exp: _refit(diag, refined(exp, what), sub,
+                                                               what),
                              options, diag.comm)
         gc.collect()
         dof = max(int(np.isfinite(diag.data[diag.ident]).sum()) - len(fit.names), 1)
@@ -218,77 +217,10 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
     return fit, ev, rounds
 
 
-def _refit(diag: Diagnosis, current, experiment, comm, what: str):
-    """The refined ``experiment`` calibrated, and simulated before, at the current parameters.
-
-    The fit starts from the better (lower chi2) of the current parameters and the
-    frequency-matched ones (:func:`frequency_matched`): a coarse mesh's calibrated Young's
-    modulus is too low by its excess stiffness, and the refined model started there is out of
-    phase with the data, often in another basin of the misfit (seen: the bracket's 1->8 refined
-    fit stayed at E 1.27e7, 2.4x the noise from where it started, while from 1.81e7 the same
-    refined model fitted far better)."""
+def _refit(diag: Diagnosis, experiment, comm, what: str):
+    """The refined ``experiment`` calibrated, and simulated before, at the current parameters."""
     moved = diag.simulate(experiment, comm=comm)
-    start = experiment
-    matched = frequency_matched(current, experiment, comm)
-    if matched is not None:
-        seen = np.isfinite(diag.data[diag.ident])
-        sim = diag.simulate(matched, comm=comm)
-
-        def misfit(x):
-            return float(np.sum((x[diag.ident][seen] - diag.data[diag.ident][seen]) ** 2))
-
-        if misfit(sim) < misfit(moved):
-            start = matched
-            diag.tell(f"numerics {what}: starting the fit from the frequency-matched Young's "
-                      "modulus (" + ", ".join(f"{n} {get_parameter(matched, n):.4g}"
-                                              for n in _stiffness_names(matched)) + ")")
-    return diag.calibrate(start, comm=comm, label=f"numerics {what}"), moved
-
-
-def _stiffness_names(experiment) -> list[str]:
-    """The calibrated Young's moduli (not stiffness groups ``#k``)."""
-    return [n for n in experiment.calibrate
-            if n.startswith("material.") and n.endswith(".youngs_modulus")]
-
-
-def lowest_frequency(experiment, comm) -> float:
-    """The lowest elastic natural frequency (Hz) of ``experiment``'s model at rest."""
-    from petsoft.physics.model import build_model
-    from petsoft.solvers.modes import compute_modes
-
-    model = build_model(experiment, petsc_comm(comm))
-    res = compute_modes(model, 1)
-    if res.rigid_modes:
-        rigid = res.rigid_modes
-        res.destroy()
-        res = compute_modes(model, rigid + 1)
-    try:
-        lam = float(res.eigenvalues[res.rigid_modes])
-    finally:
-        res.destroy()
-    return float(np.sqrt(max(lam, 0.0)) / (2.0 * np.pi))
-
-
-def frequency_matched(current, refined_experiment, comm):
-    """``refined_experiment`` with its calibrated Young's moduli scaled by (f / f_refined)^2,
-    f and f_refined the lowest natural frequencies of the current and the refined model at the
-    same parameters: the refined model then vibrates at the frequency the current fit found in
-    the data. None when nothing would change (no Young's modulus calibrated, a mass-spring
-    model, a refinement of the step only, or a ratio within 0.1 %)."""
-    names = _stiffness_names(refined_experiment)
-    if not names or current.is_mass_spring or current.mesh == refined_experiment.mesh:
-        return None
-    try:
-        ratio = (lowest_frequency(current, comm) / lowest_frequency(refined_experiment, comm)) ** 2
-    except PetsoftError:
-        return None
-    if not np.isfinite(ratio) or abs(ratio - 1.0) < 1e-3:
-        return None
-    values = {}
-    for n in names:
-        lo, hi = map(float, refined_experiment.calibrate[n])
-        values[n] = float(np.clip(get_parameter(refined_experiment, n) * ratio, lo, hi))
-    return with_parameters(refined_experiment, values)
+    return diag.calibrate(experiment, comm=comm, label=f"numerics {what}"), moved
 
 
 class NumericsChecks:
