@@ -319,8 +319,9 @@ def calibrate_modes(experiment: Experiment, frequencies, *, out: str | Path | No
         A [material] model with its supports; ``[calibrate]`` names material parameters
         (``material[.<region>].youngs_modulus``, ``poisson_ratio``, ``density``).
     frequencies : MeasuredFrequencies, str or Path
-        The measured frequencies (Hz, ascending, optionally with std), or their file
-        (:mod:`petsoft.io.frequencies`).
+        The measured frequencies (Hz, optionally with std and mode shapes at markers), their
+        file (:mod:`petsoft.io.frequencies`), or a recording (HDF5) whose frequencies and
+        shapes are estimated (:func:`petsoft.calibration.spectra.frequencies_from_recording`).
     out : str or Path, optional
         Write calibrated.toml, summary.json and frequencies.png here; None writes nothing.
     say : callable(str)
@@ -331,11 +332,15 @@ def calibrate_modes(experiment: Experiment, frequencies, *, out: str | Path | No
     FrequencyFit
         ``names``, ``values``, ``std``, the frequencies before and after.
     """
-    from petsoft.calibration.frequencies import calibrate_frequencies, write_frequency_outputs
-    from petsoft.io.frequencies import MeasuredFrequencies, read_frequencies
+    from petsoft.calibration.frequencies import (
+        calibrate_frequencies,
+        read_measured_modes,
+        write_frequency_outputs,
+    )
+    from petsoft.io.frequencies import MeasuredFrequencies
 
     if not isinstance(frequencies, MeasuredFrequencies):
-        frequencies = read_frequencies(frequencies)
+        frequencies = read_measured_modes(frequencies)
     with experiment_options(experiment.petsc):
         fit = calibrate_frequencies(experiment, frequencies, say=say)
     if out is not None and PETSc.COMM_WORLD.rank == 0:

@@ -16,7 +16,8 @@ This module owns the frequency model and its fit:
 * pairing: without mode shapes the measured frequencies, ascending, are the body's lowest
   elastic modes in order (rigid-body modes of a free body are skipped). With mode shapes at
   markers (a JSON file's ``mode_shapes``, or the operational shapes estimated from a recording)
-  more model modes are computed than were measured (``count + max(4, count)``), each is
+  more model modes are computed than were measured (``count + max(4, count)``, doubled at the
+  first evaluation until they reach 1.3 x the highest measured frequency), each is
   evaluated at the markers (embedded once in the serial mesh; on several ranks each rank adds
   the nodes it owns and the sums are reduced), and the measured modes are paired with distinct
   model modes maximising the total MAC (:func:`mac_matrix`; Hungarian assignment). The pairing
@@ -34,6 +35,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 from petsc4py import PETSc
@@ -41,20 +43,28 @@ from scipy.optimize import linear_sum_assignment
 
 from petsoft.calibration.optimize import LeastSquares, minimize
 from petsoft.calibration.scaling import ParameterScaling
+from petsoft.calibration.spectra import frequencies_from_recording
 from petsoft.calibration.uncertainty import UnidentifiableError, uncertainty
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.fem.element import cell_integrals
+from petsoft.io.frequencies import read_frequencies
 from petsoft.io.progress import IterationPace
+from petsoft.io.recording import read_recording
 from petsoft.mesh.probes import embed
 from petsoft.physics.model import build_model
 from petsoft.solvers.modes import compute_modes
 
 __all__ = ["FrequencyFit", "FrequencyModel", "PairingWarning", "calibrate_frequencies",
-           "mac_matrix", "write_frequency_outputs"]
+           "mac_matrix", "read_measured_modes", "write_frequency_outputs"]
+
+#: The first bytes of an HDF5 file (a petsoft recording, formats.md section 2).
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 #: Model eigenvalues closer than this (relative) form a cluster (module docstring).
 CLUSTER_RTOL = 1e-6
+#: At most this many model modes are computed for the MAC pairing (module docstring).
+MAX_MODEL_MODES = 100
 #: A measured mode paired at a MAC below this is reported as a doubtful pair.
 DOUBTFUL_MAC = 0.6
 
@@ -151,7 +161,9 @@ class FrequencyModel:
         With ``shapes`` (and ``markers``): pair by MAC (module docstring); else in ascending
         order.
     model_modes : int, optional
-        Elastic model modes computed for the MAC pairing (default ``count + max(4, count)``).
+        Elastic model modes computed for the MAC pairing (default ``count + max(4, count)``,
+        more at the first evaluation until they reach 1.3 x the highest measured frequency,
+        at most :data:`MAX_MODEL_MODES`).
 
     Raises
     ------
@@ -188,11 +200,13 @@ class FrequencyModel:
             if len(self.shapes) != self.count:
                 raise ValueError(f"{len(self.shapes)} measured shapes for {self.count} modes")
             self.model_modes = int(model_modes or self.count + max(4, self.count))
+            self._grow = model_modes is None
+            self.f_max = float(np.max(measured.frequencies))
             if self.model_modes < self.count:
                 raise ValueError(f"model_modes = {self.model_modes} < {self.count} measured")
             self._embed_markers(measured)
         else:
-            self.model_modes = self.count
+            self.model_modes, self._grow = self.count, False
 
     def _embed_markers(self, measured) -> None:
         """The local owned nodes and weights of each marker: a mode at the markers is then the
@@ -222,6 +236,20 @@ class FrequencyModel:
             res = compute_modes(model, self.model_modes + rigid)
         return res
 
+    def _enough_modes(self, res):
+        """At the first evaluation with shapes: compute more modes until the highest lies 30 %
+        above the highest measured frequency (a measured mode can be any model mode below it,
+        and the start may be far off); the count found is kept for later evaluations."""
+        self._grow = False
+        model = self.system.model
+        free = 3 * model.dmesh.nglobal_vertices - model.dirichlet.count - res.rigid_modes
+        limit = min(MAX_MODEL_MODES, free // 2)     # SLEPc wants room beside the wanted pairs
+        while res.frequencies_hz[-1] < 1.3 * self.f_max and self.model_modes < limit:
+            self.model_modes = min(2 * self.model_modes, limit)
+            res.destroy()
+            res = self._modes()
+        return res
+
     def evaluate(self, p, jacobian: bool = True):
         """Frequencies (count,) in Hz of the model modes paired with the measured ones, at
         parameters ``p``, and df/dp (count, n) or None. The pairing is kept in
@@ -232,6 +260,9 @@ class FrequencyModel:
         res = self._modes()
         try:
             first = res.rigid_modes
+            if self._grow and self.shapes is not None:
+                res = self._enough_modes(res)
+                first = res.rigid_modes
             lam = res.eigenvalues[first:first + self.model_modes]
             modes = res.modes[first:first + self.model_modes]
             if len(lam) < self.model_modes:
@@ -310,6 +341,9 @@ class FrequencyFit:
     pairing: Pairing | None = None
     #: how the measured frequencies were obtained (MeasuredFrequencies.details), if known
     measured_details: dict | None = None
+    #: rms of (f_model - f_measured) / std over degrees of freedom (None without std): ~1 when
+    #: the model fits the frequencies to their stated std
+    residual_over_std: float | None = None
 
     def summary(self) -> dict:
         """A JSON-able dict of the fit (summary.json)."""
@@ -329,6 +363,7 @@ class FrequencyFit:
             "pairing": None if self.pairing is None else self.pairing.summary(),
             "pairing_before": (None if self.pairing_before is None
                                else self.pairing_before.summary()),
+            "residual_over_std": self.residual_over_std,
             "measured": self.measured_details,
         }
 
@@ -385,6 +420,14 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
          f"({f_meas[0]:.5g} .. {f_meas[-1]:.5g} Hz) from {measured.source}; "
          f"{len(model.system.dmesh.mesh.tets)} tets on {comm.size} rank(s); fitting "
          + ", ".join(names))
+    oscillations = (measured.details or {}).get("oscillations")
+    if oscillations:
+        tell(f"oscillations in the recording ({measured.details['frames']} frames, "
+             f"{measured.details['duration_s']:.4g} s; natural frequency = |pole|):")
+        for q in oscillations:
+            tell(f"  {q['frequency_hz']:12.6g} Hz  std {q['std_hz']:.2g}  damping ratio "
+                 f"{q['damping_ratio']:9.2e}  amplitude {q['amplitude']:.3g}  "
+                 + ("seen" if q["seen"] else f"not used: {q['note']}"))
     if measured.shapes is not None:
         tell(f"pairing by MAC of the mode shapes at {len(measured.markers)} markers with the "
              f"model's {model.model_modes} lowest elastic modes")
@@ -436,11 +479,21 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
                        measured_details=measured.details)
     mac = pairing.mac is not None
     tell(f"{'mode':>4} {'measured Hz':>13} {'before Hz':>13} {'after Hz':>13} {'rel.err':>9}"
+         + (f" {'err/std':>8}" if std is not None else "")
          + (f" {'model mode':>10} {'MAC':>6}" if mac else ""))
     for i, (fm, fb, fa) in enumerate(zip(f_meas, before, after, strict=True)):
         tell(f"{i + 1:>4} {fm:13.6g} {fb:13.6g} {fa:13.6g} {(fa - fm) / fm:9.2e}"
+             + (f" {(fa - fm) / std[i]:8.2f}" if std is not None else "")
              + (f" {pairing.model_modes[i] + 1:>10d} {pairing.mac[i]:6.3f}"
                 + ("  doubtful" if i in pairing.doubtful else "") if mac else ""))
+    if std is not None and len(r) > len(names):
+        # the std of the parameters assume the model fits to the stated std: say when not
+        chi = float(np.sqrt(r @ r / (len(r) - len(names))))
+        fit.residual_over_std = chi
+        if chi > 3.0:
+            tell(f"warning: the calibrated frequencies miss the measured ones by {chi:.3g} of "
+                 "their std (rms): model error (mesh, supports, a mode not paired right) or "
+                 "optimistic std; the parameters' std are too small by about that factor")
     if mac and not np.array_equal(pairing.model_modes, pairing_before.model_modes):
         tell("the pairing changed during the fit: at the start the measured modes paired with "
              "model modes " + ", ".join(str(int(m) + 1) for m in pairing_before.model_modes))
@@ -461,11 +514,42 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
     return fit
 
 
+def read_measured_modes(path, comm=None):
+    """What ``petsoft calibrate --modes FILE`` reads (all ranks call; rank 0 reads, the result
+    or the error goes to every rank).
+
+    An HDF5 file is a recording: its natural frequencies, their std and operational shapes at
+    the markers are estimated from the trajectories
+    (:func:`petsoft.calibration.spectra.frequencies_from_recording`). Anything else is a
+    measured-frequencies file (:func:`petsoft.io.frequencies.read_frequencies`).
+
+    Returns
+    -------
+    MeasuredFrequencies
+    """
+    mpi = (comm if comm is not None else PETSc.COMM_WORLD).tompi4py()
+    measured, error = None, None
+    if mpi.rank == 0:
+        path = Path(path)
+        try:
+            with open(path, "rb") as f:
+                hdf5 = f.read(len(HDF5_SIGNATURE)) == HDF5_SIGNATURE
+        except OSError:
+            hdf5 = False                   # read_frequencies names the missing file
+        try:
+            measured = (frequencies_from_recording(read_recording(path)) if hdf5
+                        else read_frequencies(path))
+        except PetsoftError as exc:
+            error = exc
+    error = mpi.bcast(error, root=0)
+    if error is not None:
+        raise error
+    return mpi.bcast(measured, root=0)
+
+
 def write_frequency_outputs(out, experiment, fit: FrequencyFit, spelled_out: bool = False):
     """calibrated.toml (the experiment with the fitted values), summary.json, frequencies.png;
     call on rank 0."""
-    from pathlib import Path
-
     from petsoft.calibration.plots import plot_frequencies
     from petsoft.experiment import with_parameters
     from petsoft.experiment.writer import write_experiment_update

@@ -9,7 +9,11 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.calibration.calibrate import Observations, run_calibration
-from petsoft.calibration.frequencies import calibrate_frequencies, write_frequency_outputs
+from petsoft.calibration.frequencies import (
+    calibrate_frequencies,
+    read_measured_modes,
+    write_frequency_outputs,
+)
 from petsoft.calibration.rest_shape import (
     calibrate_rest_shape,
     compute_rest_shape,
@@ -23,7 +27,6 @@ from petsoft.dynamics import damping_analysis as damping
 from petsoft.dynamics.run_simulation import simulate_experiment
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.experiment import experiment_from_dict, load_experiment
-from petsoft.io.frequencies import read_frequencies
 from petsoft.io.importers import run_import
 from petsoft.io.recording import read_recording_on_all_ranks
 from petsoft.io.summary import write_summary
@@ -121,8 +124,9 @@ def run(args) -> int:
 
 
 def run_frequency_calibration(experiment, path: str, out: Path, args) -> int:
-    """``petsoft calibrate --modes FILE``: material parameters from natural frequencies."""
-    measured = read_frequencies(path)
+    """``petsoft calibrate --modes FILE``: material parameters from natural frequencies (a
+    measured-frequencies file, or a recording whose frequencies are estimated)."""
+    measured = read_measured_modes(path)
     with experiment_options(experiment.petsc):
         fit = calibrate_frequencies(experiment, measured, say=_print)
     if PETSc.COMM_WORLD.rank == 0:

@@ -242,10 +242,13 @@ def _add_calibrate_parser(sub) -> None:
     c.add_argument("recording", nargs="?",
                    help=f"recording (HDF5; the layout: {FORMATS}, section 2); not with --modes")
     c.add_argument("--modes", metavar="FILE",
-                   help="fit the [calibrate] material parameters to measured natural "
-                        "frequencies instead of a recording: a text/CSV file of frequency_hz "
-                        "[, std_hz] per line (ascending) or JSON {\"frequencies_hz\": [...], "
-                        "\"std_hz\": [...]}")
+                   help="fit the [calibrate] material parameters to natural frequencies "
+                        "instead of trajectories: a text/CSV file of frequency_hz [, std_hz] "
+                        "per line (ascending), JSON {\"frequencies_hz\": [...], \"std_hz\": "
+                        "[...], \"markers\": {name: [x, y, z]}, \"mode_shapes\": [[[ux, uy, "
+                        "uz] per marker] per mode]} (with shapes, modes are paired by MAC), or a "
+                        "recording (HDF5): its frequencies, std and shapes at the markers are "
+                        "estimated from the trajectories")
     c.add_argument("--method", default="gauss-newton",
                    choices=("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead"),
                    help="optimizer (default %(default)s)")

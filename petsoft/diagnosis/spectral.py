@@ -11,28 +11,10 @@ This module owns the frequency-domain evidence of a mismatch:
   (viscous damping), a straight line (dry / Coulomb friction) and ``1 / (1 + b t)`` (quadratic
   drag), and the best by residual.
 
-Method (dominant_modes)
------------------------
-Each channel (marker, axis) minus its mean is ``x_c(k) = sum_i a_ci z_i^k + noise`` with the same
-poles ``z_i = exp((-d_i + 2 pi i f_i) dt)`` in all channels. The Hankel matrices
-``H_c[i, j] = x_c(i + j)`` (``L + 1`` rows) are put side by side; the leading ``r`` left
-singular vectors ``U`` span the signal's column space, which is shift invariant:
-``U[1:] = U[:-1] Phi`` with the eigenvalues of ``Phi`` the poles (ESPRIT). ``r`` is the number
-of singular values above ``rank_factor`` times the white-noise edge ``median (1 + sqrt(gamma))``
-(``gamma`` = rows / columns of the stacked Hankel matrix, Marchenko-Pastur), capped at
-``2 * max_modes``: with many channels a mode present in a few of them still clears it (a
-factor on the median alone would not: the noise edge is close to the median when there are
-many columns). With more than ``4 * max_modes`` channels the Hankel step uses their leading
-principal components only (cost), the amplitude fit all channels. Amplitudes are then the
-least-squares fit of ``z_i^k`` to every channel; a conjugate pair is reported once (positive
-frequency) with amplitude the norm over channels of the per-channel cosine amplitudes
-``2 |a_ci|``.
 
-The method needs uniform sampling: the times must be uniform to 1e-6 relative (else
-:class:`SpectralError`). Unseen samples (NaN): channels seen in fewer than half the frames are
-dropped; the others are linearly interpolated in time across their gaps (leading/trailing gaps
-take the nearest seen value). Interpolation is a low-pass filter over a gap, so short dropouts
-(a few frames per period) barely move the poles; long ones should be cut out by the caller.
+:func:`dominant_modes`, :func:`fill_gaps` and :class:`SpectralError` live in
+:mod:`petsoft.calibration.spectra` (calibration from recorded frequencies uses them too; the
+method is described there) and are re-exported here.
 """
 
 from __future__ import annotations
@@ -42,156 +24,10 @@ import warnings
 import numpy as np
 from scipy import optimize, signal
 
-from petsoft.errors import PetsoftError
+from petsoft.calibration.spectra import SpectralError, dominant_modes, fill_gaps, uniform_step
 
 __all__ = ["SpectralError", "dominant_modes", "compare_modes", "decay_envelope",
            "friction_terms", "rayleigh_from_decays", "fill_gaps", "principal_signal"]
-
-
-class SpectralError(PetsoftError):
-    """A signal cannot be analysed: non-uniform times, too short, nothing seen."""
-
-
-def _uniform_step(times: np.ndarray) -> float:
-    t = np.asarray(times, dtype=float)
-    if t.ndim != 1 or len(t) < 8:
-        raise SpectralError(f"times has shape {t.shape}; need at least 8 frames")
-    dt = np.diff(t)
-    h = float(np.mean(dt))
-    if not (h > 0 and np.all(np.abs(dt - h) <= 1e-6 * h + 1e-12 * abs(t[-1]))):
-        raise SpectralError("the spectral analysis needs uniformly sampled frames: times steps "
-                            f"range from {dt.min():.6g} to {dt.max():.6g} s (resample first)")
-    return h
-
-
-def fill_gaps(times: np.ndarray, signals: np.ndarray, min_seen: float = 0.5) -> np.ndarray:
-    """(K, C) channels with NaN gaps linearly interpolated; poorly seen channels dropped.
-
-    Parameters
-    ----------
-    times : ndarray (K,)
-    signals : ndarray (K, ...)
-        Reshaped to (K, C).
-    min_seen : float
-        Channels seen in fewer than this fraction of frames are dropped.
-    """
-    t = np.asarray(times, dtype=float)
-    x = np.asarray(signals, dtype=float).reshape(len(t), -1)
-    seen = np.isfinite(x)
-    keep = seen.mean(axis=0) >= min_seen
-    if not keep.any():
-        raise SpectralError(f"no channel is seen in at least {min_seen:.0%} of the frames")
-    x, seen = x[:, keep], seen[:, keep]
-    out = x.copy()
-    for c in np.flatnonzero(~seen.all(axis=0)):      # loop over gappy channels only
-        out[:, c] = np.interp(t, t[seen[:, c]], x[seen[:, c], c])
-    return out
-
-
-def dominant_modes(times: np.ndarray, signals: np.ndarray, *, max_modes: int = 6,
-                   num_modes: int | None = None, pencil: int | None = None,
-                   rank_factor: float = 2.0, min_seen: float = 0.5) -> list[dict]:
-    """Dominant damped oscillations shared by all channels (module docstring).
-
-    Parameters
-    ----------
-    times : ndarray (K,)
-        Uniform frame times (s).
-    signals : ndarray (K, M, 3) or (K, C)
-        Positions (NaN = unseen) of all markers, or any channels.
-    max_modes : int
-        At most this many oscillatory modes (rank cap ``2 * max_modes``).
-    num_modes : int, optional
-        Force the model order to ``2 * num_modes`` (otherwise chosen from the singular values).
-    pencil : int, optional
-        Pencil parameter L (rows of each Hankel block); default ``min(K // 3, 400)``.
-    rank_factor : float
-        Singular values above ``rank_factor`` times the noise edge ``median * (1 + sqrt(gamma))``
-        count as signal.
-    min_seen : float
-        See :func:`fill_gaps`.
-
-    Returns
-    -------
-    list of dict
-        ``frequency_hz``, ``decay_rate`` (1/s, > 0 decays), ``damping_ratio``, ``amplitude``
-        (norm over channels) and ``shape`` (complex amplitude per kept channel), sorted by
-        decreasing amplitude; empty when no singular value clears the noise edge; modes with
-        frequency below half a cycle over the record are reported with ``frequency_hz`` 0
-        (trend / drift).
-    """
-    dt = _uniform_step(times)
-    x = fill_gaps(times, signals, min_seen)
-    x = x - x.mean(axis=0)
-    k = len(x)
-    L = int(pencil) if pencil else min(k // 3, 400)
-    if not 2 <= L <= k - 2:
-        raise SpectralError(f"pencil parameter {L} must be in [2, {k - 2}] for {k} frames")
-    cols = k - L
-    # Many channels: keep the leading principal components for the Hankel step (the shared
-    # poles live there; cost ~ q L^2 cols instead of C L^2 cols). Amplitudes use all channels.
-    q = 4 * int(max_modes if num_modes is None else max(num_modes, max_modes))
-    xr = x
-    if x.shape[1] > q:
-        u, sv_c, _ = np.linalg.svd(x, full_matrices=False)
-        xr = u[:, :q] * sv_c[:q]
-    # Gram matrix of the side-by-side Hankel blocks: sum_c H_c H_c^T, (L+1) x (L+1).
-    idx = np.arange(L + 1)[:, None] + np.arange(cols)[None, :]
-    gram = np.zeros((L + 1, L + 1))
-    for c in range(xr.shape[1]):     # <= 4 max_modes channels; one (L+1, cols) block at a time
-        h = xr[idx, c]
-        gram += h @ h.T
-    evals, evecs = np.linalg.eigh(gram)
-    evals, evecs = evals[::-1], evecs[:, ::-1]
-    sv = np.sqrt(np.maximum(evals, 0.0))
-    if num_modes is not None:
-        r = 2 * int(num_modes)
-    else:
-        # White noise alone gives singular values within (1 +- sqrt(gamma)) of their median,
-        # gamma = rows / columns of the stacked Hankel matrix (Marchenko-Pastur edge).
-        gamma = (L + 1) / (cols * xr.shape[1])
-        floor = np.median(sv) * (1.0 + np.sqrt(gamma))
-        r = int(np.sum(sv > rank_factor * floor)) if floor > 0 else int(np.sum(sv > 1e-12 * sv[0]))
-        r = min(r, 2 * int(max_modes))
-        if r == 0:          # nothing stands above the noise: no mode to report
-            return []
-    r = min(r, L)
-    u = evecs[:, :r]
-    phi = np.linalg.lstsq(u[:-1], u[1:], rcond=None)[0]
-    z = np.linalg.eigvals(phi)
-    # Amplitudes: least squares of the Vandermonde basis z^k against every channel at once.
-    vander = z[None, :] ** np.arange(k)[:, None]
-    amps = np.linalg.lstsq(vander, x.astype(complex), rcond=None)[0]   # (r, C)
-    s = np.log(z.astype(complex)) / dt       # a negative real pole is a Nyquist oscillation
-    freq = s.imag / (2 * np.pi)
-    duration = dt * (k - 1)
-    modes = []
-    used = np.zeros(len(z), dtype=bool)
-    for i in np.argsort(-np.abs(freq)):            # r <= 2 max_modes poles: a short loop
-        if used[i]:
-            continue
-        used[i] = True
-        if abs(freq[i]) < 0.5 / duration:          # real pole or drift slower than half a cycle
-            j, shape, f = i, amps[i].real, 0.0
-        else:
-            # Phi is real, so complex poles come in exact conjugate pairs: report the pair once,
-            # through its positive-frequency member; 2 |a| is the cosine amplitude.
-            free = np.flatnonzero(~used)
-            k = free[np.argmin(np.abs(z[free] - np.conj(z[i])))] if free.size else i
-            if k != i and abs(z[k] - np.conj(z[i])) <= 1e-8 * max(1.0, abs(z[i])):
-                used[k] = True
-            else:
-                k = i
-            j = i if freq[i] > 0 or k == i else k
-            shape = 2 * amps[j] if freq[j] > 0 else 2 * np.conj(amps[j])
-            f = abs(freq[j])
-        d = float(-s[j].real)
-        wn = float(abs(s[j]))
-        modes.append({"frequency_hz": float(f), "decay_rate": d,
-                      "damping_ratio": d / wn if wn > 0 else 0.0,
-                      "amplitude": float(np.linalg.norm(shape)), "shape": shape})
-    modes.sort(key=lambda m: -m["amplitude"])
-    return modes
 
 
 def compare_modes(data_modes: list[dict], sim_modes: list[dict], *, rel_tol: float = 0.25,
@@ -329,7 +165,7 @@ def decay_envelope(times: np.ndarray, signals: np.ndarray, *, frequency: float |
         ``amplitudes`` (the envelope points).
     """
     t = np.asarray(times, dtype=float)
-    _uniform_step(t)
+    uniform_step(t)
     y = np.asarray(signals, dtype=float)
     y = y.reshape(len(t), -1)
     y = fill_gaps(t, y, min_seen)[:, 0] if y.shape[1] == 1 else principal_signal(t, y, min_seen)
