@@ -160,7 +160,9 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
                          f"{_x(rem)}x the noise" if extra else "") + ".")
         mesh["recommended_tets"] = need
     elif any("mesh x2" in r["options"] for r in rounds) or isinstance(num.get("mesh x2"), dict):
-        advice.append(f"Your mesh ({user} tets) is fine for this recording.")
+        raised = final.experiment.mesh.order > base.experiment.mesh.order
+        advice.append(f"Your mesh ({user} tets) is fine for this recording"
+                      + (" with 10-node elements (below)." if raised else "."))
     elif any("mesh x2" in r.get("not_tried", {}) for r in rounds) or "mesh x2" in num:
         advice.append(f"Your mesh ({user} tets) could not be checked within diagnose's limit: "
                       "check the calibrated parameters with `petsoft calibrate --check-mesh`.")
