@@ -50,7 +50,7 @@ from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.fem.element import cell_integrals
 from petsoft.io.frequencies import read_frequencies
 from petsoft.io.progress import IterationPace
-from petsoft.io.recording import read_recording
+from petsoft.io.recording import on_rank0_for_all, read_recording
 from petsoft.mesh.probes import embed
 from petsoft.physics.model import build_model
 from petsoft.solvers.modes import compute_modes
@@ -527,24 +527,17 @@ def read_measured_modes(path, comm=None):
     -------
     MeasuredFrequencies
     """
-    mpi = (comm if comm is not None else PETSc.COMM_WORLD).tompi4py()
-    measured, error = None, None
-    if mpi.rank == 0:
-        path = Path(path)
+    def read():
+        file = Path(path)
         try:
-            with open(path, "rb") as f:
+            with open(file, "rb") as f:
                 hdf5 = f.read(len(HDF5_SIGNATURE)) == HDF5_SIGNATURE
         except OSError:
             hdf5 = False                   # read_frequencies names the missing file
-        try:
-            measured = (frequencies_from_recording(read_recording(path)) if hdf5
-                        else read_frequencies(path))
-        except PetsoftError as exc:
-            error = exc
-    error = mpi.bcast(error, root=0)
-    if error is not None:
-        raise error
-    return mpi.bcast(measured, root=0)
+        return (frequencies_from_recording(read_recording(file)) if hdf5
+                else read_frequencies(file))
+
+    return on_rank0_for_all(read, comm if comm is not None else PETSc.COMM_WORLD)
 
 
 def write_frequency_outputs(out, experiment, fit: FrequencyFit, spelled_out: bool = False):

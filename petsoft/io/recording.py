@@ -359,27 +359,34 @@ class SeriesComponent:
         return np.full(len(points), np.interp(t, self.times, self.values))
 
 
+def on_rank0_for_all(read, comm=None):
+    """``read()`` called on rank 0 of ``comm`` (an mpi4py or PETSc communicator; default the
+    world) and its result given to every rank. Collective. A user error
+    (:class:`~petsoft.errors.PetsoftError`) raised by ``read`` is raised on every rank."""
+    from mpi4py import MPI
+    from petsc4py import PETSc
+
+    mpi = MPI.COMM_WORLD if comm is None else (
+        comm.tompi4py() if isinstance(comm, PETSc.Comm) else comm)
+    result, error = None, None
+    if mpi.rank == 0:
+        try:
+            result = read()
+        except PetsoftError as exc:
+            error = exc
+    error = mpi.bcast(error, root=0)
+    if error is not None:
+        raise error
+    return mpi.bcast(result, root=0)
+
+
 def read_recording_on_all_ranks(path: str | os.PathLike, comm=None) -> Recording:
     """The recording at ``path``, read once on rank 0 and given to every rank of ``comm``
     (an mpi4py or PETSc communicator; default the world). Collective.
 
     A user error in the file (:class:`~petsoft.errors.PetsoftError`) is raised on every rank.
     """
-    from mpi4py import MPI
-    from petsc4py import PETSc
-
-    mpi = MPI.COMM_WORLD if comm is None else (
-        comm.tompi4py() if isinstance(comm, PETSc.Comm) else comm)
-    recording, error = None, None
-    if mpi.rank == 0:
-        try:
-            recording = read_recording(Path(path))
-        except PetsoftError as exc:
-            error = exc
-    error = mpi.bcast(error, root=0)
-    if error is not None:
-        raise error
-    return mpi.bcast(recording, root=0)
+    return on_rank0_for_all(lambda: read_recording(Path(path)), comm)
 
 
 def read_input_series(recording: Recording | Path, name: str) -> tuple[SeriesComponent, ...]:
