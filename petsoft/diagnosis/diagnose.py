@@ -59,7 +59,7 @@ from petsoft.diagnosis.context import (  # noqa: F401
 from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
 from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings
 from petsoft.diagnosis.outputs import DiagnoseResult, build_diagnosis_report, write_outputs
-from petsoft.diagnosis.selection import choose, escape_plane, rank_round
+from petsoft.diagnosis.selection import choose, escape_plane, fit_simplest_first, rank_round
 
 
 def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: float = 0.7,
@@ -219,7 +219,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         # terms of several parameters (gravity's 3 components out-scored a hidden added mass
         # on a cantilever), so the score alone decides neither.
         contenders = list(significant)
-        diag.fit_candidates(contenders, current)
+        fit_simplest_first(diag, current, contenders)
         choice = choose(diag, current, contenders)
         accepted = choice.accepted
         rejected += choice.rejected

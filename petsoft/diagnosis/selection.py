@@ -1,6 +1,7 @@
 """Choosing among candidate physics terms: the tests a fitted candidate must pass and the
-tie-breaks between those that pass (held-out prediction, then chi2 + k ln n, then the
-vocabulary's order); :func:`escape_plane` proposes the plane a body left the data on.
+tie-breaks between those that pass (held-out prediction, then the fewest parameters, then
+chi2 + k ln n, then the vocabulary's order), fitting the simplest first
+(:func:`fit_simplest_first`); :func:`escape_plane` proposes the plane a body left the data on.
 """
 
 from __future__ import annotations
@@ -51,18 +52,32 @@ def escape_plane(data: np.ndarray, sim: np.ndarray, sigma: float,
     return {"point": best[1].tolist(), "normal": best[2].tolist(), "excess": best[0]}
 
 
+def _tests(diag: Diagnosis, current: Fit, new: Fit, c) -> tuple[float, float, bool]:
+    """The likelihood ratio of ``new`` over ``current``, its p-value (chi2 with as many
+    degrees of freedom as ``c`` has parameters) and whether the held-out rms improved."""
+    lr = current.chi2 - new.chi2
+    p_lr = float(stats.chi2.sf(max(lr, 0.0), n_parameters(c)))
+    better = (new.heldout_rms is None or current.heldout_rms is None
+              or new.heldout_rms < current.heldout_rms)
+    return lr, p_lr, better
+
+
+def n_parameters(c) -> int:
+    """How many parameters candidate ``c`` adds (at least 1: a switch adds one choice)."""
+    return max(len(c.parameters), 1)
+
+
 def judge(diag: Diagnosis, current: Fit, s: dict, c) -> dict:
     """Keep candidate ``c`` (score entry ``s`` with its fit) only if the likelihood ratio is
     significant AND the held-out rms improves: ``{"added", "entry" | "reason"}``."""
+    if s.get("skipped"):
+        diag.tell(f"  try {c.physics}: not fitted ({s['skipped']})")
+        return {"added": False, "reason": f"not fitted: {s['skipped']}"}
     new = s.get("fit")
     if new is None:
         diag.tell(f"  try {c.physics}: the fit failed ({s.get('fit_error', '')})")
         return {"added": False, "reason": f"the fit failed: {s.get('fit_error', '')}"}
-    lr = current.chi2 - new.chi2
-    k = max(len(c.parameters), 1)
-    p_lr = float(stats.chi2.sf(max(lr, 0.0), k))
-    better = (new.heldout_rms is None or current.heldout_rms is None
-              or new.heldout_rms < current.heldout_rms)
+    lr, p_lr, better = _tests(diag, current, new, c)
     ok = p_lr < diag.alpha and better
     diag.tell(f"  try {c.physics}: LR {lr:.4g} (p {p_lr:.3g}), held-out rms "
               f"{fmt(current.heldout_rms)} -> {fmt(new.heldout_rms)} m: "
@@ -113,11 +128,55 @@ class Choice:
     switch: str | None
 
 
+def fit_simplest_first(diag: Diagnosis, current: Fit, contenders: list) -> None:
+    """Fit the contenders ((score entry, candidate) pairs) in batches of as many parameters,
+    fewest first; a batch is not fitted when a fitted contender with fewer parameters already
+    passes both tests and predicts the held-out data to the noise (:func:`choose` would keep
+    that one whatever the batch fitted). Skipped entries gain ``skipped`` (why)."""
+    counts = sorted({n_parameters(c) for _, c in contenders})
+    level = heldout_noise_level(diag)
+    for k in counts:
+        batch = [(s, c) for s, c in contenders if n_parameters(c) == k]
+        enough = None
+        for s, c in contenders:
+            new = s.get("fit")
+            if n_parameters(c) >= k or new is None or new.heldout_rms is None:
+                continue
+            _, p_lr, better = _tests(diag, current, new, c)
+            if p_lr < diag.alpha and better and new.heldout_rms <= level:
+                enough = (c, new.heldout_rms)
+                break
+        if enough is None:
+            diag.fit_candidates(batch, current)
+            continue
+        simpler, rms_h = enough
+        why = (f"{simpler.physics} ({n_parameters(simpler)} parameter"
+               f"{'s' if n_parameters(simpler) > 1 else ''}) already predicts the held-out data "
+               f"to the noise (rms {fmt(rms_h)} m <= {fmt(level)} m); "
+               f"with {k} parameters this term could not be preferred")
+        for s, _ in batch:
+            s["skipped"] = why
+        diag.tell(f"not fitting {', '.join(c.physics for _, c in batch)}: {why}")
+
+
+def heldout_noise_level(diag: Diagnosis) -> float:
+    """The held-out rms (m) below which a prediction is as good as the noise lets one tell:
+    the upper ``1 - alpha`` point of the rms of pure noise on the held-out window's seen
+    samples (chi2 test, n samples: sigma sqrt(chi2_{1-alpha}(n) / n)); 0 without a held-out
+    window."""
+    n = int(np.isfinite(diag.data[diag.held]).sum())
+    if n == 0:
+        return 0.0
+    return float(diag.sigma * np.sqrt(stats.chi2.ppf(1.0 - diag.alpha, n) / n))
+
+
 def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
     """Among fitted (score entry, candidate) pairs, the one to add (if any passes both tests).
 
-    Each entry gains ``fitted_chi2``. The best held-out prediction (within 2 %) wins; among
-    those, the lowest chi2 + k ln n; within :data:`TIE_CHI2` of it, the vocabulary's order.
+    Each entry gains ``fitted_chi2``. The best held-out predictions (within 2 % of the best, or
+    within the noise: :func:`heldout_noise_level`) are equally good; among those the fewest
+    parameters, then the lowest chi2 + k ln n; within :data:`TIE_CHI2` of it, the
+    vocabulary's order.
     """
     from petsoft.diagnosis.report import PHYSICS
 
@@ -135,7 +194,7 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
         s["fitted_chi2"] = s["fit"].chi2 if s.get("fit") is not None else None
         if verdict["added"]:
             # a term must not win by its number of parameters alone
-            bic = s["fit"].chi2 + penalty * max(len(c.parameters), 1)
+            bic = s["fit"].chi2 + penalty * n_parameters(c)
             passed.append((bic, s["fit"].heldout_rms or 0.0, s, c, verdict))
         else:
             rejected.append({"physics": c.physics, "score": s["score"],
@@ -145,13 +204,17 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
         # term, and the one a flexible term cannot pass by fitting the model's own errors
         # (a standard linear solid fitted a hidden viscous damping 90 better in chi2 than
         # the viscous damping itself, because alpha's numerical damping had to be
-        # compensated too, and then predicted 5 % worse). Among predictions within 2 %, the
-        # lowest chi2 + k ln n; within TIE_CHI2 of it, the vocabulary's order (the more
-        # common explanation first).
+        # compensated too, and then predicted 5 % worse). Predictions within 2 % of the best,
+        # or that leave no more than the noise on the held-out window (its chi2 test), are
+        # equally good; among those the fewest parameters, then the lowest chi2 + k ln n;
+        # within TIE_CHI2 of it, the vocabulary's order (the more common explanation first).
         top = min(t[1] for t in passed)
-        close = [t for t in passed if t[1] <= 1.02 * top]
-        low = min(t[0] for t in close)
-        tied = [t for t in close if t[0] <= low + TIE_CHI2]
+        noise_level = heldout_noise_level(diag)
+        close = [t for t in passed if t[1] <= max(1.02 * top, noise_level)]
+        fewest = min(n_parameters(t[3]) for t in close)
+        simplest = [t for t in close if n_parameters(t[3]) == fewest]
+        low = min(t[0] for t in simplest)
+        tied = [t for t in simplest if t[0] <= low + TIE_CHI2]
         order = list(PHYSICS)
         tied.sort(key=lambda t: order.index(t[3].physics))
         first = tied[0]
@@ -162,8 +225,15 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
         if len(tied) > 1:
             v_best["entry"]["evidence"] += (
                 "; ambiguous: " + ", ".join(t[3].physics for t in tied if t is not first)
-                + f" predicted and fitted as well (held-out rms within 2 %, chi2 + k ln n "
-                f"within {TIE_CHI2:g}); chosen by the vocabulary's order")
+                + f" predicted and fitted as well (held-out rms within 2 % or the noise, "
+                f"as many parameters, chi2 + k ln n within {TIE_CHI2:g}); chosen by the "
+                "vocabulary's order")
+        simpler = [t for t in close if t not in simplest]
+        if simpler:
+            v_best["entry"]["evidence"] += (
+                "; " + ", ".join(t[3].physics for t in simpler) + " (more parameters) "
+                "predicted the held-out data no better (within 2 % or the noise): the "
+                "explanation with fewer parameters is kept")
         accepted = (v_best["entry"], s_best["fit"])
         if c_best.kind == "switch":
             switch = c_best.physics
