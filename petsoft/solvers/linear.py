@@ -64,33 +64,26 @@ def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None
     ksp.setTolerances(rtol=rtol, atol=1e-50, max_it=2000)
 
 
-#: Relative tolerance of the Krylov solve that replaces a direct solve within a time step
-#: (:func:`factor_once_per_step`): the Newton update to eight digits (an inexact Newton step
-#: that still reaches Newton's own rtol = 1e-10 in the same number of iterations).
-STEP_KRYLOV_RTOL = 1e-8
-#: At most this many Krylov iterations on the step's factor; beyond, the solve fails and the
-#: caller repeats the step with a factorisation at every Newton iteration
-#: (:func:`refactor_every_iteration`).
-STEP_KRYLOV_MAX_IT = 40
-
-
 def factor_once_per_step(snes: PETSc.SNES) -> bool:
-    """Factor the Jacobian once per time step instead of at every Newton iteration.
+    """Assemble and factor the Jacobian once per time step: Newton becomes the chord method.
 
     When the step's solver is the default direct solve (``preonly`` + LU/Cholesky, not chosen
-    by options) of a Newton line search, the Krylov method becomes GMRES preconditioned by that
-    factorisation, and the factorisation is refreshed only at the first Newton iteration of each
-    solve (PETSc's ``-snes_lag_preconditioner``, not persistent across solves). Newton stays
-    Newton: each update solves the current Jacobian to :data:`STEP_KRYLOV_RTOL`, so the
-    iterations are the same, each after the first costing a few triangular solves instead of
-    a factorisation. Measured: a 10-node neo-Hookean finger (2.2k dofs, generalized-alpha) made
-    4.3 factorisations a step; within a step GMRES on the step's factor takes ~5 iterations.
+    by options) of a Newton line search, the Jacobian and its factorisation are computed at the
+    first iteration of each solve only and every later iteration solves with them (PETSc's
+    ``-snes_lag_jacobian`` and ``-snes_lag_preconditioner``, not persistent across solves). The
+    residual is exact, so the step converges to the same solution to the same tolerance;
+    within a time step the Jacobian hardly moves, so the chord contracts fast. Measured on a
+    10-node neo-Hookean finger (2.2k dofs, generalized-alpha, 140 steps): 3.9 Newton iterations
+    a step, each assembling the Jacobian (and, before, solving it by GMRES on the step's
+    factor), against 5.8 chord iterations a step with one assembly: a forward run 3.55 ->
+    2.3-2.7 s, trajectories equal to 4e-15 m.
 
     Every step starts from a fresh factorisation of its own first Jacobian, so a run restarted
     at any step computes what the uninterrupted run did, bit for bit.
 
-    Call after ``snes.setFromOptions()``; a step whose Krylov solve fails should be repeated
-    after :func:`refactor_every_iteration`. Returns whether it changed the solver.
+    Call after ``snes.setFromOptions()``; a step that fails should be repeated after
+    :func:`refactor_every_iteration` (:func:`solve_newton` does). Returns whether it changed
+    the solver.
     """
     ksp = snes.getKSP()
     pc = ksp.getPC()
@@ -99,43 +92,42 @@ def factor_once_per_step(snes: PETSc.SNES) -> bool:
     if (solver_chosen(ksp) or ksp.getType() != PETSc.KSP.Type.PREONLY
             or pc.getType() not in (PETSc.PC.Type.LU, PETSc.PC.Type.CHOLESKY)
             or snes.getType() != PETSc.SNES.Type.NEWTONLS
-            or db.hasName(prefix + "snes_lag_preconditioner")):
+            or db.hasName(prefix + "snes_lag_preconditioner")
+            or db.hasName(prefix + "snes_lag_jacobian")):
         return False
-    ksp.setType(PETSc.KSP.Type.GMRES)
-    ksp.setTolerances(rtol=STEP_KRYLOV_RTOL, atol=1e-50, max_it=STEP_KRYLOV_MAX_IT)
     _set_lag(snes, 1 << 30)
     return True
 
 
 def refactor_every_iteration(snes: PETSc.SNES) -> None:
-    """Undo :func:`factor_once_per_step`'s lag: the preconditioner is rebuilt at every Newton
-    iteration (GMRES on a fresh factorisation converges in one iteration)."""
+    """Undo :func:`factor_once_per_step`'s lag: the Jacobian is assembled and factored at every
+    Newton iteration (full Newton)."""
     _set_lag(snes, 1)
-    snes.getKSP().setTolerances(max_it=200)
 
 
 def _set_lag(snes: PETSc.SNES, lag: int) -> None:
-    """SNESSetLagPreconditioner (not in petsc4py 3.18) through the options database, for this
-    solver only; the other options are read again unchanged."""
+    """SNESSetLagJacobian and SNESSetLagPreconditioner (not in petsc4py 3.18) through the
+    options database, for this solver only; the other options are read again unchanged."""
     from petsoft.solvers.options import scoped_defaults
 
     prefix = snes.getOptionsPrefix() or ""
-    with scoped_defaults(**{prefix + "snes_lag_preconditioner": str(lag)}):
+    with scoped_defaults(**{prefix + "snes_lag_preconditioner": str(lag),
+                            prefix + "snes_lag_jacobian": str(lag)}):
         snes.setFromOptions()
 
 
 def solve_newton(snes: PETSc.SNES, x: PETSc.Vec, lagged: bool) -> None:
     """``snes.solve(None, x)`` from the guess in ``x``; with ``lagged`` (the solver was set up by
-    :func:`factor_once_per_step`) a Krylov failure on the step's factor (the Jacobian moved far
-    within the step: an impact, a snap-through) repeats the solve from the same guess with a
-    factorisation at every Newton iteration, then restores the lag for the next step."""
+    :func:`factor_once_per_step`) a failure of the chord iteration (the Jacobian moved far
+    within the step: an impact, a snap-through, a large rotation) repeats the solve from the
+    same guess by full Newton, then restores the lag for the next step."""
     if not lagged:
         snes.solve(None, x)
         return
     guess = x.copy()
     try:
         snes.solve(None, x)
-        if snes.getConvergedReason() != PETSc.SNES.ConvergedReason.DIVERGED_LINEAR_SOLVE:
+        if snes.getConvergedReason() > 0:
             return
         guess.copy(x)
         refactor_every_iteration(snes)
