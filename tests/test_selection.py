@@ -12,7 +12,12 @@ from scipy import stats
 
 from petsoft.diagnosis.candidates import Candidate
 from petsoft.diagnosis.context import Fit
-from petsoft.diagnosis.selection import choose, fit_simplest_first, heldout_noise_level
+from petsoft.diagnosis.selection import (
+    choose,
+    fit_simplest_first,
+    heldout_noise_level,
+    worth_fitting,
+)
 
 SIGMA = 1e-4
 
@@ -145,3 +150,20 @@ def test_terms_with_more_parameters_are_not_fitted_once_a_simpler_one_predicts_t
     batches, choice, _ = run(1.10e-4)
     assert batches == [["damping.mass", "drag.linear"], ["material.viscoelastic"]]
     assert choice.accepted[0]["physics"] == "material.viscoelastic"
+
+
+def test_candidates_scoring_below_a_percent_of_the_best_are_not_fitted():
+    # the independent plate with gravity concealed (round 1 scores at a254254)
+    scored = [contender("gravity", ["gravity.acceleration.x", "gravity.acceleration.y",
+                                    "gravity.acceleration.z"], 0, 0),
+              contender("contact.plane", ["collider.0.offset"], 0, 0),
+              contender("mass.added", ["mass.added"], 0, 0),
+              contender("material.heterogeneous", ["material.youngs_modulus#1"], 0, 0)]
+    for (s, _), score in zip(scored, [4.549e6, 9685.0, 7578.0, 46000.0], strict=True):
+        s["score"] = score
+    keep, rejected = worth_fitting(scored)
+    assert [c.physics for _, c in keep] == ["gravity", "material.heterogeneous"]
+    assert [r["physics"] for r in rejected] == ["contact.plane", "mass.added"]
+    assert rejected[0]["reason"].startswith("not fitted: its score S = 9685 is below 1% of "
+                                            "the round's best (4.549e+06)")
+    assert worth_fitting([]) == ([], [])

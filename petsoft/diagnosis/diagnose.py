@@ -59,7 +59,13 @@ from petsoft.diagnosis.context import (  # noqa: F401
 from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
 from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings
 from petsoft.diagnosis.outputs import DiagnoseResult, build_diagnosis_report, write_outputs
-from petsoft.diagnosis.selection import choose, escape_plane, fit_simplest_first, rank_round
+from petsoft.diagnosis.selection import (
+    choose,
+    escape_plane,
+    fit_simplest_first,
+    rank_round,
+    worth_fitting,
+)
 
 
 def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: float = 0.7,
@@ -218,7 +224,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         # branch) makes nearly the same first-order change, and a score's p-value favours
         # terms of several parameters (gravity's 3 components out-scored a hidden added mass
         # on a cantilever), so the score alone decides neither.
-        contenders = list(significant)
+        contenders, hopeless = worth_fitting(significant)
+        rejected += hopeless
         fit_simplest_first(diag, current, contenders)
         choice = choose(diag, current, contenders)
         accepted = choice.accepted

@@ -128,6 +128,34 @@ class Choice:
     switch: str | None
 
 
+#: A significant candidate whose score is below this share of the round's best is not fitted.
+MIN_SCORE_SHARE = 0.01
+
+
+def worth_fitting(significant: list) -> tuple[list, list]:
+    """Split the round's significant (score entry, candidate) pairs into those worth fitting
+    and the rejected entries of the others: a score is the misfit the term removes to first
+    order (chi2 units, the likelihood ratio's approximation), so a term scoring below
+    :data:`MIN_SCORE_SHARE` of the best explains, to first order, at most that share of what
+    the best does (on the independent suite's plate with gravity concealed: gravity 4.5e6,
+    then a contact plane, an added mass and a stiffness region at 0.05-0.2 %, whose fits took
+    longer than gravity's)."""
+    if not significant:
+        return [], []
+    best = max(s["score"] for s, _ in significant)
+    keep, rejected = [], []
+    for s, c in significant:
+        if s["score"] >= MIN_SCORE_SHARE * best:
+            keep.append((s, c))
+            continue
+        rejected.append({"physics": c.physics, "score": s["score"],
+                         "reason": f"not fitted: its score S = {s['score']:.4g} is below "
+                                   f"{MIN_SCORE_SHARE:.0%} of the round's best ({best:.4g}): "
+                                   "to first order it explains at most that share of what the "
+                                   "best does"})
+    return keep, rejected
+
+
 def fit_simplest_first(diag: Diagnosis, current: Fit, contenders: list) -> None:
     """Fit the contenders ((score entry, candidate) pairs) in batches of as many parameters,
     fewest first; a batch is not fitted when a fitted contender with fewer parameters already
