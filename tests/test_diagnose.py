@@ -367,3 +367,32 @@ def load_experiment_text(text: str):
     import tomllib
 
     return experiment_from_dict(tomllib.loads(text), source="test_diagnose")
+
+
+def test_candidates_scored_together_score_as_they_do_alone(case):
+    """The settings-only candidates (dissipation laws, gravity) share one run with sensitivities
+    to all their parameters: each score equals the one its own run gives; the others (regions,
+    a compliant support, a collider, differenced columns) are scored alone."""
+    from petsoft.diagnosis.context import Diagnosis, evidence_of, scored_together
+
+    exp = load_experiment(case["user"])
+    diag = Diagnosis(exp, read_recording(case["damped"]), fraction=0.7, alpha=0.01,
+                     method="gauss-newton", gradient="sensitivity", integrator=None, noise=None,
+                     comm=PETSc.COMM_WORLD, say=None)
+    base = diag.calibrate(exp)
+    diag.fix_scales(base, evidence_of(diag, base))
+    far = {"point": [0.0, 0.0, -1.0], "normal": [0.0, 0.0, 1.0], "excess": 0.01}
+    cands, _ = build_candidates(exp, scales=diag.scales, plane=far)
+    together = [c for c in cands if scored_together(c)]
+    assert {"damping.mass", "damping.stiffness", "drag.linear", "drag.quadratic",
+            "friction.dry"} <= {c.physics for c in together}
+    assert not {"boundary.compliance", "contact.plane", "material.viscoelastic"} & {
+        c.physics for c in together}
+    shared = diag.score_together(base, together)
+    assert shared is not None
+    for c, entry in zip(together, shared, strict=True):
+        alone = diag.score(base, c)
+        assert entry["physics"] == c.physics
+        assert entry["score"] == pytest.approx(alone["score"], rel=1e-7, abs=1e-9), c.physics
+        assert entry["p_value"] == pytest.approx(alone["p_value"], rel=1e-6, abs=1e-300)
+    assert max(e["score"] for e in shared) > 100.0        # the concealed damping shows

@@ -335,11 +335,7 @@ class Diagnosis:
         """Rank ``candidate`` at ``fit`` (identification window) by its score-test statistic;
         a ``"switch"`` candidate's column is the change the switch makes (see
         :mod:`petsoft.diagnosis.candidates`)."""
-        from petsoft.diagnosis.score import ScoreError, score_test
-
         comm = self.comm if comm is None else petsc_comm(comm)
-        entry = {"physics": candidate.physics, "parameters": candidate.parameters,
-                 "region": candidate.region, "kind": candidate.kind}
         ext = candidate.extend(fit.experiment)
         if candidate.kind == "switch":
             # before: the extended model was fitted here, two calibrations per round that took
@@ -347,10 +343,42 @@ class Diagnosis:
             sim, cols = self._columns(fit.experiment, candidate, comm)
             cols["switch"] = self.simulate(ext, comm=comm, times=self.times[self.ident]) - sim
             gc.collect()
-            tested = ["switch"]
-        else:
-            sim, cols = self._columns(ext, candidate, comm)
-            tested = candidate.tested_parameters
+            return self._score_entry(fit, candidate, ext, sim, cols, ["switch"])
+        sim, cols = self._columns(ext, candidate, comm)
+        return self._score_entry(fit, candidate, ext, sim, cols, candidate.tested_parameters)
+
+    def score_together(self, fit: Fit, candidates: list, comm=None) -> list[dict] | None:
+        """Score several candidates from one run with sensitivities to all their parameters:
+        those that only switch settings on at a value that leaves the model as it is (no
+        regions, colliders or support compliance: :func:`scored_together`). Their columns are
+        those their own runs would give, since at their start values the terms are off; checked:
+        the combined model's simulation must equal ``fit``'s to 1e-6 of the noise, else None
+        (score them one by one). Also None when the columns would be differences."""
+        comm = self.comm if comm is None else petsc_comm(comm)
+        ext = fit.experiment
+        for c in candidates:
+            ext = c.extend(ext)
+        names = list(ext.calibrate)
+        branch_on = ext.viscoelastic.ratio > 0.0 or any(n in VISCOELASTIC for n in names)
+        if branch_on and (self.integrator or ext.time.integrator) != "be":
+            return None
+        try:
+            sim, cols = self._columns(ext, candidates[0], comm)
+        except PetsoftError:
+            return None             # (collective: every rank raised it) one by one, then
+        seen = np.isfinite(self.data[self.ident])
+        moved = float(np.sqrt(np.mean((sim[seen] - fit.sim[self.ident][seen]) ** 2)))
+        if moved > 1e-6 * self.sigma:
+            return None
+        return [self._score_entry(fit, c, ext, sim, cols, c.tested_parameters)
+                for c in candidates]
+
+    def _score_entry(self, fit: Fit, candidate, ext, sim, cols: dict, tested: list) -> dict:
+        """The score entry of ``candidate`` from the simulation and columns of ``ext``."""
+        from petsoft.diagnosis.score import ScoreError, score_test
+
+        entry = {"physics": candidate.physics, "parameters": candidate.parameters,
+                 "region": candidate.region, "kind": candidate.kind}
         data = self.data[self.ident]
         seen = np.isfinite(data)
         r = (sim[seen] - data[seen]) / self.sigma
@@ -462,6 +490,15 @@ def collect(diag, fit, collect_evidence, rec) -> dict:
     return collect_evidence(diag.data[diag.ident], fit.sim[diag.ident], diag.times[diag.ident],
                             rec.reference, rec.names, sigma=diag.sigma_verdict,
                             num_parameters=len(fit.names), alpha=diag.alpha)
+
+
+def scored_together(candidate) -> bool:
+    """Whether ``candidate`` can share a scoring run with others
+    (:meth:`Diagnosis.score_together`): a score-test term that only sets experiment keys, with
+    exact sensitivities (regions may overlap another's, a collider or a compliant support
+    changes the model even at its start)."""
+    return (candidate.kind == "score" and not candidate.regions and not candidate.colliders
+            and candidate.compliance is None)
 
 
 def outward_only(candidate, ext, tested: list[str], gradient) -> str | None:

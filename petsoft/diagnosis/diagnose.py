@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from petsoft.calibration.groups import map_on_groups
+from petsoft.calibration.groups import TaskResult, map_on_groups
 
 # names the tests and scripts import from here
 from petsoft.diagnosis.context import (  # noqa: F401
@@ -55,6 +55,7 @@ from petsoft.diagnosis.context import (  # noqa: F401
     format_values,
     model_scales,
     outward_only,
+    scored_together,
 )
 from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
 from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings
@@ -192,11 +193,21 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             centroids=diag.centroids, scales=diag.scales, plane=plane)
         diag.tell(f"round {rnd}: ranking {len(cands)} candidates "
                   f"({', '.join(c.physics for c in cands)})")
-        ranked = map_on_groups(lambda c, sub, cur=current: diag.score(cur, c, comm=sub), cands,
-                               diag.comm)
+        together = [c for c in cands if scored_together(c)]
+        shared = diag.score_together(current, together) if len(together) > 1 else None
+        gc.collect()
+        alone = [i for i, c in enumerate(cands) if shared is None or not scored_together(c)]
+        ranked = dict(zip(alone, map_on_groups(
+            lambda c, sub, cur=current: diag.score(cur, c, comm=sub),
+            [cands[i] for i in alone], diag.comm), strict=True))
+        if shared is not None:
+            at = [i for i, c in enumerate(cands) if scored_together(c)]
+            ranked.update({i: TaskResult(i, 0, entry)
+                           for i, entry in zip(at, shared, strict=True)})
         gc.collect()
         scores = []
-        for c, res in zip(cands, ranked, strict=True):
+        for i, c in enumerate(cands):
+            res = ranked[i]
             s = res.value if res.ok else {"physics": c.physics, "parameters": c.parameters,
                                           "region": c.region, "kind": c.kind, "score": 0.0,
                                           "dof": max(len(c.parameters), 1), "p_value": 1.0,
