@@ -154,7 +154,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     diag.tell(f"petsoft diagnose: {len(diag.times)} frames, identification t <= {diag.cut:.4g} s "
               f"({int(diag.ident.sum())} frames), held out {int(diag.held.sum())}; noise "
               f"{diag.sigma:.3g} m ({diag.sigma_source})")
-    base = diag.calibrate(experiment, label="base fit")
+    base = diag.calibrate(diag.frequency_matched(experiment, label="base fit"),
+                          label="base fit")
     dof = max(int(np.isfinite(diag.data[diag.ident]).sum()) - len(base.names), 1)
     diag.tell(f"base fit: {format_values(base.names, base.values)}; chi2/dof "
               f"{base.chi2 / dof:.4g}, held-out rms {fmt(base.heldout_rms)} m")

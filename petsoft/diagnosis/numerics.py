@@ -238,7 +238,9 @@ def _better(r, gain: float, best_r, best_gain: float) -> bool:
 def _refit(diag: Diagnosis, experiment, comm, what: str):
     """The refined ``experiment`` calibrated, and simulated before, at the current parameters."""
     moved = diag.simulate(experiment, comm=comm)
-    return diag.calibrate(experiment, comm=comm, label=f"numerics {what}"), moved
+    label = f"numerics {what}"
+    start = diag.frequency_matched(experiment, moved, comm=comm, label=label)
+    return diag.calibrate(start, comm=comm, label=label), moved
 
 
 class NumericsChecks:
