@@ -59,11 +59,6 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
         elif o["matters"]:
             out.append(f"{head}; refitted, the fit improves ({fit}), but less than when "
                        f"{_words(r['adopted'])[0]}.")
-        elif o.get("error_estimate", 0.0) >= 0.5 * sigma and o["gain"] < 0.0:
-            out.append(f"{head}, and refitted it fits worse ({fit}{moved}): this {noun}'s "
-                       "error offsets another discretisation error of the model; counted as a "
-                       f"{noun} error of {_x(o['error_estimate'] / sigma)}x the noise, not "
-                       "blamed on physics.")
         elif x < 1.0:
             out.append(f"{head}: the {noun} is fine for this recording.")
         elif o.get("error_estimate", 0.0) > 0.0:
