@@ -356,6 +356,11 @@ class GeneralizedAlpha(SolverReuse):
         v.copy(v_last)
         self._last = (t, q_last, v_last)
 
+    def _forget_rejected(self) -> bool:
+        """Whether the last solve met an inverted element (forgotten: the solve is repeated)."""
+        bad, self._bad = self._bad is not None, None
+        return bad
+
     def step(self, t0, q0, v0, h, q1, v1) -> StepReport:
         s = self.system
         self._branch = branch_of(s)
@@ -383,7 +388,7 @@ class GeneralizedAlpha(SolverReuse):
         # Except with a constant Jacobian (keeps_solver).
         if not self.keeps_solver():
             self._new_solver()
-        solve_newton(self.snes, q1, self._lagged)
+        solve_newton(self.snes, q1, self._lagged, self._forget_rejected)
         report = StepReport()
         report.newton_iterations = self.snes.getIterationNumber()
         report.linear_iterations = self.snes.getLinearSolveIterations()

@@ -410,6 +410,11 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
             t0_load.destroy()
             self.g0 = s.internal_gradient(q0, s.create_vec())
 
+    def _forget_rejected(self) -> bool:
+        """Whether the last solve met an inverted element (forgotten: the solve is repeated)."""
+        bad, self._bad = self._bad is not None, None
+        return bad
+
     def step(self, t0: float, q0: PETSc.Vec, v0: PETSc.Vec, h: float,
              q1: PETSc.Vec, v1: PETSc.Vec) -> StepReport:
         """Advance (q0, v0) at t0 by h into (q1, v1); returns the step's report."""
@@ -428,7 +433,7 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
         if not self.keeps_solver():
             self._new_solver()
         if self.solver == "snes":
-            solve_newton(self.snes, q1, self._lagged)
+            solve_newton(self.snes, q1, self._lagged, self._forget_rejected)
             report.newton_iterations = self.snes.getIterationNumber()
             report.linear_iterations = self.snes.getLinearSolveIterations()
             done = outcome(self.snes)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from petsc4py import PETSc
 
 #: Systems up to this many dofs are solved directly by default: a forward run or a calibration
@@ -145,18 +147,23 @@ def _set_lag(snes: PETSc.SNES, lag: int) -> None:
         snes.setFromOptions()
 
 
-def solve_newton(snes: PETSc.SNES, x: PETSc.Vec, lagged: bool) -> None:
+def solve_newton(snes: PETSc.SNES, x: PETSc.Vec, lagged: bool,
+                 rejected: Callable[[], bool] | None = None) -> None:
     """``snes.solve(None, x)`` from the guess in ``x``; with ``lagged`` (the solver was set up by
     :func:`factor_once_per_step`) a failure of the chord iteration (the Jacobian moved far
     within the step: an impact, a snap-through, a large rotation) repeats the solve from the
-    same guess by full Newton, then restores the lag for the next step."""
+    same guess by full Newton, then restores the lag for the next step. ``rejected()``: whether
+    the solve went through a state the model refuses (an inverted element), forgetting it; such
+    a chord counts as failed (seen: a backward-Euler step of a bent neo-Hookean bar at h = 1/60 s
+    whose chord iterates inverted an element that full Newton never reached)."""
     if not lagged:
         snes.solve(None, x)
         return
     guess = x.copy()
     try:
         snes.solve(None, x)
-        if snes.getConvergedReason() > 0:
+        bad = rejected() if rejected is not None else False
+        if snes.getConvergedReason() > 0 and not bad:
             return
         guess.copy(x)
         refactor_every_iteration(snes)
