@@ -9,6 +9,7 @@ the misfit. :func:`evidence_of` is the mismatch analysis of one fit.
 
 from __future__ import annotations
 
+import functools
 import gc
 import time
 from dataclasses import dataclass
@@ -294,19 +295,15 @@ class Diagnosis:
     def _frequency_ratio(self, sim: np.ndarray) -> float | None:
         """The data's dominant oscillation frequency over the simulation's (identification
         window), None when either has no oscillation."""
-        from petsoft.calibration.spectra import SpectralError, dominant_modes
+        f_sim = dominant_frequency(self.times[self.ident], sim[self.ident])
+        if self.data_frequency is None or f_sim is None:
+            return None
+        return self.data_frequency / f_sim
 
-        times = self.times[self.ident]
-        try:
-            f_data = [m["frequency_hz"] for m in dominant_modes(times, self.data[self.ident])
-                      if m["frequency_hz"] > 0.0]
-            f_sim = [m["frequency_hz"] for m in dominant_modes(times, sim[self.ident])
-                     if m["frequency_hz"] > 0.0]
-        except SpectralError:
-            return None
-        if not f_data or not f_sim:
-            return None
-        return f_data[0] / f_sim[0]
+    @functools.cached_property
+    def data_frequency(self) -> float | None:
+        """The data's dominant oscillation frequency (Hz) on the identification window."""
+        return dominant_frequency(self.times[self.ident], self.data[self.ident])
 
     def calibrate(self, experiment, comm=None, label: str = "fit") -> Fit:
         """Calibrate ``experiment`` on the identification window; predict the held-out one.
@@ -416,9 +413,7 @@ class Diagnosis:
         ext = fit.experiment
         for c in candidates:
             ext = c.extend(ext)
-        names = list(ext.calibrate)
-        branch_on = ext.viscoelastic.ratio > 0.0 or any(n in VISCOELASTIC for n in names)
-        if branch_on and (self.integrator or ext.time.integrator) != "be":
+        if self._all_differenced(ext):
             return None
         try:
             sim, cols = self._columns(ext, candidates[0], comm)
@@ -454,6 +449,14 @@ class Diagnosis:
         return {**entry, "score": s.statistic, "dof": s.dof, "p_value": s.p_value,
                 "log10_p": s.log10_p, "gradient": s.gradient.tolist()}
 
+    def _all_differenced(self, ext) -> bool:
+        """Whether every sensitivity column of ``ext`` must be a difference: a viscoelastic
+        branch is in the model (added in an earlier round) and the integrator is not be (the
+        exact sensitivities of si and alpha refuse the branch)."""
+        branch_on = (ext.viscoelastic.ratio > 0.0
+                     or any(n in VISCOELASTIC for n in ext.calibrate or {}))
+        return branch_on and (self.integrator or ext.time.integrator) != "be"
+
     def _columns(self, ext, candidate, comm) -> tuple[np.ndarray, dict]:
         """Simulation and sensitivity columns of the extended model at its current values:
         exact forward sensitivities, one-sided differences for ``"score-fd"`` parameters."""
@@ -463,8 +466,7 @@ class Diagnosis:
         # viscoelastic branch is already in the model (added in an earlier round) and the
         # integrator is not be: the exact sensitivities of si and alpha refuse the branch
         fd = [n for n in names if candidate.kind == "score-fd" and n in candidate.parameters]
-        branch_on = ext.viscoelastic.ratio > 0.0 or any(n in VISCOELASTIC for n in names)
-        if branch_on and (self.integrator or ext.time.integrator) != "be":
+        if self._all_differenced(ext):
             fd = list(names)
         exact = [n for n in names if n not in fd]
         t = self.times[self.ident]
@@ -548,6 +550,19 @@ def collect(diag, fit, collect_evidence, rec) -> dict:
     return collect_evidence(diag.data[diag.ident], fit.sim[diag.ident], diag.times[diag.ident],
                             rec.reference, rec.names, sigma=diag.sigma_verdict,
                             num_parameters=len(fit.names), alpha=diag.alpha)
+
+
+def dominant_frequency(times: np.ndarray, signals: np.ndarray) -> float | None:
+    """The frequency (Hz) of the largest oscillation shared by the markers' ``signals``
+    (:func:`petsoft.calibration.spectra.dominant_modes`), None without one."""
+    from petsoft.calibration.spectra import SpectralError, dominant_modes
+
+    try:
+        found = [m["frequency_hz"] for m in dominant_modes(times, signals)
+                 if m["frequency_hz"] > 0.0]
+    except SpectralError:
+        return None
+    return found[0] if found else None
 
 
 def scored_together(candidate) -> bool:

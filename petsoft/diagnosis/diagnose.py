@@ -194,17 +194,16 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             centroids=diag.centroids, scales=diag.scales, plane=plane)
         diag.tell(f"round {rnd}: ranking {len(cands)} candidates "
                   f"({', '.join(c.physics for c in cands)})")
-        together = [c for c in cands if scored_together(c)]
-        shared = diag.score_together(current, together) if len(together) > 1 else None
+        at = [i for i, c in enumerate(cands) if scored_together(c)]
+        shared = (diag.score_together(current, [cands[i] for i in at]) if len(at) > 1
+                  else None)
         gc.collect()
-        alone = [i for i, c in enumerate(cands) if shared is None or not scored_together(c)]
-        ranked = dict(zip(alone, map_on_groups(
+        ranked = ({i: TaskResult(i, 0, entry) for i, entry in zip(at, shared, strict=True)}
+                  if shared is not None else {})
+        alone = [i for i in range(len(cands)) if i not in ranked]
+        ranked.update(zip(alone, map_on_groups(
             lambda c, sub, cur=current: diag.score(cur, c, comm=sub),
             [cands[i] for i in alone], diag.comm), strict=True))
-        if shared is not None:
-            at = [i for i, c in enumerate(cands) if scored_together(c)]
-            ranked.update({i: TaskResult(i, 0, entry)
-                           for i, entry in zip(at, shared, strict=True)})
         gc.collect()
         scores = []
         for i, c in enumerate(cands):
