@@ -202,6 +202,9 @@ class Diagnosis:
         self.held = ~ident
         self.base_experiment = experiment
         self.model_error = {}
+        #: mesh refinements measured by one run (too large to fit), per (label, mesh): the
+        #: numerics rounds' entries (:func:`petsoft.diagnosis.numerics.measure_refinement`)
+        self.measured_meshes: dict = {}
         #: typical mass, area, speed... of the model (candidate parameter scales), fixed by
         #: :meth:`fix_scales` once the base model's numerics are settled
         self.scales: dict | None = None
@@ -413,7 +416,7 @@ class Diagnosis:
         ext = fit.experiment
         for c in candidates:
             ext = c.extend(ext)
-        if self._all_differenced(ext):
+        if self.all_differenced(ext):
             return None
         try:
             sim, cols = self._columns(ext, candidates[0], comm)
@@ -449,7 +452,7 @@ class Diagnosis:
         return {**entry, "score": s.statistic, "dof": s.dof, "p_value": s.p_value,
                 "log10_p": s.log10_p, "gradient": s.gradient.tolist()}
 
-    def _all_differenced(self, ext) -> bool:
+    def all_differenced(self, ext) -> bool:
         """Whether every sensitivity column of ``ext`` must be a difference: a viscoelastic
         branch is in the model (added in an earlier round) and the integrator is not be (the
         exact sensitivities of si and alpha refuse the branch)."""
@@ -466,7 +469,7 @@ class Diagnosis:
         # viscoelastic branch is already in the model (added in an earlier round) and the
         # integrator is not be: the exact sensitivities of si and alpha refuse the branch
         fd = [n for n in names if candidate.kind == "score-fd" and n in candidate.parameters]
-        if self._all_differenced(ext):
+        if self.all_differenced(ext):
             fd = list(names)
         exact = [n for n in names if n not in fd]
         t = self.times[self.ident]

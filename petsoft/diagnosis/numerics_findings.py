@@ -37,6 +37,17 @@ def _shifts(before: dict, after: dict) -> str:
     return f", {' and '.join(moved)}" if moved else ""
 
 
+def _measured_sentence(head: str, o: dict, sigma: float, noun: str) -> str:
+    """What one run of a mesh too large to fit measured (``measured_only`` entries)."""
+    text = (f"{head}, simulated once (over diagnose's fitting limit); after a {o['refit']} "
+            f"it still changes by {_x(o['change_over_noise'])}x the noise")
+    if o["error_estimate"] > 0.0:
+        return (text + f": counted as a {noun} error of {_x(o['error_estimate'] / sigma)}x the "
+                "noise in the verdict's noise budget, not blamed on physics"
+                + (" (it matters: refine the mesh to resolve it)." if o["matters"] else "."))
+    return text + f", but no closer to the data: the {noun} is not what the model misses."
+
+
 def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
     out = []
     where = ("" if first else "Checked again on the final model: " if r.get("final_check")
@@ -51,7 +62,9 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
         head = head[0].upper() + head[1:]
         fit = f"chi2/dof {r['chi2'] / r['dof']:.3g} -> {o['chi2_per_dof']:.3g}"
         moved = _shifts(r["parameters"], o["parameters"])
-        if r.get("adopted") == label:
+        if o.get("measured_only"):
+            out.append(_measured_sentence(head, o, sigma, noun))
+        elif r.get("adopted") == label:
             blame = (f"the mismatch is the {noun}, not physics" if x >= 3.0 else
                      f"part of the mismatch is the {noun}")
             out.append(f"{head}; refitted, {fit}{moved}: {blame}. The refined model is "
@@ -69,6 +82,15 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
             out.append(f"{head}, but refitted it is no closer to the data ({fit}): the {noun} "
                        "is not what the model misses.")
     return out
+
+
+def measured_error(rounds: list[dict]) -> float:
+    """The last mesh error measured by one run of a mesh too large to fit (0 if none)."""
+    for r in reversed(rounds):
+        o = r["options"].get("mesh x2", {})
+        if o.get("measured_only"):
+            return float(o.get("error_estimate", 0.0))
+    return 0.0
 
 
 def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
@@ -159,6 +181,10 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
                       + (f"; the diagnosis used {now}, whose own error is estimated at "
                          f"{_x(rem)}x the noise" if extra else "") + ".")
         mesh["recommended_tets"] = need
+    elif measured_error(rounds) > sigma:
+        advice.append(f"Refine the mesh ({user} tets): one run of the split mesh measured an "
+                      f"error of {_x(measured_error(rounds) / sigma)}x the noise on the final "
+                      "model's mesh.")
     elif any("mesh x2" in r["options"] for r in rounds) or isinstance(num.get("mesh x2"), dict):
         raised = final.experiment.mesh.order > base.experiment.mesh.order
         advice.append(f"Your mesh ({user} tets) is fine for this recording"
