@@ -35,6 +35,10 @@ MESH_CELLS = 6000
 #: an added mass and gravity while its split mesh (the size of 32,832 4-node tets, 21k dofs) was
 #: over the fitting limit; simulating it once took 140 s on one rank.
 MEASURE_CELLS = 48000
+#: The measuring run is made only when the fit's rms is at most this many times the noise: a
+#: mesh error can decide the verdict only when the misfit above the noise is of its order; a
+#: large (physical) misfit is checked again once it has shrunk (:func:`numerics_due`).
+MEASURE_BELOW_RMS = 3.0
 #: The largest system the measuring run solves directly (one rank): see
 #: :func:`petsoft.solvers.linear.direct_solve_up_to`.
 MEASURE_DIRECT_DOFS = 60000
@@ -317,7 +321,8 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
                   f"{ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
         if ev["verdict"] == "consistent":
             break
-    if ev["verdict"] != "consistent" and not mesh_done and _measure_untried(diag, fit, rounds):
+    if (ev["verdict"] != "consistent" and not mesh_done
+            and fit.rms <= MEASURE_BELOW_RMS * diag.sigma and _measure_untried(diag, fit, rounds)):
         ev = evidence_of(diag, fit)
     return fit, ev, rounds
 
