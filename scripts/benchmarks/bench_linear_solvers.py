@@ -11,7 +11,9 @@ the forward Newton's linear solvers chosen by PETSc options:
 * ``petsc-lu``: PETSc's own LU (its default nested-dissection ordering), serial only;
 * ``cg-gamg``: CG + algebraic multigrid (rtol 1e-12, the rigid-body near-nullspace);
 * ``default``: what petsoft picks with no options (:func:`petsoft.solvers.linear.linear_defaults`:
-  direct up to ``DIRECT_DOFS`` dofs).
+  direct up to ``DIRECT_DOFS`` dofs);
+* ``direct``: the default's direct solve at every size (``direct_solve_up_to``, one rank: the
+  factor is kept across a step's Newton iterations, which naming ``-fm_pc_type`` turns off).
 
 The table gives milliseconds per time step (best of ``--repeat``, interleaved so a slow phase of
 a shared machine hits all solvers alike) and each solver's time relative to CG + GAMG from the
@@ -24,6 +26,7 @@ Run
     mpiexec -n 2 .venv/bin/python scripts/benchmarks/bench_linear_solvers.py
 
 Things to try: ``--material neohookean`` (Newton takes several iterations per step);
+``--order 2`` (10-node tetrahedra: denser rows, a different crossover);
 ``--sizes 12 24 48`` (cells along the bar; the section has a sixth of them, at least 2).
 """
 
@@ -38,6 +41,8 @@ _parser.add_argument("--sizes", type=int, nargs="+", default=[12, 24, 36, 48],
                      help="cells along the bar (default 12 24 36 48)")
 _parser.add_argument("--steps", type=int, default=20, help="time steps (default 20)")
 _parser.add_argument("--material", default="linear", choices=["linear", "neohookean"])
+_parser.add_argument("--order", type=int, default=1, choices=[1, 2],
+                    help="element order (default 1: 4-node tetrahedra)")
 _parser.add_argument("--repeat", type=int, default=2, help="timed runs per entry (default 2)")
 _parser.add_argument("--quick", action="store_true", help="smoke run: one small size, 3 steps")
 ARGS, _petsc_args = _parser.parse_known_args()
@@ -55,13 +60,14 @@ from petsc4py import PETSc  # noqa: E402
 from petsoft.calibration.forward import ForwardModel  # noqa: E402
 from petsoft.calibration.observation import MarkerObserver  # noqa: E402
 from petsoft.experiment import experiment_from_dict  # noqa: E402
-from petsoft.solvers.linear import DIRECT_DOFS  # noqa: E402
+from petsoft.solvers.linear import DIRECT_DOFS, direct_solve_up_to  # noqa: E402
 
 SOLVERS = {
     "default": {},
     "mumps": {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"},
     "petsc-lu": {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "petsc"},
     "cg-gamg": {"ksp_type": "cg", "pc_type": "gamg"},
+    "direct": None,
 }
 MARKERS = np.array([[0.3, 0.0, 0.0], [0.3, 0.04, 0.04], [0.15, 0.02, 0.04]])
 STEP = 2e-3
@@ -70,7 +76,8 @@ STEP = 2e-3
 def experiment(nx: int):
     ny = max(2, nx // 6)
     return experiment_from_dict({
-        "mesh": {"box": {"size": [0.3, 0.04, 0.04], "cells": [nx, ny, ny]}},
+        "mesh": {"box": {"size": [0.3, 0.04, 0.04], "cells": [nx, ny, ny]},
+                 "order": ARGS.order},
         "material": {"model": ARGS.material, "youngs_modulus": 1e6, "poisson_ratio": 0.3,
                      "density": 1000.0},
         "boundary": [{"kind": "fixed", "where": "x < 1e-9"}],
@@ -79,8 +86,12 @@ def experiment(nx: int):
     }, source="bench_linear_solvers")
 
 
-def with_options(opts: dict, fn):
-    """Call ``fn`` with the forward Newton's linear-solver options set (prefix ``fm_``)."""
+def with_options(opts: dict | None, fn):
+    """Call ``fn`` with the forward Newton's linear-solver options set (prefix ``fm_``); None:
+    the default's direct solve whatever the size."""
+    if opts is None:
+        with direct_solve_up_to(10**9):
+            return fn()
     db = PETSc.Options()
     for k, v in opts.items():
         db.setValue("fm_" + k, v)
@@ -94,10 +105,11 @@ def with_options(opts: dict, fn):
 def main() -> None:
     if ARGS.quick:
         ARGS.sizes, ARGS.steps, ARGS.repeat = [6], 3, 1
-    solvers = [s for s in SOLVERS if not (s == "petsc-lu" and NRANKS > 1)]
+    solvers = [s for s in SOLVERS if not (s in ("petsc-lu", "direct") and NRANKS > 1)]
     if not PETSc.Sys.hasExternalPackage("mumps"):
         solvers.remove("mumps")
-    say(f"bench_linear_solvers: {ARGS.material} bar, generalized-alpha, {ARGS.steps} steps; "
+    say(f"bench_linear_solvers: {ARGS.material} bar, order {ARGS.order}, generalized-alpha, "
+        f"{ARGS.steps} steps; "
         f"{NRANKS} rank(s); ms per step, best of {ARGS.repeat}; ratio = time / cg-gamg's; "
         f"petsoft's default is direct up to {DIRECT_DOFS} dofs")
     say(f"{'tets':>7} {'dofs':>7} " + " ".join(f"{s:>16}" for s in solvers))
