@@ -66,8 +66,8 @@ SOLVERS = {
     "default": {},
     "mumps": {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"},
     "petsc-lu": {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "petsc"},
-    "cg-gamg": {"ksp_type": "cg", "pc_type": "gamg"},
     "direct": None,
+    "cg-gamg": {"ksp_type": "cg", "pc_type": "gamg"},
 }
 MARKERS = np.array([[0.3, 0.0, 0.0], [0.3, 0.04, 0.04], [0.15, 0.02, 0.04]])
 STEP = 2e-3
