@@ -166,6 +166,7 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
     user, now = mesh_cells(base.experiment), mesh_cells(final.experiment)
     mesh = {"tets": user, "tets_final": now}
     advice = []
+    measured = measured_error(rounds)
     if "mesh x2" in remaining or now > user:
         o = remaining.get("mesh x2", {})
         rem = o.get("remaining_bound", o.get("remaining_estimate", 0.0)) / sigma
@@ -181,10 +182,9 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
                       + (f"; the diagnosis used {now}, whose own error is estimated at "
                          f"{_x(rem)}x the noise" if extra else "") + ".")
         mesh["recommended_tets"] = need
-    elif measured_error(rounds) > sigma:
+    elif measured > sigma:
         advice.append(f"Refine the mesh ({user} tets): one run of the split mesh measured an "
-                      f"error of {_x(measured_error(rounds) / sigma)}x the noise on the final "
-                      "model's mesh.")
+                      f"error of {_x(measured / sigma)}x the noise on the final model's mesh.")
     elif any("mesh x2" in r["options"] for r in rounds) or isinstance(num.get("mesh x2"), dict):
         raised = final.experiment.mesh.order > base.experiment.mesh.order
         advice.append(f"Your mesh ({user} tets) is fine for this recording"
