@@ -509,7 +509,9 @@ INVALID = [
 
 
 @pytest.mark.parametrize(
-    "path, value, expected", INVALID, ids=[f"{p}={v!r}"[:60] for p, v, _ in INVALID]
+    "path, value, expected", INVALID,
+    # ids stable across processes (pytest-xdist workers must collect the same names)
+    ids=[(f"{p} deleted" if v is DELETE else f"{p}={v!r}")[:60] for p, v, _ in INVALID]
 )
 def test_invalid_experiments_are_explained(path, value, expected):
     message = error_of(modify(path, value))
