@@ -21,7 +21,8 @@ from petsc4py import PETSc
 from petsoft.calibration.refinement import refinement
 from petsoft.calibration.synth import SynthOptions, synth
 from petsoft.diagnosis.context import Diagnosis
-from petsoft.diagnosis.numerics import measurable, measure_refinement
+from petsoft.diagnosis.numerics import measurable, measure_untried
+from petsoft.diagnosis.numerics_findings import numerics_findings
 from petsoft.experiment import load_experiment
 from petsoft.io.recording import read_recording
 from petsoft.solvers.linear import direct_solve_up_to
@@ -50,8 +51,13 @@ def test_one_run_of_a_mesh_too_large_to_fit_measures_what_a_refit_would_leave(tm
     # 10-node elements on 192 tets split 1->8: as many nodes as 12288 4-node tets, over the
     # fitting limit, under the measuring one
     assert measurable(split, fit.experiment)
-    entry = measure_refinement(diag, fit, split)
+    rounds: list[dict] = []
+    assert measure_untried(diag, fit, rounds)
+    entry = rounds[-1]["options"]["mesh x2"]
     assert entry["measured_only"]
+    # once per mesh: asked again (the final recheck), the measurement is reused, not repeated
+    assert measure_untried(diag, fit, rounds)
+    assert rounds[-1]["options"]["mesh x2"] is entry and len(diag.measured_meshes) == 1
 
     with direct_solve_up_to(60000):
         refit = diag.calibrate(split.make(fit.experiment))
@@ -71,6 +77,15 @@ def test_one_run_of_a_mesh_too_large_to_fit_measures_what_a_refit_would_leave(tm
     assert entry["chi2"] == pytest.approx(refit.chi2, rel=0.03)
     # closer to the data: counted in the verdict's budget as the current mesh's error
     assert entry["gain"] > 0.0
-    assert diag.model_error["mesh x2"] == pytest.approx(entry["change_rms"] * 8.0 / 7.0)
+    assert entry["error_estimate"] == pytest.approx(entry["change_rms"] * 8.0 / 7.0)
+    assert diag.model_error["mesh x2"] == entry["error_estimate"]
     assert diag.sigma_verdict > diag.sigma
+    # the words: what the one run found, and a mesh to use since the error exceeds the noise
+    said = numerics_findings(diag, {}, rounds, fit, fit)
+    x = f"{entry['error_estimate'] / NOISE:.2g}"
+    assert any("simulated once (over diagnose's fitting limit)" in f
+               and f"counted as a mesh error of {x}x the noise" in f
+               for f in said["findings"]), said["findings"]
+    assert said["recommendation"].startswith("Refine the mesh (192 tets): one run of the split "
+                                             f"mesh measured an error of {x}x"), said
     MPI.COMM_WORLD.Barrier()

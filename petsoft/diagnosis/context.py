@@ -244,10 +244,14 @@ class Diagnosis:
         self.scales = model_scales(fit.experiment, self.times[self.ident], self.data[self.ident],
                                    ev)
 
+    def dof(self, n_parameters: int) -> int:
+        """Degrees of freedom of a fit of ``n_parameters`` on the identification window: its
+        seen samples less the parameters (at least 1)."""
+        return max(int(np.isfinite(self.data[self.ident]).sum()) - n_parameters, 1)
+
     def excess(self, fit: Fit) -> float:
         """chi2 above its expectation (the degrees of freedom) on the identification window."""
-        dof = max(int(np.isfinite(self.data[self.ident]).sum()) - len(fit.names), 1)
-        return max(fit.chi2 - dof, 0.0)
+        return max(fit.chi2 - self.dof(len(fit.names)), 0.0)
 
     def tell(self, line: str) -> None:
         if self.say is not None and self.rank0:

@@ -40,8 +40,6 @@ import gc
 import time
 from pathlib import Path
 
-import numpy as np
-
 from petsoft.calibration.groups import TaskResult, map_on_groups
 
 # names the tests and scripts import from here
@@ -156,7 +154,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
               f"{diag.sigma:.3g} m ({diag.sigma_source})")
     base = diag.calibrate(diag.frequency_matched(experiment, label="base fit"),
                           label="base fit")
-    dof = max(int(np.isfinite(diag.data[diag.ident]).sum()) - len(base.names), 1)
+    dof = diag.dof(len(base.names))
     diag.tell(f"base fit: {format_values(base.names, base.values)}; chi2/dof "
               f"{base.chi2 / dof:.4g}, held-out rms {fmt(base.heldout_rms)} m")
     ev = base_ev = evidence_of(diag, base)

@@ -151,14 +151,10 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r) -> dict:
     refit_sim = fit.sim[ident][seen] + lin
     chi2_lin = float(np.sum(((refit_sim - data[seen]) / diag.sigma) ** 2))
     change = float(np.sqrt(np.mean(lin ** 2)))
-    dof = max(int(seen.sum()) - len(fit.names), 1)
+    dof = diag.dof(len(fit.names))
     gain = fit.chi2 - chi2_lin
     excess = max(fit.chi2 - dof, 0.0)
     current, remaining = r.error_factors(exp, diag.integrator)
-    if gain > 0.0:
-        diag.model_error[r.label] = change * current
-    else:
-        diag.model_error.pop(r.label, None)
     diag.tell(f"numerics: {r.label} measured: the simulation changes by {fixed / diag.sigma:.3g}x "
               f"the noise ({change / diag.sigma:.3g}x after a {how}); chi2 {fit.chi2:.5g} -> "
               f"{chi2_lin:.5g}; the current mesh's error is estimated at "
@@ -172,7 +168,8 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r) -> dict:
             "how": r.describe(exp), "refit": how,
             "parameters": dict(zip(fit.names, map(float, np.asarray(fit.values) + step),
                                    strict=True)),
-            "error_estimate": diag.model_error.get(r.label, 0.0),
+            # counted (by the caller) only when the refit is closer to the data
+            "error_estimate": change * current if gain > 0.0 else 0.0,
             "remaining_estimate": change * remaining}
 
 
@@ -244,7 +241,7 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
                                                                what),
                              options, diag.comm)
         gc.collect()
-        dof = max(int(np.isfinite(diag.data[diag.ident]).sum()) - len(fit.names), 1)
+        dof = diag.dof(len(fit.names))
         excess = max(fit.chi2 - dof, 0.0)
         entry = {"chi2": fit.chi2, "dof": dof, "step": exp.time.step, "options": {},
                  "parameters": dict(zip(fit.names, map(float, fit.values), strict=True))}
@@ -322,12 +319,12 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
         if ev["verdict"] == "consistent":
             break
     if (ev["verdict"] != "consistent" and not mesh_done
-            and fit.rms <= MEASURE_BELOW_RMS * diag.sigma and _measure_untried(diag, fit, rounds)):
+            and fit.rms <= MEASURE_BELOW_RMS * diag.sigma and measure_untried(diag, fit, rounds)):
         ev = evidence_of(diag, fit)
     return fit, ev, rounds
 
 
-def _measure_untried(diag: Diagnosis, fit: Fit, rounds: list[dict]) -> bool:
+def measure_untried(diag: Diagnosis, fit: Fit, rounds: list[dict]) -> bool:
     """Measure, once per mesh, each mesh refinement of ``fit``'s model that was too large to fit
     (:func:`measurable`), into the last round's entry (a new one when that round adopted a
     refinement: its options were those of the model before); a mesh measured before keeps its
@@ -341,7 +338,7 @@ def _measure_untried(diag: Diagnosis, fit: Fit, rounds: list[dict]) -> bool:
     if rounds and "adopted" not in rounds[-1]:
         entry = rounds[-1]
     else:
-        dof = max(int(np.isfinite(diag.data[diag.ident]).sum()) - len(fit.names), 1)
+        dof = diag.dof(len(fit.names))
         entry = {"chi2": fit.chi2, "dof": dof, "step": exp.time.step, "options": {},
                  "tets": mesh_cells(exp), "measured_only": True,
                  "parameters": dict(zip(fit.names, map(float, fit.values), strict=True))}
@@ -359,6 +356,8 @@ def _measure_untried(diag: Diagnosis, fit: Fit, rounds: list[dict]) -> bool:
         entry.get("not_tried", {}).pop(r.label, None)
         if o.get("error_estimate", 0.0) > 0.0:
             diag.model_error[r.label] = o["error_estimate"]
+        else:
+            diag.model_error.pop(r.label, None)
     return True
 
 
