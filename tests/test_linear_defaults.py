@@ -3,7 +3,7 @@ systems, CG + GAMG above DIRECT_DOFS and on several ranks (bit-reproducible runs
 
 from petsc4py import PETSc
 
-from petsoft.solvers.linear import DIRECT_DOFS, linear_defaults
+from petsoft.solvers.linear import DIRECT_DOFS, DIRECT_DOFS_QUADRATIC, linear_defaults
 
 
 def _ksp(comm, prefix):
@@ -35,6 +35,13 @@ def test_large_or_user_chosen_systems_keep_their_solver():
     linear_defaults(ksp, dofs=DIRECT_DOFS + 1)
     assert ksp.getType() == PETSc.KSP.Type.CG
     ksp.destroy()
+    # 10-node elements: direct far longer (denser rows; bench_linear_solvers.py --order 2)
+    for dofs, expected in ((DIRECT_DOFS + 1, PETSc.KSP.Type.PREONLY),
+                           (DIRECT_DOFS_QUADRATIC + 1, PETSc.KSP.Type.CG)):
+        ksp = _ksp(PETSc.COMM_SELF, "ld_quadratic_")
+        linear_defaults(ksp, dofs=dofs, order=2)
+        assert ksp.getType() == expected, dofs
+        ksp.destroy()
     opts = PETSc.Options()
     opts["ld_user_pc_type"] = "jacobi"
     try:

@@ -260,7 +260,7 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
     def linear_defaults(self, ksp: PETSc.KSP) -> None:
         """petsoft's default linear solver for this system's size (:func:`petsoft.solvers.linear.
         linear_defaults`: direct when small, else CG + GAMG)."""
-        linear_defaults(ksp, dofs=3 * self.dmesh.nglobal_vertices)
+        linear_defaults(ksp, dofs=3 * self.dmesh.nglobal_vertices, order=self.dmesh.order)
 
     def apply_prescribed(self, vec: PETSc.Vec, t: float) -> None:
         """Set the prescribed entries of ``vec`` to the supports' displacement at t."""

@@ -11,6 +11,12 @@ from petsc4py import PETSc
 #: makes thousands of solves, and on a few thousand dofs one factorisation costs less than an
 #: algebraic-multigrid set-up plus its iterations (scripts/benchmarks/bench_linear_solvers.py).
 DIRECT_DOFS = 6000
+#: The same for 10-node tetrahedra, whose denser rows favour the direct solve far longer:
+#: generalized-alpha runs of a linear bar (bench_linear_solvers.py --order 2, 1 rank, at
+#: ecf72b0) took 0.23x / 0.29x / 0.30x CG + GAMG's time a step at 1875 / 11907 / 37011 dofs
+#: (MUMPS's symmetric factor); CG + GAMG on a neo-Hookean bar broke down (indefinite Newton
+#: iterate) where the direct solve went on.
+DIRECT_DOFS_QUADRATIC = 40000
 #: Up to this many dofs the direct solve is PETSc's own LU with a nested-dissection ordering:
 #: MUMPS costs ~1.5 ms a factorisation whatever the size (its set-up per call), which was most of
 #: a 351-dof bar's Newton iteration; PETSc's LU is faster up to ~1200 dofs, MUMPS beyond
@@ -25,13 +31,13 @@ def direct_solve_up_to(dofs: int):
     always): for a single forward run above the default's size whose time steps change the
     matrix little. Measured on the independent L-bracket's 10-node split mesh (21k dofs, 200
     generalized-alpha steps, 1 rank): MUMPS 140 s; CG + GAMG had not finished after 200 s."""
-    global DIRECT_DOFS
-    before = DIRECT_DOFS
-    DIRECT_DOFS = max(before, int(dofs))
+    global DIRECT_DOFS, DIRECT_DOFS_QUADRATIC
+    before = DIRECT_DOFS, DIRECT_DOFS_QUADRATIC
+    DIRECT_DOFS, DIRECT_DOFS_QUADRATIC = (max(b, int(dofs)) for b in before)
     try:
         yield
     finally:
-        DIRECT_DOFS = before
+        DIRECT_DOFS, DIRECT_DOFS_QUADRATIC = before
 
 
 def solver_chosen(ksp: PETSc.KSP) -> bool:
@@ -42,9 +48,11 @@ def solver_chosen(ksp: PETSc.KSP) -> bool:
     return db.hasName(prefix + "ksp_type") or db.hasName(prefix + "pc_type")
 
 
-def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None) -> None:
-    """A direct solve for up to :data:`DIRECT_DOFS` dofs, else CG + algebraic multigrid (the
-    caller attaches the rigid-body near-nullspace).
+def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None,
+                    order: int = 1) -> None:
+    """A direct solve for up to :data:`DIRECT_DOFS` dofs (:data:`DIRECT_DOFS_QUADRATIC` for
+    10-node elements), else CG + algebraic multigrid (the caller attaches the rigid-body
+    near-nullspace).
 
     The direct solve is PETSc's LU (nested dissection) up to :data:`SMALL_DIRECT_DOFS`, then
     MUMPS when PETSc has it (on a 1875-dof bar it factors 2.5x faster than PETSc's own LU),
@@ -65,8 +73,11 @@ def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None
         Relative tolerance of the iterative default.
     dofs :
         Global size of the system; ``None`` keeps the iterative default.
+    order :
+        Element order of the system (2: 10-node tetrahedra).
     """
-    if (dofs is not None and dofs <= DIRECT_DOFS and not solver_chosen(ksp)
+    limit = DIRECT_DOFS_QUADRATIC if order == 2 else DIRECT_DOFS
+    if (dofs is not None and dofs <= limit and not solver_chosen(ksp)
             and ksp.getComm().getSize() == 1):
         ksp.setType(PETSc.KSP.Type.PREONLY)
         pc = ksp.getPC()

@@ -95,7 +95,7 @@ class StaticSolver:
             snes.setJacobian(self._jacobian, self.J, self.J)
             snes.setTolerances(rtol=1e-10, atol=0.0, stol=0.0, max_it=50)
             self.ksp = snes.getKSP()
-            linear_defaults(self.ksp, dofs=self.F.getSize())
+            linear_defaults(self.ksp, dofs=self.F.getSize(), order=dm.order)
             with scoped_defaults(**line_search):
                 snes.setFromOptions()
         else:
@@ -107,11 +107,11 @@ class StaticSolver:
             tao.setTolerances(gatol=0.0, grtol=0.0, gttol=1e-10)
             tao.setMaximumIterations(50)
             self.ksp = tao.getKSP()
-            linear_defaults(self.ksp, dofs=self.F.getSize())
+            linear_defaults(self.ksp, dofs=self.F.getSize(), order=dm.order)
             tao.setFromOptions()
         self.lift_ksp = PETSc.KSP().create(comm=comm)
         self.lift_ksp.setOptionsPrefix(prefix + "lift_")
-        linear_defaults(self.lift_ksp, dofs=self.F.getSize())
+        linear_defaults(self.lift_ksp, dofs=self.F.getSize(), order=dm.order)
         self.lift_ksp.setOperators(self.J, self.J)
         self.lift_ksp.setFromOptions()
 
