@@ -11,8 +11,14 @@ export MPLBACKEND=Agg
 # one BLAS thread per process (petsoft/__init__.py sets the same default; a test module may
 # load PETSc before importing petsoft)
 export OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}"
-echo "== serial =="
-"$PY" -m pytest -q --color=no -p no:cacheprovider "$@" tests
+echo "== serial (two pytest workers, one test file each at a time) =="
+# Two single-rank workers use the 2 cores the 2-rank pass uses; a file stays on one worker so
+# its module fixtures (the diagnose cases' syntheses) are made once.
+# A serial failure does not stop the 2-rank pass: the log shows both before the script fails.
+set +e
+"$PY" -m pytest -q --color=no -p no:cacheprovider -n 2 --dist loadfile "$@" tests
+serial_status=$?
+set -e
 echo "== 2 MPI ranks =="
 # Rank 1's report goes to a file (shown if it fails) so the log reads as one run.
 RANK1_LOG="$(mktemp)"
@@ -24,4 +30,5 @@ status=$?
 set -e
 if [ $status -ne 0 ]; then echo "== rank 1 report =="; cat "$RANK1_LOG"; fi
 rm -f "$RANK1_LOG"
+if [ $serial_status -ne 0 ]; then echo "== the serial pass failed (above) =="; exit $serial_status; fi
 exit $status
