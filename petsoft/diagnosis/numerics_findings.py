@@ -17,7 +17,8 @@ REPORT_KEYS = ("findings", "recommendation", "mesh")
 #: How each kind of refinement is said: (the action, the thing refined).
 _WORDS = {"step": ("the time step is halved", "time step"),
           "mesh": ("the mesh is refined", "mesh"),
-          "order": ("the elements are raised to order 2", "element order")}
+          "order": ("the elements are raised to order 2", "element order"),
+          "mesh+step": ("the mesh is split and the step halved together", "discretisation")}
 
 
 def _x(v: float) -> str:
@@ -84,13 +85,17 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
     return out
 
 
-def measured_error(rounds: list[dict]) -> float:
-    """The last mesh error measured by one run of a mesh too large to fit (0 if none)."""
+def measured_error(rounds: list[dict]) -> tuple[float, str | None]:
+    """The largest error measured by one run of a mesh too large to fit, on the last round
+    that measured one, and its label (``"mesh x2"``, or ``"mesh x2 + step/2"`` when only the
+    split mesh at half the step came closer to the data); (0, None) if none."""
     for r in reversed(rounds):
-        o = r["options"].get("mesh x2", {})
-        if o.get("measured_only"):
-            return float(o.get("error_estimate", 0.0))
-    return 0.0
+        measured = {label: float(o.get("error_estimate", 0.0))
+                    for label, o in r["options"].items() if o.get("measured_only")}
+        if measured:
+            label = max(measured, key=measured.get)
+            return measured[label], label
+    return 0.0, None
 
 
 def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
@@ -166,7 +171,7 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
     user, now = mesh_cells(base.experiment), mesh_cells(final.experiment)
     mesh = {"tets": user, "tets_final": now}
     advice = []
-    measured = measured_error(rounds)
+    measured, measured_by = measured_error(rounds)
     if "mesh x2" in remaining or now > user:
         o = remaining.get("mesh x2", {})
         rem = o.get("remaining_bound", o.get("remaining_estimate", 0.0)) / sigma
@@ -183,8 +188,10 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
                          f"{_x(rem)}x the noise" if extra else "") + ".")
         mesh["recommended_tets"] = need
     elif measured > sigma:
-        advice.append(f"Refine the mesh ({user} tets): one run of the split mesh measured an "
-                      f"error of {_x(measured / sigma)}x the noise on the final model's mesh.")
+        both = measured_by != "mesh x2"
+        advice.append(f"Refine the mesh ({user} tets){' and the time step' if both else ''}: "
+                      f"one run of the split mesh{' at half the step' if both else ''} measured "
+                      f"an error of {_x(measured / sigma)}x the noise on the final model.")
     elif any("mesh x2" in r["options"] for r in rounds) or isinstance(num.get("mesh x2"), dict):
         raised = final.experiment.mesh.order > base.experiment.mesh.order
         advice.append(f"Your mesh ({user} tets) is fine for this recording"

@@ -189,10 +189,10 @@ def run_case(label: str, system, h: float, args) -> list[dict]:
 def main(argv=None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="tiny sizes, one round")
-    p.add_argument("--bar-cells", type=int, nargs="+", default=[20, 40, 80],
-                   help="cells along the bar (x m/10 x m/10)")
-    p.add_argument("--cloth-nodes", type=int, nargs="+", default=[16, 32, 64],
-                   help="nodes per side of the cloth")
+    p.add_argument("--bar-cells", type=int, nargs="*", default=[20, 40, 80],
+                   help="cells along the bar (x m/10 x m/10); none: no bar")
+    p.add_argument("--cloth-nodes", type=int, nargs="*", default=[16, 32, 64],
+                   help="nodes per side of the cloth; none: no cloth")
     p.add_argument("--bar-step", type=float, default=1e-3)
     p.add_argument("--cloth-step", type=float, default=1e-2)
     p.add_argument("--small", type=float, default=10.0,
