@@ -1,5 +1,5 @@
-"""Default linear solvers (petsoft.solvers.linear.linear_defaults): direct on one rank for small
-systems, CG + GAMG above DIRECT_DOFS and on several ranks (bit-reproducible runs there)."""
+"""Default linear solvers (petsoft.solvers.linear.linear_defaults): direct for small systems (on
+several ranks a redundant PETSc LU, bit-reproducible there), CG + GAMG above DIRECT_DOFS."""
 
 from petsc4py import PETSc
 
@@ -12,7 +12,7 @@ def _ksp(comm, prefix):
     return ksp
 
 
-def test_small_systems_are_direct_on_one_rank_only():
+def test_small_systems_are_direct():
     world = PETSc.COMM_WORLD
     ksp = _ksp(world, "ld_small_")
     linear_defaults(ksp, dofs=100)
@@ -20,8 +20,13 @@ def test_small_systems_are_direct_on_one_rank_only():
         assert ksp.getType() == PETSc.KSP.Type.PREONLY
         assert ksp.getPC().getType() == PETSc.PC.Type.LU
     else:
-        assert ksp.getType() == PETSc.KSP.Type.CG
-        assert ksp.getPC().getType() == PETSc.PC.Type.GAMG
+        # every rank factors the whole matrix by PETSc's LU (deterministic, no GAMG set-up)
+        assert ksp.getType() == PETSc.KSP.Type.PREONLY
+        assert ksp.getPC().getType() == PETSc.PC.Type.REDUNDANT
+    ksp.destroy()
+    ksp = _ksp(world, "ld_medium_")
+    linear_defaults(ksp, dofs=DIRECT_DOFS + 1)
+    assert ksp.getType() == PETSc.KSP.Type.CG and ksp.getPC().getType() == PETSc.PC.Type.GAMG
     ksp.destroy()
     # a one-rank sub-communicator (a candidate fit on its own rank) is direct whatever the world
     own = _ksp(PETSc.COMM_SELF, "ld_self_")

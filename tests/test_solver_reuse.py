@@ -67,11 +67,11 @@ def test_reused_factorisation_gives_the_same_trajectory(method, monkeypatch):
 def test_snes_is_kept_unless_a_changing_matrix_meets_multigrid(model, pc):
     """Kept within a run: for a constant Jacobian (whatever the solver), and for a changing
     one under a preconditioner whose set-up depends on the matrix alone (the default direct
-    solve on one rank, Jacobi); renewed every step for a changing matrix under GAMG (random
-    set-up; the default on several ranks)."""
+    solve: LU on one rank, a redundant LU on several; Jacobi); renewed every step for a
+    changing matrix under GAMG (random set-up)."""
     from petsc4py import PETSc
 
-    default = PETSc.PC.Type.LU if PETSc.COMM_WORLD.getSize() == 1 else PETSc.PC.Type.GAMG
+    default = PETSc.PC.Type.LU if PETSc.COMM_WORLD.getSize() == 1 else PETSc.PC.Type.REDUNDANT
     kept = model == "linear" or (pc or default) != PETSc.PC.Type.GAMG
 
     from petsoft.dynamics.alpha import GeneralizedAlpha

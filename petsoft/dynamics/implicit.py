@@ -143,6 +143,12 @@ def repeatable_setup(ksp: PETSc.KSP) -> bool:
     is in :data:`REPEATABLE_PCS`."""
     pc = ksp.getPC()
     kind = pc.getType()
+    if kind == "redundant":
+        # petsoft's default on several ranks (an LU on every rank); its inner solver is named
+        # only by options (petsc4py 3.18 has no accessor)
+        inner = PETSc.Options().getString((ksp.getOptionsPrefix() or "") + "redundant_pc_type",
+                                          "lu")
+        return inner in REPEATABLE_PCS
     if kind not in REPEATABLE_PCS:
         return False
     if kind in ("bjacobi", "asm"):
