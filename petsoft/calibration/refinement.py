@@ -207,11 +207,11 @@ MESH_AND_STEP_HALVED = Refinement(
 
 def refinement(label: str) -> Refinement:
     """The entry of :data:`REFINEMENTS` (or :data:`MESH_AND_STEP_HALVED`) called ``label``."""
-    for r in REFINEMENTS + [MESH_AND_STEP_HALVED]:
+    known = REFINEMENTS + [MESH_AND_STEP_HALVED]
+    for r in known:
         if r.label == label:
             return r
-    raise KeyError(f"unknown refinement {label!r}; known: "
-                   f"{', '.join(r.label for r in REFINEMENTS + [MESH_AND_STEP_HALVED])}")
+    raise KeyError(f"unknown refinement {label!r}; known: {', '.join(r.label for r in known)}")
 
 
 def why_not(r: Refinement, experiment, max_cells: int | None,

@@ -121,7 +121,6 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r) -> dict:
     Returns the round entry of the refinement (``measured_only``: True), in the keys of a
     fitted one.
     """
-    from petsoft.calibration.calibrate import build_forward
     from petsoft.solvers.linear import direct_solve_up_to
 
     exp = fit.experiment
@@ -140,7 +139,7 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r) -> dict:
         lin, step = d, np.zeros(len(fit.names))
         how = "the same parameters (no exact sensitivities to linearise a refit)"
     else:
-        cols = _sensitivities(diag, fit, build_forward)[seen]   # (samples, parameters)
+        cols = _sensitivities(diag, fit)[seen]    # (samples, parameters)
         scale = np.linalg.norm(cols, axis=0)
         scale[scale == 0.0] = 1.0
         # the refit's step: the refined residual's least-squares part in the sensitivities
@@ -152,7 +151,7 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r) -> dict:
     change = float(np.sqrt(np.mean(lin ** 2)))
     dof = diag.dof(len(fit.names))
     gain = fit.chi2 - chi2_lin
-    excess = max(fit.chi2 - dof, 0.0)
+    excess = diag.excess(fit)
     current, remaining = r.error_factors(exp, diag.integrator)
     diag.tell(f"numerics: {r.label} measured: the simulation changes by {fixed / diag.sigma:.3g}x "
               f"the noise ({change / diag.sigma:.3g}x after a {how}); chi2 {fit.chi2:.5g} -> "
@@ -172,9 +171,11 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r) -> dict:
             "remaining_estimate": change * remaining}
 
 
-def _sensitivities(diag: Diagnosis, fit: Fit, build_forward) -> np.ndarray:
+def _sensitivities(diag: Diagnosis, fit: Fit) -> np.ndarray:
     """d(simulated markers)/d(parameters) of ``fit``'s model at its values on the
     identification window (one Jacobian run), kept for the measurements of the same fit."""
+    from petsoft.calibration.calibrate import build_forward
+
     exp = fit.experiment
     key = ("sensitivities", _mesh_key(exp), exp.time.step, tuple(map(float, fit.values)))
     if key not in diag.measured_meshes:
@@ -257,7 +258,7 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
                              options, diag.comm)
         gc.collect()
         dof = diag.dof(len(fit.names))
-        excess = max(fit.chi2 - dof, 0.0)
+        excess = diag.excess(fit)
         entry = {"chi2": fit.chi2, "dof": dof, "step": exp.time.step, "options": {},
                  "parameters": dict(zip(fit.names, map(float, fit.values), strict=True))}
         if not exp.is_mass_spring:

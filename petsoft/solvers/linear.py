@@ -52,6 +52,11 @@ def solver_chosen(ksp: PETSc.KSP) -> bool:
     return db.hasName(prefix + "ksp_type") or db.hasName(prefix + "pc_type")
 
 
+def direct_limit(order: int = 1) -> int:
+    """The largest system solved directly by default for elements of ``order`` (one rank)."""
+    return DIRECT_DOFS_QUADRATIC if order == 2 else DIRECT_DOFS
+
+
 def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None,
                     order: int = 1) -> None:
     """A direct solve for up to :data:`DIRECT_DOFS` dofs (:data:`DIRECT_DOFS_QUADRATIC` for
@@ -82,8 +87,7 @@ def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None
     order :
         Element order of the system (2: 10-node tetrahedra).
     """
-    limit = DIRECT_DOFS_QUADRATIC if order == 2 else DIRECT_DOFS
-    small = dofs is not None and dofs <= limit and not solver_chosen(ksp)
+    small = dofs is not None and dofs <= direct_limit(order) and not solver_chosen(ksp)
     if small and ksp.getComm().getSize() > 1 and dofs <= REDUNDANT_DOFS:
         # every rank factors the whole (small) matrix by PETSc's own LU: deterministic, unlike
         # MUMPS across ranks, and no multigrid set-up

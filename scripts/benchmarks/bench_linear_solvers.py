@@ -60,7 +60,7 @@ from petsc4py import PETSc  # noqa: E402
 from petsoft.calibration.forward import ForwardModel  # noqa: E402
 from petsoft.calibration.observation import MarkerObserver  # noqa: E402
 from petsoft.experiment import experiment_from_dict  # noqa: E402
-from petsoft.solvers.linear import DIRECT_DOFS, DIRECT_DOFS_QUADRATIC, direct_solve_up_to  # noqa: E402
+from petsoft.solvers.linear import direct_limit, direct_solve_up_to  # noqa: E402
 
 SOLVERS = {
     "default": {},
@@ -111,8 +111,7 @@ def main() -> None:
     say(f"bench_linear_solvers: {ARGS.material} bar, order {ARGS.order}, generalized-alpha, "
         f"{ARGS.steps} steps; "
         f"{NRANKS} rank(s); ms per step, best of {ARGS.repeat}; ratio = time / cg-gamg's; "
-        f"petsoft's default is direct up to "
-        f"{DIRECT_DOFS_QUADRATIC if ARGS.order == 2 else DIRECT_DOFS} dofs")
+        f"petsoft's default is direct up to {direct_limit(ARGS.order)} dofs")
     say(f"{'tets':>7} {'dofs':>7} " + " ".join(f"{s:>16}" for s in solvers))
     frames = np.array([ARGS.steps * STEP])
     for nx in ARGS.sizes:
