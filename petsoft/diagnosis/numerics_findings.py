@@ -65,6 +65,12 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
         moved = _shifts(r["parameters"], o["parameters"])
         if o.get("measured_only"):
             out.append(_measured_sentence(head, o, sigma, noun))
+        elif o.get("screened"):
+            # not refitted: its linearised refit was no closer to the data
+            out.append(f"{head}" + (f": the {noun} is fine for this recording" if x < 1.0 else
+                                    f", but a linearised refit is no closer to the data "
+                                    f"({fit}): the {noun} is not what the model misses")
+                       + " (not refitted).")
         elif r.get("adopted") == label:
             blame = (f"the mismatch is the {noun}, not physics" if x >= 3.0 else
                      f"part of the mismatch is the {noun}")
