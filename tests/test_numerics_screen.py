@@ -27,8 +27,10 @@ from petsoft.io.recording import read_recording
 NOISE = 2e-5
 
 
-def test_a_small_refinement_no_closer_after_a_linearised_refit_is_not_refitted(tmp_path):
-    d = Path(MPI.COMM_WORLD.bcast(str(tmp_path)))
+@pytest.fixture(scope="module")
+def checked(tmp_path_factory):
+    """The taper's fit and one round of the numerics check (the log lines kept)."""
+    d = Path(MPI.COMM_WORLD.bcast(str(tmp_path_factory.mktemp("screen"))))
     if MPI.COMM_WORLD.rank == 0:
         write_taper_mesh(d / "taper.msh")
         (d / "truth.toml").write_text(taper(2.0e7))
@@ -43,6 +45,11 @@ def test_a_small_refinement_no_closer_after_a_linearised_refit_is_not_refitted(t
                      comm=PETSc.COMM_WORLD, say=said.append)
     fit = diag.calibrate(exp)
     _, _, rounds = resolve_numerics(diag, fit, evidence_of(diag, fit), max_rounds=1)
+    return diag, fit, rounds, said
+
+
+def test_a_small_refinement_no_closer_after_a_linearised_refit_is_not_refitted(checked):
+    diag, fit, rounds, said = checked
     options = rounds[0]["options"]
     step = options["step/2"]
     # the halved step moves the simulation by a few times the noise: screened ...
@@ -75,3 +82,25 @@ def test_a_small_refinement_no_closer_after_a_linearised_refit_is_not_refitted(t
     assert any("when the time step is halved" in f and "linearised refit is no closer" in f
                and f.endswith("(not refitted).") for f in findings), findings
     MPI.COMM_WORLD.Barrier()
+
+
+def test_a_measured_mesh_error_below_the_noise_is_named_in_the_recommendation(checked):
+    """The independent L-bracket's report said "Your mesh (513 tets) is fine" while the split
+    mesh at half the step measured an error of 0.56x the noise, counted in the verdict's budget:
+    the recommendation now says that number."""
+    diag, fit, rounds, _ = checked
+    sigma = diag.sigma
+    measured = {"measured_only": True, "matters": False, "gain": 12.0, "how": "split",
+                "change_rms": 0.4 * sigma, "change_over_noise": 0.4,
+                "change_same_parameters_over_noise": 0.6, "refit": "linearised refit",
+                "chi2_per_dof": 1.0, "parameters": {}, "error_estimate": 0.56 * sigma}
+    extra = {"chi2": fit.chi2, "dof": diag.dof(1), "options": {"mesh x2 + step/2": measured},
+             "parameters": {}, "measured_only": True}
+    said = numerics_findings(diag, {}, rounds + [extra], fit, fit)
+    assert said["recommendation"].startswith(
+        "Your mesh (192 tets) is fine for this recording: one run of the split mesh at half the "
+        "step measured an error of 0.56x the noise on the final model, below the noise and "
+        "counted in the verdict's noise budget."), said["recommendation"]
+    # without a measurement the sentence stays as it was
+    plain = numerics_findings(diag, {}, rounds, fit, fit)["recommendation"]
+    assert plain.startswith("Your mesh (192 tets) is fine for this recording."), plain
