@@ -94,6 +94,7 @@ from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, SolverError
 from petsoft.experiment import get_parameter
+from petsoft.io.progress import beat
 from petsoft.physics.model import build_model
 from petsoft.solvers.convergence import check_converged
 from petsoft.solvers.linear import symmetric_factorisation
@@ -395,6 +396,8 @@ class ForwardModel:
     def _step(self, n, q, v, q1, v1, p):
         """Step n -> n+1 from (q, v) into (q1, v1); returns a1 (a new vector) or None."""
         h = self.h
+        beat(lambda: f"still simulating: step {n + 1} of {self.nsteps} "
+                     f"({q.getSize()} dofs, {self.method})")
         report = self.integrator.step(n * h, q, v, h, q1, v1)
         if not report.converged:
             raise SolverError(
@@ -912,6 +915,7 @@ class ForwardModel:
         def backward(n, st0, st1) -> None:
             """The adjoint of step n -> n+1 (states n and n+1): (gq, gv, ga) of n+1 -> of n."""
             nonlocal gq, gv, ga
+            beat(lambda: f"still computing the gradient: adjoint step {N - n} of {N}")
             deriv, data = self._step_setup(n, st0, st1)
             ksp.setOperators(self.J)
             if self.scheme.carries_acceleration:

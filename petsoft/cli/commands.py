@@ -28,6 +28,7 @@ from petsoft.dynamics.run_simulation import simulate_experiment
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.experiment import experiment_from_dict, load_experiment
 from petsoft.io.importers import run_import
+from petsoft.io.progress import heartbeat, touch
 from petsoft.io.recording import read_recording_on_all_ranks
 from petsoft.io.summary import write_summary
 from petsoft.io.xdmf import XdmfWriter
@@ -52,8 +53,14 @@ DEMO_EXPERIMENT = {
 
 
 def _print(line: str) -> None:
+    touch()                 # a line was said: the heartbeat (below) waits another interval
     if PETSc.COMM_WORLD.rank == 0:
         print(line, flush=True)
+
+
+def _pulse(line: str) -> None:
+    """The heartbeat's line: where a long simulation is (never silent for more than 10 s)."""
+    _print(f"  {line}")
 
 
 def run(args) -> int:
@@ -88,7 +95,7 @@ def run(args) -> int:
         observations = Observations(read_recording_on_all_ranks(args.recording), noise=args.noise)
         if getattr(args, "rest_shape", False):
             return run_rest_shape_calibration(experiment, observations, out, args)
-        with experiment_options(experiment.petsc):
+        with experiment_options(experiment.petsc), heartbeat(_pulse):
             run_calibration(experiment, observations, method=args.method,
                             gradient=args.gradient, integrator=args.integrator,
                             starts=args.multistart, seed=args.seed,

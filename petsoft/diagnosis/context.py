@@ -28,6 +28,7 @@ from petsoft.dynamics.mass_spring import load_spring_mesh
 from petsoft.dynamics.parameters import VISCOELASTIC
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.experiment import get_parameter, with_parameters
+from petsoft.io.progress import doing, touch
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.mesh.topology import exterior_faces
 from petsoft.physics.model import load_mesh
@@ -263,6 +264,7 @@ class Diagnosis:
         return max(fit.chi2 - self.dof(len(fit.names)), 0.0)
 
     def tell(self, line: str) -> None:
+        touch()                         # the heartbeat waits another interval (every rank)
         if self.say is not None and self.rank0:
             self.say(f"[{time.perf_counter() - self.t0:7.1f} s] {line}")
 
@@ -282,7 +284,8 @@ class Diagnosis:
             return experiment
         comm = self.comm if comm is None else petsc_comm(comm)
         if sim is None:
-            sim = self.simulate(experiment, comm=comm)
+            with doing(label):
+                sim = self.simulate(experiment, comm=comm)
         current = experiment
         misfit = chi2(sim[self.ident], self.data[self.ident], self.sigma)
         # repeated: on a short window the two estimates share a bias that cancels as the
@@ -297,7 +300,8 @@ class Diagnosis:
             if abs(scaled / E - 1.0) < 0.02:
                 break
             moved = with_parameters(current, {name: scaled})
-            moved_sim = self.simulate(moved, comm=comm)
+            with doing(label):
+                moved_sim = self.simulate(moved, comm=comm)
             gc.collect()                # every rank, same point (see run_diagnose)
             after = chi2(moved_sim[self.ident], self.data[self.ident], self.sigma)
             self.tell(f"  {label}: dominant frequencies data / simulated {ratio:.4g}: E "
@@ -332,7 +336,7 @@ class Diagnosis:
         started = time.perf_counter()
         # the identification window travels with the data, not as a rewritten [time] end
         observations = Observations(self.recording, noise=self.sigma, end=self.cut)
-        with scoped_defaults(cal_lm_dtol=str(FIT_DTOL)):
+        with scoped_defaults(cal_lm_dtol=str(FIT_DTOL)), doing(label):
             res = run_calibration(experiment, observations, method=self.method,
                                   gradient=gradient_for(experiment, self.gradient),
                                   integrator=self.integrator, comm=comm,
@@ -370,6 +374,7 @@ class Diagnosis:
         def say(line: str) -> None:
             text = line.strip()
             if text.startswith(("it ", "start ")):
+                touch()
                 self.say(f"[{time.perf_counter() - self.t0:7.1f} s]   {label}: {text}")
 
         return say
@@ -407,6 +412,10 @@ class Diagnosis:
         """Rank ``candidate`` at ``fit`` (identification window) by its score-test statistic;
         a ``"switch"`` candidate's column is the change the switch makes (see
         :mod:`petsoft.diagnosis.candidates`)."""
+        with doing(f"score {candidate.physics}"):
+            return self._score(fit, candidate, comm)
+
+    def _score(self, fit: Fit, candidate, comm) -> dict:
         comm = self.comm if comm is None else petsc_comm(comm)
         ext = candidate.extend(fit.experiment)
         if candidate.kind == "switch":
@@ -433,7 +442,8 @@ class Diagnosis:
         if self.all_differenced(ext):
             return None
         try:
-            sim, cols = self._columns(ext, candidates[0], comm)
+            with doing(f"score {', '.join(c.physics for c in candidates)} (one run)"):
+                sim, cols = self._columns(ext, candidates[0], comm)
         except PetsoftError:
             return None             # (collective: every rank raised it) one by one, then
         seen = np.isfinite(self.data[self.ident])

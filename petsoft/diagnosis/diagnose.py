@@ -53,6 +53,7 @@ from petsoft.diagnosis.context import (  # noqa: F401
     format_values,
     model_scales,
     outward_only,
+    petsc_comm,
     scored_together,
 )
 from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
@@ -65,6 +66,7 @@ from petsoft.diagnosis.selection import (
     rank_round,
     worth_fitting,
 )
+from petsoft.io.progress import heartbeat
 
 
 def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: float = 0.7,
@@ -128,11 +130,22 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
     enabled = gc.isenabled()
     gc.collect()
     gc.disable()
+    t0 = time.perf_counter()
+    rank0 = petsc_comm(comm).tompi4py().rank == 0
+
+    def pulse(line: str) -> None:
+        # where a long simulation is, when no other line was said for 10 s (a refined model's
+        # single run took 138 s on the independent L-bracket, a scoring round 108 s)
+        if say is not None and rank0:
+            say(f"[{time.perf_counter() - t0:7.1f} s]   {line}")
+
     try:
-        return _run_diagnose(experiment, recording, out=out, fraction=fraction, alpha=alpha,
-                             max_additions=max_additions, max_tries=max_tries, method=method,
-                             gradient=gradient, integrator=integrator, noise=noise,
-                             numerics=numerics, comm=comm, say=say, spelled_out=spelled_out)
+        with heartbeat(pulse, interval=10.0):
+            return _run_diagnose(experiment, recording, out=out, fraction=fraction, alpha=alpha,
+                                 max_additions=max_additions, max_tries=max_tries,
+                                 method=method, gradient=gradient, integrator=integrator,
+                                 noise=noise, numerics=numerics, comm=comm, say=say,
+                                 spelled_out=spelled_out, t0=t0)
     finally:
         gc.collect()
         if enabled:
@@ -141,14 +154,15 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
 
 def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions, max_tries,
                   method, gradient, integrator, noise, numerics, comm, say,
-                  spelled_out) -> DiagnoseResult:
-    """The diagnosis of :func:`run_diagnose` (call that: it handles the garbage collector)."""
+                  spelled_out, t0: float) -> DiagnoseResult:
+    """The diagnosis of :func:`run_diagnose` (call that: it handles the garbage collector and
+    the heartbeat); its log's times count from ``t0``."""
     from petsoft.diagnosis.candidates import build_candidates
 
-    t0 = time.perf_counter()
     diag = Diagnosis(experiment, recording, fraction=fraction, alpha=alpha, method=method,
                       gradient=gradient, integrator=integrator, noise=noise, comm=comm,
                       say=say)
+    diag.t0 = t0
     diag.tell(f"petsoft diagnose: {len(diag.times)} frames, identification t <= {diag.cut:.4g} s "
               f"({int(diag.ident.sum())} frames), held out {int(diag.held.sum())}; noise "
               f"{diag.sigma:.3g} m ({diag.sigma_source})")

@@ -28,6 +28,7 @@ from petsoft.calibration.refinement import (
 )
 from petsoft.diagnosis.context import Diagnosis, Fit, evidence_of, rms
 from petsoft.errors import PetsoftError
+from petsoft.io.progress import doing
 
 #: The numerics check refines a mesh only while the refined mesh has at most this many
 #: tetrahedra. 6000 admits one 1->8 refinement of a user's 648-tet mesh file (issue 14: its
@@ -133,7 +134,7 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r) -> dict:
     exp = fit.experiment
     diag.tell(f"numerics: {r.label} ({r.describe(exp)}) is over diagnose's fitting limit; "
               "simulating it once to measure the error of the current mesh")
-    with direct_solve_up_to(MEASURE_DIRECT_DOFS):
+    with direct_solve_up_to(MEASURE_DIRECT_DOFS), doing(f"numerics {r.label} (one run)"):
         moved = diag.simulate(r.make(exp))
     gc.collect()
     cols = None if diag.all_differenced(exp) else _sensitivities(diag, fit)
@@ -207,7 +208,8 @@ def _sensitivities(diag: Diagnosis, fit: Fit) -> np.ndarray:
         fm = build_forward(exp, fit.names, diag.recording, diag.times[diag.ident], diag.comm,
                            diag.integrator)
         try:
-            diag.measured_meshes[key] = fm.jacobian(np.asarray(fit.values, dtype=float))[1]
+            with doing("numerics: the current model's sensitivities"):
+                diag.measured_meshes[key] = fm.jacobian(np.asarray(fit.values, dtype=float))[1]
         finally:
             fm.destroy()
             gc.collect()
@@ -452,7 +454,8 @@ def _refit(diag: Diagnosis, fit: Fit, what: str, comm, cols: np.ndarray | None):
     closer to the data (:data:`SCREEN_BELOW`). Returns (the refit or None, the refined
     simulation, the linearised entry or None)."""
     experiment = refined(fit.experiment, what)
-    moved = diag.simulate(experiment, comm=comm)
+    with doing(f"numerics {what}"):
+        moved = diag.simulate(experiment, comm=comm)
     if cols is not None:
         o = linearised_refit(diag, fit, refinement(what), moved, cols)
         if o["gain"] <= 0.0 and o["change_same_parameters"] <= SCREEN_BELOW * diag.sigma:

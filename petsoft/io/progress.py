@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
+from contextlib import contextmanager
 
-__all__ = ["IterationPace", "duration"]
+__all__ = ["IterationPace", "beat", "doing", "duration", "heartbeat", "touch"]
 
 
 def duration(seconds: float) -> str:
@@ -56,3 +58,60 @@ class IterationPace:
                 if d[-1] > self.ftol else 0
             text += f", at most ~{left} more ({duration(left * per)}) at this rate"
         return text
+
+
+class _Heart:
+    """Who listens to :func:`beat` (None: nobody), how often, when the last line was said, and
+    the labels of what is being done (innermost last)."""
+
+    def __init__(self):
+        self.say: Callable[[str], None] | None = None
+        self.interval = 10.0
+        self.last = 0.0
+        self.labels: list[str] = []
+
+
+_HEART = _Heart()
+
+
+@contextmanager
+def heartbeat(say: Callable[[str], None], interval: float = 10.0):
+    """Inside the block, the long loops that call :func:`beat` (every time step of a forward
+    run, of its adjoint and of its sensitivities) say where they are through ``say`` once
+    ``interval`` seconds passed without a line (:func:`touch` marks a line said elsewhere), so
+    that a long run is never silent for longer. Nested blocks: the innermost listens."""
+    before = (_HEART.say, _HEART.interval, _HEART.last)
+    _HEART.say, _HEART.interval, _HEART.last = say, float(interval), time.perf_counter()
+    try:
+        yield
+    finally:
+        _HEART.say, _HEART.interval, _HEART.last = before
+
+
+def touch() -> None:
+    """A progress line was just said: the next beat waits a whole interval."""
+    _HEART.last = time.perf_counter()
+
+
+@contextmanager
+def doing(label: str):
+    """Name what the beats inside the block belong to (e.g. ``"candidate drag.linear"``)."""
+    _HEART.labels.append(label)
+    try:
+        yield
+    finally:
+        _HEART.labels.pop()
+
+
+def beat(what: str | Callable[[], str]) -> None:
+    """Say ``what`` (a text, or a function making it: called only when said) if a
+    :func:`heartbeat` listens and its interval has passed since the last line; costs a clock
+    read otherwise. Local: no communication, so any rank may call it at any time."""
+    if _HEART.say is None:
+        return
+    now = time.perf_counter()
+    if now - _HEART.last < _HEART.interval:
+        return
+    _HEART.last = now
+    text = what() if callable(what) else what
+    _HEART.say(f"{_HEART.labels[-1]}: {text}" if _HEART.labels else text)
