@@ -78,7 +78,16 @@ class ElasticTerm:
         mu, lam = kernels.lame_parameters(np.asarray(youngs_modulus, float),
                                           np.asarray(poisson_ratio, float))
         self.groups: list[ElementGroup] = []
-        for model in sorted(set(models.tolist())):
+        if len(models) and (models == models[0]).all():
+            # one law everywhere (the usual case): the arrays as they are, no copies (the
+            # per-law selection below cost 0.4 s of a 1M-tet set-up)
+            model = str(models[0])
+            self.groups.append(ElementGroup(
+                f"elastic:{model}", model, np.arange(len(models)),
+                np.ascontiguousarray(dmesh.cells), dN, volume,
+                np.ascontiguousarray(mu), np.ascontiguousarray(lam)))
+            models = models[:0]
+        for model in sorted(set(np.unique(models).tolist())):
             cells = np.flatnonzero(models == model)
             self.groups.append(ElementGroup(
                 f"elastic:{model}", model, cells, np.ascontiguousarray(dmesh.cells[cells]),

@@ -46,6 +46,12 @@ __all__ = [
 ]
 
 
+def library() -> ctypes.CDLL:
+    """The compiled kernels' shared library, for the modules that declare their own functions
+    of it (:mod:`petsoft.fem.kernels.tet`)."""
+    return _lib
+
+
 def addr(a: np.ndarray) -> int:
     """The address of ``a``'s data.
 
