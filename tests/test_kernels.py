@@ -11,7 +11,7 @@ import pytest
 from petsoft.errors import InvertedElementError, MeshError, PetsoftError
 from petsoft.fem.kernels import compiled, elastic, reference
 from petsoft.fem.kernels.materials import MODELS
-from petsoft.fem.kernels.tet import shape_gradients
+from petsoft.fem.kernels.tet import mesh_shape_gradients, shape_gradients
 
 BACKENDS = ("numpy", "c")
 REF_TET = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
@@ -47,6 +47,23 @@ def rates_of(remainders):
 
 
 HS = 1e-3 * 0.5 ** np.arange(4)
+
+
+def test_mesh_shape_gradients_equal_those_of_the_gathered_coordinates(rng):
+    points = rng.standard_normal((30, 3))
+    cells = np.array([rng.choice(30, 4, replace=False) for _ in range(40)])
+    dN, vol = mesh_shape_gradients(points, cells)
+    ref_dN, ref_vol = shape_gradients(points[cells])
+    assert np.array_equal(dN, ref_dN) and np.array_equal(vol, ref_vol)
+    # the gradients are those of the closed form: reproduce linear fields
+    np.testing.assert_allclose(np.einsum("eai,eaj->eij", points[cells], dN),
+                               np.broadcast_to(np.eye(3), (40, 3, 3)), atol=1e-9)
+    flat = cells.copy()
+    flat[7] = [0, 1, 2, 2]                 # a repeated vertex: zero volume
+    with pytest.raises(MeshError, match="tetrahedron 7 is degenerate"):
+        mesh_shape_gradients(points, flat)
+    with pytest.raises(ValueError, match="outside 0..29"):
+        mesh_shape_gradients(points, np.where(cells == 5, 30, cells))
 
 
 # --------------------------------------------------------------------------------------------

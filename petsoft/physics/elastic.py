@@ -16,7 +16,7 @@ from petsoft.fem.assembly import CHUNK, MatrixAssembler
 from petsoft.fem.element import quadratic_geometry, tet_rule
 from petsoft.fem.kernels import elastic as kernels
 from petsoft.fem.kernels.scatter import scatter_add_vector
-from petsoft.fem.kernels.tet import shape_gradients
+from petsoft.fem.kernels.tet import mesh_shape_gradients
 
 
 @dataclass
@@ -70,11 +70,11 @@ class ElasticTerm:
         self.dmesh = dmesh
         self.project_spd = project_spd
         models = np.asarray(models)
-        X = dmesh.points[dmesh.cells]
         if dmesh.order == 2:
-            dN, volume = quadratic_geometry(X, *tet_rule(2), cell_ids=dmesh.cell_ids)
+            dN, volume = quadratic_geometry(dmesh.points[dmesh.cells], *tet_rule(2),
+                                            cell_ids=dmesh.cell_ids)
         else:
-            dN, volume = shape_gradients(X)
+            dN, volume = mesh_shape_gradients(dmesh.points, dmesh.cells)
         mu, lam = kernels.lame_parameters(np.asarray(youngs_modulus, float),
                                           np.asarray(poisson_ratio, float))
         self.groups: list[ElementGroup] = []

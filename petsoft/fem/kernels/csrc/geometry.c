@@ -15,39 +15,52 @@ static void cross3(const double *a, const double *b, double *out) {
   out[2] = a[0] * b[1] - a[1] * b[0];
 }
 
+/* One tetrahedron: x (4 x 3 coordinates) -> g (4 x 3 gradients), *det, *longest2. */
+static void tet(const double *x, double *g, double *det, double *longest2) {
+  double ed[6][3];
+  for (int i = 0; i < 3; ++i) {
+    ed[0][i] = x[3 + i] - x[i];
+    ed[1][i] = x[6 + i] - x[i];
+    ed[2][i] = x[9 + i] - x[i];
+  }
+  for (int i = 0; i < 3; ++i) {
+    ed[3][i] = ed[1][i] - ed[0][i];
+    ed[4][i] = ed[2][i] - ed[0][i];
+    ed[5][i] = ed[2][i] - ed[1][i];
+  }
+  cross3(ed[1], ed[2], g + 3);
+  cross3(ed[2], ed[0], g + 6);
+  cross3(ed[0], ed[1], g + 9);
+  const double d = dot3(ed[0], g + 3);
+  double l2 = 0.0;
+  for (int k = 0; k < 6; ++k) {
+    const double s = dot3(ed[k], ed[k]);
+    if (s > l2) l2 = s;
+  }
+  *det = d;
+  *longest2 = l2;
+  if (d != 0.0) {
+    const double inv = 1.0 / d;
+    for (int k = 3; k < 12; ++k) g[k] *= inv;
+  }
+  for (int i = 0; i < 3; ++i) g[i] = -((g[3 + i] + g[6 + i]) + g[9 + i]);
+}
+
 /* X: (n, 4, 3) node coordinates. Out: dN (n, 4, 3) shape gradients (left unscaled, i.e. times
  * det, when det is 0), det (n,) = 6 x signed volume, longest2 (n,) the longest squared edge. */
 void petsoft_tet_geometry(int64_t n, const double *X, double *dN, double *det,
                           double *longest2) {
+  for (int64_t e = 0; e < n; ++e) tet(X + 12 * e, dN + 12 * e, det + e, longest2 + e);
+}
+
+/* The same from points (nv, 3) and cells (n, 4): no (n, 4, 3) coordinate array (96 MB at 1M
+ * tets, most of its cost page faults). */
+void petsoft_tet_geometry_indexed(int64_t n, const double *points, const int64_t *cells,
+                                  double *dN, double *det, double *longest2) {
   for (int64_t e = 0; e < n; ++e) {
-    const double *x = X + 12 * e;
-    double *g = dN + 12 * e;
-    double ed[6][3];
-    for (int i = 0; i < 3; ++i) {
-      ed[0][i] = x[3 + i] - x[i];
-      ed[1][i] = x[6 + i] - x[i];
-      ed[2][i] = x[9 + i] - x[i];
-    }
-    for (int i = 0; i < 3; ++i) {
-      ed[3][i] = ed[1][i] - ed[0][i];
-      ed[4][i] = ed[2][i] - ed[0][i];
-      ed[5][i] = ed[2][i] - ed[1][i];
-    }
-    cross3(ed[1], ed[2], g + 3);
-    cross3(ed[2], ed[0], g + 6);
-    cross3(ed[0], ed[1], g + 9);
-    const double d = dot3(ed[0], g + 3);
-    double l2 = 0.0;
-    for (int k = 0; k < 6; ++k) {
-      const double s = dot3(ed[k], ed[k]);
-      if (s > l2) l2 = s;
-    }
-    det[e] = d;
-    longest2[e] = l2;
-    if (d != 0.0) {
-      const double inv = 1.0 / d;
-      for (int k = 3; k < 12; ++k) g[k] *= inv;
-    }
-    for (int i = 0; i < 3; ++i) g[i] = -((g[3 + i] + g[6 + i]) + g[9 + i]);
+    double x[12];
+    for (int a = 0; a < 4; ++a)
+      for (int i = 0; i < 3; ++i) x[3 * a + i] = points[3 * cells[4 * e + a] + i];
+    tet(x, dN + 12 * e, det + e, longest2 + e);
   }
 }

@@ -55,6 +55,24 @@ static int cmp_i64(const void *a, const void *b) {
   return (x > y) - (x < y);
 }
 
+/* Sort a row: insertion sort for the usual tens of entries (qsort's calls through a comparison
+ * function took most of the fill's time), qsort for long rows (a contact pair's, a spring hub's). */
+static void sort_row(int64_t *row, int64_t n) {
+  if (n > 64) {
+    qsort(row, (size_t)n, sizeof(int64_t), cmp_i64);
+    return;
+  }
+  for (int64_t i = 1; i < n; ++i) {
+    const int64_t v = row[i];
+    int64_t j = i - 1;
+    while (j >= 0 && row[j] > v) {
+      row[j + 1] = row[j];
+      --j;
+    }
+    row[j + 1] = v;
+  }
+}
+
 /* Visit the distinct neighbours of vertex r: count them (out == NULL) or write them. */
 static int64_t neighbours(int64_t r, int32_t nsets, const int64_t *ne, const int32_t *npe,
                           const int64_t *const *conn, const incidence_t *inc, int64_t *marker,
@@ -114,7 +132,7 @@ int64_t petsoft_pattern_fill(int64_t nv, int32_t nsets, const int64_t *ne, const
     const int64_t r = rows[i];
     int64_t *row = bcol + bptr[i];
     const int64_t n = neighbours(r, nsets, ne, npe, conn, &inc, marker, row);
-    qsort(row, (size_t)n, sizeof(int64_t), cmp_i64);
+    sort_row(row, n);
     if (!pos) continue;
     for (int64_t k = 0; k < n; ++k) where[row[k]] = bptr[i] + k;
     for (int64_t k = inc.ptr[r]; k < inc.ptr[r + 1]; ++k) {
