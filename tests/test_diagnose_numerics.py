@@ -2,11 +2,13 @@
 
 A large physical misfit hides a discretisation error: the cantilever's recording is made with
 gravity (the midpoint rule at 1 ms), the user's model has none and steps generalized-alpha at
-4 ms. Before gravity is added, halving the step lowers chi2 by less than a tenth of the misfit's
-excess, so the step error is only *estimated* (Richardson) and counted in the verdict's noise
-budget; with gravity added the verdict is then "consistent" while the held-out prediction is
-still 3 x the noise. The final re-check must measure the step again on the final model, find that
-it now matters, adopt the smaller step and end within 1.5 x the noise on the held-out window.
+2 ms. Before gravity is added, halving the step lowers chi2 by less than a tenth of the misfit's
+excess and changes the refitted simulation by less than the noise (0.5x), so the step error is
+only *estimated* (Richardson) and counted in the verdict's noise budget; with gravity added the
+verdict is then "consistent" leaning on that estimate. The final re-check must measure the step
+again on the final model, find that it now matters, adopt the smaller step and end within 1.5 x
+the noise on the held-out window. (At 4 ms the refitted change exceeds the noise, and such a
+refinement matters from the start: :func:`~petsoft.diagnosis.numerics.refinement_matters`.)
 Also: when a check is due between rounds (``numerics_due``).
 """
 
@@ -46,7 +48,7 @@ def hidden_step_error(tmp_path_factory):
     d = Path(comm.bcast(str(tmp_path_factory.mktemp("recheck")) if comm.rank == 0 else None))
     if comm.rank == 0:
         (d / "truth.toml").write_text(_bar(2e7, -9.81, 0.001, "midpoint", ""))
-        (d / "user.toml").write_text(_bar(1.8e7, 0.0, 0.004, "alpha", CALIBRATE))
+        (d / "user.toml").write_text(_bar(1.8e7, 0.0, 0.002, "alpha", CALIBRATE))
     comm.Barrier()
     synth(load_experiment(d / "truth.toml"), SynthOptions(out=d / "rec.h5", noise=NOISE, markers=8,
                                                           dropout=0.1, refine=1, seed=3))
@@ -74,7 +76,7 @@ def test_a_consistent_verdict_resting_on_an_estimated_step_error_is_rechecked(hi
     assert final and final[0]["after_additions"] == 1
     assert final[0]["why"].startswith("again on the final model")
     assert final[0]["adopted"] == "step/2"
-    assert res.final.experiment.time.step < 0.004
+    assert res.final.experiment.time.step < 0.002
     assert res.final_verdict == "consistent"
     validation = res.report["fit"]["validation"]
     assert validation["final_rms"] < 1.5 * NOISE, validation

@@ -19,7 +19,12 @@ from petsc4py import PETSc
 
 from petsoft.calibration.synth import SynthOptions, synth
 from petsoft.diagnosis.context import Diagnosis, evidence_of
-from petsoft.diagnosis.numerics import SCREEN_BELOW, refined, resolve_numerics
+from petsoft.diagnosis.numerics import (
+    SCREEN_BELOW,
+    refined,
+    refinement_matters,
+    resolve_numerics,
+)
 from petsoft.diagnosis.numerics_findings import numerics_findings
 from petsoft.experiment import load_experiment
 from petsoft.io.recording import read_recording
@@ -104,3 +109,15 @@ def test_a_measured_mesh_error_below_the_noise_is_named_in_the_recommendation(ch
     # without a measurement the sentence stays as it was
     plain = numerics_findings(diag, {}, rounds, fit, fit)["recommendation"]
     assert plain.startswith("Your mesh (192 tets) is fine for this recording."), plain
+
+
+def test_a_refinement_closer_to_the_data_by_more_than_the_noise_matters():
+    """Also below a tenth of a large misfit's excess: its error is too large to be counted as
+    noise (the independent L-bracket with concealed damping and added mass: 10-node elements
+    changed the refit by 4.1x the noise at 9 % of the excess, and were not adopted)."""
+    sigma = 1e-4
+    assert refinement_matters(41000.0, 4.5e5, 4.1 * sigma, sigma)
+    assert not refinement_matters(2900.0, 4.5e5, 0.46 * sigma, sigma)   # counted, not adopted
+    assert refinement_matters(2e4, 1e5, 0.5 * sigma, sigma)             # a fifth of the excess
+    assert not refinement_matters(5.0, 10.0, 2.0 * sigma, sigma)        # chi2 barely moves
+    assert not refinement_matters(-100.0, 1e5, 5.0 * sigma, sigma)      # further from the data

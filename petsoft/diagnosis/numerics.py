@@ -187,7 +187,7 @@ def linearised_refit(diag: Diagnosis, fit: Fit, r, moved: np.ndarray,
     gain = fit.chi2 - chi2_lin
     remaining = r.error_factors(exp, diag.integrator)[1]
     return {"chi2": chi2_lin, "chi2_per_dof": chi2_lin / dof, "gain": gain,
-            "matters": bool(gain > 0.1 * diag.excess(fit) and gain > 10.0),
+            "matters": refinement_matters(gain, diag.excess(fit), change, diag.sigma),
             "change_rms": change, "change_over_noise": change / diag.sigma,
             "change_same_parameters": fixed,
             "change_same_parameters_over_noise": fixed / diag.sigma,
@@ -258,8 +258,9 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
 
     The model is re-calibrated refined in each way of :data:`REFINEMENTS` that applies (a mesh
     while the refined mesh has at most :data:`MESH_CELLS` tetrahedra; ``mesh_done`` skips the
-    mesh), concurrently on groups of ranks. A refinement *matters* when its fit lowers chi2 by
-    more than 10 % of the residual's excess over the noise (chi2 - dof) and by more than 10:
+    mesh), concurrently on groups of ranks. A refinement *matters* (:func:`refinement_matters`)
+    when its fit lowers chi2 by more than 10 and either by more than 10 % of the residual's
+    excess over the noise (chi2 - dof) or while changing the simulation by more than the noise:
     part of the mismatch is then discretisation error (backward Euler's artificial damping
     looks exactly like physical damping; a coarse P1 mesh's bending stiffness like a stiffer
     material or support), so the best refined model replaces the current one and the check is
@@ -316,9 +317,9 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
                           f"{screened['chi2']:.5g} (resolved)")
                 continue
             gain = fit.chi2 - refit.chi2
-            matters = bool(gain > 0.1 * excess and gain > 10.0)
             change = float(np.sqrt(np.mean((refit.sim[diag.ident][seen]
                                             - fit.sim[diag.ident][seen]) ** 2)))
+            matters = refinement_matters(gain, excess, change, diag.sigma)
             # what the user sees first: the refined model at the same parameters
             fixed = float(np.sqrt(np.mean((moved[diag.ident][seen]
                                            - fit.sim[diag.ident][seen]) ** 2)))
@@ -431,6 +432,21 @@ def _measure_into(diag: Diagnosis, fit: Fit, r, entry: dict) -> None:
         diag.model_error[r.label] = o["error_estimate"]
     else:
         diag.model_error.pop(r.label, None)
+
+
+def refinement_matters(gain: float, excess: float, change: float, sigma: float) -> bool:
+    """Whether a refinement whose refit lowers chi2 by ``gain`` and changes the simulation by
+    ``change`` (rms, refitted) matters: ``gain`` over 10 and either over 10 % of the current
+    fit's ``excess`` (chi2 - dof) or with ``change`` over the noise ``sigma``.
+
+    The second arm: a refinement closer to the data whose change exceeds the noise is an error
+    too large to be counted in the verdict's noise budget. Seen on the independent L-bracket
+    with a concealed mass damping and added mass (chi2/dof 75 on the 4-node model): 10-node
+    elements changed the refitted simulation by 4.1x the noise and lowered chi2 by 41,000, 9 %
+    of the excess; they were not adopted, their error (4.1x the noise) and the split mesh's
+    (3.3x) went into the budget, and a viscoelastic branch (not the truth) made the verdict
+    "consistent" at chi2/dof 0.37 of that inflated noise."""
+    return bool(gain > 10.0 and (gain > 0.1 * excess or change > sigma))
 
 
 def _better(r, gain: float, best_r, best_gain: float) -> bool:
