@@ -78,21 +78,21 @@ class ElasticTerm:
         mu, lam = kernels.lame_parameters(np.asarray(youngs_modulus, float),
                                           np.asarray(poisson_ratio, float))
         self.groups: list[ElementGroup] = []
-        if len(models) and (models == models[0]).all():
-            # one law everywhere (the usual case): the arrays as they are, no copies (the
-            # per-law selection below cost 0.4 s of a 1M-tet set-up)
-            model = str(models[0])
+        # one law everywhere (the usual case) keeps the arrays as they are, no copies: the
+        # per-law selection (and np.unique of 1M strings) cost 0.4 s of a 1M-tet set-up
+        laws = ([str(models[0])] if len(models) and (models == models[0]).all()
+                else np.unique(models).tolist())
+        for model in laws:
+            if len(laws) == 1:
+                cells, pick = np.arange(len(models)), np.ascontiguousarray
+            else:
+                cells = np.flatnonzero(models == model)
+
+                def pick(a, cells=cells):
+                    return np.ascontiguousarray(a[cells])
             self.groups.append(ElementGroup(
-                f"elastic:{model}", model, np.arange(len(models)),
-                np.ascontiguousarray(dmesh.cells), dN, volume,
-                np.ascontiguousarray(mu), np.ascontiguousarray(lam)))
-            models = models[:0]
-        for model in sorted(set(np.unique(models).tolist())):
-            cells = np.flatnonzero(models == model)
-            self.groups.append(ElementGroup(
-                f"elastic:{model}", model, cells, np.ascontiguousarray(dmesh.cells[cells]),
-                np.ascontiguousarray(dN[cells]), np.ascontiguousarray(volume[cells]),
-                np.ascontiguousarray(mu[cells]), np.ascontiguousarray(lam[cells])))
+                f"elastic:{model}", model, cells, pick(dmesh.cells), pick(dN), pick(volume),
+                pick(mu), pick(lam)))
         #: dofs per element
         self.nd = 3 * dmesh.cells.shape[1]
         self._H = np.empty((CHUNK, self.nd, self.nd))

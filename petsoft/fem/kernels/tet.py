@@ -22,8 +22,6 @@ DEGENERACY_TOLERANCE = 1e-12
 @lru_cache(maxsize=1)
 def _geometry() -> ctypes.CDLL:
     lib = library()
-    lib.petsoft_tet_geometry.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 4
-    lib.petsoft_tet_geometry.restype = None
     lib.petsoft_tet_geometry_indexed.argtypes = [ctypes.c_int64] + [ctypes.c_void_p] * 5
     lib.petsoft_tet_geometry_indexed.restype = None
     return lib
@@ -60,13 +58,8 @@ def shape_gradients(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     X = np.ascontiguousarray(X, dtype=np.float64)
     if X.ndim != 3 or X.shape[1:] != (4, 3):
         raise ValueError(f"X must have shape (n, 4, 3), got {X.shape}")
-    dN = np.empty_like(X)
-    det = np.empty(len(X))
-    longest2 = np.empty(len(X))
-    if len(X):
-        # one compiled pass (csrc/geometry.c)
-        _geometry().petsoft_tet_geometry(len(X), addr(X), addr(dN), addr(det), addr(longest2))
-    return _checked(dN, det, longest2)
+    # the nodes of element e are rows 4e..4e+3 of X seen as points
+    return mesh_shape_gradients(X.reshape(-1, 3), np.arange(4 * len(X)).reshape(-1, 4))
 
 
 def mesh_shape_gradients(points: np.ndarray,
@@ -86,6 +79,7 @@ def mesh_shape_gradients(points: np.ndarray,
     det = np.empty(n)
     longest2 = np.empty(n)
     if n:
+        # one compiled pass (csrc/geometry.c)
         _geometry().petsoft_tet_geometry_indexed(n, addr(points), addr(cells), addr(dN),
                                                  addr(det), addr(longest2))
     return _checked(dN, det, longest2)

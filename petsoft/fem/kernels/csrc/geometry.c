@@ -46,15 +46,10 @@ static void tet(const double *x, double *g, double *det, double *longest2) {
   for (int i = 0; i < 3; ++i) g[i] = -((g[3 + i] + g[6 + i]) + g[9 + i]);
 }
 
-/* X: (n, 4, 3) node coordinates. Out: dN (n, 4, 3) shape gradients (left unscaled, i.e. times
- * det, when det is 0), det (n,) = 6 x signed volume, longest2 (n,) the longest squared edge. */
-void petsoft_tet_geometry(int64_t n, const double *X, double *dN, double *det,
-                          double *longest2) {
-  for (int64_t e = 0; e < n; ++e) tet(X + 12 * e, dN + 12 * e, det + e, longest2 + e);
-}
-
-/* The same from points (nv, 3) and cells (n, 4): no (n, 4, 3) coordinate array (96 MB at 1M
- * tets, most of its cost page faults). */
+/* Tetrahedra `cells` (n, 4) of `points` (nv, 3), gathered here: no (n, 4, 3) coordinate array
+ * (96 MB at 1M tets, most of its cost page faults). Out: dN (n, 4, 3) shape gradients (left
+ * unscaled, i.e. times det, when det is 0), det (n,) = 6 x signed volume, longest2 (n,) the
+ * longest squared edge. */
 void petsoft_tet_geometry_indexed(int64_t n, const double *points, const int64_t *cells,
                                   double *dN, double *det, double *longest2) {
   for (int64_t e = 0; e < n; ++e) {
