@@ -198,7 +198,8 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
         advice.append(f"Refine the mesh ({user} tets){' and the time step' if both else ''}: "
                       f"one run of the split mesh{' at half the step' if both else ''} measured "
                       f"an error of {_x(measured / sigma)}x the noise on the final model.")
-    elif any("mesh x2" in r["options"] for r in rounds) or isinstance(num.get("mesh x2"), dict):
+    elif (any("mesh x2" in r["options"] or "P2" in r["options"] for r in rounds)
+          or isinstance(num.get("mesh x2"), dict)):
         raised = final.experiment.mesh.order > base.experiment.mesh.order
         text = (f"Your mesh ({user} tets) is fine for this recording"
                 + (" with 10-node elements (below)" if raised else ""))
