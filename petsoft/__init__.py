@@ -11,13 +11,14 @@ The API is loaded on first use: ``import petsoft`` does not initialise PETSc, so
 the ``petsoft`` command) can still call ``petsc4py.init(sys.argv)`` with its PETSc options first.
 """
 
-import os
+# One BLAS thread per process, set before PETSc (and its OpenBLAS) is loaded, and on an OpenBLAS
+# that numpy or petsc4py loaded already (petsoft.blas_threads): MPI ranks and sub-communicator
+# groups already use every core, and OpenBLAS's spinning threads made MUMPS factorisations 8x
+# slower when another process ran on the 2-core machine (measured: one forward run 37.7 s with
+# the default threads, 4.9 s with one). The user's own setting wins.
+from petsoft.blas_threads import one_thread_unless_chosen
 
-# One BLAS thread per process, set before PETSc (and its OpenBLAS) is loaded: MPI ranks and
-# sub-communicator groups already use every core, and OpenBLAS's spinning threads made MUMPS
-# factorisations 8x slower when another process ran on the 2-core machine (measured: one forward
-# run 37.7 s with the default threads, 4.9 s with one). The user's own setting wins.
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+one_thread_unless_chosen()
 
 from petsoft.version import __version__ as __version__  # noqa: E402
 
