@@ -24,6 +24,7 @@ from petsoft.diagnosis.numerics import (
     refined,
     refinement_matters,
     resolve_numerics,
+    screened,
 )
 from petsoft.diagnosis.numerics_findings import numerics_findings
 from petsoft.experiment import load_experiment
@@ -160,3 +161,19 @@ def test_a_small_refinement_is_screened_also_when_the_fit_is_far_from_the_data(d
     refit = diag.calibrate(refined(fit.experiment, "step/2"))
     assert refit.chi2 >= fit.chi2 - 10.0, (refit.chi2, fit.chi2)
     MPI.COMM_WORLD.Barrier()
+
+
+def test_a_small_refinement_closer_by_too_little_to_matter_is_not_refitted():
+    """The screen's rule (numbers of the independent L-bracket with damping and added mass at
+    chi2/dof 75: the halved step moved the simulation by 0.51x the noise and its refit lowered
+    chi2 by 2900 of an excess of 4.5e5; refitted for 45 s, it was called resolved)."""
+    sigma, excess = 1e-4, 4.5e5
+
+    def lin(moved, gain, change):
+        return {"change_same_parameters": moved * sigma, "gain": gain, "change_rms": change * sigma}
+
+    assert screened(lin(0.51, 2900.0, 0.46), excess, sigma)         # closer, by too little
+    assert screened(lin(2.0, -300.0, 1.5), excess, sigma)           # no closer to the data
+    assert not screened(lin(0.51, 2.5e4, 0.46), excess, sigma)      # twice: over 10 %
+    assert not screened(lin(2.0, 500.0, 0.8), excess, sigma)        # twice its change: > noise
+    assert not screened(lin(3.5, -300.0, 1.5), excess, sigma)       # moves too much to screen

@@ -65,6 +65,11 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
         moved = _shifts(r["parameters"], o["parameters"])
         if o.get("measured_only"):
             out.append(_measured_sentence(head, o, sigma, noun))
+        elif o.get("screened") and o.get("error_estimate", 0.0) > 0.0:
+            # not refitted: its linearised refit was closer to the data by too little to matter
+            out.append(f"{head}, and a linearised refit improves little ({fit}): counted as a "
+                       f"{noun} error of {_x(o['error_estimate'] / sigma)}x the noise, not "
+                       "blamed on physics (not refitted).")
         elif o.get("screened"):
             # not refitted: its linearised refit was no closer to the data
             out.append(f"{head}" + (f": the {noun} is fine for this recording" if x < 1.0 else
