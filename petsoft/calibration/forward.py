@@ -288,8 +288,9 @@ class ForwardModel:
 
     def _refuse_derivatives(self, p, sensitivities: bool = False) -> None:
         """Raise (on every rank) when the run has a viscoelastic branch or its parameters are
-        requested: the adjoint (and the forward sensitivities of si and alpha) do not include
-        the branch's internal variable; backward Euler's forward sensitivities do."""
+        requested: the adjoint (and the forward sensitivities of si) do not include the
+        branch's internal variable; backward Euler's and generalized-alpha's forward
+        sensitivities do."""
         if sensitivities and self.scheme.branch_sensitivities:
             return
 
@@ -304,9 +305,9 @@ class ForwardModel:
                     else f"[viscoelastic] ratio = {ratio:g} (the branch is on)")
             raise ExperimentError(
                 f"{self.experiment.source}: {what}: the adjoint gradient (and the forward "
-                "sensitivities of si and alpha) do not include the viscoelastic branch's "
+                "sensitivities of si) do not include the viscoelastic branch's "
                 "internal variable; use --gradient fd (finite differences), --gradient "
-                "sensitivity with integrator be, or ratio = 0")
+                "sensitivity with integrator be or alpha, or ratio = 0")
 
     def _initial(self):
         s = self.system
@@ -579,10 +580,18 @@ class ForwardModel:
             data["aJ"], data["cD"] = am / (b * h * h), c
             data["v"] = vf
             self._velocity_state(vf)
-            s.assemble_combination(qf, data["aJ"] + s.alpha * c, af, s.beta * c, self.J,
+            # the viscoelastic branch at alpha_f: g K0 W(q1; q0, z0) (K0 k0x with k0x = g W)
+            branch = self._branch() if self.scheme.branch_sensitivities else None
+            cb, k0x = 0.0, None
+            if branch is not None:
+                cb = branch.jacobian_coefficient()
+                k0x = branch.strain(q1).copy()
+                k0x.scale(branch.ratio)
+            data["cB"] = cb
+            s.assemble_combination(qf, data["aJ"] + s.alpha * c, af, s.beta * c + cb, self.J,
                                    velocity=c, reuse=True)
-            deriv = self._derivatives(qf, vf, amv)
-            for x in (qf, amv):
+            deriv = self._derivatives(qf, vf, amv, k0x=k0x)
+            for x in (qf, amv) + ((k0x,) if k0x is not None else ()):
                 x.destroy()
         return deriv, data
 
@@ -659,6 +668,10 @@ class ForwardModel:
         out.axpy(-data["aJ"], tmp)
         self._damp_tangent(data, x, tmp)
         out.axpy(-data["cD"], tmp)
+        if data.get("cB"):
+            # the viscoelastic branch's c K0 in the step's Jacobian is not K(q_f)'s
+            s.K0_matrix().mult(x, tmp)
+            out.axpy(-data["cB"], tmp)
         out.scale(1.0 / self.af)
         tmp.destroy()
 
@@ -722,10 +735,14 @@ class ForwardModel:
                 for dq, dz in zip(tangents["q"], tangents["z"], strict=True):
                     dq.copy(dz)
             if self.has_a:
-                # M da0 = -P (R_p + K(q0) dq0)   (self.J holds K(q0) when static)
+                # M da0 = -P (R_p + K(q0) dq0)   (self.J holds K(q0) when static); the relaxed
+                # branch's force g K0 (q0 - z0) and its tangents are zero at t = 0 (dz0 = dq0)
                 deriv = self._derivatives(q0, v0, a0)
                 mksp = self._mass_solver()
-                for j, r in enumerate(deriv.vectors(self.names)):
+                for j in visco:
+                    tangents["a"][j].zeroEntries()
+                for j, r in zip(others, deriv.vectors([self.names[j] for j in others]),
+                                strict=True):
                     if self.static:
                         r.axpy(1.0, self.J * tangents["q"][j])
                     r.scale(-1.0)
@@ -754,7 +771,9 @@ class ForwardModel:
             for j in range(P):
                 dq0, dv0 = tangents["q"][j], tangents["v"][j]
                 if self.scheme.carries_acceleration:
-                    self._alpha_tangent(data, Rp[j], dq0, dv0, tangents["a"][j], ksp, rhs, tmp)
+                    self._alpha_tangent(data, Rp[j], dq0, dv0, tangents["a"][j], ksp, rhs, tmp,
+                                        branch, tangents["z"][j] if branch is not None
+                                        else None, st1[0], self.names[j])
                     continue
                 # rhs = -R_p + M (dq0/h^2 + dv0/h) + D dq0/h (- T_w (dq0 + h dv0) for SI)
                 tmp.waxpy(h, dv0, dq0)
@@ -802,8 +821,12 @@ class ForwardModel:
             x.destroy()
         return sim, dsim
 
-    def _alpha_tangent(self, data, Rp, dq0, dv0, da0, ksp, rhs, tmp) -> None:
-        """One generalized-alpha tangent step, in place: (dq0, dv0, da0) -> (dq1, dv1, da1)."""
+    def _alpha_tangent(self, data, Rp, dq0, dv0, da0, ksp, rhs, tmp, branch=None, dz0=None,
+                       q1=None, name=None) -> None:
+        """One generalized-alpha tangent step, in place: (dq0, dv0, da0) -> (dq1, dv1, da1);
+        with the viscoelastic ``branch`` also dz0 -> dz1 (its term K0 (a_q dq0 + a_z dz0) in
+        the residual's tangent, :meth:`~petsoft.physics.viscoelastic.MaxwellBranch.
+        state_coefficients`; ``q1`` the step's end, ``name`` the parameter)."""
         s, h = self.system, self.h
         am, af, g, b = self.am, self.af, self.gamma, self.nbeta
         ca = 1.0 / (b * h * h)
@@ -828,9 +851,18 @@ class ForwardModel:
         rhs.axpy(1.0, tmp)
         rhs.axpy(1.0, self._damp_tangent(data, dvf, tmp))
         rhs.axpy(1.0, Rp)
+        if branch is not None:
+            a_q, a_z = branch.state_coefficients()
+            dq0.copy(dqf)                   # dqf <- a_q dq0 + a_z dz0 (dqf is spent)
+            dqf.scale(a_q)
+            dqf.axpy(a_z, dz0)
+            s.K0_matrix().mult(dqf, tmp)
+            rhs.axpy(1.0, tmp)
         rhs.scale(-1.0)
         s.zero_prescribed(rhs)
         self._solve(ksp, rhs, tmp)          # tmp = dq1
+        if branch is not None:
+            branch.tangent_update(dz0, tmp, q1, name, dq0=dq0)
         tmp.copy(dq0)
         da1.axpy(ca, tmp)
         dv1.axpy(h * g * ca, tmp)

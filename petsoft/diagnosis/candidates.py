@@ -100,9 +100,6 @@ class Candidate:
         fitted but not tested (a relaxation time is undefined while the branch is off).
     fd_steps : dict
         Finite-difference step per parameter of a ``"score-fd"`` candidate.
-    gradient : str or None
-        Calibration gradient the extended model needs (``"fd"`` when the sensitivities do not
-        cover the term).
     """
 
     physics: str
@@ -117,7 +114,6 @@ class Candidate:
     compliance: float | None = None
     tested: list[str] | None = None
     fd_steps: dict = field(default_factory=dict)
-    gradient: str | None = None
 
     def extend(self, experiment):
         """The experiment with this term switched on at its zero value and its parameters in
@@ -384,7 +380,6 @@ def _continuum_candidates(experiment, cal, sc, offer, skipped, centroids, placed
                         [(0.0, 2.0), (tau / 30.0, 30.0 * tau)], kind="score-fd",
                         settings={"viscoelastic": {"ratio": 0.0, "relaxation_time": tau}},
                         tested=["viscoelastic.ratio"], fd_steps={"viscoelastic.ratio": 1e-3},
-                        gradient="fd",
                         reason=f"{PHYSICS['material.viscoelastic']} (standard linear solid, "
                         f"relaxation time from {tau:.3g} s)"))
     else:

@@ -126,7 +126,7 @@ SCHEMES: dict[str, Scheme] = {s.name: s for s in (
            MaxwellRule.BACKWARD_EULER, _implicit("si"), one_newton_step=True),
     Scheme("alpha", "generalized-alpha", 2, True, True,
            MaxwellRule.GENERALIZED_ALPHA, _alpha, force_at="alpha", carries_acceleration=True,
-           ts_backend=True),
+           branch_sensitivities=True, ts_backend=True),
     Scheme("midpoint", "implicit midpoint with a discrete gradient", 2, True, False,
            MaxwellRule.TRAPEZOIDAL, _implicit("midpoint"), force_at="midpoint"),
     Scheme("trapezoidal", "trapezoidal rule", 2, True, False,

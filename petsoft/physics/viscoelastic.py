@@ -213,31 +213,74 @@ class MaxwellBranch:
         Kw.destroy()
         return dissipated
 
-    # -- derivatives of a backward Euler step (forward sensitivities) ---------------------------
+    # -- derivatives of a step (forward sensitivities: backward Euler, generalized-alpha) ------
     @property
     def step_start(self) -> PETSc.Vec:
         """z0 of the step last prepared (z itself is z1 once the step is accepted)."""
         return self._z0
 
     def residual_derivative(self, name: str, q1: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
-        """out = d R/d p of the backward Euler step's branch term g/(1 + r) K0 (q1 - z0) for
-        p = ``viscoelastic.ratio`` (1/(1 + r) K0 (q1 - z0)) or ``viscoelastic.relaxation_time``
-        (g (r/tau)/(1 + r)^2 K0 (q1 - z0)); all rows."""
-        r = self._h / self.tau
+        """out = d R/d p of the step's branch term for p = ``viscoelastic.ratio`` or
+        ``viscoelastic.relaxation_time``; all rows.
+
+        Backward Euler, g/(1 + r) K0 (q1 - z0): d/dg = K0 (q1 - z0)/(1 + r), d/dtau =
+        g (r/tau)/(1 + r)^2 K0 (q1 - z0). Generalized-alpha, g K0 W with W = af (q1 - r2 q0 -
+        (1 - r2) z0)/(1 + r2) + (1 - af)(q0 - z0), r2 = h/(2 tau): d/dg = K0 W, d/dtau =
+        g af (r2/tau) K0 (q0 + q1 - 2 z0)/(1 + r2)^2."""
         x = q1.copy()
-        x.axpy(-1.0, self._z0)
-        self.system.K0_matrix().mult(x, out)
-        if name == "viscoelastic.ratio":
-            out.scale(1.0 / (1.0 + r))
+        if self._rule is MaxwellRule.GENERALIZED_ALPHA:
+            r2 = 0.5 * self._h / self.tau
+            if name == "viscoelastic.ratio":
+                self.strain(q1).copy(x)
+                scale = 1.0
+            else:
+                x.axpy(1.0, self._q0)
+                x.axpy(-2.0, self._z0)
+                scale = self.ratio * self._af * (r2 / self.tau) / (1.0 + r2) ** 2
+        elif self._rule is MaxwellRule.BACKWARD_EULER:
+            r = self._h / self.tau
+            x.axpy(-1.0, self._z0)
+            scale = (1.0 / (1.0 + r) if name == "viscoelastic.ratio"
+                     else self.ratio * (r / self.tau) / (1.0 + r) ** 2)
         else:
-            out.scale(self.ratio * (r / self.tau) / (1.0 + r) ** 2)
+            raise NotImplementedError(f"branch derivatives for the {self._rule.value} rule")
+        self.system.K0_matrix().mult(x, out)
+        out.scale(scale)
         x.destroy()
         return out
 
+    def state_coefficients(self) -> tuple[float, float]:
+        """(a_q, a_z): the step's branch term depends on the step's start as
+        K0 (a_q q0 + a_z z0) (backward Euler: (0, -g/(1 + r)); generalized-alpha: g (1 - af -
+        af r2/(1 + r2)), -g (1 - af + af (1 - r2)/(1 + r2))), so its tangent adds
+        K0 (a_q dq0 + a_z dz0) to the tangent step's residual."""
+        g = self.ratio
+        if self._rule is MaxwellRule.GENERALIZED_ALPHA:
+            r2, af = 0.5 * self._h / self.tau, self._af
+            return (g * (1.0 - af - af * r2 / (1.0 + r2)),
+                    -g * (1.0 - af + af * (1.0 - r2) / (1.0 + r2)))
+        return 0.0, -g / (1.0 + self._h / self.tau)
+
     def tangent_update(self, dz: PETSc.Vec, dq1: PETSc.Vec, q1: PETSc.Vec,
-                       name: str | None = None) -> None:
-        """dz <- dz1 of the accepted backward Euler step z1 = (z0 + r q1)/(1 + r):
-        dz1 = (dz0 + r dq1 + dr (q1 - z1))/(1 + r), dr = -r/tau for ``relaxation_time``."""
+                       name: str | None = None, dq0: PETSc.Vec | None = None) -> None:
+        """dz <- dz1 of the accepted step (``dq0``: the start's tangent, generalized-alpha).
+
+        Backward Euler, z1 = (z0 + r q1)/(1 + r): dz1 = (dz0 + r dq1 + dr (q1 - z1))/(1 + r),
+        dr = -r/tau for ``relaxation_time``. Generalized-alpha (trapezoidal z), z1 =
+        ((1 - r2) z0 + r2 (q0 + q1))/(1 + r2): dz1 = ((1 - r2) dz0 + r2 (dq0 + dq1))/(1 + r2)
+        - (r2/tau) (q0 + q1 - 2 z0)/(1 + r2)^2 for ``relaxation_time``."""
+        if self._rule is MaxwellRule.GENERALIZED_ALPHA:
+            r2 = 0.5 * self._h / self.tau
+            dz.scale(1.0 - r2)
+            dz.axpy(r2, dq0)
+            dz.axpy(r2, dq1)
+            dz.scale(1.0 / (1.0 + r2))
+            if name == "viscoelastic.relaxation_time":
+                c = -(r2 / self.tau) / (1.0 + r2) ** 2
+                dz.axpy(c, self._q0)
+                dz.axpy(c, q1)
+                dz.axpy(-2.0 * c, self._z0)
+            return
         r = self._h / self.tau
         dz.axpy(r, dq1)
         if name == "viscoelastic.relaxation_time":
