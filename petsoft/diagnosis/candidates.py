@@ -47,7 +47,7 @@ import numpy as np
 
 from petsoft.diagnosis.report import PHYSICS
 from petsoft.errors import ExperimentError
-from petsoft.experiment import experiment_from_dict, get_parameter
+from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
 
 #: Why a vocabulary term may not be tried (the reasons are filled in by build_candidates).
 NOT_APPLICABLE = "not applicable to this model"
@@ -135,6 +135,27 @@ class Candidate:
         for name, b in zip(self.parameters, self.bounds, strict=True):
             cal[name] = [float(b[0]), float(b[1])]
         data["calibrate"] = cal
+        return experiment_from_dict(data, source=experiment.source,
+                                    base_dir=experiment.base_dir, path=experiment.path)
+
+    @property
+    def retractable(self) -> bool:
+        """Whether :meth:`retract` can take the term out again: a term of values only (a
+        damping, drag or friction coefficient, gravity), not a region, collider, support
+        compliance or model switch."""
+        return (self.kind != "switch" and not self.regions and not self.colliders
+                and self.compliance is None)
+
+    def retract(self, experiment, zeros: dict[str, float]):
+        """``experiment`` (extended by this term, perhaps by later ones too) with this term's
+        parameters back at ``zeros`` (:meth:`zero_values` of the experiment it extended) and
+        out of ``[calibrate]``."""
+        if not self.retractable:
+            raise ValueError(f"{self.physics}: only a term of values can be retracted")
+        back = with_parameters(experiment, zeros)
+        data = back.to_dict()
+        data["calibrate"] = {k: v for k, v in data.get("calibrate", {}).items()
+                             if k not in self.parameters}
         return experiment_from_dict(data, source=experiment.source,
                                     base_dir=experiment.base_dir, path=experiment.path)
 

@@ -59,6 +59,7 @@ from petsoft.diagnosis.context import (  # noqa: F401
 from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
 from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings
 from petsoft.diagnosis.outputs import DiagnoseResult, build_diagnosis_report, write_outputs
+from petsoft.diagnosis.reconsider import Added, reconsider
 from petsoft.diagnosis.selection import (
     choose,
     escape_plane,
@@ -176,6 +177,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
               f"whiteness p {ev['noise_test'].whiteness_p_value:.3g})")
     current = base
     added: list[dict] = []
+    history: list[Added] = []
     rejected: list[dict] = []
     all_scores: list[dict] = []
     not_modelled: dict = {}
@@ -259,9 +261,19 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         if accepted is None:
             break
         added.append(accepted[0])
+        history.append(Added(accepted[0], choice.candidate, choice.alternatives,
+                             choice.candidate.zero_values(current.experiment)))
         current = accepted[1]
         ev = evidence_of(diag, current)
         diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
+    if len(history) > 1:
+        before = [h.candidate.physics for h in history]
+        current = reconsider(diag, current, history, rejected)
+        if [h.candidate.physics for h in history] != before:
+            added = [h.entry for h in history]
+            ev = evidence_of(diag, current)
+            diag.tell(f"verdict: {ev['verdict']} (chi2/dof "
+                      f"{ev['noise_test'].chi2_per_dof:.4g})")
     # a physics rejected in one round and added in a later one is reported as added only
     names_added = {a["physics"] for a in added}
     rejected = [r for r in rejected if r["physics"] not in names_added]

@@ -6,7 +6,7 @@ chi2 + k ln n, then the vocabulary's order), fitting the simplest first
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
@@ -121,11 +121,19 @@ class Choice:
     switch : str or None
         The physics of an accepted model switch (contact, a nonlinear law): the numerics must
         be checked again after it.
+    candidate : Candidate or None
+        The added term's candidate.
+    alternatives : list of (dict, Candidate)
+        The round's other candidates that passed both tests (score entry with its fit,
+        candidate), best first: what :mod:`petsoft.diagnosis.reconsider` tries in its place
+        once later terms are in.
     """
 
     accepted: tuple | None
     rejected: list
     switch: str | None
+    candidate: object = None
+    alternatives: list = field(default_factory=list)
 
 
 #: A significant candidate whose score is below this share of the round's best is not fitted.
@@ -277,7 +285,9 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
                 + ", ".join(f"{c.physics} held-out rms {fmt(h)} m, chi2 + k ln n "
                             f"{chi2:.6g}" for chi2, h, _, c, _ in passed)
                 + ")")
-    return Choice(accepted, rejected, switch)
+    if accepted is None:
+        return Choice(accepted, rejected, switch)
+    return Choice(accepted, rejected, switch, c_best, [(s, c) for _, _, s, c, _ in passed[1:]])
 
 
 def rank_round(scores: list, accepted, all_scores: list[dict], rnd: int) -> None:

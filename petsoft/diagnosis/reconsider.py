@@ -1,0 +1,109 @@
+"""An earlier addition reconsidered once later terms are in (replacement in stepwise selection).
+
+Each round adds the candidate that best predicts the held-out data *given the terms added so
+far*. With two effects concealed, the first round chooses while the second effect is still
+missing, and a term that absorbs part of it can win: on the independent L-bracket with a mass
+damping and an added mass, round 1 chose quadratic drag (held-out rms 0.363 mm against the mass
+damping's 0.421 mm, the added mass still missing) and round 2 the added mass. So, after the
+last round, each earlier term that only sets values (:attr:`Candidate.retractable`) is taken
+out and each of its round's runners-up (candidates that passed both tests) put in its place,
+with every later term kept, and refitted; the replacement is kept when it predicts the held-out
+data better by more than 2 %, or as well (within 2 % or the noise) with no more parameters and
+a lower chi2 + k ln n by more than :data:`~petsoft.diagnosis.selection.TIE_CHI2`: the rule by
+which a round chooses (:func:`~petsoft.diagnosis.selection.choose`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from petsoft.diagnosis.context import Diagnosis, Fit, fmt
+from petsoft.diagnosis.selection import TIE_CHI2, heldout_noise_level, n_parameters
+from petsoft.errors import PetsoftError
+
+#: Runners-up tried in place of each earlier term (the best of its round first).
+MAX_ALTERNATIVES = 2
+
+
+@dataclass
+class Added:
+    """One round's addition: its report entry, its candidate, the round's runners-up (score
+    entry, candidate) and its parameters' values before it was added (to take it out)."""
+
+    entry: dict
+    candidate: object
+    alternatives: list
+    zeros: dict
+
+
+def better_replacement(diag: Diagnosis, new: Fit, old: Fit, extra: int) -> bool:
+    """Whether ``new`` (``extra`` parameters more than ``old``, may be negative) replaces
+    ``old``: a held-out rms better by more than 2 %, or as good (within 2 % or the noise level)
+    with no more parameters and chi2 + k ln n lower by more than TIE_CHI2."""
+    if new.heldout_rms is None or old.heldout_rms is None:
+        return False
+    if new.heldout_rms < old.heldout_rms / 1.02 and new.heldout_rms > 0.0:
+        return not (old.heldout_rms <= heldout_noise_level(diag) and extra > 0)
+    as_good = new.heldout_rms <= max(1.02 * old.heldout_rms, heldout_noise_level(diag))
+    penalty = float(np.log(max(np.isfinite(diag.data[diag.ident]).sum(), 2)))
+    return as_good and extra <= 0 and new.chi2 + penalty * extra < old.chi2 - TIE_CHI2
+
+
+def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
+               rejected: list[dict]) -> Fit:
+    """Try each earlier retractable term's runners-up in its place (module docstring); updates
+    ``history`` (entries, candidates) and ``rejected`` in place; returns the final fit."""
+    swapped = False
+    for i, added in enumerate(history[:-1]):
+        cand = added.candidate
+        if cand is None or not cand.retractable:
+            continue
+        later = ", ".join(h.candidate.physics for h in history[i + 1:])
+        for s, alt in added.alternatives[:MAX_ALTERNATIVES]:
+            if not alt.retractable or any(h.candidate.physics == alt.physics for h in history):
+                continue
+            label = f"reconsider {cand.physics} -> {alt.physics}"
+            diag.tell(f"{label}: round {i + 1}'s runner-up in its place, with {later} in")
+            try:
+                fit = diag.calibrate(alt.extend(cand.retract(current.experiment,
+                                                             added.zeros)), label=label)
+            except PetsoftError as err:      # collective, as every fit
+                diag.tell(f"{label}: the fit failed ({err}); kept {cand.physics}")
+                continue
+            extra = n_parameters(alt) - n_parameters(cand)
+            swap = better_replacement(diag, fit, current, extra)
+            diag.tell(f"{label}: held-out rms {fmt(current.heldout_rms)} -> "
+                      f"{fmt(fit.heldout_rms)} m, chi2 {current.chi2:.6g} -> {fit.chi2:.6g}: "
+                      + ("replaced" if swap else f"kept {cand.physics}"))
+            if not swap:
+                continue
+            rejected.append({"physics": cand.physics, "score": added.entry["score"],
+                             "reason": f"added in round {i + 1}, replaced by {alt.physics} "
+                                       f"once {later} were in (held-out rms "
+                                       f"{fmt(current.heldout_rms)} -> {fmt(fit.heldout_rms)} "
+                                       f"m)"})
+            entry = dict(added.entry)
+            entry.update(physics=alt.physics, score=s["score"], region=alt.region,
+                         evidence=(f"round {i + 1}'s runner-up (score S = {s['score']:.4g}); "
+                                   f"replaced {cand.physics} once {later} were in: held-out "
+                                   f"rms {fmt(current.heldout_rms)} -> "
+                                   f"{fmt(fit.heldout_rms)} m, chi2 {current.chi2:.6g} -> "
+                                   f"{fit.chi2:.6g}"
+                                   + (f"; {alt.reason}" if alt.reason else "")))
+            entry["rms_after"] = fit.rms
+            history[i] = Added(entry, alt, [], alt.zero_values(current.experiment))
+            current = fit
+            swapped = True
+            break
+    if swapped:
+        # every term's values and deviations from the final fit: the later terms were
+        # refitted beside the replacement
+        for h in history:
+            names = [n for n in h.candidate.parameters if n in current.names]
+            h.entry["parameters"] = {n: float(current.values[current.names.index(n)])
+                                     for n in names}
+            h.entry["std"] = {n: float(current.std[current.names.index(n)]) for n in names
+                              if np.isfinite(current.std[current.names.index(n)])}
+    return current
