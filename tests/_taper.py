@@ -71,3 +71,32 @@ alpha_radius = 0.9
 directory = "out"
 {calibrate}
 """
+
+
+def taper_diagnosis(directory: Path, truth: str, user: str, seed: int, noise: float = 2e-5,
+                    say=None):
+    """The taper's truth recorded by ``petsoft synth`` (8 markers, ``noise``, 10 % dropped) and
+    a Diagnosis of the ``user`` experiment against it (identification 70 %, gauss-newton on
+    sensitivities), on every rank of COMM_WORLD; returns (diagnosis, user experiment).
+    ``directory`` must be the same path on every rank."""
+    from mpi4py import MPI
+    from petsc4py import PETSc
+
+    from petsoft.calibration.synth import SynthOptions, synth
+    from petsoft.diagnosis.context import Diagnosis
+    from petsoft.experiment import load_experiment
+    from petsoft.io.recording import read_recording
+
+    d = Path(directory)
+    if MPI.COMM_WORLD.rank == 0:
+        write_taper_mesh(d / "taper.msh")
+        (d / "truth.toml").write_text(truth)
+        (d / "user.toml").write_text(user)
+    MPI.COMM_WORLD.Barrier()
+    synth(load_experiment(d / "truth.toml"),
+          SynthOptions(out=d / "rec.h5", noise=noise, markers=8, dropout=0.1, seed=seed))
+    exp = load_experiment(d / "user.toml")
+    diag = Diagnosis(exp, read_recording(d / "rec.h5"), fraction=0.7, alpha=0.01,
+                     method="gauss-newton", gradient="sensitivity", integrator=None, noise=None,
+                     comm=PETSc.COMM_WORLD, say=say or (lambda line: None))
+    return diag, exp

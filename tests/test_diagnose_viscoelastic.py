@@ -13,14 +13,10 @@ side on the loaded 2-core machine.
 from pathlib import Path
 
 import pytest
-from _taper import taper, write_taper_mesh
+from _taper import taper, taper_diagnosis
 from mpi4py import MPI
-from petsc4py import PETSc
 
-from petsoft.calibration.synth import SynthOptions, synth
-from petsoft.diagnosis.context import Diagnosis, gradient_for
-from petsoft.experiment import load_experiment
-from petsoft.io.recording import read_recording
+from petsoft.diagnosis.context import gradient_for
 
 NOISE = 2e-5
 TRUTH = {"viscoelastic.ratio": 0.3, "viscoelastic.relaxation_time": 0.01}
@@ -33,25 +29,16 @@ CALIBRATE = ('[calibrate]\n"material.youngs_modulus" = [1e6, 1e8]\n'
 @pytest.fixture(scope="module")
 def case(tmp_path_factory):
     d = Path(MPI.COMM_WORLD.bcast(str(tmp_path_factory.mktemp("visco_diag"))))
-    if MPI.COMM_WORLD.rank == 0:
-        write_taper_mesh(d / "taper.msh")
-        (d / "truth.toml").write_text(taper(2.0e7, extra=BRANCH.format(g=0.3, tau=0.01)))
-        (d / "user.toml").write_text(taper(1.8e7, extra=BRANCH.format(g=0.05, tau=0.02),
-                                           calibrate=CALIBRATE))
-    MPI.COMM_WORLD.Barrier()
-    synth(load_experiment(d / "truth.toml"),
-          SynthOptions(out=d / "rec.h5", noise=NOISE, markers=8, dropout=0.1, seed=3))
-    return d
+    return taper_diagnosis(d, taper(2.0e7, extra=BRANCH.format(g=0.3, tau=0.01)),
+                           taper(1.8e7, extra=BRANCH.format(g=0.05, tau=0.02),
+                                 calibrate=CALIBRATE), seed=3, noise=NOISE)
 
 
 def test_the_branch_is_fitted_by_alpha_sensitivities(case):
-    exp = load_experiment(case / "user.toml")
+    diag, exp = case
     assert exp.time.integrator == "alpha"
     assert gradient_for(exp, "sensitivity") == "sensitivity"
     assert gradient_for(exp, "sensitivity", "si") == "fd"       # si does not carry z
-    diag = Diagnosis(exp, read_recording(case / "rec.h5"), fraction=0.7, alpha=0.01,
-                     method="gauss-newton", gradient="sensitivity", integrator=None, noise=None,
-                     comm=PETSc.COMM_WORLD, say=lambda line: None)
     fit = diag.calibrate(exp)
     got = dict(zip(fit.names, fit.values, strict=True))
     std = dict(zip(fit.names, fit.std, strict=True))

@@ -13,12 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _taper import CALIBRATE, taper, write_taper_mesh
+from _taper import CALIBRATE, taper, taper_diagnosis
 from mpi4py import MPI
-from petsc4py import PETSc
 
-from petsoft.calibration.synth import SynthOptions, synth
-from petsoft.diagnosis.context import Diagnosis, evidence_of
+from petsoft.diagnosis.context import evidence_of
 from petsoft.diagnosis.numerics import (
     SCREEN_BELOW,
     refined,
@@ -27,8 +25,6 @@ from petsoft.diagnosis.numerics import (
     screened,
 )
 from petsoft.diagnosis.numerics_findings import numerics_findings
-from petsoft.experiment import load_experiment
-from petsoft.io.recording import read_recording
 
 NOISE = 2e-5
 
@@ -37,18 +33,9 @@ NOISE = 2e-5
 def checked(tmp_path_factory):
     """The taper's fit and one round of the numerics check (the log lines kept)."""
     d = Path(MPI.COMM_WORLD.bcast(str(tmp_path_factory.mktemp("screen"))))
-    if MPI.COMM_WORLD.rank == 0:
-        write_taper_mesh(d / "taper.msh")
-        (d / "truth.toml").write_text(taper(2.0e7))
-        (d / "user.toml").write_text(taper(1.8e7, calibrate=CALIBRATE))
-    MPI.COMM_WORLD.Barrier()
-    synth(load_experiment(d / "truth.toml"),
-          SynthOptions(out=d / "rec.h5", noise=NOISE, markers=8, dropout=0.1, seed=7))
-    exp = load_experiment(d / "user.toml")
     said = []
-    diag = Diagnosis(exp, read_recording(d / "rec.h5"), fraction=0.7, alpha=0.01,
-                     method="gauss-newton", gradient="sensitivity", integrator=None, noise=None,
-                     comm=PETSc.COMM_WORLD, say=said.append)
+    diag, exp = taper_diagnosis(d, taper(2.0e7), taper(1.8e7, calibrate=CALIBRATE), seed=7,
+                                noise=NOISE, say=said.append)
     fit = diag.calibrate(exp)
     _, _, rounds = resolve_numerics(diag, fit, evidence_of(diag, fit), max_rounds=1)
     return diag, fit, rounds, said
@@ -129,17 +116,8 @@ def test_a_refinement_closer_to_the_data_by_more_than_the_noise_matters():
 def damped(tmp_path_factory):
     """The taper recorded with a mass damping its model lacks: a misfit far above the noise."""
     d = Path(MPI.COMM_WORLD.bcast(str(tmp_path_factory.mktemp("screen_damped"))))
-    if MPI.COMM_WORLD.rank == 0:
-        write_taper_mesh(d / "taper.msh")
-        (d / "truth.toml").write_text(taper(2.0e7, extra="[damping]\nmass = 40.0\n"))
-        (d / "user.toml").write_text(taper(2.0e7, calibrate=CALIBRATE))
-    MPI.COMM_WORLD.Barrier()
-    synth(load_experiment(d / "truth.toml"),
-          SynthOptions(out=d / "rec.h5", noise=NOISE, markers=8, dropout=0.1, seed=7))
-    exp = load_experiment(d / "user.toml")
-    diag = Diagnosis(exp, read_recording(d / "rec.h5"), fraction=0.7, alpha=0.01,
-                     method="gauss-newton", gradient="sensitivity", integrator=None, noise=None,
-                     comm=PETSc.COMM_WORLD, say=lambda line: None)
+    diag, exp = taper_diagnosis(d, taper(2.0e7, extra="[damping]\nmass = 40.0\n"),
+                                taper(2.0e7, calibrate=CALIBRATE), seed=7, noise=NOISE)
     fit = diag.calibrate(exp)
     _, _, rounds = resolve_numerics(diag, fit, evidence_of(diag, fit), max_rounds=1)
     return diag, fit, rounds

@@ -12,16 +12,12 @@ noise, chi2 935 -> 757, mass damping 19.8 +- 0.25 1/s against 20).
 from pathlib import Path
 
 import pytest
-from _taper import CALIBRATE, taper, write_taper_mesh
+from _taper import CALIBRATE, taper, taper_diagnosis
 from mpi4py import MPI
-from petsc4py import PETSc
 
-from petsoft.calibration.synth import SynthOptions, synth
 from petsoft.diagnosis.candidates import build_candidates
-from petsoft.diagnosis.context import Diagnosis
 from petsoft.diagnosis.reconsider import Added, better_replacement, reconsider
-from petsoft.experiment import get_parameter, load_experiment, with_parameters
-from petsoft.io.recording import read_recording
+from petsoft.experiment import get_parameter, with_parameters
 
 NOISE = 2e-5
 TRUE_ALPHA = 20.0
@@ -30,19 +26,9 @@ TRUE_ALPHA = 20.0
 @pytest.fixture(scope="module")
 def diag_exp(tmp_path_factory):
     d = Path(MPI.COMM_WORLD.bcast(str(tmp_path_factory.mktemp("reconsider"))))
-    if MPI.COMM_WORLD.rank == 0:
-        write_taper_mesh(d / "taper.msh")
-        (d / "truth.toml").write_text(taper(2.0e7, extra=f"[damping]\nmass = {TRUE_ALPHA}\n",
-                                            gravity=(3.0, 0.0, -9.81)))
-        (d / "user.toml").write_text(taper(2.0e7, calibrate=CALIBRATE))
-    MPI.COMM_WORLD.Barrier()
-    synth(load_experiment(d / "truth.toml"),
-          SynthOptions(out=d / "rec.h5", noise=NOISE, markers=8, dropout=0.1, seed=5))
-    exp = load_experiment(d / "user.toml")
-    diag = Diagnosis(exp, read_recording(d / "rec.h5"), fraction=0.7, alpha=0.01,
-                     method="gauss-newton", gradient="sensitivity", integrator=None, noise=None,
-                     comm=PETSc.COMM_WORLD, say=lambda line: None)
-    return diag, exp
+    return taper_diagnosis(d, taper(2.0e7, extra=f"[damping]\nmass = {TRUE_ALPHA}\n",
+                                    gravity=(3.0, 0.0, -9.81)),
+                           taper(2.0e7, calibrate=CALIBRATE), seed=5, noise=NOISE)
 
 
 def _candidate(experiment, physics):
