@@ -90,7 +90,7 @@ def partial_log(log: Path, noise: float) -> dict:
         m = re.search(r"material\.youngs_modulus=([0-9.eE+-]+);", line)
         if m and "base fit" in line:
             got["E_base"] = float(m.group(1))
-        if "numerics:" in line:
+        if "numerics:" in line and "still " not in line:    # not a heartbeat line
             checks.append(line.split("numerics:", 1)[1].strip())
         m = re.search(r"round (\d+): ranking", line)
         if m:
