@@ -10,6 +10,7 @@ noise, chi2 935 -> 757, mass damping 19.8 +- 0.25 1/s against 20).
 """
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from _taper import CALIBRATE, taper, taper_diagnosis
@@ -70,6 +71,14 @@ def test_a_wrong_first_term_is_replaced_once_the_second_is_in(diag_exp):
     assert abs(alpha - TRUE_ALPHA) < max(3.0 * history[0].entry["std"]["damping.mass"], 1.0)
     assert rejected and rejected[0]["physics"] == "damping.stiffness"
     assert "replaced by damping.mass" in rejected[0]["reason"]
-    # the rule: better held-out by 2 %, or as good with no more parameters and lower BIC
+    # the rule: a lower chi2 + k ln n (by more than 2) and a held-out rms no worse (2 %)
     assert better_replacement(diag, final, current, 0)
     assert not better_replacement(diag, current, final, 0)
+    # the independent bracket (damping + mass): linear drag in place of the quadratic one
+    # predicted 8 % better but fitted 2450 worse: not a replacement
+    old, new = (SimpleNamespace(chi2=8946.7, heldout_rms=1.726e-4),
+                SimpleNamespace(chi2=11398.8, heldout_rms=1.588e-4))
+    assert not better_replacement(diag, new, old, 0)
+    # a better fit that predicts 5 % worse (above the noise level) is not one either
+    worse = SimpleNamespace(chi2=8000.0, heldout_rms=1.05 * 1.726e-4)
+    assert not better_replacement(diag, worse, old, 0)
