@@ -82,3 +82,24 @@ def test_a_wrong_first_term_is_replaced_once_the_second_is_in(diag_exp):
     # a better fit that predicts 5 % worse (above the noise level) is not one either
     worse = SimpleNamespace(chi2=8000.0, heldout_rms=1.05 * 1.726e-4)
     assert not better_replacement(diag, worse, old, 0)
+
+
+def test_a_first_term_a_later_one_made_useless_is_taken_out(tmp_path_factory):
+    """The independent bracket with an added mass only: round 1 took a quadratic drag for it,
+    round 2 the added mass, which left the drag at zero. Here the taper recorded with a tilted
+    gravity only: a stiffness damping put in first is taken out once the gravity is in."""
+    d = Path(MPI.COMM_WORLD.bcast(str(tmp_path_factory.mktemp("reconsider_drop"))))
+    diag, exp = taper_diagnosis(d, taper(2.0e7, gravity=(3.0, 0.0, -9.81)),
+                                taper(2.0e7, calibrate=CALIBRATE), seed=5, noise=NOISE)
+    wrong = _candidate(exp, "damping.stiffness")
+    first = diag.calibrate(wrong.extend(exp))
+    grav = _candidate(first.experiment, "gravity")
+    current = diag.calibrate(grav.extend(first.experiment))
+    history = [Added(_entry(wrong, first), wrong, [], wrong.zero_values(exp)),
+               Added(_entry(grav, current), grav, [], grav.zero_values(first.experiment))]
+    rejected = []
+    final = reconsider(diag, current, history, rejected)
+    assert [h.candidate.physics for h in history] == ["gravity"]
+    assert "damping.stiffness" not in final.names
+    assert rejected and "taken out" in rejected[0]["reason"]
+    assert final.heldout_rms <= 1.02 * current.heldout_rms

@@ -5,10 +5,11 @@ far*. With two effects concealed, the first round chooses while the second effec
 missing, and a term that absorbs part of it can win: on the independent L-bracket with a mass
 damping and an added mass, round 1 chose quadratic drag (held-out rms 0.363 mm against the mass
 damping's 0.421 mm, the added mass still missing) and round 2 the added mass. So, after the
-last round, each earlier term of values only (:attr:`Candidate.retractable`) is taken out and
-each of its round's runners-up (candidates that passed both tests, up to
-:data:`MAX_ALTERNATIVES`) put in its place, with every later term kept, and refitted. The best
-of those by chi2 + k ln n replaces the term when it fits the identification window better by
+last round, each earlier term of values only (:attr:`Candidate.retractable`) is taken out,
+alone and with each of its round's runners-up (candidates that passed both tests, up to
+:data:`MAX_ALTERNATIVES`) in its place, with every later term kept, and refitted (alone: on
+the bracket with an added mass only, round 1 took a quadratic drag for it, which the added
+mass of round 2 left at zero). The best of those by chi2 + k ln n replaces the term when it fits the identification window better by
 that criterion (by more than :data:`~petsoft.diagnosis.selection.TIE_CHI2`) and predicts the
 held-out data as well (within 2 % or the noise level). Both, because a model that now holds
 every effect is judged on its fit as well: on that bracket linear drag in place of the
@@ -64,23 +65,32 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
     ``history`` (entries, candidates) and ``rejected`` in place; returns the final fit."""
     swapped = False
     for i, added in enumerate(history[:-1]):
-        cand = added.candidate
+        cand = added.candidate if added is not None else None
         if cand is None or not cand.retractable:
             continue
         later = ", ".join(h.candidate.physics for h in history[i + 1:])
         best = None
-        for s, alt in added.alternatives[:MAX_ALTERNATIVES]:
-            if not alt.retractable or any(h.candidate.physics == alt.physics for h in history):
-                continue
-            label = f"reconsider {cand.physics} -> {alt.physics}"
-            diag.tell(f"{label}: round {i + 1}'s runner-up in its place, with {later} in")
+        # None: the term taken out with nothing in its place (it may have stood in for a
+        # later one: the bracket's added mass was first taken for a quadratic drag, which
+        # the added mass then left at zero)
+        options = [(None, None)] + [
+            (s, alt) for s, alt in added.alternatives[:MAX_ALTERNATIVES]
+            if alt.retractable and not any(h is not None and h.candidate.physics == alt.physics
+                                           for h in history)]
+        for s, alt in options:
+            label = (f"reconsider {cand.physics} -> {alt.physics}" if alt is not None
+                     else f"reconsider without {cand.physics}")
+            diag.tell(f"{label}: " + (f"round {i + 1}'s runner-up in its place"
+                                      if alt is not None else "taken out")
+                      + f", with {later} in")
+            without = cand.retract(current.experiment, added.zeros)
             try:
-                fit = diag.calibrate(alt.extend(cand.retract(current.experiment,
-                                                             added.zeros)), label=label)
+                fit = diag.calibrate(alt.extend(without) if alt is not None else without,
+                                     label=label)
             except PetsoftError as err:      # collective, as every fit
                 diag.tell(f"{label}: the fit failed ({err}); kept {cand.physics}")
                 continue
-            extra = n_parameters(alt) - n_parameters(cand)
+            extra = (n_parameters(alt) if alt is not None else 0) - n_parameters(cand)
             ok = better_replacement(diag, fit, current, extra)
             diag.tell(f"{label}: held-out rms {fmt(current.heldout_rms)} -> "
                       f"{fmt(fit.heldout_rms)} m, chi2 {current.chi2:.6g} -> {fit.chi2:.6g}: "
@@ -91,12 +101,21 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
         if best is None:
             continue
         _, s, alt, fit = best
+        change = (f"chi2 {current.chi2:.6g} -> {fit.chi2:.6g}, held-out rms "
+                  f"{fmt(current.heldout_rms)} -> {fmt(fit.heldout_rms)} m")
+        if alt is None:
+            diag.tell(f"reconsider: {cand.physics} (round {i + 1}) taken out")
+            rejected.append({"physics": cand.physics, "score": added.entry["score"],
+                             "reason": f"added in round {i + 1}, taken out once {later} were "
+                                       f"in ({change})"})
+            history[i] = None
+            current = fit
+            swapped = True
+            continue
         diag.tell(f"reconsider: {alt.physics} replaces {cand.physics} (round {i + 1})")
         rejected.append({"physics": cand.physics, "score": added.entry["score"],
                          "reason": f"added in round {i + 1}, replaced by {alt.physics} once "
-                                   f"{later} were in (chi2 {current.chi2:.6g} -> "
-                                   f"{fit.chi2:.6g}, held-out rms {fmt(current.heldout_rms)} "
-                                   f"-> {fmt(fit.heldout_rms)} m)"})
+                                   f"{later} were in ({change})"})
         entry = dict(added.entry)
         entry.update(physics=alt.physics, score=s["score"], region=alt.region, rms_after=fit.rms,
                      evidence=(f"round {i + 1}'s runner-up (score S = {s['score']:.4g}); "
@@ -107,6 +126,7 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
         history[i] = Added(entry, alt, [], alt.zero_values(current.experiment))
         current = fit
         swapped = True
+    history[:] = [h for h in history if h is not None]
     if swapped:
         # every term's values and deviations from the final fit: the later terms were
         # refitted beside the replacement
