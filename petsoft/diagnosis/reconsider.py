@@ -4,18 +4,19 @@ Each round adds the candidate that best predicts the held-out data *given the te
 far*. With two effects concealed, the first round chooses while the second effect is still
 missing, and a term that absorbs part of it can win: on the independent L-bracket with a mass
 damping and an added mass, round 1 chose quadratic drag (held-out rms 0.363 mm against the mass
-damping's 0.421 mm, the added mass still missing) and round 2 the added mass. So, after the
-last round, each earlier term of values only (:attr:`Candidate.retractable`) is taken out,
-alone and with each of its round's runners-up (candidates that passed both tests, up to
-:data:`MAX_ALTERNATIVES`) in its place, with every later term kept, and refitted (alone: on
+damping's 0.421 mm, the added mass still missing) and round 2 the added mass.
+
+So, after the last round, each earlier term of values only (:attr:`Candidate.retractable`) is
+taken out, alone and with each of its round's runners-up (candidates that passed both tests,
+up to :data:`MAX_ALTERNATIVES`) in its place, every later term kept, and refitted. Alone: on
 the bracket with an added mass only, round 1 took a quadratic drag for it, which the added
-mass of round 2 left at zero). The best of those by chi2 + k ln n replaces the term when it fits the identification window better by
-that criterion (by more than :data:`~petsoft.diagnosis.selection.TIE_CHI2`) and predicts the
-held-out data as well (within 2 % or the noise level). Both, because a model that now holds
-every effect is judged on its fit as well: on that bracket linear drag in place of the
-quadratic one predicted the held-out window 8 % better but fitted 2450 worse in chi2, and a
-rule on the held-out window alone took it (and the verdict went from consistent to
-missing-physics) before the true mass damping, third in round 1, was tried.
+mass of round 2 left at zero. The best option by chi2 + k ln n replaces the term when it fits
+the identification window better by that criterion (by more than
+:data:`~petsoft.diagnosis.selection.TIE_CHI2`) and predicts the held-out data as well (within
+2 % or the noise level). Both tests: on the first bracket, linear drag in place of the
+quadratic one predicted the held-out window 8 % better but fitted 2450 worse in chi2; a rule
+on the held-out window alone took it (the verdict went from consistent to missing-physics)
+before the true mass damping, third in round 1, was tried.
 """
 
 from __future__ import annotations
