@@ -147,8 +147,6 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r) -> dict:
               f"{o['change_rms'] * current / diag.sigma:.3g}x the noise"
               + (", counted" if o["gain"] > 0.0 else ", not counted (no closer to the data)"))
     o["measured_only"] = True
-    # counted (by the caller) only when the refit is closer to the data
-    o["error_estimate"] = o["change_rms"] * current if o["gain"] > 0.0 else 0.0
     return o
 
 
@@ -162,7 +160,8 @@ def linearised_refit(diag: Diagnosis, fit: Fit, r, moved: np.ndarray,
     upper bound.
 
     Returns a round entry in the keys of a fitted refinement (``refit`` names how it was
-    refitted; ``error_estimate`` is left to the caller)."""
+    refitted; ``error_estimate``: the current model's error, change x Richardson's k / (k - 1),
+    when the linearised refit is closer to the data, else 0; :func:`_count_error` books it)."""
     exp = fit.experiment
     ident, data = diag.ident, diag.data[diag.ident]
     seen = np.isfinite(data)
@@ -185,7 +184,7 @@ def linearised_refit(diag: Diagnosis, fit: Fit, r, moved: np.ndarray,
     change = float(np.sqrt(np.mean(lin ** 2)))
     dof = diag.dof(len(fit.names))
     gain = fit.chi2 - chi2_lin
-    remaining = r.error_factors(exp, diag.integrator)[1]
+    current, remaining = r.error_factors(exp, diag.integrator)
     return {"chi2": chi2_lin, "chi2_per_dof": chi2_lin / dof, "gain": gain,
             "matters": refinement_matters(gain, diag.excess(fit), change, diag.sigma),
             "change_rms": change, "change_over_noise": change / diag.sigma,
@@ -194,7 +193,8 @@ def linearised_refit(diag: Diagnosis, fit: Fit, r, moved: np.ndarray,
             "how": r.describe(exp), "refit": how,
             "parameters": dict(zip(fit.names, map(float, np.asarray(fit.values) + step),
                                    strict=True)),
-            "error_estimate": 0.0, "remaining_estimate": change * remaining}
+            "error_estimate": change * current if gain > 0.0 else 0.0,
+            "remaining_estimate": change * remaining}
 
 
 def _sensitivities(diag: Diagnosis, fit: Fit) -> np.ndarray:
@@ -321,12 +321,7 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
             if lin is not None:
                 closer = lin["gain"] > 0.0
                 # counted like a fitted refinement that does not matter: only when closer
-                if closer:
-                    lin["error_estimate"] = lin["change_rms"] * r.error_factors(
-                        exp, diag.integrator)[0]
-                    diag.model_error[what] = lin["error_estimate"]
-                else:
-                    diag.model_error.pop(what, None)
+                _count_error(diag, what, lin)
                 entry["options"][what] = lin
                 diag.tell(f"numerics: {what} ({r.describe(exp)}): the simulation changes by "
                           f"{lin['change_same_parameters_over_noise']:.3g}x the noise "
@@ -462,10 +457,16 @@ def _measure_into(diag: Diagnosis, fit: Fit, r, entry: dict) -> None:
     o = done[key]
     entry["options"][r.label] = o
     entry.get("not_tried", {}).pop(r.label, None)
+    _count_error(diag, r.label, o)
+
+
+def _count_error(diag: Diagnosis, label: str, o: dict) -> None:
+    """Book refinement ``label``'s estimated error ``o["error_estimate"]`` in the verdict's
+    noise budget (``diag.model_error``), or take it out when there is none."""
     if o.get("error_estimate", 0.0) > 0.0:
-        diag.model_error[r.label] = o["error_estimate"]
+        diag.model_error[label] = o["error_estimate"]
     else:
-        diag.model_error.pop(r.label, None)
+        diag.model_error.pop(label, None)
 
 
 def refinement_matters(gain: float, excess: float, change: float, sigma: float) -> bool:
