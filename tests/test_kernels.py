@@ -359,6 +359,11 @@ def test_bad_inputs(backend, rng):
     bad_vol[2] = -bad_vol[2]
     with pytest.raises(MeshError, match="element 2"):
         elastic.element_energy("linear", dN, bad_vol, u, mu, lam, backend=backend)
+    for bad in (0.0, np.nan):      # degenerate, or a geometry that went wrong upstream
+        bad_vol = vol.copy()
+        bad_vol[3] = bad
+        with pytest.raises(MeshError, match="element 3"):
+            elastic.element_energy("linear", dN, bad_vol, u, mu, lam, backend=backend)
     with pytest.raises(ValueError):
         elastic.element_energy("linear", dN, vol, u[:3], mu, lam, backend=backend)
 
