@@ -97,7 +97,7 @@ from petsoft.experiment import get_parameter
 from petsoft.io.progress import beat
 from petsoft.physics.model import build_model
 from petsoft.solvers.convergence import check_converged
-from petsoft.solvers.linear import symmetric_factorisation
+from petsoft.solvers.linear import is_direct, symmetric_factorisation
 from petsoft.solvers.options import scoped_defaults
 from petsoft.solvers.static import StaticSolver
 
@@ -813,8 +813,16 @@ class ForwardModel:
                 x.destroy()
             self._free_data(data)
             observe_tangents(n + 1)
+            if lend:
+                # the next step's Newton chord iterates on these factors (borrowed_chord)
+                self.integrator.borrow_chord(ksp)
 
-        states, sim = self._run(p, store=False, on_step=on_step)
+        lend = hasattr(self.integrator, "borrow_chord") and is_direct(ksp)
+        try:
+            states, sim = self._run(p, store=False, on_step=on_step)
+        finally:
+            if lend:
+                self.integrator.borrow_chord(None)
         self._free(states)
         ksp.destroy()
         for x in tangents["q"] + tangents["v"] + (tangents["a"] or []) + (tangents["z"] or []):

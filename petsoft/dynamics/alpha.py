@@ -34,7 +34,8 @@ from petsoft.dynamics.implicit import NoBranch, SolverReuse, StepReport, branch_
 from petsoft.dynamics.interfaces import StepperDefaults, length_scale
 from petsoft.errors import InvertedElementError
 from petsoft.physics.viscoelastic import MaxwellRule
-from petsoft.solvers.convergence import outcome, reason_name, stop_at_round_off
+from petsoft.solvers.borrowed_chord import BorrowedChord
+from petsoft.solvers.convergence import on_any_rank, outcome, reason_name, stop_at_round_off
 from petsoft.solvers.linear import factor_once_per_step, solve_newton
 from petsoft.solvers.options import scoped_defaults
 
@@ -222,6 +223,7 @@ class GeneralizedAlpha(SolverReuse):
         self._branch = NoBranch()
         self.prefix = prefix
         self.snes = None
+        self._chord = None          # a BorrowedChord, made the first time factors are lent
         self._new_solver()
         self.new_run()
 
@@ -356,10 +358,43 @@ class GeneralizedAlpha(SolverReuse):
         v.copy(v_last)
         self._last = (t, q_last, v_last)
 
+    def new_run(self) -> None:
+        super().new_run()
+        self._borrowed = None
+
+    def borrow_chord(self, ksp: PETSc.KSP | None) -> None:
+        """Solve the next step's Newton systems by ``ksp``, set up on an approximation of the
+        step Jacobian (the exact one at the previous step's end, factored for the forward
+        sensitivities), instead of assembling and factoring one (:mod:`petsoft.solvers.
+        borrowed_chord`). For that step only, and only where the stepper's own solver is the
+        default direct chord (:func:`~petsoft.solvers.linear.factor_once_per_step`); a chord
+        that fails there is repeated by the stepper's own solver. ``None`` withdraws it."""
+        self._borrowed = ksp
+
+    def _solve(self, q1) -> PETSc.SNES:
+        """Newton from the guess in ``q1``: on the factors lent for this step, if any, else
+        (or when that fails) by the stepper's own solver; returns the SNES that solved."""
+        borrowed, self._borrowed = self._borrowed, None
+        if borrowed is not None and self._lagged:
+            if self._chord is None:
+                self._chord = BorrowedChord(self.snes, self._residual_cb, self.R, self.J,
+                                            self.length)
+            guess = q1.copy()
+            try:
+                converged = self._chord.solve(borrowed, q1, self.snes)
+                if not self._forget_rejected() and converged:   # (forgotten either way)
+                    return self._chord.snes
+                guess.copy(q1)
+            finally:
+                guess.destroy()
+        solve_newton(self.snes, q1, self._lagged, self._forget_rejected)
+        return self.snes
+
     def _forget_rejected(self) -> bool:
-        """Whether the last solve met an inverted element (forgotten: the solve is repeated)."""
+        """Whether the last solve met an inverted element on some rank (forgotten: the solve
+        is repeated, on every rank)."""
         bad, self._bad = self._bad is not None, None
-        return bad
+        return on_any_rank(self.system.comm, bad)
 
     def step(self, t0, q0, v0, h, q1, v1) -> StepReport:
         s = self.system
@@ -388,15 +423,16 @@ class GeneralizedAlpha(SolverReuse):
         # Except with a constant Jacobian (keeps_solver).
         if not self.keeps_solver():
             self._new_solver()
-        solve_newton(self.snes, q1, self._lagged, self._forget_rejected)
+        snes = self._solve(q1)
         report = StepReport()
-        report.newton_iterations = self.snes.getIterationNumber()
-        report.linear_iterations = self.snes.getLinearSolveIterations()
-        done = outcome(self.snes)
-        report.converged = done.converged and self._bad is None
+        report.newton_iterations = snes.getIterationNumber()
+        report.linear_iterations = snes.getLinearSolveIterations()
+        done = outcome(snes)
+        bad = on_any_rank(s.comm, self._bad is not None)
+        report.converged = done.converged and not bad
         report.reason = done.reason
-        if self._bad is not None:
-            report.reason += f" ({self._bad})"
+        if bad:
+            report.reason += f" ({self._bad or 'an element inverted on another rank'})"
         if not report.converged:
             self._forget()
             self.new_run()
@@ -439,6 +475,8 @@ class GeneralizedAlpha(SolverReuse):
 
     def destroy(self) -> None:
         self.snes.destroy()
+        if self._chord is not None:
+            self._chord.destroy()
         for vec in (self.J, self.R, self.q0, self.v0, self.a0, self.a1, self.v1, self.qf,
                     self.vf, self.work, self.load):
             vec.destroy()

@@ -44,7 +44,7 @@ from petsoft.dynamics import matrix_free, nonlinear_gs
 from petsoft.dynamics.integrators import SCHEMES, scheme
 from petsoft.dynamics.interfaces import StepperDefaults, length_scale
 from petsoft.errors import InvertedElementError
-from petsoft.solvers.convergence import outcome, stop_at_round_off
+from petsoft.solvers.convergence import on_any_rank, outcome, stop_at_round_off
 from petsoft.solvers.linear import factor_once_per_step, solve_newton
 from petsoft.solvers.options import scoped_defaults
 
@@ -417,9 +417,10 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
             self.g0 = s.internal_gradient(q0, s.create_vec())
 
     def _forget_rejected(self) -> bool:
-        """Whether the last solve met an inverted element (forgotten: the solve is repeated)."""
+        """Whether the last solve met an inverted element on some rank (forgotten: the solve
+        is repeated, on every rank)."""
         bad, self._bad = self._bad is not None, None
-        return bad
+        return on_any_rank(self.system.comm, bad)
 
     def step(self, t0: float, q0: PETSc.Vec, v0: PETSc.Vec, h: float,
              q1: PETSc.Vec, v1: PETSc.Vec) -> StepReport:
@@ -451,9 +452,9 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
             report.linear_iterations = self.ksp.getIterationNumber()
             done = outcome(self.tao)
             report.converged, report.reason = done.converged, done.reason
-        if self._bad is not None:
+        if on_any_rank(s.comm, self._bad is not None):
             report.converged = False
-            report.reason += f" ({self._bad})"
+            report.reason += f" ({self._bad or 'an element inverted on another rank'})"
         if not report.converged:
             self.new_run()
             return report

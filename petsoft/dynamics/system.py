@@ -29,11 +29,14 @@ changed in place and differentiated: :meth:`DynamicSystem.parameter_names`,
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from petsc4py import PETSc
 
 from petsoft.dynamics.interfaces import SystemDefaults
 from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
+from petsoft.errors import InvertedElementError
 from petsoft.fem.assembly import MatrixAssembler
 from petsoft.fem.element import face_lumped_areas
 from petsoft.fem.kernels.materials import lame_parameters
@@ -47,6 +50,7 @@ from petsoft.physics.loads import (
     traction_forces,
 )
 from petsoft.physics.viscoelastic import MaxwellBranch
+from petsoft.solvers.convergence import on_any_rank
 from petsoft.solvers.linear import linear_defaults
 
 #: The assembler's element set of single nodes: the velocity terms' 3x3 diagonal blocks.
@@ -274,12 +278,23 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
 
     # -- forces and energies ----------------------------------------------------------------
     def internal_gradient(self, q: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
-        """out = grad W(q) (all rows, including prescribed ones)."""
+        """out = grad W(q) (all rows, including prescribed ones).
+
+        Raises InvertedElementError on every rank when an element inverted on one: after the
+        collective sum, which a rank that stopped at its own element left the others waiting in
+        (a 2-rank chord whose iterate inverted an element never returned)."""
         u = self.dmesh.to_local(q)
         self._g[:] = 0.0
-        self.elastic.add_gradient(u, self._g)
+        inverted = None
+        try:
+            self.elastic.add_gradient(u, self._g)
+        except InvertedElementError as err:
+            inverted = err
         out.zeroEntries()
         self.dmesh.add_to_global(self._g.reshape(-1, 3), out)
+        if on_any_rank(self.comm, inverted is not None):
+            raise inverted or InvertedElementError(
+                -1, math.nan, "an element inverted on another rank (its message says which)")
         return out
 
     def elastic_energy(self, q: PETSc.Vec) -> float:

@@ -167,3 +167,14 @@ def stop_at_round_off(snes: PETSc.SNES, jacobian: PETSc.Mat, length: float) -> N
         return reasons.ITERATING
 
     snes.setConvergenceTest(test)
+
+
+def on_any_rank(comm: PETSc.Comm, flag: bool) -> bool:
+    """Whether ``flag`` holds on some rank of ``comm`` (collective). A step's solve that met an
+    inverted element on one rank only must be repeated (or refused) on every rank alike: a
+    rank-local decision sent the ranks into different solves, which never returned."""
+    if comm.getSize() == 1:
+        return bool(flag)
+    from mpi4py import MPI
+
+    return bool(comm.tompi4py().allreduce(bool(flag), op=MPI.LOR))

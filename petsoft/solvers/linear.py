@@ -125,20 +125,32 @@ def symmetric_factorisation(ksp: PETSc.KSP, A: PETSc.Mat) -> bool:
     return True
 
 
+#: Preconditioners that are a direct solve under ``preonly`` (redundant: each rank factors the
+#: gathered matrix by LU, :func:`linear_defaults`' choice for small systems on several ranks)
+DIRECT_PCS = (PETSc.PC.Type.LU, PETSc.PC.Type.CHOLESKY, PETSc.PC.Type.REDUNDANT)
+
+
+def is_direct(ksp: PETSc.KSP) -> bool:
+    """Whether ``ksp`` solves by one factorisation (``preonly`` with LU or Cholesky): its
+    solves are exact, and cheap once it is set up."""
+    return (ksp.getType() == PETSc.KSP.Type.PREONLY
+            and ksp.getPC().getType() in DIRECT_PCS)
+
+
 def factor_once_per_step(snes: PETSc.SNES) -> bool:
     """Assemble and factor the Jacobian once per time step: Newton becomes the chord method.
 
-    When the step's solver is the default direct solve (``preonly`` + LU/Cholesky, not chosen
-    by options) of a Newton line search, the Jacobian and its factorisation are computed at the
-    first iteration of each solve only and every later iteration solves with them (PETSc's
-    ``-snes_lag_jacobian`` and ``-snes_lag_preconditioner``, not persistent across solves). The
-    residual is exact, so the step converges to the same solution to the same tolerance;
-    within a time step the Jacobian hardly moves, so the chord contracts fast. Measured on a
-    10-node neo-Hookean finger (2.2k dofs, generalized-alpha, 140 steps): 3.9 Newton iterations
-    a step, each assembling the Jacobian (and, before, solving it by GMRES on the step's
-    factor), against 5.8 chord iterations a step with one assembly: a forward run 3.6 ->
-    2.2 s, and 1.6 s with MUMPS's symmetric factorisation (below); trajectories equal to
-    4e-15 m.
+    When the step's solver is the default direct solve (``preonly`` + LU, Cholesky or redundant
+    LU, not chosen by options) of a Newton line search, the Jacobian and its factorisation are
+    computed at the first iteration of each solve only and every later iteration solves with
+    them (PETSc's ``-snes_lag_jacobian`` and ``-snes_lag_preconditioner``, not persistent
+    across solves). The residual is exact, so the step converges to the same solution to the
+    same tolerance; within a time step the Jacobian hardly moves, so the chord contracts fast.
+    Measured on a 10-node neo-Hookean finger (2.2k dofs, generalized-alpha, 140 steps): 3.9
+    Newton iterations a step, each assembling the Jacobian (and, before, solving it by GMRES on
+    the step's factor), against 5.8 chord iterations a step with one assembly: a forward run
+    3.6 -> 2.2 s, and 1.6 s with MUMPS's symmetric factorisation (below); trajectories equal
+    to 4e-15 m.
 
     Every step starts from a fresh factorisation of its own first Jacobian, so a run restarted
     at any step computes what the uninterrupted run did, bit for bit.
@@ -152,7 +164,7 @@ def factor_once_per_step(snes: PETSc.SNES) -> bool:
     prefix = snes.getOptionsPrefix() or ""
     db = PETSc.Options()
     if (solver_chosen(ksp) or ksp.getType() != PETSc.KSP.Type.PREONLY
-            or pc.getType() not in (PETSc.PC.Type.LU, PETSc.PC.Type.CHOLESKY)
+            or pc.getType() not in DIRECT_PCS
             or snes.getType() != PETSc.SNES.Type.NEWTONLS
             or db.hasName(prefix + "snes_lag_preconditioner")
             or db.hasName(prefix + "snes_lag_jacobian")):

@@ -1,0 +1,87 @@
+"""Newton's chord on a factorisation another solve already made.
+
+A forward-sensitivity run (:meth:`petsoft.calibration.forward.ForwardModel.jacobian`) factors
+the exact step Jacobian at every converged step for its tangent solves. The next time step's
+Newton chord (:func:`petsoft.solvers.linear.factor_once_per_step`) would then assemble and
+factor the step Jacobian once more, at its predictor: the same matrix one step later. The chord
+needs only an approximation of the Jacobian (its residual is exact and it converges to the
+same tolerance), so the next step can iterate on the sensitivities' factors instead, saving an
+assembly and a factorisation a step -- two of a sensitivity step's costliest parts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from petsc4py import PETSc
+
+from petsoft.solvers.convergence import stop_at_round_off
+from petsoft.solvers.options import scoped_defaults
+
+
+class _ApplyBorrowed:
+    """Python PC context: y = A^-1 x by the borrowed (set-up) KSP."""
+
+    def __init__(self):
+        self.ksp = None
+
+    def apply(self, pc, x, y) -> None:
+        self.ksp.solve(x, y)
+
+
+class BorrowedChord:
+    """A Newton solver (SNES, basic line search) whose every linear system is solved by a KSP
+    someone else set up (:meth:`solve`); its Jacobian is never assembled.
+
+    Parameters
+    ----------
+    like : PETSc.SNES
+        The stepper's own solver: its communicator, options prefix, residual (function and
+        vector) and, at each :meth:`solve`, its tolerances are taken.
+    residual : callable(snes, x, F)
+        The step's residual callback.
+    F : PETSc.Vec
+        The residual vector.
+    J : PETSc.Mat
+        A matrix of the step Jacobian's layout and scale (its infinity norm sets the round-off
+        floor of :func:`~petsoft.solvers.convergence.stop_at_round_off`); never written.
+    length : float
+        A cell size of the model (m), for that floor.
+    """
+
+    def __init__(self, like: PETSc.SNES, residual: Callable, F: PETSc.Vec, J: PETSc.Mat,
+                 length: float):
+        self._context = _ApplyBorrowed()
+        self.snes = snes = PETSc.SNES().create(comm=like.getComm())
+        prefix = like.getOptionsPrefix() or ""
+        snes.setOptionsPrefix(prefix)
+        snes.setFunction(residual, F)
+        snes.setJacobian(self._unchanged, J, J)
+        stop_at_round_off(snes, J, length)
+        with scoped_defaults(**{prefix + "snes_linesearch_type": "basic"}):
+            snes.setFromOptions()
+        snes.getKSP().setType(PETSc.KSP.Type.PREONLY)
+
+    @staticmethod
+    def _unchanged(snes, x, J, P) -> None:
+        """The Jacobian callback: nothing to assemble (the borrowed factors stand for it)."""
+
+    def solve(self, ksp: PETSc.KSP, x: PETSc.Vec, like: PETSc.SNES) -> bool:
+        """Newton's chord from the guess in ``x`` on ``ksp``'s factors, to ``like``'s
+        tolerances; whether it converged (``x`` is then the solution)."""
+        self.snes.setTolerances(*like.getTolerances())
+        pc = self.snes.getKSP().getPC()
+        self._context.ksp = ksp
+        pc.setType(PETSc.PC.Type.PYTHON)
+        pc.setPythonContext(self._context)
+        try:
+            self.snes.solve(None, x)
+        finally:
+            # no Python PC outlives the solve: one left to PETSc's finalisation (a model the
+            # user never destroyed) crashed the interpreter at exit
+            pc.setType(PETSc.PC.Type.NONE)
+            self._context.ksp = None
+        return self.snes.getConvergedReason() > 0
+
+    def destroy(self) -> None:
+        self.snes.destroy()

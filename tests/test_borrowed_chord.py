@@ -1,0 +1,105 @@
+"""Newton's chord on the forward sensitivities' factors (petsoft.solvers.borrowed_chord).
+
+In a forward-sensitivity run of generalized-alpha each step's Newton chord iterates on the
+factorisation the previous step's tangent solves made (the exact step Jacobian at its end),
+instead of assembling and factoring its own at the predictor:
+
+1. one factorisation a step instead of two (PETSc's event counts), and the same answer: the
+   run's trajectory equals ``simulate``'s to the Newton tolerance, its sensitivities equal
+   central differences of ``simulate``;
+2. lent factors the chord cannot converge on (those of a matrix 1000x too small) leave the step
+   to the stepper's own solver: the step ends where a step that borrowed nothing ends.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from petsc4py import PETSc
+
+from petsoft.calibration.forward import ForwardModel
+from petsoft.calibration.observation import MarkerObserver
+from petsoft.dynamics.alpha import GeneralizedAlpha
+from petsoft.dynamics.simulate import initial_state
+from petsoft.dynamics.system import DynamicSystem
+from petsoft.experiment import experiment_from_dict
+from petsoft.physics.model import build_model
+
+MARKERS = np.array([[0.3, 0.04, 0.04], [0.3, 0.0, 0.0], [0.15, 0.02, 0.04]])
+NAMES = ["material.youngs_modulus", "damping.mass"]
+STEPS = 12
+H = 2e-3
+
+
+def _bar():
+    return experiment_from_dict({
+        "mesh": {"box": {"size": [0.3, 0.04, 0.04], "cells": [6, 2, 2]}},
+        "material": {"model": "neohookean", "youngs_modulus": 2e5, "poisson_ratio": 0.3,
+                     "density": 1000.0},
+        "gravity": {"acceleration": [0.0, 0.0, -9.81]},
+        "damping": {"mass": 0.5},
+        "boundary": [{"kind": "fixed", "where": "x < 1e-9"}],
+        "initial": {"velocity": ["0", "2*x", "6*x*x"]},
+        "time": {"end": STEPS * H, "step": H, "integrator": "alpha"},
+    })
+
+
+def _factorisations() -> int:
+    return sum(PETSc.Log.Event(name).getPerfInfo()["count"]
+               for name in ("MatLUFactorNum", "MatCholFctrNum"))
+
+
+def test_one_factorisation_a_step_and_the_same_answer():
+    PETSc.Log.begin()
+    fm = ForwardModel(_bar(), NAMES, lambda s: MarkerObserver(s, MARKERS),
+                      np.arange(1, STEPS + 1) * H)
+    p = fm.p0.copy()
+    sim0 = fm.simulate(p)
+    before = _factorisations()
+    sim, dsim = fm.jacobian(p)
+    count = _factorisations() - before
+    print(f"factorisations in a {STEPS}-step sensitivity run: {count}")
+    # the tangent solves' one a step, the first step's own chord, the initial mass solve
+    assert count <= STEPS + 2, count
+    scale = np.abs(sim0).max()
+    assert np.abs(sim - sim0).max() <= 1e-12 * scale
+    for j in range(len(NAMES)):
+        step = 1e-4 * p[j]
+        plus, minus = p.copy(), p.copy()
+        plus[j] += step
+        minus[j] -= step
+        central = (fm.simulate(plus) - fm.simulate(minus)) / (2 * step)
+        err = np.abs(dsim[..., j] - central).max() / np.abs(central).max()
+        print(f"{NAMES[j]}: sensitivities vs central differences {err:.1e}")
+        assert err < 1e-6
+    fm.destroy()
+
+
+def test_factors_the_chord_cannot_use_leave_the_step_to_the_own_solver():
+    exp = _bar()
+    model = build_model(exp)
+    s = DynamicSystem(model, exp.damping.mass, exp.damping.stiffness)
+    q0, v0 = initial_state(model, s, exp)
+    ends = []
+    for lend in (False, True):
+        integ = GeneralizedAlpha(s, 0.5)
+        q1, v1 = q0.duplicate(), v0.duplicate()
+        assert integ.step(0.0, q0, v0, H, q1, v1).converged     # J is the step's Jacobian now
+        wrong = integ.J.copy()
+        wrong.scale(1e-3)
+        ksp = PETSc.KSP().create(comm=s.comm)
+        ksp.setOperators(wrong)
+        ksp.setType(PETSc.KSP.Type.PREONLY)
+        ksp.getPC().setType(PETSc.PC.Type.LU)
+        ksp.setUp()
+        if lend:
+            integ.borrow_chord(ksp)
+        q2, v2 = q0.duplicate(), v0.duplicate()
+        report = integ.step(H, q1, v1, H, q2, v2)
+        assert report.converged, report.reason
+        if lend:    # the borrowed chord was tried, and failed
+            assert integ._chord.snes.getConvergedReason() < 0
+        ends.append(q2.getArray().copy())
+        for obj in (ksp, wrong, q1, v1, q2, v2):
+            obj.destroy()
+        integ.destroy()
+    assert np.abs(ends[1] - ends[0]).max() <= 1e-13 * np.abs(ends[0]).max()
