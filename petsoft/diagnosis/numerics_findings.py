@@ -84,6 +84,12 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
         elif o["matters"]:
             out.append(f"{head}; refitted, the fit improves ({fit}), but less than when "
                        f"{_words(r['adopted'])[0]}.")
+        elif o.get("deferred"):
+            out.append(f"{head}; refitted, the fit improves ({fit}{moved}), but while the "
+                       f"model misses the data by {_x(o['deferred'])}x the noise an error this "
+                       f"small is not what it misses: counted as a {noun} error of "
+                       f"{_x(o.get('error_estimate', 0.0) / sigma)}x the noise and checked "
+                       "again once the misfit is smaller.")
         elif x < 1.0:
             out.append(f"{head}: the {noun} is fine for this recording.")
         elif o.get("error_estimate", 0.0) > 0.0:
