@@ -370,10 +370,13 @@ def load_experiment_text(text: str):
 
 
 def test_candidates_scored_together_score_as_they_do_alone(case):
-    """The settings-only candidates (dissipation laws, gravity) share one run with sensitivities
-    to all their parameters: each score equals the one its own run gives; the others (regions,
-    a compliant support, a collider, differenced columns) are scored alone."""
+    """The settings-only candidates (dissipation laws, gravity, and the viscoelastic branch,
+    whose columns generalized-alpha differentiates) share one run with sensitivities to all
+    their parameters: each score equals the one its own run gives, and the branch's exact
+    ratio column the one-sided differences it was scored by before (to 1e-2); the others
+    (regions, a compliant support, a collider) are scored alone."""
     from petsoft.diagnosis.context import Diagnosis, evidence_of, scored_together
+    from petsoft.experiment import with_parameters
 
     exp = load_experiment(case["user"])
     diag = Diagnosis(exp, read_recording(case["damped"]), fraction=0.7, alpha=0.01,
@@ -383,11 +386,25 @@ def test_candidates_scored_together_score_as_they_do_alone(case):
     diag.fix_scales(base, evidence_of(diag, base))
     far = {"point": [0.0, 0.0, -1.0], "normal": [0.0, 0.0, 1.0], "excess": 0.01}
     cands, _ = build_candidates(exp, scales=diag.scales, plane=far)
-    together = [c for c in cands if scored_together(c)]
+    together = [c for c in cands if scored_together(c, diag.exact_columns(c, exp))]
     assert {"damping.mass", "damping.stiffness", "drag.linear", "drag.quadratic",
-            "friction.dry"} <= {c.physics for c in together}
-    assert not {"boundary.compliance", "contact.plane", "material.viscoelastic"} & {
-        c.physics for c in together}
+            "friction.dry", "material.viscoelastic"} <= {c.physics for c in together}
+    assert not {"boundary.compliance", "contact.plane"} & {c.physics for c in together}
+    # the branch by one-sided differences of the ratio (its columns before alpha's exact ones)
+    branch = next(c for c in cands if c.physics == "material.viscoelastic")
+    ext = branch.extend(base.experiment)
+    names = list(ext.calibrate)
+    fm_sim = diag.simulate(ext, times=diag.times[diag.ident])
+    step = branch.fd_steps["viscoelastic.ratio"]
+    moved = with_parameters(ext, {"viscoelastic.ratio": step})
+    fd_cols = {"viscoelastic.ratio": (diag.simulate(moved, times=diag.times[diag.ident])
+                                      - fm_sim) / step}
+    _, exact_cols = diag._columns(ext, branch, diag.comm)
+    assert set(names) <= set(exact_cols)
+    ratio = exact_cols["viscoelastic.ratio"]
+    err = np.abs(ratio - fd_cols["viscoelastic.ratio"]).max() / np.abs(ratio).max()
+    print(f"viscoelastic ratio column: exact vs one-sided differences {err:.1e}")
+    assert err < 1e-2, err
     shared = diag.score_together(base, together)
     assert shared is not None
     for c, entry in zip(together, shared, strict=True):

@@ -487,23 +487,39 @@ class Diagnosis:
         return {**entry, "score": s.statistic, "dof": s.dof, "p_value": s.p_value,
                 "log10_p": s.log10_p, "gradient": s.gradient.tolist()}
 
+    def branch_differentiable(self, ext) -> bool:
+        """Whether the integrator's forward sensitivities carry a viscoelastic branch's internal
+        variable (backward Euler and generalized-alpha do; si's refuse it)."""
+        return scheme(self.integrator or ext.time.integrator).branch_sensitivities
+
     def all_differenced(self, ext) -> bool:
         """Whether every sensitivity column of ``ext`` must be a difference: a viscoelastic
-        branch is in the model (added in an earlier round) and the integrator is not be (the
-        exact sensitivities of si and alpha refuse the branch)."""
+        branch is in the model (added in an earlier round) and the integrator's exact
+        sensitivities refuse it (:meth:`branch_differentiable`)."""
         branch_on = (ext.viscoelastic.ratio > 0.0
                      or any(n in VISCOELASTIC for n in ext.calibrate or {}))
-        return branch_on and (self.integrator or ext.time.integrator) != "be"
+        return branch_on and not self.branch_differentiable(ext)
+
+    def exact_columns(self, candidate, ext) -> bool:
+        """Whether ``candidate``'s score columns are exact forward sensitivities: a score term,
+        or a ``"score-fd"`` one whose parameters are all the viscoelastic branch's when the
+        integrator differentiates the branch (on the independent bracket, alpha: the branch's
+        one-sided differences took four to six runs of its own, 240 s of a 563 s scoring)."""
+        if candidate.kind == "score":
+            return True
+        return (candidate.kind == "score-fd" and self.branch_differentiable(ext)
+                and all(n in VISCOELASTIC for n in candidate.parameters))
 
     def _columns(self, ext, candidate, comm) -> tuple[np.ndarray, dict]:
         """Simulation and sensitivity columns of the extended model at its current values:
         exact forward sensitivities, one-sided differences for ``"score-fd"`` parameters."""
         names = list(ext.calibrate)
         p = np.array([get_parameter(ext, n) for n in names])
-        # by differences: a score-fd candidate's parameters; and every column when a
-        # viscoelastic branch is already in the model (added in an earlier round) and the
-        # integrator is not be: the exact sensitivities of si and alpha refuse the branch
-        fd = [n for n in names if candidate.kind == "score-fd" and n in candidate.parameters]
+        # by differences: a score-fd candidate's parameters (unless exact_columns); and every
+        # column when a viscoelastic branch is already in the model (added in an earlier
+        # round) and the integrator's exact sensitivities refuse it (si)
+        fd = [n for n in names if n in candidate.parameters
+              and not self.exact_columns(candidate, ext)]
         if self.all_differenced(ext):
             fd = list(names)
         exact = [n for n in names if n not in fd]
@@ -603,13 +619,15 @@ def dominant_frequency(times: np.ndarray, signals: np.ndarray) -> float | None:
     return found[0] if found else None
 
 
-def scored_together(candidate) -> bool:
+def scored_together(candidate, exact: bool | None = None) -> bool:
     """Whether ``candidate`` can share a scoring run with others
-    (:meth:`Diagnosis.score_together`): a score-test term that only sets experiment keys, with
-    exact sensitivities (regions may overlap another's, a collider or a compliant support
-    changes the model even at its start)."""
-    return (candidate.kind == "score" and not candidate.regions and not candidate.colliders
-            and candidate.compliance is None)
+    (:meth:`Diagnosis.score_together`): a term that only sets experiment keys, with exact
+    sensitivities (``exact``: :meth:`Diagnosis.exact_columns`; default: a score term) (regions
+    may overlap another's, a collider or a compliant support changes the model even at its
+    start)."""
+    exact = candidate.kind == "score" if exact is None else exact
+    return (exact and candidate.kind != "switch" and not candidate.regions
+            and not candidate.colliders and candidate.compliance is None)
 
 
 def outward_only(candidate, ext, tested: list[str], gradient) -> str | None:

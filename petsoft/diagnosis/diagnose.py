@@ -208,7 +208,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             centroids=diag.centroids, scales=diag.scales, plane=plane)
         diag.tell(f"round {rnd}: ranking {len(cands)} candidates "
                   f"({', '.join(c.physics for c in cands)})")
-        at = [i for i, c in enumerate(cands) if scored_together(c)]
+        at = [i for i, c in enumerate(cands)
+              if scored_together(c, diag.exact_columns(c, current.experiment))]
         shared = (diag.score_together(current, [cands[i] for i in at]) if len(at) > 1
                   else None)
         gc.collect()
