@@ -413,6 +413,12 @@ def test_candidates_scored_together_score_as_they_do_alone(case):
         assert entry["score"] == pytest.approx(alone["score"], rel=1e-7, abs=1e-9), c.physics
         assert entry["p_value"] == pytest.approx(alone["p_value"], rel=1e-6, abs=1e-300)
     assert max(e["score"] for e in shared) > 100.0        # the concealed damping shows
+    # a switch's score reuses the shared run's columns of the current model: the same score
+    plane = next(c for c in cands if c.kind == "switch")
+    reused = diag.score(base, plane)
+    diag._base_columns = None
+    own = diag.score(base, plane)
+    assert reused["score"] == pytest.approx(own["score"], rel=1e-7, abs=1e-9), plane.physics
 
 
 def test_a_far_start_is_moved_to_the_data_s_frequency(case):

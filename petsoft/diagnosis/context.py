@@ -226,6 +226,9 @@ class Diagnosis:
         self.centroids: np.ndarray | None = None
         #: wall time of every fit so far (what a round of fits is estimated from)
         self.fit_seconds: list[float] = []
+        #: (fit, simulation, its parameters' columns) of the last shared scoring run, which the
+        #: switches' scores of the same fit reuse (:meth:`_score`)
+        self._base_columns: tuple | None = None
         if rec.noise and rec.noise.get("position_std"):
             self.sigma = float(rec.noise["position_std"])
             self.sigma_source = "given by the recording"
@@ -431,8 +434,16 @@ class Diagnosis:
         ext = candidate.extend(fit.experiment)
         if candidate.kind == "switch":
             # before: the extended model was fitted here, two calibrations per round that took
-            # most of a bench case's scoring time
-            sim, cols = self._columns(fit.experiment, candidate, comm)
+            # most of a bench case's scoring time. The current model's columns come from the
+            # round's shared scoring run when there was one (its terms start off: the same
+            # simulation and columns; on the independent bracket a sensitivity run of 80 s per
+            # switch and round)
+            cached = self._base_columns
+            if (cached is not None and cached[0] is fit
+                    and set(fit.experiment.calibrate) <= set(cached[2])):
+                sim, cols = cached[1], dict(cached[2])
+            else:
+                sim, cols = self._columns(fit.experiment, candidate, comm)
             cols["switch"] = self.simulate(ext, comm=comm, times=self.times[self.ident]) - sim
             gc.collect()
             return self._score_entry(fit, candidate, ext, sim, cols, ["switch"])
@@ -461,6 +472,8 @@ class Diagnosis:
         moved = float(np.sqrt(np.mean((sim[seen] - fit.sim[self.ident][seen]) ** 2)))
         if moved > 1e-6 * self.sigma:
             return None
+        self._base_columns = (fit, sim, {n: cols[n] for n in fit.experiment.calibrate
+                                         if n in cols})
         return [self._score_entry(fit, c, ext, sim, cols, c.tested_parameters)
                 for c in candidates]
 
