@@ -1,12 +1,13 @@
 """Newton's chord on the forward sensitivities' factors (petsoft.solvers.borrowed_chord).
 
-In a forward-sensitivity run of generalized-alpha each step's Newton chord iterates on the
-factorisation the previous step's tangent solves made (the exact step Jacobian at its end),
-instead of assembling and factoring its own at the predictor:
+In a forward-sensitivity run of backward Euler or generalized-alpha each step's Newton chord
+iterates on the factorisation the previous step's tangent solves made (the exact step Jacobian
+at its end), instead of assembling and factoring its own at the predictor:
 
 1. one factorisation a step instead of two (PETSc's event counts), and the same answer: the
    run's trajectory equals ``simulate``'s to the Newton tolerance, its sensitivities equal
-   central differences of ``simulate``;
+   central differences of ``simulate``; si (one Newton step is its method) borrows nothing:
+   its run equals ``simulate``'s bit for bit;
 2. lent factors the chord cannot converge on (those of a matrix 1000x too small) leave the step
    to the stepper's own solver: the step ends where a step that borrowed nothing ends.
 """
@@ -14,11 +15,13 @@ instead of assembling and factoring its own at the predictor:
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from petsc4py import PETSc
 
 from petsoft.calibration.forward import ForwardModel
 from petsoft.calibration.observation import MarkerObserver
 from petsoft.dynamics.alpha import GeneralizedAlpha
+from petsoft.dynamics.implicit import ImplicitIntegrator
 from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.experiment import experiment_from_dict
@@ -48,16 +51,17 @@ def _factorisations() -> int:
                for name in ("MatLUFactorNum", "MatCholFctrNum"))
 
 
-def test_one_factorisation_a_step_and_the_same_answer():
+@pytest.mark.parametrize("method", ["be", "alpha"])
+def test_one_factorisation_a_step_and_the_same_answer(method):
     PETSc.Log.begin()
     fm = ForwardModel(_bar(), NAMES, lambda s: MarkerObserver(s, MARKERS),
-                      np.arange(1, STEPS + 1) * H)
+                      np.arange(1, STEPS + 1) * H, integrator=method)
     p = fm.p0.copy()
     sim0 = fm.simulate(p)
     before = _factorisations()
     sim, dsim = fm.jacobian(p)
     count = _factorisations() - before
-    print(f"factorisations in a {STEPS}-step sensitivity run: {count}")
+    print(f"{method}: factorisations in a {STEPS}-step sensitivity run: {count}")
     # the tangent solves' one a step, the first step's own chord, the initial mass solve
     assert count <= STEPS + 2, count
     scale = np.abs(sim0).max()
@@ -74,14 +78,26 @@ def test_one_factorisation_a_step_and_the_same_answer():
     fm.destroy()
 
 
-def test_factors_the_chord_cannot_use_leave_the_step_to_the_own_solver():
+def test_si_borrows_nothing():
+    fm = ForwardModel(_bar(), NAMES, lambda s: MarkerObserver(s, MARKERS),
+                      np.arange(1, STEPS + 1) * H, integrator="si")
+    sim0 = fm.simulate(fm.p0)
+    sim, _ = fm.jacobian(fm.p0)
+    assert np.array_equal(sim, sim0)
+    fm.destroy()
+
+
+@pytest.mark.parametrize("stepper", [lambda s: GeneralizedAlpha(s, 0.5),
+                                     lambda s: ImplicitIntegrator(s, "be")],
+                         ids=["alpha", "be"])
+def test_factors_the_chord_cannot_use_leave_the_step_to_the_own_solver(stepper):
     exp = _bar()
     model = build_model(exp)
     s = DynamicSystem(model, exp.damping.mass, exp.damping.stiffness)
     q0, v0 = initial_state(model, s, exp)
     ends = []
     for lend in (False, True):
-        integ = GeneralizedAlpha(s, 0.5)
+        integ = stepper(s)
         q1, v1 = q0.duplicate(), v0.duplicate()
         assert integ.step(0.0, q0, v0, H, q1, v1).converged     # J is the step's Jacobian now
         wrong = integ.J.copy()

@@ -817,7 +817,9 @@ class ForwardModel:
                 # the next step's Newton chord iterates on these factors (borrowed_chord)
                 self.integrator.borrow_chord(ksp)
 
-        lend = hasattr(self.integrator, "borrow_chord") and is_direct(ksp)
+        # (not to si: its one Newton step is the method, not a solve to convergence)
+        lend = (hasattr(self.integrator, "borrow_chord") and not self.scheme.one_newton_step
+                and is_direct(ksp))
         try:
             states, sim = self._run(p, store=False, on_step=on_step)
         finally:

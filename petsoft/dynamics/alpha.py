@@ -34,9 +34,9 @@ from petsoft.dynamics.implicit import NoBranch, SolverReuse, StepReport, branch_
 from petsoft.dynamics.interfaces import StepperDefaults, length_scale
 from petsoft.errors import InvertedElementError
 from petsoft.physics.viscoelastic import MaxwellRule
-from petsoft.solvers.borrowed_chord import BorrowedChord
+from petsoft.solvers.borrowed_chord import ChordBorrower
 from petsoft.solvers.convergence import on_any_rank, outcome, reason_name, stop_at_round_off
-from petsoft.solvers.linear import factor_once_per_step, solve_newton
+from petsoft.solvers.linear import factor_once_per_step
 from petsoft.solvers.options import scoped_defaults
 
 
@@ -195,7 +195,7 @@ def alpha_parameters(radius: float) -> tuple[float, float, float, float]:
     return am, af, 0.5 + am - af, 0.25 * (1.0 + am - af) ** 2
 
 
-class GeneralizedAlpha(SolverReuse):
+class GeneralizedAlpha(ChordBorrower, SolverReuse):
     """Generalized-alpha steps solved for q1 with SNES, started from the consistent a0.
 
     With a1 = (q1 - q0 - h v0 - h^2 (1/2 - beta) a0) / (beta h^2) and
@@ -223,7 +223,6 @@ class GeneralizedAlpha(SolverReuse):
         self._branch = NoBranch()
         self.prefix = prefix
         self.snes = None
-        self._chord = None          # a BorrowedChord, made the first time factors are lent
         self._new_solver()
         self.new_run()
 
@@ -358,38 +357,6 @@ class GeneralizedAlpha(SolverReuse):
         v.copy(v_last)
         self._last = (t, q_last, v_last)
 
-    def new_run(self) -> None:
-        super().new_run()
-        self._borrowed = None
-
-    def borrow_chord(self, ksp: PETSc.KSP | None) -> None:
-        """Solve the next step's Newton systems by ``ksp``, set up on an approximation of the
-        step Jacobian (the exact one at the previous step's end, factored for the forward
-        sensitivities), instead of assembling and factoring one (:mod:`petsoft.solvers.
-        borrowed_chord`). For that step only, and only where the stepper's own solver is the
-        default direct chord (:func:`~petsoft.solvers.linear.factor_once_per_step`); a chord
-        that fails there is repeated by the stepper's own solver. ``None`` withdraws it."""
-        self._borrowed = ksp
-
-    def _solve(self, q1) -> PETSc.SNES:
-        """Newton from the guess in ``q1``: on the factors lent for this step, if any, else
-        (or when that fails) by the stepper's own solver; returns the SNES that solved."""
-        borrowed, self._borrowed = self._borrowed, None
-        if borrowed is not None and self._lagged:
-            if self._chord is None:
-                self._chord = BorrowedChord(self.snes, self._residual_cb, self.R, self.J,
-                                            self.length)
-            guess = q1.copy()
-            try:
-                converged = self._chord.solve(borrowed, q1, self.snes)
-                if not self._forget_rejected() and converged:   # (forgotten either way)
-                    return self._chord.snes
-                guess.copy(q1)
-            finally:
-                guess.destroy()
-        solve_newton(self.snes, q1, self._lagged, self._forget_rejected)
-        return self.snes
-
     def _forget_rejected(self) -> bool:
         """Whether the last solve met an inverted element on some rank (forgotten: the solve
         is repeated, on every rank)."""
@@ -423,7 +390,7 @@ class GeneralizedAlpha(SolverReuse):
         # Except with a constant Jacobian (keeps_solver).
         if not self.keeps_solver():
             self._new_solver()
-        snes = self._solve(q1)
+        snes = self._newton(q1)
         report = StepReport()
         report.newton_iterations = snes.getIterationNumber()
         report.linear_iterations = snes.getLinearSolveIterations()
@@ -475,8 +442,7 @@ class GeneralizedAlpha(SolverReuse):
 
     def destroy(self) -> None:
         self.snes.destroy()
-        if self._chord is not None:
-            self._chord.destroy()
+        self._destroy_chord()
         for vec in (self.J, self.R, self.q0, self.v0, self.a0, self.a1, self.v1, self.qf,
                     self.vf, self.work, self.load):
             vec.destroy()

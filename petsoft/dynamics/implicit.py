@@ -44,8 +44,9 @@ from petsoft.dynamics import matrix_free, nonlinear_gs
 from petsoft.dynamics.integrators import SCHEMES, scheme
 from petsoft.dynamics.interfaces import StepperDefaults, length_scale
 from petsoft.errors import InvertedElementError
+from petsoft.solvers.borrowed_chord import ChordBorrower
 from petsoft.solvers.convergence import on_any_rank, outcome, stop_at_round_off
-from petsoft.solvers.linear import factor_once_per_step, solve_newton
+from petsoft.solvers.linear import factor_once_per_step
 from petsoft.solvers.options import scoped_defaults
 
 METHODS = ("be", "si", "midpoint", "trapezoidal")
@@ -160,7 +161,7 @@ def repeatable_setup(ksp: PETSc.KSP) -> bool:
     return True
 
 
-class ImplicitIntegrator(SolverReuse, StepperDefaults):
+class ImplicitIntegrator(ChordBorrower, SolverReuse, StepperDefaults):
     """Backward Euler, semi-implicit, (discrete-gradient) midpoint or trapezoidal steps.
 
     Parameters
@@ -234,7 +235,8 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
             # sigmoid of width friction.speed), where full Newton steps cycle around the stop;
             # backtracking on the residual norm converges (the step's potential is convex).
             terms = s.velocity_terms
-            search = "bt" if terms is not None and terms.nonlinear else "basic"
+            search = self._linesearch = ("bt" if terms is not None and terms.nonlinear
+                                         else "basic")
             defaults = {prefix + "snes_linesearch_type": search}
             if shell:
                 defaults.update({prefix + "ksp_type": "cg", prefix + "pc_type": "jacobi"})
@@ -440,10 +442,10 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
         if not self.keeps_solver():
             self._new_solver()
         if self.solver == "snes":
-            solve_newton(self.snes, q1, self._lagged, self._forget_rejected)
-            report.newton_iterations = self.snes.getIterationNumber()
-            report.linear_iterations = self.snes.getLinearSolveIterations()
-            done = outcome(self.snes)
+            snes = self._newton(q1)
+            report.newton_iterations = snes.getIterationNumber()
+            report.linear_iterations = snes.getLinearSolveIterations()
+            done = outcome(snes)
             report.converged, report.reason = done.converged, done.reason
         else:
             self.tao.setSolution(q1)
@@ -479,6 +481,7 @@ class ImplicitIntegrator(SolverReuse, StepperDefaults):
             v.destroy()
 
     def destroy(self) -> None:
+        self._destroy_chord()
         for obj in (self.snes, self.tao, self.J, self.R, self.q0, self.v0, self.f0, self.f1,
                     self._a, self._b, self._c, self.shell):
             if obj is not None:

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from petsc4py import PETSc
 
 from petsoft.solvers.convergence import stop_at_round_off
+from petsoft.solvers.linear import solve_newton
 from petsoft.solvers.options import scoped_defaults
 
 
@@ -30,8 +31,8 @@ class _ApplyBorrowed:
 
 
 class BorrowedChord:
-    """A Newton solver (SNES, basic line search) whose every linear system is solved by a KSP
-    someone else set up (:meth:`solve`); its Jacobian is never assembled.
+    """A Newton solver (SNES, the stepper's line search) whose every linear system is solved by
+    a KSP someone else set up (:meth:`solve`); its Jacobian is never assembled.
 
     Parameters
     ----------
@@ -47,10 +48,13 @@ class BorrowedChord:
         floor of :func:`~petsoft.solvers.convergence.stop_at_round_off`); never written.
     length : float
         A cell size of the model (m), for that floor.
+    linesearch : str
+        The stepper's default line search (backtracking where a saturating force needs it;
+        the options still choose).
     """
 
     def __init__(self, like: PETSc.SNES, residual: Callable, F: PETSc.Vec, J: PETSc.Mat,
-                 length: float):
+                 length: float, linesearch: str = "basic"):
         self._context = _ApplyBorrowed()
         self.snes = snes = PETSc.SNES().create(comm=like.getComm())
         prefix = like.getOptionsPrefix() or ""
@@ -58,7 +62,7 @@ class BorrowedChord:
         snes.setFunction(residual, F)
         snes.setJacobian(self._unchanged, J, J)
         stop_at_round_off(snes, J, length)
-        with scoped_defaults(**{prefix + "snes_linesearch_type": "basic"}):
+        with scoped_defaults(**{prefix + "snes_linesearch_type": linesearch}):
             snes.setFromOptions()
         snes.getKSP().setType(PETSc.KSP.Type.PREONLY)
 
@@ -85,3 +89,53 @@ class BorrowedChord:
 
     def destroy(self) -> None:
         self.snes.destroy()
+
+
+class ChordBorrower:
+    """Mixin of the SNES steppers whose Newton runs to convergence (backward Euler,
+    generalized-alpha): :meth:`borrow_chord`, and :meth:`_newton` to solve a step with what was
+    lent. The stepper has ``snes``, ``_lagged`` (its own solver is the direct chord of
+    :func:`~petsoft.solvers.linear.factor_once_per_step`), ``_residual_cb``, ``R``, ``J``,
+    ``length``, ``_linesearch`` and ``_forget_rejected()``, and calls :meth:`_destroy_chord`
+    when destroyed."""
+
+    _borrowed = None
+    _chord: BorrowedChord | None = None
+    #: the stepper's default line search, which the borrowed chord uses too
+    _linesearch = "basic"
+
+    def new_run(self) -> None:
+        super().new_run()
+        self._borrowed = None
+
+    def borrow_chord(self, ksp: PETSc.KSP | None) -> None:
+        """Solve the next step's Newton systems by ``ksp``, set up on an approximation of the
+        step Jacobian (the exact one at the previous step's end, factored for the forward
+        sensitivities), instead of assembling and factoring one. For that step only, and only
+        where the stepper's own solver is the default direct chord; a chord that fails there is
+        repeated by the stepper's own solver. ``None`` withdraws it."""
+        self._borrowed = ksp
+
+    def _newton(self, q1: PETSc.Vec) -> PETSc.SNES:
+        """Newton from the guess in ``q1``: on the factors lent for this step, if any, else
+        (or when that fails) by the stepper's own solver; returns the SNES that solved."""
+        borrowed, self._borrowed = self._borrowed, None
+        if borrowed is not None and self._lagged:
+            if self._chord is None:
+                self._chord = BorrowedChord(self.snes, self._residual_cb, self.R, self.J,
+                                            self.length, self._linesearch)
+            guess = q1.copy()
+            try:
+                converged = self._chord.solve(borrowed, q1, self.snes)
+                if not self._forget_rejected() and converged:   # (forgotten either way)
+                    return self._chord.snes
+                guess.copy(q1)
+            finally:
+                guess.destroy()
+        solve_newton(self.snes, q1, self._lagged, self._forget_rejected)
+        return self.snes
+
+    def _destroy_chord(self) -> None:
+        if self._chord is not None:
+            self._chord.destroy()
+            self._chord = None
