@@ -498,7 +498,8 @@ class Diagnosis:
             return {**entry, "score": 0.0, "dof": s.dof, "p_value": 1.0, "log10_p": 0.0,
                     "gradient": s.gradient.tolist(), "note": outward}
         return {**entry, "score": s.statistic, "dof": s.dof, "p_value": s.p_value,
-                "log10_p": s.log10_p, "gradient": s.gradient.tolist()}
+                "log10_p": s.log10_p, "gradient": s.gradient.tolist(),
+                "_direction": s.direction}     # (not for the report: see shortlist)
 
     def branch_differentiable(self, ext) -> bool:
         """Whether the integrator's forward sensitivities carry a viscoelastic branch's internal

@@ -65,6 +65,7 @@ from petsoft.diagnosis.selection import (
     escape_plane,
     fit_simplest_first,
     rank_round,
+    shortlist,
     worth_fitting,
 )
 from petsoft.io.progress import heartbeat
@@ -232,18 +233,26 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             diag.tell(f"  {'switch' if c.kind == 'switch' else 'score'} {c.physics:<24} "
                       f"S = {s['score']:10.4g}  dof {s['dof']}  p = {s['p_value']:.3g}"
                       + (f"  ({s['note']})" if s.get("note") else ""))
-        all_scores += [{k: v for k, v in s.items() if k != "fit"} for s, _ in scores]
+        all_scores += [{k: v for k, v in s.items() if k != "fit" and not k.startswith("_")}
+                       for s, _ in scores]
         # by log p (p underflows to 0 for strong candidates of different dof), then S
         scores.sort(key=lambda sc: (sc[0]["log10_p"], -sc[0]["score"]))
-        significant = [(s, c) for s, c in scores if s["p_value"] < diag.alpha][:max_tries]
+        ranked_significant = [(s, c) for s, c in scores if s["p_value"] < diag.alpha]
+        significant, exchanged = shortlist(ranked_significant, max_tries)
+        if exchanged:
+            diag.tell(exchanged)
+        for s, _ in scores:
+            s.pop("_direction", None)
         for s, c in scores:
             if s["p_value"] >= diag.alpha:
                 rejected.append({"physics": c.physics, "score": s["score"],
                                  "reason": f"score not significant (p = {s['p_value']:.3g})"
                                  + (f": {s['note']}" if s.get("note") else "")})
-        for s, c in [sc for sc in scores if sc[0]["p_value"] < diag.alpha][max_tries:]:
-            rejected.append({"physics": c.physics, "score": s["score"],
-                             "reason": f"not tried: max {max_tries} tries per round"})
+        for s, c in ranked_significant:
+            if not any(s is t for t, _ in significant):
+                rejected.append({"physics": c.physics, "score": s["score"],
+                                 "reason": f"not tried: max {max_tries} tries per round"
+                                 + (f" ({exchanged})" if exchanged else "")})
         # The max_tries best-scoring significant candidates are all fitted (concurrently on
         # groups of ranks) and the best fit among those that pass both tests is added: on a
         # short record every dissipation law (viscous, drag, dry friction, a viscoelastic

@@ -43,6 +43,10 @@ class ScoreResult:
     gradient: np.ndarray
     #: log10 of the p-value (finite where the p-value underflows to 0: ranks strong candidates)
     log10_p: float = 0.0
+    #: a one-parameter candidate's column with the base columns projected out, of unit norm
+    #: (float32): what it would change that the fitted parameters cannot; two candidates whose
+    #: directions are nearly parallel explain the same misfit (None for several parameters)
+    direction: np.ndarray | None = None
 
 
 def score_test(r: np.ndarray, J_base: np.ndarray, J_cand: np.ndarray,
@@ -101,5 +105,10 @@ def score_test(r: np.ndarray, J_base: np.ndarray, J_cand: np.ndarray,
     gs = V[:, keep].T @ (g_perp / scale)
     S = float(np.sum(gs * gs / w[keep]))
     dof = int(keep.sum())
+    direction = None
+    if Jc_perp.shape[1] == 1:
+        norm = float(np.linalg.norm(Jc_perp))
+        direction = (Jc_perp[:, 0] / norm).astype(np.float32) if norm > 0 else None
     return ScoreResult(statistic=S, dof=dof, p_value=float(stats.chi2.sf(S, dof)), gradient=g,
-                       log10_p=float(stats.chi2.logsf(S, dof) / np.log(10.0)))
+                       log10_p=float(stats.chi2.logsf(S, dof) / np.log(10.0)),
+                       direction=direction)
