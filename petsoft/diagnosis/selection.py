@@ -167,9 +167,10 @@ def shortlist(ranked: list, max_tries: int) -> tuple[list, str | None]:
     change repeats a better one's (:data:`DUPLICATE_COS`) gives its place to the best candidate
     outside them whose change is new and whose score is at least :data:`DISTINCT_SHARE` of the
     round's best. On the independent L-bracket with an added mass, four dissipation laws
-    (dry friction, quadratic and linear drag, mass damping; scores 7.1e4-8.4e4) filled the
-    shortlist two runs in a row and the added mass (7.1e4, fifth by 0.5 %) was not fitted in
-    round 1, which then took a drag for it. Returns (the pairs to fit, a line saying what was
+    (dry friction, quadratic and linear drag, mass damping; scores 7.1e4-8.4e4, directions
+    |cos| 0.96-0.996 apart) filled the shortlist two runs in a row and the added mass (7.1e4,
+    fifth by 0.5 %, |cos| 0.38-0.43 with them) was not fitted in round 1, which then took a
+    drag for it; now the linear drag gives it its place. Returns (the pairs to fit, a line saying what was
     exchanged, or None)."""
     top, rest = list(ranked[:max_tries]), ranked[max_tries:]
     if not rest or not top:
