@@ -170,8 +170,8 @@ def shortlist(ranked: list, max_tries: int) -> tuple[list, str | None]:
     (dry friction, quadratic and linear drag, mass damping; scores 7.1e4-8.4e4, directions
     |cos| 0.96-0.996 apart) filled the shortlist two runs in a row and the added mass (7.1e4,
     fifth by 0.5 %, |cos| 0.38-0.43 with them) was not fitted in round 1, which then took a
-    drag for it; now the linear drag gives it its place. Returns (the pairs to fit, a line saying what was
-    exchanged, or None)."""
+    drag for it; now the linear drag gives it its place. Returns (the pairs to fit, a line
+    saying what was exchanged, or None)."""
     top, rest = list(ranked[:max_tries]), ranked[max_tries:]
     if not rest or not top:
         return top, None
