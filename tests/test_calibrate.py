@@ -18,6 +18,7 @@ from mpi4py import MPI
 
 from petsoft.calibration.calibrate import run_calibration
 from petsoft.calibration.synth import SynthOptions, synth
+from petsoft.calibration.uncertainty import uncertainty
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, load_experiment
 
@@ -237,3 +238,90 @@ def test_observations_hold_the_window_checks_and_the_noise_policy():
     with pytest.raises(ExperimentError, match="no /frames/position"):
         Observations(Recording(reference=rec.reference, names=rec.names, times=times)).window(
             _Exp())
+
+
+
+def test_a_fit_runs_the_forward_model_once_per_optimizer_evaluation(case, monkeypatch):
+    """The report's "before" (the start) and the uncertainty's Jacobian (the optimum) are what
+    Gauss-Newton already computed there: no forward or sensitivity run beyond the optimizer's
+    own evaluations (two more a fit before), and the same numbers as runs made afresh."""
+    from petsoft.calibration.forward import ForwardModel
+
+    d, rec, start = case
+    runs = []
+    for name in ("simulate", "jacobian"):
+        real = getattr(ForwardModel, name)
+
+        def counted(self, p, *args, _real=real, _name=name, **kwargs):
+            runs.append(_name)
+            return _real(self, p, *args, **kwargs)
+
+        monkeypatch.setattr(ForwardModel, name, counted)
+    exp = load_experiment(start)
+    res = run_calibration(exp, rec, method="gauss-newton", gradient="sensitivity")
+    assert res.reason.startswith("CONVERGED")
+    assert len(runs) == res.evaluations, runs
+    monkeypatch.undo()
+
+    # afresh: the start's simulation, and the optimum's Jacobian from a new sensitivity run
+    problem, fm, scaling = _misfit_problem(exp, rec, res.sigma)
+    try:
+        z_start = scaling.to_scaled(scaling.start)
+        assert problem.rms(problem.simulate(z_start)) == pytest.approx(res.rms_before,
+                                                                       rel=1e-12)
+        z = scaling.to_scaled(res.values)
+        r, J = problem.residual_jacobian(z)
+        std = uncertainty(J, r, scaling=scaling, z=z, noise_std=1.0).std
+        np.testing.assert_allclose(std, res.std, rtol=1e-9)
+    finally:
+        fm.destroy()
+
+
+def test_a_misfit_remembers_its_first_and_last_evaluations(case):
+    """Runs at the same z are made once (copies handed out); the first point stays remembered,
+    the others while among the last REMEMBERED."""
+    from petsoft.calibration.objective import REMEMBERED
+
+    d, rec, start = case
+    exp = load_experiment(start)
+    problem, fm, scaling = _misfit_problem(exp, rec, NOISE)
+    try:
+        z0 = scaling.to_scaled(scaling.start)
+        r, J = problem.residual_jacobian(z0)
+        again_r, again_J = problem.residual_jacobian(z0)
+        assert problem.evaluations == 1
+        np.testing.assert_array_equal(again_J, J)
+        again_J[:] = 0.0                                   # a copy: the memory is intact
+        assert np.any(problem.residual_jacobian(z0)[1] != 0.0)
+        sim0 = problem.simulate(z0)                        # the Jacobian run's simulation
+        assert problem.evaluations == 1
+        others = [z0 + 0.01 * (k + 1) for k in range(REMEMBERED + 1)]
+        for z in others:
+            problem.simulate(z)
+        assert problem.evaluations == 2 + REMEMBERED
+        np.testing.assert_array_equal(problem.simulate(z0), sim0)   # the first: kept
+        problem.simulate(others[-1])                                 # a recent one: kept
+        assert problem.evaluations == 2 + REMEMBERED
+        problem.simulate(others[0])                                  # the oldest: forgotten
+        assert problem.evaluations == 3 + REMEMBERED
+    finally:
+        fm.destroy()
+
+
+def _misfit_problem(exp, rec, sigma):
+    """A calibration's least-squares problem for ``exp`` against ``rec``, as run_calibration
+    makes it (sensitivity gradients)."""
+    from petsoft.calibration.calibrate import Observations, build_forward, calibration_parameters
+    from petsoft.calibration.objective import MarkerMisfit
+    from petsoft.calibration.scaling import ParameterScaling
+    from petsoft.io.recording import read_recording_on_all_ranks
+
+    recording = read_recording_on_all_ranks(rec, MPI.COMM_WORLD)
+    keep = Observations(recording).window(exp)
+    names, p0, bounds = calibration_parameters(exp)
+    scaling = ParameterScaling(names, p0, np.array([b[0] for b in bounds]),
+                               np.array([b[1] for b in bounds]))
+    fm = build_forward(exp, names, recording, recording.times[keep], MPI.COMM_WORLD, None)
+    problem = MarkerMisfit(fm, recording.positions[keep], scaling, sigma=sigma,
+                           gradient="sensitivity")
+    return problem, fm, scaling

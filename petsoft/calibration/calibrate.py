@@ -388,11 +388,13 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         tell(f"multistart: best of {len(zs)} starts is start {ms.best.index} "
              f"(f = {opt.f:.6e})")
     problem = make_problem(comm)
-    before = problem.simulate(scaling.to_scaled(start))   # the user's start, not a polish start
-    f_before = 0.5 * float(np.sum(problem._data_residual(before) ** 2))
     if starts == 0:
         opt = minimize(problem, z0, method=method, bounds=(zlo, zhi), scaling=scaling,
                        monitor=monitor_for(0))
+    # the user's start, not a polish start; with one start from it, the optimizer's first
+    # evaluation (remembered by the problem, as is its last Jacobian at the optimum)
+    before = problem.simulate(scaling.to_scaled(start))
+    f_before = 0.5 * float(np.sum(problem._data_residual(before) ** 2))
     z = opt.z
     r, J = problem.residual_jacobian(z)
     after = problem.last_simulation

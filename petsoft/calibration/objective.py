@@ -16,7 +16,12 @@ is where the chain rule dp/dz meets the forward model's derivatives d s / d p.
 
 from __future__ import annotations
 
+from collections import OrderedDict
+
 import numpy as np
+
+#: Evaluations a misfit remembers (besides the first, kept for the "before" of a fit's report)
+REMEMBERED = 4
 
 
 class MarkerMisfit:
@@ -58,6 +63,12 @@ class MarkerMisfit:
         self.n = len(scaling.names)
         self.evaluations = 0
         self.last_simulation = None
+        # Evaluations by z (bitwise): a calibration asks again for what its optimizer already
+        # computed -- the simulation at the start (the report's "before") and the residual and
+        # Jacobian at the optimum (the uncertainty) -- a forward run and a sensitivity run a
+        # fit that the forward model, a pure function of z, need not repeat.
+        self._remembered: OrderedDict[bytes, dict] = OrderedDict()
+        self._first: tuple[bytes, dict] | None = None
         comm = getattr(forward, "comm", None)
         # the optimizer keeps the ranks in lock-step through this (mpi4py) communicator
         self.comm = comm.tompi4py() if hasattr(comm, "tompi4py") else comm
@@ -78,10 +89,28 @@ class MarkerMisfit:
     def _regularization_residual(self, z: np.ndarray) -> np.ndarray:
         return np.sqrt(self.regularization) * (np.asarray(z) - self.z_start)
 
+    def _memo(self, z: np.ndarray) -> dict:
+        """What was computed at ``z`` (``"sim"``, ``"rJ"``); the first point's entry is kept
+        for good, the others while among the last :data:`REMEMBERED` points."""
+        key = np.asarray(z, dtype=float).tobytes()
+        if self._first is None:
+            self._first = (key, {})
+        if key == self._first[0]:
+            return self._first[1]
+        entry = self._remembered.pop(key, {})
+        self._remembered[key] = entry
+        while len(self._remembered) > REMEMBERED:
+            self._remembered.popitem(last=False)
+        return entry
+
     def simulate(self, z: np.ndarray) -> np.ndarray:
-        """Simulated marker positions (K, M, 3) at scaled parameters z."""
-        self.evaluations += 1
-        sim = self.forward.simulate(self.scaling.to_physical(z))
+        """Simulated marker positions (K, M, 3) at scaled parameters z (a copy of the run
+        already made at exactly this z, if one is remembered)."""
+        memo = self._memo(z)
+        if "sim" not in memo:
+            self.evaluations += 1
+            memo["sim"] = self.forward.simulate(self.scaling.to_physical(z))
+        sim = memo["sim"].copy()
         self.last_simulation = sim
         return sim
 
@@ -115,7 +144,17 @@ class MarkerMisfit:
         return np.stack(cols, axis=-1)
 
     def residual_jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(r, dr/dz) by forward sensitivities (or finite differences with ``gradient="fd"``)."""
+        """(r, dr/dz) by forward sensitivities (or finite differences with ``gradient="fd"``);
+        copies of those already computed at exactly this z, if remembered."""
+        memo = self._memo(z)
+        if "rJ" not in memo:
+            memo["rJ"] = self._residual_jacobian(z)
+            memo["sim"] = self.last_simulation
+        self.last_simulation = memo["sim"].copy()
+        r, J = memo["rJ"]
+        return r.copy(), J.copy()
+
+    def _residual_jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         p = self.scaling.to_physical(z)
         self.evaluations += 1
         if self.gradient_method == "fd":
