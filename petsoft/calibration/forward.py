@@ -485,8 +485,19 @@ class ForwardModel:
 
     @_collects_garbage
     def simulate(self, p) -> np.ndarray:
-        """Marker positions (K, M, 3) at the frame times (identical on every rank)."""
-        states, sim = self._run(p, store=False)
+        """Marker positions (K, M, 3) at the frame times (identical on every rank).
+
+        The steps keep their chord's factorisation for later steps
+        (:meth:`~petsoft.solvers.borrowed_chord.ChordBorrower.keep_factors`): a run that is
+        neither differentiated nor checkpointed need not factor at every step."""
+        keep = getattr(self.integrator, "keep_factors", None)
+        if keep is not None:
+            keep(True)
+        try:
+            states, sim = self._run(p, store=False)
+        finally:
+            if keep is not None:
+                keep(False)
         self._free(states)
         return sim
 

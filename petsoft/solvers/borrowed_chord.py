@@ -7,6 +7,14 @@ factor the step Jacobian once more, at its predictor: the same matrix one step l
 needs only an approximation of the Jacobian (its residual is exact and it converges to the
 same tolerance), so the next step can iterate on the sensitivities' factors instead, saving an
 assembly and a factorisation a step -- two of a sensitivity step's costliest parts.
+
+A forward run that is not differentiated (:meth:`petsoft.calibration.forward.ForwardModel.simulate`)
+can lend itself its own factors the same way (:meth:`ChordBorrower.keep_factors`): each step's
+chord iterates on the factorisation of an earlier step's predictor until a step needs
+:data:`LAG_SLACK` iterations more than the freshly factored one did; the next step then factors
+afresh. The step matrix of a 2 ms step is mostly stiffness, which moves little from one step to
+the next, so the factorisation -- most of a 10-node step's time -- is made every few steps
+instead of every step.
 """
 
 from __future__ import annotations
@@ -91,6 +99,11 @@ class BorrowedChord:
         self.snes.destroy()
 
 
+#: A step iterating on kept factors may take this many chord iterations more than the step that
+#: factored them; one that takes more has the next step factor afresh.
+LAG_SLACK = 4
+
+
 class ChordBorrower:
     """Mixin of the SNES steppers whose Newton runs to convergence (backward Euler,
     generalized-alpha): :meth:`borrow_chord`, and :meth:`_newton` to solve a step with what was
@@ -103,10 +116,26 @@ class ChordBorrower:
     _chord: BorrowedChord | None = None
     #: the stepper's default line search, which the borrowed chord uses too
     _linesearch = "basic"
+    _keep_factors = False
+    #: (the stepper's SNES, chord iterations of the step that factored) while factors are kept
+    _kept: tuple[PETSc.SNES, int] | None = None
 
     def new_run(self) -> None:
         super().new_run()
         self._borrowed = None
+        self._kept = None
+
+    def keep_factors(self, on: bool) -> None:
+        """Whether the steps of the coming runs keep the factorisation of their own chord for
+        the next steps (until one needs :data:`LAG_SLACK` more iterations than the step that
+        made it), where the stepper's solver is the default direct chord and its Jacobian is
+        not constant (a constant one is factored once anyway). The run's steps
+        then converge to the same tolerances from other Jacobians: the trajectory equals one
+        made without to that tolerance, not bit for bit, and a run restarted mid-way would not
+        repeat it bit for bit: for runs that are not checkpointed
+        (:meth:`petsoft.calibration.forward.ForwardModel.simulate`)."""
+        self._keep_factors = bool(on)
+        self._kept = None
 
     def borrow_chord(self, ksp: PETSc.KSP | None) -> None:
         """Solve the next step's Newton systems by ``ksp``, set up on an approximation of the
@@ -120,6 +149,12 @@ class ChordBorrower:
         """Newton from the guess in ``q1``: on the factors lent for this step, if any, else
         (or when that fails) by the stepper's own solver; returns the SNES that solved."""
         borrowed, self._borrowed = self._borrowed, None
+        kept, self._kept = self._kept, None
+        if borrowed is None and kept is not None and kept[0] is self.snes:
+            # (the stepper's own solver, kept across steps: its KSP holds the factors; no
+            # Python reference outlives it -- one freed after the SNES by the garbage collector
+            # hung two ranks in PetscFinalize's garbage clean-up)
+            borrowed = self.snes.getKSP()
         if borrowed is not None and self._lagged:
             if self._chord is None:
                 self._chord = BorrowedChord(self.snes, self._residual_cb, self.R, self.J,
@@ -128,11 +163,19 @@ class ChordBorrower:
             try:
                 converged = self._chord.solve(borrowed, q1, self.snes)
                 if not self._forget_rejected() and converged:   # (forgotten either way)
+                    if (kept is not None and kept[0] is self.snes
+                            and self._chord.snes.getIterationNumber() <= kept[1] + LAG_SLACK):
+                        self._kept = kept
                     return self._chord.snes
                 guess.copy(q1)
             finally:
                 guess.destroy()
         solve_newton(self.snes, q1, self._lagged, self._forget_rejected)
+        if (self._keep_factors and self._lagged and not self.system.jacobian_is_constant
+                and self.snes.getConvergedReason() > 0):
+            # (the SNES refactors only when it assembles again, at a step that factors afresh;
+            # a step that replaces it (keeps_solver) drops the factors with it)
+            self._kept = (self.snes, self.snes.getIterationNumber())
         return self.snes
 
     def _destroy_chord(self) -> None:
