@@ -483,14 +483,19 @@ class ForwardModel:
                 out[k] += w * obs[n]
         return out
 
+    #: whether :meth:`simulate` keeps the chord's factors across steps (False: every step
+    #: factors its own, as ``petsoft simulate`` and the sensitivity runs do)
+    keeps_factors = True
+
     @_collects_garbage
     def simulate(self, p) -> np.ndarray:
         """Marker positions (K, M, 3) at the frame times (identical on every rank).
 
         The steps keep their chord's factorisation for later steps
-        (:meth:`~petsoft.solvers.borrowed_chord.ChordBorrower.keep_factors`): a run that is
-        neither differentiated nor checkpointed need not factor at every step."""
-        keep = getattr(self.integrator, "keep_factors", None)
+        (:meth:`~petsoft.solvers.borrowed_chord.ChordBorrower.keep_factors`; unless
+        :attr:`keeps_factors` is False): a run that is neither differentiated nor checkpointed
+        need not factor at every step."""
+        keep = getattr(self.integrator, "keep_factors", None) if self.keeps_factors else None
         if keep is not None:
             keep(True)
         try:
