@@ -369,12 +369,14 @@ def load_experiment_text(text: str):
     return experiment_from_dict(tomllib.loads(text), source="test_diagnose")
 
 
-def test_candidates_scored_together_score_as_they_do_alone(case):
+def test_candidates_scored_together_score_as_they_do_alone(case, monkeypatch):
     """The settings-only candidates (dissipation laws, gravity, and the viscoelastic branch,
     whose columns generalized-alpha differentiates) share one run with sensitivities to all
     their parameters: each score equals the one its own run gives, and the branch's exact
     ratio column the one-sided differences it was scored by before (to 1e-2); the others
-    (regions, a compliant support, a collider) are scored alone."""
+    (regions, a compliant support, a collider) are scored alone. A candidate fit then starts
+    from that run's simulation and columns (one sensitivity run fewer) and ends where a fit
+    computing them again ends."""
     from petsoft.diagnosis.context import Diagnosis, evidence_of, scored_together
     from petsoft.experiment import with_parameters
 
@@ -419,6 +421,29 @@ def test_candidates_scored_together_score_as_they_do_alone(case):
     diag._base_columns = None
     own = diag.score(base, plane)
     assert reused["score"] == pytest.approx(own["score"], rel=1e-7, abs=1e-9), plane.physics
+    # a candidate fit starts from the shared run: its first evaluation costs no run, and the
+    # fit ends where one that computes it again ends
+    damping = next(c for c in together if c.physics == "damping.mass")
+    ext = damping.extend(base.experiment)
+    known = diag.known_start(ext, base)
+    assert known is not None and set(known[1]) == set(ext.calibrate)
+    compliance = next(c for c in cands if c.physics == "boundary.compliance")
+    assert diag.known_start(compliance.extend(base.experiment), base) is None
+    from petsoft.calibration.forward import ForwardModel
+
+    real, runs = ForwardModel.jacobian, []
+    monkeypatch.setattr(ForwardModel, "jacobian",
+                        lambda fm, p: (runs.append(p), real(fm, p))[1])
+    fits, counts = {}, {}
+    for seeded in (True, False):
+        before = len(runs)
+        fits[seeded] = diag.calibrate(ext, known=known if seeded else None)
+        counts[seeded] = len(runs) - before
+    print(f"damping.mass fit: {counts[True]} sensitivity runs from the shared run's start, "
+          f"{counts[False]} without")
+    assert counts[True] == counts[False] - 1, counts
+    np.testing.assert_allclose(fits[True].values, fits[False].values, rtol=1e-6)
+    assert fits[True].chi2 == pytest.approx(fits[False].chi2, rel=1e-8)
 
 
 def test_a_far_start_is_moved_to_the_data_s_frequency(case):

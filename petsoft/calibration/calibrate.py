@@ -262,7 +262,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
                     seed: int = 0, regularization: float = 0.0, noise: float | None = None,
                     out: Path | None = None, comm=None, say=None,
                     spelled_out: bool = False, check_mesh: bool = False, mesh=None,
-                    misfit: str = "l2") -> CalibrationResult:
+                    misfit: str = "l2", known=None) -> CalibrationResult:
     """Calibrate the ``[calibrate]`` parameters of ``experiment`` against a recording.
 
     Parameters
@@ -301,6 +301,10 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
     mesh : Mesh, optional
         The body's reference mesh instead of the experiment's (the rest shape of
         :func:`petsoft.calibration.rest_shape.calibrate_rest_shape`).
+    known : (sim, columns), optional
+        The simulation of the window's frames at the start values (K, M, 3) and its forward
+        sensitivities ``{parameter: (K, M, 3)}`` for every ``[calibrate]`` parameter, computed
+        elsewhere (diagnose's scoring run): the fit's first evaluation then costs no run.
     """
     from petsoft.calibration.multistart import multistart, random_starts
     from petsoft.calibration.objective import MarkerMisfit
@@ -388,6 +392,10 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         tell(f"multistart: best of {len(zs)} starts is start {ms.best.index} "
              f"(f = {opt.f:.6e})")
     problem = make_problem(comm)
+    if known is not None and starts == 0 and transform is None:
+        sim0, columns = known
+        problem.remember_sensitivities(z0, sim0, np.stack([columns[n] for n in names],
+                                                          axis=-1))
     if starts == 0:
         opt = minimize(problem, z0, method=method, bounds=(zlo, zhi), scaling=scaling,
                        monitor=monitor_for(0))

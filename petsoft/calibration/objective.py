@@ -164,15 +164,39 @@ class MarkerMisfit:
                  else dsim[self.seen] / self.sigma)                # (m, P) in z
         else:
             sim, dsim = self.forward.jacobian(p)
-            J = (self.misfit.jvp(sim, dsim) if self.misfit is not None
-                 else dsim[self.seen] / self.sigma)                # (m, P) in physical p
-            J = J * self.scaling.dp_dz(z)[None, :]              # chain rule dp/dz (diagonal)
+            return self._from_sensitivities(z, sim, dsim)
         self.last_simulation = sim
         r = self._data_residual(sim)
         if self.regularization > 0.0:
             r = np.concatenate([r, self._regularization_residual(z)])
             J = np.vstack([J, np.sqrt(self.regularization) * np.eye(self.n)])
         return r, J
+
+    def _from_sensitivities(self, z, sim, dsim) -> tuple[np.ndarray, np.ndarray]:
+        """(r, dr/dz) from the simulation at z and its sensitivities dsim/dp (K, M, 3, P)."""
+        J = (self.misfit.jvp(sim, dsim) if self.misfit is not None
+             else dsim[self.seen] / self.sigma)                    # (m, P) in physical p
+        J = J * self.scaling.dp_dz(z)[None, :]                  # chain rule dp/dz (diagonal)
+        self.last_simulation = sim
+        r = self._data_residual(sim)
+        if self.regularization > 0.0:
+            r = np.concatenate([r, self._regularization_residual(z)])
+            J = np.vstack([J, np.sqrt(self.regularization) * np.eye(self.n)])
+        return r, J
+
+    def remember_sensitivities(self, z: np.ndarray, sim: np.ndarray, dsim: np.ndarray) -> None:
+        """Take ``sim`` and ``dsim`` (K, M, 3, P: d sim / d p, the problem's parameters in
+        order) as this problem's forward sensitivity run at ``z``: computed elsewhere (a
+        diagnosis' scoring run at a candidate's start), so the optimizer's first evaluation
+        costs no run. Not with finite-difference gradients (their Jacobian differs)."""
+        if self.gradient_method == "fd":
+            return
+        if sim.shape != self.data.shape or dsim.shape != self.data.shape + (self.n,):
+            raise ValueError(f"remembered sensitivities of shape {dsim.shape} for data of "
+                             f"shape {self.data.shape} and {self.n} parameter(s)")
+        memo = self._memo(z)
+        memo["rJ"] = self._from_sensitivities(z, np.array(sim), np.array(dsim))
+        memo["sim"] = self.last_simulation
 
     def value_gradient(self, z: np.ndarray) -> tuple[float, np.ndarray]:
         """f = 1/2 |r|^2 and df/dz (adjoint by default)."""

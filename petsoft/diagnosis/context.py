@@ -229,6 +229,9 @@ class Diagnosis:
         #: (fit, simulation, its parameters' columns) of the last shared scoring run, which the
         #: switches' scores of the same fit reuse (:meth:`_score`)
         self._base_columns: tuple | None = None
+        #: (fit, simulation, parameter values, columns) of the last shared scoring run: a
+        #: candidate fit starting where it was scored begins from them (:meth:`known_start`)
+        self._scored: tuple | None = None
         if rec.noise and rec.noise.get("position_std"):
             self.sigma = float(rec.noise["position_std"])
             self.sigma_source = "given by the recording"
@@ -338,13 +341,14 @@ class Diagnosis:
         """The data's dominant oscillation frequency (Hz) on the identification window."""
         return dominant_frequency(self.times[self.ident], self.data[self.ident])
 
-    def calibrate(self, experiment, comm=None, label: str = "fit") -> Fit:
+    def calibrate(self, experiment, comm=None, label: str = "fit", known=None) -> Fit:
         """Calibrate ``experiment`` on the identification window; predict the held-out one.
 
         ``comm`` (default: the diagnosis' communicator) lets candidate fits run on groups of
         ranks (:func:`petsoft.calibration.groups.map_on_groups`). Each iteration of the fit is
         a progress line naming it by ``label`` (printed by the first rank of ``comm``: fits on
-        groups of ranks report side by side), so a round of fits is never silent for long."""
+        groups of ranks report side by side), so a round of fits is never silent for long.
+        ``known``: the simulation and sensitivity columns at the start (:meth:`known_start`)."""
         comm = self.comm if comm is None else petsc_comm(comm)
         started = time.perf_counter()
         # the identification window travels with the data, not as a rewritten [time] end
@@ -354,7 +358,7 @@ class Diagnosis:
                                   gradient=gradient_for(experiment, self.gradient,
                                                         self.integrator),
                                   integrator=self.integrator, comm=comm,
-                                  say=self._iteration_lines(label))
+                                  say=self._iteration_lines(label), known=known)
         gc.collect()                    # every rank, same point (see run_diagnose)
         names, _, _ = calibration_parameters(experiment)
         calibrated = with_parameters(experiment, dict(zip(names, res.values, strict=True)))
@@ -400,14 +404,32 @@ class Diagnosis:
         need = [(s, c) for s, c in scored if "fit" not in s]
         if need:
             self.tell(self.round_estimate([c.physics for _, c in need]))
-        fits = map_on_groups(
-            lambda item, sub: self.calibrate(item[1].extend(current.experiment), comm=sub,
-                                             label=f"candidate {item[1].physics}"),
-            need, self.comm)
+
+        def fit(item, sub):
+            ext = item[1].extend(current.experiment)
+            return self.calibrate(ext, comm=sub, label=f"candidate {item[1].physics}",
+                                  known=self.known_start(ext, current))
+
+        fits = map_on_groups(fit, need, self.comm)
         gc.collect()                    # every rank, same point (see run_diagnose)
         for (s, _), f in zip(need, fits, strict=True):
             s["fit"] = f.value if f.ok else None
             s["fit_error"] = f.error
+
+    def known_start(self, ext, current: Fit) -> tuple | None:
+        """(simulation, columns) of the round's shared scoring run when they are ``ext``'s at
+        its start: that run scored ``current`` with every value-only candidate switched on at
+        its start value (the same simulation, checked to 1e-6 of the noise) and exact
+        sensitivities to all their parameters -- what a candidate fit's first evaluation would
+        compute again (a sensitivity run a fit). None when ``ext`` has a parameter that run
+        had not, or at another value."""
+        if self._scored is None or self._scored[0] is not current:
+            return None
+        _, sim, values, cols = self._scored
+        names = list(ext.calibrate)
+        if not all(n in cols and get_parameter(ext, n) == values.get(n) for n in names):
+            return None
+        return sim, {n: cols[n] for n in names}
 
     def simulate(self, experiment, h=None, comm=None, times=None) -> np.ndarray:
         """Marker positions of ``experiment`` at every frame of the record (or ``times``)."""
@@ -474,6 +496,7 @@ class Diagnosis:
             return None
         self._base_columns = (fit, sim, {n: cols[n] for n in fit.experiment.calibrate
                                          if n in cols})
+        self._scored = (fit, sim, {n: get_parameter(ext, n) for n in ext.calibrate}, cols)
         return [self._score_entry(fit, c, ext, sim, cols, c.tested_parameters)
                 for c in candidates]
 
