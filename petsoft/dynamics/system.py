@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from petsoft.dynamics.interfaces import SystemDefaults
@@ -298,7 +299,23 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
         return out
 
     def elastic_energy(self, q: PETSc.Vec) -> float:
-        return self.dmesh.allreduce_sum(self.elastic.energy(self.dmesh.to_local(q)))
+        """W(q), the elastic energy summed over the ranks.
+
+        Raises InvertedElementError on every rank when an element inverted on one (as
+        :meth:`internal_gradient`): the flag travels with the collective sum, which a rank
+        that stopped at its own element would have left the others waiting in."""
+        inverted = None
+        try:
+            local = self.elastic.energy(self.dmesh.to_local(q))
+        except InvertedElementError as err:
+            inverted, local = err, 0.0
+        total = np.empty(2)
+        self.comm.tompi4py().Allreduce(np.array([local, float(inverted is not None)]), total,
+                                       op=MPI.SUM)
+        if total[1] > 0.0:
+            raise inverted or InvertedElementError(
+                -1, math.nan, "an element inverted on another rank (its message says which)")
+        return float(total[0])
 
     def kinetic_energy(self, v: PETSc.Vec) -> float:
         """1/2 v^T M v with the mass the integrator uses (lumped for explicit schemes)."""
