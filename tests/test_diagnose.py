@@ -470,3 +470,49 @@ def test_a_far_start_is_moved_to_the_data_s_frequency(case):
     # nothing to rescale without E in [calibrate]
     fixed = load_experiment_text(_model(TRUE_E / 4, 0.0, ""))
     assert diag.frequency_matched(fixed) is fixed
+
+
+def test_a_compliant_support_is_fitted_from_its_best_decade(tmp_path_factory, monkeypatch):
+    """The support-compliance candidate starts numerically rigid, decades below a real
+    compliance: its fit starts from the best of one forward run per decade of its bounds (the
+    decade of the truth), and ends where the fit from the rigid start ends, in fewer
+    sensitivity runs."""
+    from petsoft.calibration.forward import ForwardModel
+    from petsoft.diagnosis.context import Diagnosis, evidence_of
+
+    c_true = 2e-9
+    d = _shared_dir(tmp_path_factory, "compliant")
+    rigid = 'kind = "fixed"\nwhere = "x < 1e-9"\n'
+    truth = _write(d / "truth.toml", cantilever(TRUE_E).replace(
+        rigid, rigid + f"compliance = {c_true}\n"))
+    rec = _synth(truth, d / "compliant.h5", seed=11)
+    exp = load_experiment(_write(d / "user.toml", cantilever(1.8e7, calibrate=CALIBRATE)))
+    diag = Diagnosis(exp, read_recording(rec), fraction=0.7, alpha=0.01, method="gauss-newton",
+                     gradient="sensitivity", integrator=None, noise=None,
+                     comm=PETSc.COMM_WORLD, say=None)
+    base = diag.calibrate(exp)
+    diag.fix_scales(base, evidence_of(diag, base))
+    cands, _ = build_candidates(exp, scales=diag.scales,
+                                plane={"point": [0.0, 0.0, -1.0], "normal": [0.0, 0.0, 1.0],
+                                       "excess": 0.01})
+    support = next(c for c in cands if c.physics == "boundary.compliance")
+    ext = support.extend(base.experiment)
+    scanned = diag.scanned_start(ext, support, diag.comm, "candidate boundary.compliance")
+    start = get_parameter(scanned, "boundary.compliance")
+    print(f"compliance: rigid start {get_parameter(ext, 'boundary.compliance'):.3g}, "
+          f"scanned start {start:.3g} (truth {c_true:.3g})")
+    assert abs(np.log10(start / c_true)) <= 1.0
+    real, runs = ForwardModel.jacobian, []
+    monkeypatch.setattr(ForwardModel, "jacobian",
+                        lambda fm, p: (runs.append(p), real(fm, p))[1])
+    fits, counts = {}, {}
+    for name, model in (("scanned", scanned), ("rigid", ext)):
+        before = len(runs)
+        fits[name] = diag.calibrate(model)
+        counts[name] = len(runs) - before
+    print(f"sensitivity runs: from the scanned start {counts['scanned']}, from the rigid one "
+          f"{counts['rigid']}; chi2 {fits['scanned'].chi2:.6g} vs {fits['rigid'].chi2:.6g}")
+    assert counts["scanned"] < counts["rigid"]
+    assert fits["scanned"].chi2 <= fits["rigid"].chi2 * (1.0 + 1e-3)
+    fitted = fits["scanned"].values[fits["scanned"].names.index("boundary.compliance")]
+    assert abs(np.log10(fitted / c_true)) < 0.3
