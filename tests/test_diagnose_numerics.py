@@ -107,3 +107,22 @@ def test_a_step_error_small_beside_a_large_misfit_waits_for_the_final_model(tmp_
     assert res.final.experiment.time.step <= 0.002
     assert res.final_verdict == "consistent"
     assert res.report["fit"]["validation"]["final_rms"] < 1.5 * NOISE
+
+
+def test_a_deferral_is_decided_on_the_linearised_refit(tmp_path_factory):
+    """At 3.5 ms halving the step moves the simulation by 2.5x the noise at the same
+    parameters, 1.1x after a linearised refit, which would matter: its refit would be deferred
+    all the same (the fit misses the data by 6.6x the noise), so it is not made -- deferred,
+    counted from the linearised refit, and measured again on the final model."""
+    res, _ = _diagnose_cantilever(tmp_path_factory, 0.0035)
+    assert [a["physics"] for a in res.added] == ["gravity"]
+    first, *later = res.numerics["refinements"]
+    halved = first["options"]["step/2"]
+    assert halved.get("screened") and halved["deferred"] > 3.0
+    assert 1.0 < halved["change_over_noise"] <= 2.0 and halved["gain"] > 10.0
+    assert "adopted" not in first and halved["error_estimate"] > 0.0
+    assert later and all(r.get("final_check") for r in later)
+    assert res.final_verdict == "consistent"
+    assert res.report["fit"]["validation"]["final_rms"] < 1.5 * NOISE
+    assert any("linearised refit improves the fit" in line and "checked again" in line
+               for line in res.report["numerics"]["findings"]), res.report["numerics"]["findings"]

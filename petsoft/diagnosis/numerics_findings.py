@@ -65,6 +65,13 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
         moved = _shifts(r["parameters"], o["parameters"])
         if o.get("measured_only"):
             out.append(_measured_sentence(head, o, sigma, noun))
+        elif o.get("screened") and o.get("deferred"):
+            # not refitted: a refit would have been deferred (small beside the misfit)
+            out.append(f"{head}, and a linearised refit improves the fit ({fit}), but while "
+                       f"the model misses the data by {_x(o['deferred'])}x the noise an error "
+                       f"this small is not what it misses: counted as a {noun} error of "
+                       f"{_x(o.get('error_estimate', 0.0) / sigma)}x the noise and checked "
+                       "again once the misfit is smaller (not refitted).")
         elif o.get("screened") and o.get("error_estimate", 0.0) > 0.0:
             # not refitted: its linearised refit was closer to the data by too little to matter
             out.append(f"{head}, and a linearised refit improves little ({fit}): counted as a "
