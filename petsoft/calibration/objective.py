@@ -159,24 +159,17 @@ class MarkerMisfit:
         self.evaluations += 1
         if self.gradient_method == "fd":
             sim = self.forward.simulate(p)
-            dsim = self._fd_scaled(z, sim)
-            J = (self.misfit.jvp(sim, dsim) if self.misfit is not None
-                 else dsim[self.seen] / self.sigma)                # (m, P) in z
-        else:
-            sim, dsim = self.forward.jacobian(p)
-            return self._from_sensitivities(z, sim, dsim)
-        self.last_simulation = sim
-        r = self._data_residual(sim)
-        if self.regularization > 0.0:
-            r = np.concatenate([r, self._regularization_residual(z)])
-            J = np.vstack([J, np.sqrt(self.regularization) * np.eye(self.n)])
-        return r, J
+            return self._with_residual(z, sim, self._fd_scaled(z, sim), in_z=True)
+        sim, dsim = self.forward.jacobian(p)
+        return self._with_residual(z, sim, dsim)
 
-    def _from_sensitivities(self, z, sim, dsim) -> tuple[np.ndarray, np.ndarray]:
-        """(r, dr/dz) from the simulation at z and its sensitivities dsim/dp (K, M, 3, P)."""
+    def _with_residual(self, z, sim, dsim, in_z: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """(r, dr/dz) from the simulation at z and its derivatives dsim (K, M, 3, P): with
+        respect to z (``in_z``, finite differences) or to the physical p (sensitivities)."""
         J = (self.misfit.jvp(sim, dsim) if self.misfit is not None
-             else dsim[self.seen] / self.sigma)                    # (m, P) in physical p
-        J = J * self.scaling.dp_dz(z)[None, :]                  # chain rule dp/dz (diagonal)
+             else dsim[self.seen] / self.sigma)                    # (m, P)
+        if not in_z:
+            J = J * self.scaling.dp_dz(z)[None, :]              # chain rule dp/dz (diagonal)
         self.last_simulation = sim
         r = self._data_residual(sim)
         if self.regularization > 0.0:
@@ -195,7 +188,7 @@ class MarkerMisfit:
             raise ValueError(f"remembered sensitivities of shape {dsim.shape} for data of "
                              f"shape {self.data.shape} and {self.n} parameter(s)")
         memo = self._memo(z)
-        memo["rJ"] = self._from_sensitivities(z, np.array(sim), np.array(dsim))
+        memo["rJ"] = self._with_residual(z, np.array(sim), np.array(dsim))
         memo["sim"] = self.last_simulation
 
     def value_gradient(self, z: np.ndarray) -> tuple[float, np.ndarray]:
