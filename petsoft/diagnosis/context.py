@@ -226,11 +226,9 @@ class Diagnosis:
         self.centroids: np.ndarray | None = None
         #: wall time of every fit so far (what a round of fits is estimated from)
         self.fit_seconds: list[float] = []
-        #: (fit, simulation, its parameters' columns) of the last shared scoring run, which the
-        #: switches' scores of the same fit reuse (:meth:`_score`)
-        self._base_columns: tuple | None = None
-        #: (fit, simulation, parameter values, columns) of the last shared scoring run: a
-        #: candidate fit starting where it was scored begins from them (:meth:`known_start`)
+        #: (fit, simulation, parameter values, columns) of the last shared scoring run: the
+        #: switches' scores of the same fit reuse its current-model columns (:meth:`_score`), and
+        #: a candidate fit starting where it was scored begins from them (:meth:`known_start`)
         self._scored: tuple | None = None
         if rec.noise and rec.noise.get("position_std"):
             self.sigma = float(rec.noise["position_std"])
@@ -491,10 +489,10 @@ class Diagnosis:
             # round's shared scoring run when there was one (its terms start off: the same
             # simulation and columns; on the independent bracket a sensitivity run of 80 s per
             # switch and round)
-            cached = self._base_columns
+            cached = self._scored
             if (cached is not None and cached[0] is fit
-                    and set(fit.experiment.calibrate) <= set(cached[2])):
-                sim, cols = cached[1], dict(cached[2])
+                    and set(fit.experiment.calibrate) <= set(cached[3])):
+                sim, cols = cached[1], {n: cached[3][n] for n in fit.experiment.calibrate}
             else:
                 sim, cols = self._columns(fit.experiment, candidate, comm)
             cols["switch"] = self.simulate(ext, comm=comm, times=self.times[self.ident]) - sim
@@ -525,8 +523,6 @@ class Diagnosis:
         moved = float(np.sqrt(np.mean((sim[seen] - fit.sim[self.ident][seen]) ** 2)))
         if moved > 1e-6 * self.sigma:
             return None
-        self._base_columns = (fit, sim, {n: cols[n] for n in fit.experiment.calibrate
-                                         if n in cols})
         self._scored = (fit, sim, {n: get_parameter(ext, n) for n in ext.calibrate}, cols)
         return [self._score_entry(fit, c, ext, sim, cols, c.tested_parameters)
                 for c in candidates]

@@ -150,10 +150,10 @@ class ChordBorrower:
         (or when that fails) by the stepper's own solver; returns the SNES that solved."""
         borrowed, self._borrowed = self._borrowed, None
         kept, self._kept = self._kept, None
-        if borrowed is None and kept is not None and kept[0] is self.snes:
-            # (the stepper's own solver, kept across steps: its KSP holds the factors; no
-            # Python reference outlives it -- one freed after the SNES by the garbage collector
-            # hung two ranks in PetscFinalize's garbage clean-up)
+        # the factors kept are the stepper's own solver's, while that SNES is kept across steps
+        # (a replaced SNES took them with it)
+        own = kept is not None and kept[0] is self.snes
+        if borrowed is None and own:
             borrowed = self.snes.getKSP()
         if borrowed is not None and self._lagged:
             if self._chord is None:
@@ -163,8 +163,7 @@ class ChordBorrower:
             try:
                 converged = self._chord.solve(borrowed, q1, self.snes)
                 if not self._forget_rejected() and converged:   # (forgotten either way)
-                    if (kept is not None and kept[0] is self.snes
-                            and self._chord.snes.getIterationNumber() <= kept[1] + LAG_SLACK):
+                    if own and self._chord.snes.getIterationNumber() <= kept[1] + LAG_SLACK:
                         self._kept = kept
                     return self._chord.snes
                 guess.copy(q1)
@@ -173,8 +172,7 @@ class ChordBorrower:
         solve_newton(self.snes, q1, self._lagged, self._forget_rejected)
         if (self._keep_factors and self._lagged and not self.system.jacobian_is_constant
                 and self.snes.getConvergedReason() > 0):
-            # (the SNES refactors only when it assembles again, at a step that factors afresh;
-            # a step that replaces it (keeps_solver) drops the factors with it)
+            # (the SNES refactors only when it assembles again, at a step that factors afresh)
             self._kept = (self.snes, self.snes.getIterationNumber())
         return self.snes
 
