@@ -517,3 +517,41 @@ def test_a_compliant_support_is_fitted_from_its_best_decade(tmp_path_factory, mo
     assert fits["scanned"].chi2 <= fits["rigid"].chi2 * (1.0 + 1e-3)
     fitted = fits["scanned"].values[fits["scanned"].names.index("boundary.compliance")]
     assert abs(np.log10(fitted / c_true)) < 0.3
+
+
+def test_a_candidate_fit_that_cannot_win_is_stopped_and_not_added(case, monkeypatch):
+    """The round's candidate fits are given a CannotWin against the best finished fit
+    (``rivals`` here): a fit stopped by it is reported as stopped and not added, even when
+    its tests would pass; without a better rival the same fit runs to convergence and is
+    added. The rival is made unreachable on purpose (chi2 1e-6 of the base fit's) and the pace
+    judged over one iteration, so that the damping fit, which converges in a few iterations,
+    is stopped at its last: what is tested is the path from the rule to the report."""
+    import dataclasses
+
+    import petsoft.diagnosis.pace as pace
+    from petsoft.diagnosis.context import Diagnosis, evidence_of
+    from petsoft.diagnosis.selection import judge
+
+    exp = load_experiment(case["user"])
+    diag = Diagnosis(exp, read_recording(case["damped"]), fraction=0.7, alpha=0.01,
+                     method="gauss-newton", gradient="sensitivity", integrator=None, noise=None,
+                     comm=PETSc.COMM_WORLD, say=None)
+    base = diag.calibrate(exp)
+    diag.fix_scales(base, evidence_of(diag, base))
+    cands, _ = build_candidates(exp, scales=diag.scales)
+    damping = next(c for c in cands if c.physics == "damping.mass")
+    scored = diag.score(base, damping)
+    free = dict(scored)
+    diag.fit_candidates([(free, damping)], base)
+    assert free["fit"] is not None and free["fit"].stopped == ""
+    assert judge(diag, base, free, damping)["added"]
+    monkeypatch.setattr(pace, "PACE_WINDOW", 1)
+    rival = dataclasses.replace(base, chi2=1e-6 * base.chi2)
+    raced = dict(scored)
+    diag.fit_candidates([(raced, damping)], base, rivals=[("an unreachable rival", rival)])
+    stopped = raced["fit"]
+    assert stopped is not None and stopped.stopped.startswith("stopped at iteration")
+    assert "an unreachable rival's" in stopped.stopped
+    assert stopped.iterations <= free["fit"].iterations
+    verdict = judge(diag, base, raced, damping)
+    assert not verdict["added"] and "could not have been preferred" in verdict["reason"]

@@ -19,6 +19,7 @@ from petsc4py import PETSc
 from petsoft.calibration.multistart import multistart, random_starts
 from petsoft.calibration.optimize import (
     METHODS,
+    STOPPED,
     FiniteDifferenceProblem,
     LeastSquares,
     OptimizationError,
@@ -114,6 +115,28 @@ def test_methods_rosenbrock(method):
     np.testing.assert_allclose(res.z, [1.0, 1.0], atol=1e-3 if method == "gd" else 1e-6)
     if method in ("newton", "gauss-newton", "brgn", "lbfgs"):
         assert res.iterations < 100  # curvature information: no zig-zag down the valley
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_caller_stops_the_minimization_where_it_asks(method):
+    """``stop`` ends every method at the iterate it returned True for (the last one
+    recorded): reason STOPPED_BY_CALLER, not converged, nothing evaluated after it by the
+    method (Nelder-Mead's restarts included); on 2 ranks the decision is taken on each."""
+    seen = []
+
+    def stop(rec):
+        seen.append(rec)
+        return rec.iteration >= 3
+
+    res = minimize(Rosenbrock(), np.array([-1.2, 1.0]), method, stop=stop)
+    assert res.reason == STOPPED and not res.converged
+    assert seen[-1].iteration >= 3 and [r.iteration for r in seen[:-1]] == sorted(
+        r.iteration for r in seen[:-1]) and all(r.iteration < 3 for r in seen[:-1])
+    assert len(res.history) == len(seen)
+    np.testing.assert_allclose(res.z, seen[-1].z, rtol=0, atol=0)
+    assert res.f == pytest.approx(seen[-1].f, rel=1e-12)
+    free = minimize(Rosenbrock(), np.array([-1.2, 1.0]), method, options={"max_it": 10})
+    assert free.iterations > 3 and free.reason != STOPPED
 
 
 class _GradientOnly:

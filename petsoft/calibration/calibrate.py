@@ -262,7 +262,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
                     seed: int = 0, regularization: float = 0.0, noise: float | None = None,
                     out: Path | None = None, comm=None, say=None,
                     spelled_out: bool = False, check_mesh: bool = False, mesh=None,
-                    misfit: str = "l2", known=None) -> CalibrationResult:
+                    misfit: str = "l2", known=None, stop=None) -> CalibrationResult:
     """Calibrate the ``[calibrate]`` parameters of ``experiment`` against a recording.
 
     Parameters
@@ -305,6 +305,9 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         The simulation of the window's frames at the start values (K, M, 3) and its forward
         sensitivities ``{parameter: (K, M, 3)}`` for every ``[calibrate]`` parameter, computed
         elsewhere (diagnose's scoring run): the fit's first evaluation then costs no run.
+    stop : callable(IterationRecord) -> bool, optional
+        Ends the fit early (:func:`~petsoft.calibration.optimize.minimize`'s ``stop``; the
+        result's ``reason`` is then ``STOPPED_BY_CALLER``); one start only.
     """
     from petsoft.calibration.multistart import multistart, random_starts
     from petsoft.calibration.objective import MarkerMisfit
@@ -398,7 +401,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
                                                           axis=-1))
     if starts == 0:
         opt = minimize(problem, z0, method=method, bounds=(zlo, zhi), scaling=scaling,
-                       monitor=monitor_for(0))
+                       monitor=monitor_for(0), stop=stop)
     # the user's start, not a polish start; with one start from it, the optimizer's first
     # evaluation (remembered by the problem, as is its last Jacobian at the optimum)
     before = problem.simulate(scaling.to_scaled(start))

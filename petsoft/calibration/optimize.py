@@ -79,6 +79,10 @@ from petsoft.solvers.convergence import reason_name
 from petsoft.solvers.options import scoped_defaults
 
 METHODS = ("gd", "newton", "lbfgs", "gauss-newton", "brgn", "nelder-mead")
+#: Levenberg-Marquardt's default iteration limit (option ``<prefix>tao_max_it``)
+LM_MAX_IT = 200
+#: the reason of a minimization ended by its caller's ``stop`` (:func:`minimize`)
+STOPPED = "STOPPED_BY_CALLER"
 
 
 
@@ -432,7 +436,8 @@ def _option(prefix: str, name: str, default, kind=float):
 
 def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | None = None,
              monitor: Callable[[IterationRecord], None] | None = None, scaling=None,
-             prefix: str = "cal_") -> OptimizeResult:
+             prefix: str = "cal_",
+             stop: Callable[[IterationRecord], bool] | None = None) -> OptimizeResult:
     """Minimize the problem's objective over z from ``z0`` with the chosen method.
 
     Parameters
@@ -446,7 +451,7 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
         Bounds on z (``-inf``/``inf`` for none), e.g. ``scaling.bounds()``.
     options : dict, optional
         Defaults overridden by the options database: ``gatol`` (1e-8), ``grtol`` (1e-8),
-        ``max_it`` (1000; 20000 for "gd"), ``max_funcs`` (10000; 100000 for "gd"), ``c1``
+        ``max_it`` (:func:`iteration_limit`), ``max_funcs`` (10000; 100000 for "gd"), ``c1``
         (1e-4, Armijo), ``alpha_max`` (1.0, "gd"), ``nm_penalty`` (1e3), ``nm_restarts`` (3) and
         ``nm_restart_lambda`` (0.1, simplex size of a restart), ``fd_step`` (Hessian
         finite-difference step, default from :func:`fd_step`), ``lm_dtol`` (1e-6,
@@ -458,6 +463,10 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
         Used only to report physical parameters ``p`` (else p = z).
     prefix : str
         PETSc options prefix of the optimizer.
+    stop : callable(IterationRecord) -> bool, optional
+        Called on every rank after every iteration (after ``monitor``); True ends the
+        minimization there with reason ``STOPPED_BY_CALLER`` (not converged) at that iterate.
+        It must decide the same on every rank (the records are identical on all of them).
 
     Returns
     -------
@@ -474,7 +483,7 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
     z0 = np.clip(z0, lo, hi)
     o = {"gatol": 1e-8, "grtol": 1e-8, "c1": 1e-4, "alpha_max": 1.0, "nm_penalty": 1e3,
          "nm_restarts": 3, "nm_restart_lambda": 0.1, "lm_dtol": 1e-6,
-         "max_it": 20000 if method == "gd" else 1000,
+         "max_it": iteration_limit(method),
          "max_funcs": 100000 if method == "gd" else 10000, "fd_step": fd_step()}
     unknown = set(options or {}).difference(o)
     if unknown:
@@ -492,6 +501,7 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
         history.append(rec)
         if monitor is not None:
             monitor(rec)
+        return stop is not None and bool(stop(rec))
 
     if method in ("gauss-newton", "brgn"):
         r0 = ev.residual_jacobian(z0)[0]  # what these methods evaluate first (cached)
@@ -504,12 +514,8 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
             f"the objective is not finite at the start z = {np.array2string(z0)}"
             + (f" (p = {np.array2string(to_p(z0))})" if scaling is not None else "")
             + ": the forward model failed there; start elsewhere or tighten the bounds")
-    if method == "gd":
-        res = _gradient_descent(ev, z0, lo, hi, o, prefix, record)
-    elif method == "gauss-newton":
-        is_log = (np.zeros(n, dtype=bool) if scaling is None
-                  else np.asarray(scaling.is_log, dtype=bool))
-        res = _levenberg_marquardt(ev, z0, lo, hi, o, prefix, record, is_log)
+    if method in ("gd", "gauss-newton"):
+        res = _own_method(method, ev, z0, lo, hi, o, prefix, record, scaling)
     elif method == "nelder-mead":
         # TAO nm's simplex can collapse in a narrow curved valley and report convergence at a
         # non-stationary point (seen on the shifted oscillation: f = 0.386 instead of 0.192 from
@@ -518,10 +524,13 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
         res = _tao_minimize(ev, z0, lo, hi, o, prefix, method, record,
                             (options or {}).get("gatol"))
         its = res.iterations
-        for _ in range(int(o["nm_restarts"])):
+        for _ in range(0 if res.reason == STOPPED else int(o["nm_restarts"])):
             again = _tao_minimize(ev, res.z, lo, hi, o, prefix, method, record,
                                   (options or {}).get("gatol"), o["nm_restart_lambda"])
             its += again.iterations
+            if again.reason == STOPPED:
+                res = again
+                break
             improved = again.f < res.f - 1e-12 * (1.0 + abs(res.f))
             if again.f <= res.f:
                 res = again
@@ -536,6 +545,38 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
     res.failures = ev.failures
     res.p = to_p(res.z)
     return res
+
+
+class _StopRequested(Exception):
+    """Raised by an own method's ``record`` when the caller's ``stop`` asks to end there."""
+
+
+def _own_method(method, ev: _Evaluator, z0, lo, hi, o, prefix, record, scaling) -> OptimizeResult:
+    """Gradient descent or Levenberg-Marquardt; a caller's stop ends either at the iterate it
+    was asked at (the last record)."""
+    history: list[IterationRecord] = []
+
+    def stoppable(it, z, f, gnorm, step=float("nan")):
+        stopped = record(it, z, f, gnorm, step)
+        history.append((int(it), np.array(z, dtype=float), float(f), float(gnorm)))
+        if stopped:
+            raise _StopRequested
+
+    try:
+        if method == "gd":
+            return _gradient_descent(ev, z0, lo, hi, o, prefix, stoppable)
+        is_log = (np.zeros(len(z0), dtype=bool) if scaling is None
+                  else np.asarray(scaling.is_log, dtype=bool))
+        return _levenberg_marquardt(ev, z0, lo, hi, o, prefix, stoppable, is_log)
+    except _StopRequested:
+        it, z, f, gnorm = history[-1]
+        return OptimizeResult(method, z, z, f, gnorm, it, ev.count, STOPPED, False,
+                              hessian="gauss-newton" if method == "gauss-newton" else "")
+
+
+def iteration_limit(method: str) -> int:
+    """The iteration limit ``method`` runs with by default (:func:`minimize`)."""
+    return {"gd": 20000, "gauss-newton": LM_MAX_IT}.get(method, 1000)
 
 
 def _stopping_reason(gnorm, f, it, count, gatol, grtol, max_it, max_funcs) -> str:
@@ -644,7 +685,7 @@ def _levenberg_marquardt(ev: _Evaluator, z0, lo, hi, o, prefix, record,
                          is_log: np.ndarray | None = None) -> OptimizeResult:
     gatol = _option(prefix, "tao_gatol", o["gatol"])
     grtol = _option(prefix, "tao_grtol", o["grtol"])
-    max_it = _option(prefix, "tao_max_it", min(int(o["max_it"]), 200), int)
+    max_it = _option(prefix, "tao_max_it", min(int(o["max_it"]), LM_MAX_IT), int)
     max_funcs = _option(prefix, "tao_max_funcs", int(o["max_funcs"]), int)
     # relative change of z and f below which a step counts as stagnation (round-off level)
     xtol = _option(prefix, "lm_xtol", 1e-10)
@@ -849,11 +890,16 @@ def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
         ub.setArray(np.where(np.isfinite(hi), hi, PETSc.INFINITY))
         tao.setVariableBounds(lb, ub)
 
+    stopped = []
+
     def mon(tao_):
         its, f_tao, gn_tao, _, step, _ = tao_.getSolutionStatus()
         z = np.clip(tao_.getSolution().getArray(readonly=True).copy(), lo, hi)
         f = ev.cached_value(z)
-        record(its, z, f_tao if f is None else f, gn_tao, step)
+        if record(its, z, f_tao if f is None else f, gn_tao, step):
+            # TAO's solvers iterate while the reason says "continue"
+            stopped.append(True)
+            tao_.setConvergedReason(PETSc.TAO.Reason.DIVERGED_USER)
 
     # brgn iterates in its subsolver (bnls on the regularized problem) and does not call the
     # outer monitor in 3.18, so monitor the subsolver; f is taken from the evaluation cache.
@@ -880,7 +926,7 @@ def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
     try:
         tao.solve()
         reason_code = int(tao.getConvergedReason())
-        reason = reason_name(tao, reason_code)
+        reason = STOPPED if stopped else reason_name(tao, reason_code)
         its = int(tao.getIterationNumber())
         tao_type = tao.getType()
         z = np.clip(x.getArray(readonly=True).copy(), lo, hi)

@@ -24,6 +24,8 @@ from petsoft.calibration.calibrate import (
     run_calibration,
 )
 from petsoft.calibration.groups import map_on_groups
+from petsoft.calibration.optimize import STOPPED, iteration_limit
+from petsoft.diagnosis.pace import CannotWin
 from petsoft.dynamics.integrators import scheme
 from petsoft.dynamics.mass_spring import load_spring_mesh
 from petsoft.dynamics.parameters import VISCOELASTIC
@@ -63,6 +65,8 @@ class Fit:
     sim: np.ndarray
     iterations: int = 0
     evaluations: int = 0
+    #: why the fit was stopped before it converged (:class:`~petsoft.diagnosis.pace.CannotWin`)
+    stopped: str = ""
 
 
 def petsc_comm(comm):
@@ -339,14 +343,17 @@ class Diagnosis:
         """The data's dominant oscillation frequency (Hz) on the identification window."""
         return dominant_frequency(self.times[self.ident], self.data[self.ident])
 
-    def calibrate(self, experiment, comm=None, label: str = "fit", known=None) -> Fit:
+    def calibrate(self, experiment, comm=None, label: str = "fit", known=None,
+                  stop=None) -> Fit:
         """Calibrate ``experiment`` on the identification window; predict the held-out one.
 
         ``comm`` (default: the diagnosis' communicator) lets candidate fits run on groups of
         ranks (:func:`petsoft.calibration.groups.map_on_groups`). Each iteration of the fit is
         a progress line naming it by ``label`` (printed by the first rank of ``comm``: fits on
         groups of ranks report side by side), so a round of fits is never silent for long.
-        ``known``: the simulation and sensitivity columns at the start (:meth:`known_start`)."""
+        ``known``: the simulation and sensitivity columns at the start (:meth:`known_start`);
+        ``stop``: a :class:`~petsoft.diagnosis.pace.CannotWin` ending the fit early (the
+        fit's ``stopped`` then says why)."""
         comm = self.comm if comm is None else petsc_comm(comm)
         started = time.perf_counter()
         # the identification window travels with the data, not as a rewritten [time] end
@@ -356,7 +363,7 @@ class Diagnosis:
                                   gradient=gradient_for(experiment, self.gradient,
                                                         self.integrator),
                                   integrator=self.integrator, comm=comm,
-                                  say=self._iteration_lines(label), known=known)
+                                  say=self._iteration_lines(label), known=known, stop=stop)
         gc.collect()                    # every rank, same point (see run_diagnose)
         names, _, _ = calibration_parameters(experiment)
         calibrated = with_parameters(experiment, dict(zip(names, res.values, strict=True)))
@@ -367,7 +374,8 @@ class Diagnosis:
                                                         self.sigma),
                    rms=rms(sim[self.ident], self.data[self.ident]) or 0.0,
                    heldout_rms=rms(sim[self.held], self.data[self.held]) if self.held.any()
-                   else None, sim=sim, iterations=res.iterations, evaluations=res.evaluations)
+                   else None, sim=sim, iterations=res.iterations, evaluations=res.evaluations,
+                   stopped=stop.why if stop is not None and res.reason == STOPPED else "")
 
     def round_estimate(self, names: list[str]) -> str:
         """A line announcing a round of fits and roughly how long it takes: the fits so far
@@ -395,21 +403,40 @@ class Diagnosis:
 
         return say
 
-    def fit_candidates(self, scored: list, current: Fit) -> None:
+    def fit_candidates(self, scored: list, current: Fit, rivals: list | None = None) -> None:
         """Calibrate each candidate of ``scored`` ((score entry, candidate) pairs) not fitted
         yet, extending ``current``'s model, concurrently on groups of ranks; each entry gains
-        ``fit`` (None when the fit failed) and ``fit_error``."""
+        ``fit`` (None when the fit failed) and ``fit_error``.
+
+        A fit that can no longer win (:class:`~petsoft.diagnosis.pace.CannotWin`) against the
+        best finished so far -- among ``rivals`` ((physics, Fit) pairs fitted earlier in the
+        round) and the fits before it on its group of ranks -- is stopped; its ``stopped``
+        says why."""
         need = [(s, c) for s, c in scored if "fit" not in s]
         if need:
             self.tell(self.round_estimate([c.physics for _, c in need]))
+        # (f = chi2 / 2, physics) of the best finished fit; each group updates its own copy
+        best = min(((f.chi2 / 2.0, name) for name, f in rivals or [] if not f.stopped),
+                   default=(np.inf, ""))
+        max_it = iteration_limit(self.method)
 
         def fit(item, sub):
+            nonlocal best
             ext = item[1].extend(current.experiment)
             label = f"candidate {item[1].physics}"
             known = self.known_start(ext, current)
             if known is None:
                 ext = self.scanned_start(ext, item[1], sub, label)
-            return self.calibrate(ext, comm=sub, label=label, known=known)
+            stop = CannotWin(*best, max_it=max_it)
+            result = self.calibrate(ext, comm=sub, label=label, known=known, stop=stop)
+            if result.stopped:
+                if self.say is not None and petsc_comm(sub).tompi4py().rank == 0:
+                    touch()
+                    self.say(f"[{time.perf_counter() - self.t0:7.1f} s]   {label}: "
+                             f"{result.stopped}")
+            else:
+                best = min(best, (result.chi2 / 2.0, item[1].physics))
+            return result
 
         fits = map_on_groups(fit, need, self.comm)
         gc.collect()                    # every rank, same point (see run_diagnose)

@@ -74,6 +74,9 @@ def judge(diag: Diagnosis, current: Fit, s: dict, c) -> dict:
         diag.tell(f"  try {c.physics}: not fitted ({s['skipped']})")
         return {"added": False, "reason": f"not fitted: {s['skipped']}"}
     new = s.get("fit")
+    if new is not None and new.stopped:
+        diag.tell(f"  try {c.physics}: not added: its fit was {new.stopped}")
+        return {"added": False, "reason": f"its fit was {new.stopped}"}
     if new is None:
         diag.tell(f"  try {c.physics}: the fit failed ({s.get('fit_error', '')})")
         return {"added": False, "reason": f"the fit failed: {s.get('fit_error', '')}"}
@@ -230,14 +233,17 @@ def fit_simplest_first(diag: Diagnosis, current: Fit, contenders: list) -> None:
         enough = None
         for s, c in contenders:
             new = s.get("fit")
-            if n_parameters(c) >= k or new is None or new.heldout_rms is None:
+            if (n_parameters(c) >= k or new is None or new.stopped
+                    or new.heldout_rms is None):
                 continue
             _, p_lr, better = _tests(diag, current, new, c)
             if p_lr < diag.alpha and better and new.heldout_rms <= level:
                 enough = (c, new.heldout_rms)
                 break
         if enough is None:
-            diag.fit_candidates(batch, current)
+            diag.fit_candidates(batch, current,
+                                rivals=[(c.physics, s["fit"]) for s, c in contenders
+                                        if s.get("fit") is not None])
             continue
         simpler, rms_h = enough
         why = (f"{simpler.physics} ({n_parameters(simpler)} parameter"
