@@ -363,6 +363,16 @@ def test_a_candidate_at_its_lower_bound_scores_only_inward():
     assert outward_only(cand, inside, ["damping.mass"], [2.5]) is None
 
 
+def _diagnosis(exp, recording: Path):
+    """The Diagnosis of ``exp`` against ``recording`` as these tests examine it (Gauss-Newton,
+    forward sensitivities, 70 % identification window, serial or on every rank)."""
+    from petsoft.diagnosis.context import Diagnosis
+
+    return Diagnosis(exp, read_recording(recording), fraction=0.7, alpha=0.01,
+                     method="gauss-newton", gradient="sensitivity", integrator=None, noise=None,
+                     comm=PETSc.COMM_WORLD, say=None)
+
+
 def load_experiment_text(text: str):
     import tomllib
 
@@ -377,13 +387,11 @@ def test_candidates_scored_together_score_as_they_do_alone(case, monkeypatch):
     (regions, a compliant support, a collider) are scored alone. A candidate fit then starts
     from that run's simulation and columns (one sensitivity run fewer) and ends where a fit
     computing them again ends."""
-    from petsoft.diagnosis.context import Diagnosis, evidence_of, scored_together
+    from petsoft.diagnosis.context import evidence_of, scored_together
     from petsoft.experiment import with_parameters
 
     exp = load_experiment(case["user"])
-    diag = Diagnosis(exp, read_recording(case["damped"]), fraction=0.7, alpha=0.01,
-                     method="gauss-newton", gradient="sensitivity", integrator=None, noise=None,
-                     comm=PETSc.COMM_WORLD, say=None)
+    diag = _diagnosis(exp, case["damped"])
     base = diag.calibrate(exp)
     diag.fix_scales(base, evidence_of(diag, base))
     far = {"point": [0.0, 0.0, -1.0], "normal": [0.0, 0.0, 1.0], "excess": 0.01}
@@ -451,13 +459,10 @@ def test_a_far_start_is_moved_to_the_data_s_frequency(case):
     """E started at a quarter of the truth (f half the data's: a phase-wrapped start): the
     dominant frequencies of simulation and data rescale E to within 5 % of the truth and the
     misfit falls; a start already matched is left alone."""
-    from petsoft.diagnosis.context import Diagnosis
     from petsoft.experiment import with_parameters
 
     exp = load_experiment(case["user"])
-    diag = Diagnosis(exp, read_recording(case["plain"]), fraction=0.7, alpha=0.01,
-                     method="gauss-newton", gradient="sensitivity", integrator=None, noise=None,
-                     comm=PETSc.COMM_WORLD, say=None)
+    diag = _diagnosis(exp, case["plain"])
     far = with_parameters(exp, {"material.youngs_modulus": TRUE_E / 4})
     moved = diag.frequency_matched(far)
     # the short window's frequencies are rough (E lands 16 % high), but in the basin: the
@@ -479,7 +484,7 @@ def test_a_compliant_support_is_fitted_from_its_best_decade(tmp_path_factory, mo
     decade of the truth), and ends where the fit from the rigid start ends, in fewer
     sensitivity runs."""
     from petsoft.calibration.forward import ForwardModel
-    from petsoft.diagnosis.context import Diagnosis, evidence_of
+    from petsoft.diagnosis.context import evidence_of
 
     c_true = 2e-9
     d = _shared_dir(tmp_path_factory, "compliant")
@@ -488,9 +493,7 @@ def test_a_compliant_support_is_fitted_from_its_best_decade(tmp_path_factory, mo
         rigid, rigid + f"compliance = {c_true}\n"))
     rec = _synth(truth, d / "compliant.h5", seed=11)
     exp = load_experiment(_write(d / "user.toml", cantilever(1.8e7, calibrate=CALIBRATE)))
-    diag = Diagnosis(exp, read_recording(rec), fraction=0.7, alpha=0.01, method="gauss-newton",
-                     gradient="sensitivity", integrator=None, noise=None,
-                     comm=PETSc.COMM_WORLD, say=None)
+    diag = _diagnosis(exp, rec)
     base = diag.calibrate(exp)
     diag.fix_scales(base, evidence_of(diag, base))
     cands, _ = build_candidates(exp, scales=diag.scales,
@@ -529,13 +532,11 @@ def test_a_candidate_fit_that_cannot_win_is_stopped_and_not_added(case, monkeypa
     import dataclasses
 
     import petsoft.diagnosis.pace as pace
-    from petsoft.diagnosis.context import Diagnosis, evidence_of
+    from petsoft.diagnosis.context import evidence_of
     from petsoft.diagnosis.selection import judge
 
     exp = load_experiment(case["user"])
-    diag = Diagnosis(exp, read_recording(case["damped"]), fraction=0.7, alpha=0.01,
-                     method="gauss-newton", gradient="sensitivity", integrator=None, noise=None,
-                     comm=PETSc.COMM_WORLD, say=None)
+    diag = _diagnosis(exp, case["damped"])
     base = diag.calibrate(exp)
     diag.fix_scales(base, evidence_of(diag, base))
     cands, _ = build_candidates(exp, scales=diag.scales)
