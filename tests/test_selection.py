@@ -124,7 +124,7 @@ def test_terms_with_more_parameters_are_not_fitted_once_a_simpler_one_predicts_t
                         e, "viscoelastic.ratio", "viscoelastic.relaxation_time"])}
         batches = []
 
-        def fit_candidates(batch, current):
+        def fit_candidates(batch, current, rivals=None):
             batches.append([c.physics for _, c in batch])
             for s, c in batch:
                 s["fit"] = prepared[c.physics]
