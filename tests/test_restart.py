@@ -93,6 +93,47 @@ def test_restart_is_bitwise_on_the_same_ranks(tmp_path_factory, integrator):
         assert (base / "cut" / "segments" / "1" / "trajectory.xdmf").exists()
 
 
+def test_a_run_that_fails_keeps_every_frame_before_the_failure(tmp_path_factory, monkeypatch):
+    """Trajectory frames are written in batches (a second apart): a run whose step 37 fails
+    still leaves every frame before it in trajectory.xdmf (steps 0, 5, ..., 35), equal to the
+    uninterrupted run's, and the step-20 checkpoint."""
+    import meshio
+
+    from petsoft.errors import SolverError
+
+    base = _shared_dir(tmp_path_factory, "failing")
+    exp = experiment_from_dict(tomllib.loads(EXPERIMENT.format(integrator="alpha")))
+    _run(exp, base / "full")
+    real = Simulation._advance
+
+    def failing(self, n, *args, **kwargs):
+        if n == 37:
+            raise SolverError("step 37 diverged (made to fail by the test)")
+        return real(self, n, *args, **kwargs)
+
+    monkeypatch.setattr(Simulation, "_advance", failing)
+    model = build_model(exp)
+    sim = Simulation(model, exp, out=base / "failed")
+    try:
+        with pytest.raises(SolverError, match="step 37"):
+            sim.run()
+    finally:
+        sim.destroy()
+    if MPI.COMM_WORLD.rank == 0:
+        def frames(out):
+            with meshio.xdmf.TimeSeriesReader(str(out / "trajectory.xdmf")) as reader:
+                reader.read_points_cells()
+                return [reader.read_data(k)[:2] for k in range(reader.num_steps)]
+
+        failed, full = frames(base / "failed"), frames(base / "full")
+        assert [t for t, _ in failed] == pytest.approx([0.002 * n for n in range(0, 36, 5)],
+                                                       abs=1e-12)
+        for (t, data), (t_full, data_full) in zip(failed, full, strict=False):
+            assert t == t_full
+            np.testing.assert_array_equal(data["displacement"], data_full["displacement"])
+        assert [step for step, _ in checkpoint_files(base / "failed" / "checkpoints")] == [20]
+
+
 def _cli(args, cwd, ranks=1, env=None, wait=True):
     cmd = [sys.executable, "-m", "petsoft.cli.main", *args]
     if ranks > 1:

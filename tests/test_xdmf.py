@@ -276,14 +276,16 @@ def test_failure_while_writing_frame_data(tmp_path, mesh, monkeypatch):
     out.write(0.0, {"u": mesh.points, "v": mesh.points})
     before = path.read_bytes()
 
-    real = h5py.Group.__setitem__
+    import petsoft.io.xdmf as xdmf
 
-    def failing(self, name, value):
+    real = xdmf._DatasetMaker.__call__
+
+    def failing(self, group, name, value):
         if str(name).endswith("point/v"):
             raise OSError("disk full (simulated)")
-        return real(self, name, value)
+        return real(self, group, name, value)
 
-    monkeypatch.setattr(h5py.Group, "__setitem__", failing)
+    monkeypatch.setattr(xdmf._DatasetMaker, "__call__", failing)
     with pytest.raises(OSError, match="simulated"):
         out.write(1.0, {"u": 2 * mesh.points, "v": 2 * mesh.points})
     monkeypatch.undo()
@@ -354,24 +356,28 @@ def test_frames_are_appended_in_place(tmp_path, mesh):
 # Before each frame had its own file, this failed now and then (2 of ~30 CI runs): a writer
 # killed while HDF5 updated the shared file's group metadata left earlier, complete frames
 # unreadable ("bad heap free list", "addr overflow").
-def test_killed_at_any_moment_leaves_a_valid_series(tmp_path):
-    """Writers killed (SIGKILL) at random moments while writing frames as fast as they can:
-    every .xdmf left behind parses and references only complete frames, in order."""
+@pytest.mark.parametrize("flush_seconds", [0.0, 0.02])
+def test_killed_at_any_moment_leaves_a_valid_series(tmp_path, flush_seconds):
+    """Writers killed (SIGKILL) at random moments while writing frames as fast as they can,
+    frame by frame or in batches: every .xdmf left behind parses and references only complete
+    frames, in order."""
     import signal
     import time
 
     script = textwrap.dedent(
         """
-        import sys
+        import sys, time
         from petsoft.mesh.serial import box_mesh
         from petsoft.io.xdmf import XdmfWriter
         m = box_mesh([1, 1, 1], [2, 2, 2])
-        out = XdmfWriter(sys.argv[1], m.points, m.tets)
+        out = XdmfWriter(sys.argv[1], m.points, m.tets, flush_seconds=float(sys.argv[2]))
         print("ready", flush=True)
         k = 0
         while True:
             out.write(0.5 * k, {"u": m.points * k})
             k += 1
+            if out.flush_seconds:   # a step's worth of work: batches of ~10 frames
+                time.sleep(0.002)
         """
     )
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
@@ -379,8 +385,8 @@ def test_killed_at_any_moment_leaves_a_valid_series(tmp_path):
     counts = []
     for trial in range(8):
         path = tmp_path / f"killed{trial}.xdmf"
-        proc = subprocess.Popen([sys.executable, "-c", script, str(path)], env=env,
-                                stdout=subprocess.PIPE, text=True)
+        proc = subprocess.Popen([sys.executable, "-c", script, str(path), str(flush_seconds)],
+                                env=env, stdout=subprocess.PIPE, text=True)
         assert proc.stdout.readline().strip() == "ready"
         time.sleep(rng.uniform(0.05, 0.4))
         proc.send_signal(signal.SIGKILL)
@@ -395,6 +401,61 @@ def test_killed_at_any_moment_leaves_a_valid_series(tmp_path):
         for k, (_, data, _) in enumerate(frames):
             np.testing.assert_array_equal(data["u"], points * k)
     assert max(counts) > 1, counts      # the kills did land between frames of a running series
+
+
+def test_collected_frames_are_written_in_batches(tmp_path, mesh, monkeypatch):
+    """A collecting writer writes its first frame at once, then batches: one file per batch
+    (a group per frame), referenced once complete, by flush(), by close() and when
+    flush_seconds have passed; a failed batch stays collected and is written by the next
+    flush. meshio reads the series as it reads one written frame by frame."""
+    import time
+
+    import petsoft.io.xdmf as xdmf
+
+    path = tmp_path / "run.xdmf"
+    state = np.zeros_like(mesh.points)
+    out = XdmfWriter(path, mesh.points, mesh.tets, flush_seconds=3600.0)
+    for k in range(5):
+        state[:] = mesh.points * k          # the caller's array changes after each write
+        out.write(0.1 * k, {"u": state}, {"e": np.full(mesh.num_cells, float(k))})
+    assert out.num_frames == 1 and out.num_pending == 4
+    assert len(_read_series(path)[2]) == 1           # on disk: the first frame only
+    out.flush()
+    assert out.num_frames == 5 and out.num_pending == 0
+    with h5py.File(tmp_path / "run_frames" / "1.h5", "r") as f:
+        assert sorted(f) == ["1", "2", "3", "4"] and f["3"].attrs["time"] == 0.1 * 3
+    # a batch whose file cannot be written stays collected; the series on disk is unchanged
+    out.write(0.5, {"u": mesh.points * 5}, {"e": np.full(mesh.num_cells, 5.0)})
+    before = path.read_bytes()
+    real = xdmf._write_h5_atomically
+
+    def fail(*args, **kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(xdmf, "_write_h5_atomically", fail)
+    with pytest.raises(OSError, match="disk full"):
+        out.flush()
+    assert path.read_bytes() == before and out.num_frames == 5 and out.num_pending == 1
+    monkeypatch.setattr(xdmf, "_write_h5_atomically", real)
+    out.flush_seconds = 0.05
+    time.sleep(0.06)
+    out.write(0.6, {"u": mesh.points * 6}, {"e": np.full(mesh.num_cells, 6.0)})
+    assert out.num_frames == 7 and out.num_pending == 0      # the time had come: written
+    out.flush_seconds = 3600.0
+    out.write(0.7, {"u": mesh.points * 7}, {"e": np.full(mesh.num_cells, 7.0)})
+    assert out.num_pending == 1
+    out.close()
+    assert out.num_frames == 8
+    assert sorted(p.name for p in (tmp_path / "run_frames").iterdir()) == [
+        "0.h5", "1.h5", "5.h5", "7.h5"]
+    points, _, frames = _read_series(path)
+    assert [f[0] for f in frames] == [0.0, 0.1, 0.2, 0.1 * 3, 0.4, 0.5, 0.6, 0.7]
+    for k, (_, pdata, cdata) in enumerate(frames):
+        np.testing.assert_array_equal(pdata["u"], points * k)
+        np.testing.assert_array_equal(cdata["e"][0], np.full(mesh.num_cells, float(k)))
+    assert _leftovers(tmp_path) == []
+    with pytest.raises(ValueError, match="flush_seconds"):
+        XdmfWriter(tmp_path / "bad.xdmf", mesh.points, mesh.tets, flush_seconds=-1.0)
 
 
 def test_killed_process_leaves_consistent_prefix(tmp_path):
