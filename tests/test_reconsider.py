@@ -17,7 +17,7 @@ from _taper import CALIBRATE, taper, taper_diagnosis
 from mpi4py import MPI
 
 from petsoft.diagnosis.candidates import build_candidates
-from petsoft.diagnosis.reconsider import Added, better_replacement, reconsider
+from petsoft.diagnosis.reconsider import Added, as_good, better_replacement, reconsider
 from petsoft.experiment import get_parameter, with_parameters
 
 NOISE = 2e-5
@@ -82,6 +82,44 @@ def test_a_wrong_first_term_is_replaced_once_the_second_is_in(diag_exp):
     # a better fit that predicts 5 % worse (above the noise level) is not one either
     worse = SimpleNamespace(chi2=8000.0, heldout_rms=1.05 * 1.726e-4)
     assert not better_replacement(diag, worse, old, 0)
+    # a tie is reported: the independent plate's linear drag in place of the mass damping
+    # (chi2 6328.09 vs 6329.31, the same held-out rms) is as good, not a replacement; the
+    # bracket's mass damping in place of the quadratic drag (7700.9 vs 8946.7) is better
+    kept, twin = (SimpleNamespace(chi2=6329.31, heldout_rms=1.026e-4),
+                  SimpleNamespace(chi2=6328.09, heldout_rms=1.026e-4))
+    assert as_good(diag, twin, kept, 0) and not better_replacement(diag, twin, kept, 0)
+    assert not as_good(diag, SimpleNamespace(chi2=7700.9, heldout_rms=1.232e-4), old, 0)
+    assert not as_good(diag, SimpleNamespace(chi2=6329.31, heldout_rms=2.0e-4), kept, 0)
+    assert not as_good(diag, twin, kept, 1)          # as good only with a parameter more
+
+
+def test_a_runner_up_that_fits_as_well_is_reported_as_ambiguous(diag_exp, monkeypatch):
+    """When a runner-up in an earlier term's place fits and predicts as well (a tie), the term
+    stays and its evidence says the data cannot tell the two apart. The refits are made up:
+    the runner-up's is the kept model itself (the same chi2 and held-out rms: the tie at its
+    tightest), the term's removal a far worse fit."""
+    diag, exp = diag_exp
+    first_c, twin_c = _candidate(exp, "damping.mass"), _candidate(exp, "damping.stiffness")
+    first = diag.calibrate(first_c.extend(exp))
+    grav = _candidate(first.experiment, "gravity")
+    current = diag.calibrate(grav.extend(first.experiment))
+    history = [Added(_entry(first_c, first), first_c, [({"score": 2.0}, twin_c)],
+                     first_c.zero_values(exp)),
+               Added(_entry(grav, current), grav, [], grav.zero_values(first.experiment))]
+    import dataclasses
+
+    # taken out with nothing in its place the damping is missed; the runner-up ties
+    without = dataclasses.replace(current, chi2=10.0 * current.chi2,
+                                  heldout_rms=3.0 * current.heldout_rms)
+    monkeypatch.setattr(diag, "calibrate", lambda experiment, label="": (
+        without if label.startswith("reconsider without") else current))
+    rejected = []
+    final = reconsider(diag, current, history, rejected)
+    assert final is current and rejected == []
+    assert [h.candidate.physics for h in history] == ["damping.mass", "gravity"]
+    evidence = history[0].entry["evidence"]
+    assert "ambiguous: with gravity in, damping.stiffness in its place" in evidence
+    assert "do not tell the two apart" in evidence
 
 
 def test_a_first_term_a_later_one_made_useless_is_taken_out(tmp_path_factory):

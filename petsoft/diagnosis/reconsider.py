@@ -60,6 +60,20 @@ def better_replacement(diag: Diagnosis, new: Fit, old: Fit, extra: int) -> bool:
     return fits and predicts
 
 
+def as_good(diag: Diagnosis, new: Fit, old: Fit, extra: int) -> bool:
+    """Whether ``new`` (``extra`` parameters more than ``old``) explains the data as well as
+    ``old`` without replacing it: chi2 + k ln n within TIE_CHI2 either way, and each held-out
+    rms no worse than the other's by 2 % (or within the noise level). On the independent
+    suite's thin plate a linear drag in place of a mass damping: chi2 6328.09 vs 6329.31, the
+    same held-out rms (a node's surface follows its mass there: the same force)."""
+    if new.heldout_rms is None or old.heldout_rms is None:
+        return False
+    level = heldout_noise_level(diag)
+    return (abs(new.chi2 + _penalty(diag) * extra - old.chi2) <= TIE_CHI2
+            and new.heldout_rms <= max(1.02 * old.heldout_rms, level)
+            and old.heldout_rms <= max(1.02 * new.heldout_rms, level))
+
+
 def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
                rejected: list[dict]) -> Fit:
     """Try each earlier retractable term's runners-up in its place (module docstring); updates
@@ -99,6 +113,13 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
             bic = fit.chi2 + _penalty(diag) * extra
             if ok and (best is None or bic < best[0]):
                 best = (bic, s, alt, fit)
+            elif alt is not None and as_good(diag, fit, current, extra):
+                # kept by the tie-break, but the user must know the data cannot tell
+                added.entry["evidence"] += (
+                    f"; ambiguous: with {later} in, {alt.physics} in its place fits and "
+                    f"predicts as well (chi2 {fit.chi2:.6g} vs {current.chi2:.6g}, held-out "
+                    f"rms {fmt(fit.heldout_rms)} vs {fmt(current.heldout_rms)} m): the data "
+                    f"do not tell the two apart; {cand.physics} is kept (added first)")
         if best is None:
             continue
         _, s, alt, fit = best
