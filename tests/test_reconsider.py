@@ -42,6 +42,18 @@ def _entry(c, fit):
             "parameters": {n: float(fit.values[fit.names.index(n)]) for n in c.parameters}}
 
 
+def _two_rounds(diag, exp, first_physics, runner_up):
+    """(current fit, history) of a diagnosis that added ``first_physics`` in round 1 (with
+    ``runner_up`` its round's runner-up) and gravity in round 2."""
+    first_c, runner = _candidate(exp, first_physics), _candidate(exp, runner_up)
+    first = diag.calibrate(first_c.extend(exp))
+    grav = _candidate(first.experiment, "gravity")
+    current = diag.calibrate(grav.extend(first.experiment))
+    return current, [Added(_entry(first_c, first), first_c, [({"score": 2.0}, runner)],
+                           first_c.zero_values(exp)),
+                     Added(_entry(grav, current), grav, [], grav.zero_values(first.experiment))]
+
+
 def test_retract_takes_a_term_out_again(diag_exp):
     _, exp = diag_exp
     for physics in ("damping.mass", "drag.linear", "gravity"):
@@ -56,13 +68,7 @@ def test_retract_takes_a_term_out_again(diag_exp):
 
 def test_a_wrong_first_term_is_replaced_once_the_second_is_in(diag_exp):
     diag, exp = diag_exp
-    wrong, right = _candidate(exp, "damping.stiffness"), _candidate(exp, "damping.mass")
-    first = diag.calibrate(wrong.extend(exp))
-    grav = _candidate(first.experiment, "gravity")
-    current = diag.calibrate(grav.extend(first.experiment))
-    history = [Added(_entry(wrong, first), wrong, [({"score": 2.0}, right)],
-                     wrong.zero_values(exp)),
-               Added(_entry(grav, current), grav, [], grav.zero_values(first.experiment))]
+    current, history = _two_rounds(diag, exp, "damping.stiffness", "damping.mass")
     rejected = []
     final = reconsider(diag, current, history, rejected)
     assert [h.candidate.physics for h in history] == ["damping.mass", "gravity"]
@@ -99,13 +105,7 @@ def test_a_runner_up_that_fits_as_well_is_reported_as_ambiguous(diag_exp, monkey
     the runner-up's is the kept model itself (the same chi2 and held-out rms: the tie at its
     tightest), the term's removal a far worse fit."""
     diag, exp = diag_exp
-    first_c, twin_c = _candidate(exp, "damping.mass"), _candidate(exp, "damping.stiffness")
-    first = diag.calibrate(first_c.extend(exp))
-    grav = _candidate(first.experiment, "gravity")
-    current = diag.calibrate(grav.extend(first.experiment))
-    history = [Added(_entry(first_c, first), first_c, [({"score": 2.0}, twin_c)],
-                     first_c.zero_values(exp)),
-               Added(_entry(grav, current), grav, [], grav.zero_values(first.experiment))]
+    current, history = _two_rounds(diag, exp, "damping.mass", "damping.stiffness")
     import dataclasses
 
     # taken out with nothing in its place the damping is missed; the runner-up ties
