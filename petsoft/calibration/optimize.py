@@ -515,7 +515,7 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
             + (f" (p = {np.array2string(to_p(z0))})" if scaling is not None else "")
             + ": the forward model failed there; start elsewhere or tighten the bounds")
     if method in ("gd", "gauss-newton"):
-        res = _own_method(method, ev, z0, lo, hi, o, prefix, record, scaling)
+        res = _own_method(method, ev, z0, lo, hi, o, prefix, record, scaling, history)
     elif method == "nelder-mead":
         # TAO nm's simplex can collapse in a narrow curved valley and report convergence at a
         # non-stationary point (seen on the shifted oscillation: f = 0.386 instead of 0.192 from
@@ -551,15 +551,13 @@ class _StopRequested(Exception):
     """Raised by an own method's ``record`` when the caller's ``stop`` asks to end there."""
 
 
-def _own_method(method, ev: _Evaluator, z0, lo, hi, o, prefix, record, scaling) -> OptimizeResult:
+def _own_method(method, ev: _Evaluator, z0, lo, hi, o, prefix, record, scaling,
+                history: list[IterationRecord]) -> OptimizeResult:
     """Gradient descent or Levenberg-Marquardt; a caller's stop ends either at the iterate it
-    was asked at (the last record)."""
-    history: list[IterationRecord] = []
+    was asked at (the last of ``history``, which ``record`` appends to)."""
 
     def stoppable(it, z, f, gnorm, step=float("nan")):
-        stopped = record(it, z, f, gnorm, step)
-        history.append((int(it), np.array(z, dtype=float), float(f), float(gnorm)))
-        if stopped:
+        if record(it, z, f, gnorm, step):
             raise _StopRequested
 
     try:
@@ -569,8 +567,9 @@ def _own_method(method, ev: _Evaluator, z0, lo, hi, o, prefix, record, scaling) 
                   else np.asarray(scaling.is_log, dtype=bool))
         return _levenberg_marquardt(ev, z0, lo, hi, o, prefix, stoppable, is_log)
     except _StopRequested:
-        it, z, f, gnorm = history[-1]
-        return OptimizeResult(method, z, z, f, gnorm, it, ev.count, STOPPED, False,
+        last = history[-1]
+        return OptimizeResult(method, last.z, last.z, last.f, last.gnorm, last.iteration,
+                              ev.count, STOPPED, False,
                               hessian="gauss-newton" if method == "gauss-newton" else "")
 
 

@@ -280,6 +280,13 @@ class Diagnosis:
         if self.say is not None and self.rank0:
             self.say(f"[{time.perf_counter() - self.t0:7.1f} s] {line}")
 
+    def _group_says(self, comm, line: str) -> None:
+        """A progress line of work on a group of ranks (a candidate fit), said by the group's
+        first rank and indented as a fit's lines (:meth:`tell` speaks for rank 0 only)."""
+        if self.say is not None and petsc_comm(comm).tompi4py().rank == 0:
+            touch()
+            self.say(f"[{time.perf_counter() - self.t0:7.1f} s]   {line}")
+
     # -- fitting ----------------------------------------------------------------------------
     def frequency_matched(self, experiment, sim: np.ndarray | None = None, comm=None,
                           label: str = "fit", target: float = 1.0):
@@ -430,10 +437,7 @@ class Diagnosis:
             stop = CannotWin(*best, max_it=max_it)
             result = self.calibrate(ext, comm=sub, label=label, known=known, stop=stop)
             if result.stopped:
-                if self.say is not None and petsc_comm(sub).tompi4py().rank == 0:
-                    touch()
-                    self.say(f"[{time.perf_counter() - self.t0:7.1f} s]   {label}: "
-                             f"{result.stopped}")
+                self._group_says(sub, f"{label}: {result.stopped}")
             else:
                 best = min(best, (result.chi2 / 2.0, item[1].physics))
             return result
@@ -464,12 +468,9 @@ class Diagnosis:
                    for v in values]
         gc.collect()                    # every rank, same point (see run_diagnose)
         best = int(np.argmin(misfits))
-        if self.say is not None and petsc_comm(comm).tompi4py().rank == 0:
-            touch()
-            self.say(f"[{time.perf_counter() - self.t0:7.1f} s]   {label}: {name} by decades "
-                     f"{values[0]:.3g} .. {values[-1]:.3g}: chi2 "
-                     + " ".join(f"{m:.4g}" for m in misfits)
-                     + f"; the fit starts at {values[best]:.3g}")
+        self._group_says(comm, f"{label}: {name} by decades {values[0]:.3g} .. "
+                               f"{values[-1]:.3g}: chi2 " + " ".join(f"{m:.4g}" for m in misfits)
+                         + f"; the fit starts at {values[best]:.3g}")
         return with_parameters(ext, {name: values[best]}) if best else ext
 
     def known_start(self, ext, current: Fit) -> tuple | None:
