@@ -42,15 +42,18 @@ def _entry(c, fit):
             "parameters": {n: float(fit.values[fit.names.index(n)]) for n in c.parameters}}
 
 
-def _two_rounds(diag, exp, first_physics, runner_up):
+def _two_rounds(diag, exp, first_physics, runner_up, untried=False):
     """(current fit, history) of a diagnosis that added ``first_physics`` in round 1 (with
-    ``runner_up`` its round's runner-up) and gravity in round 2."""
+    ``runner_up`` its round's runner-up, or with ``untried`` the candidate its shortlist left
+    out as a repeat of a drag's first-order change) and gravity in round 2."""
     first_c, runner = _candidate(exp, first_physics), _candidate(exp, runner_up)
     first = diag.calibrate(first_c.extend(exp))
     grav = _candidate(first.experiment, "gravity")
     current = diag.calibrate(grav.extend(first.experiment))
-    return current, [Added(_entry(first_c, first), first_c, [({"score": 2.0}, runner)],
-                           first_c.zero_values(exp)),
+    other = ([({"score": 2.0, "_repeats": "drag.quadratic"}, runner)] if untried
+             else [({"score": 2.0}, runner)])
+    return current, [Added(_entry(first_c, first), first_c, [] if untried else other,
+                           first_c.zero_values(exp), untried=other if untried else []),
                      Added(_entry(grav, current), grav, [], grav.zero_values(first.experiment))]
 
 
@@ -66,17 +69,25 @@ def test_retract_takes_a_term_out_again(diag_exp):
         assert all(get_parameter(back, n) == v for n, v in zeros.items())
 
 
-def test_a_wrong_first_term_is_replaced_once_the_second_is_in(diag_exp):
+@pytest.mark.parametrize("untried", [False, True], ids=["runner-up", "left-out-twin"])
+def test_a_wrong_first_term_is_replaced_once_the_second_is_in(diag_exp, untried):
+    """Also when the mass damping was not fitted in round 1 at all: the shortlist left it out
+    as a repeat of a fitted drag's first-order change (bench_diagnose's damping+mass at
+    6b0005d), and the reconsideration tries it all the same."""
     diag, exp = diag_exp
-    current, history = _two_rounds(diag, exp, "damping.stiffness", "damping.mass")
+    current, history = _two_rounds(diag, exp, "damping.stiffness", "damping.mass", untried)
     rejected = []
     final = reconsider(diag, current, history, rejected)
     assert [h.candidate.physics for h in history] == ["damping.mass", "gravity"]
+    assert ("not fitted there (its first-order change repeated drag.quadratic's)"
+            in history[0].entry["evidence"]) == untried
     assert final.heldout_rms < current.heldout_rms
     alpha = history[0].entry["parameters"]["damping.mass"]
     assert abs(alpha - TRUE_ALPHA) < max(3.0 * history[0].entry["std"]["damping.mass"], 1.0)
     assert rejected and rejected[0]["physics"] == "damping.stiffness"
     assert "replaced by damping.mass" in rejected[0]["reason"]
+    if untried:
+        return          # the rule's own checks below need no second run
     # the rule: a lower chi2 + k ln n (by more than 2) and a held-out rms no worse (2 %)
     assert better_replacement(diag, final, current, 0)
     assert not better_replacement(diag, current, final, 0)

@@ -42,30 +42,32 @@ def _ranked(extra_score: float, repeated: bool = True):
 
 
 def test_a_repeated_change_gives_its_place_to_a_new_one():
-    picked, line = shortlist(_ranked(7.10e4), 4)
+    picked, line, left_out = shortlist(_ranked(7.10e4), 4)
     names = [c.physics for _, c in picked]
     assert names == ["friction.dry", "drag.quadratic", "damping.mass", "mass.added"]
     assert "mass.added" in line and "in place of drag.linear" in line
     assert "repeats" in line and "84%" in line
+    # the one that gave its place, and whose change it repeats (for the reconsideration)
+    assert [(s["_repeats"], c.physics) for s, c in left_out] == [("friction.dry", "drag.linear")]
 
 
 def test_the_best_four_stay_when_nothing_new_scores_half_the_best():
-    picked, line = shortlist(_ranked(0.4 * 8.41e4), 4)
+    picked, line, left_out = shortlist(_ranked(0.4 * 8.41e4), 4)
     assert [c.physics for _, c in picked] == ["friction.dry", "drag.quadratic", "damping.mass",
                                               "drag.linear"]
-    assert line is None
+    assert line is None and left_out == []
 
 
 def test_distinct_changes_are_all_kept():
-    picked, line = shortlist(_ranked(7.10e4, repeated=False), 4)
-    assert line is None and len(picked) == 4
+    picked, line, left_out = shortlist(_ranked(7.10e4, repeated=False), 4)
+    assert line is None and len(picked) == 4 and left_out == []
     assert "mass.added" not in [c.physics for _, c in picked]
 
 
 def test_a_candidate_without_a_direction_is_neither_a_repeat_nor_promoted():
     ranked = _ranked(1.0)[:4] + [_entry("gravity", 8e4, None)]
-    picked, line = shortlist(ranked, 4)
-    assert line is None and "gravity" not in [c.physics for _, c in picked]
+    picked, line, left_out = shortlist(ranked, 4)
+    assert line is None and left_out == [] and "gravity" not in [c.physics for _, c in picked]
 
 
 def test_the_score_direction_is_the_projected_column():

@@ -238,7 +238,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         # by log p (p underflows to 0 for strong candidates of different dof), then S
         scores.sort(key=lambda sc: (sc[0]["log10_p"], -sc[0]["score"]))
         ranked_significant = [(s, c) for s, c in scores if s["p_value"] < diag.alpha]
-        significant, exchanged = shortlist(ranked_significant, max_tries)
+        significant, exchanged, left_out = shortlist(ranked_significant, max_tries)
         if exchanged:
             diag.tell(exchanged)
         for s, _ in scores:
@@ -272,7 +272,9 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             break
         added.append(accepted[0])
         history.append(Added(accepted[0], choice.candidate, choice.alternatives,
-                             choice.candidate.zero_values(current.experiment)))
+                             choice.candidate.zero_values(current.experiment),
+                             untried=[(s, c) for s, c in left_out
+                                      if c.physics != choice.candidate.physics]))
         current = accepted[1]
         ev = evidence_of(diag, current)
         diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")

@@ -17,11 +17,19 @@ the identification window better by that criterion (by more than
 quadratic one predicted the held-out window 8 % better but fitted 2450 worse in chi2; a rule
 on the held-out window alone took it (the verdict went from consistent to missing-physics)
 before the true mass damping, third in round 1, was tried.
+
+A candidate its round's shortlist left out because its first-order change repeated a fitted
+one's (:func:`~petsoft.diagnosis.selection.shortlist`, :attr:`Added.untried`) is tried in the
+term's place too, after the runners-up: to first order it is the same change as a fitted
+candidate, but the fit beside the later terms may tell them apart. On ``bench_diagnose``'s
+cantilever with a mass damping and an added mass (6b0005d), the mass damping gave its place in
+round 1 as a repeat of the quadratic drag (|cos| 1.000), round 1 added a stiffness damping and
+round 2 the added mass, and the mass damping was never tried in the stiffness damping's place.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,12 +44,24 @@ MAX_ALTERNATIVES = 3
 @dataclass
 class Added:
     """One round's addition: its report entry, its candidate, the round's runners-up (score
-    entry, candidate) and its parameters' values before it was added (to take it out)."""
+    entry, candidate), its parameters' values before it was added (to take it out) and the
+    round's candidates left out of its shortlist as repeats of a fitted one (score entry with
+    ``_repeats``, candidate)."""
 
     entry: dict
     candidate: object
     alternatives: list
     zeros: dict
+    untried: list = field(default_factory=list)
+
+
+def _what(s: dict, i: int) -> str:
+    """What an option of round ``i`` (0-based) was: a runner-up, or a candidate the shortlist
+    left out as a repeat of another's first-order change."""
+    if s.get("_repeats"):
+        return (f"round {i + 1}'s candidate not fitted there (its first-order change repeated "
+                f"{s['_repeats']}'s)")
+    return f"round {i + 1}'s runner-up"
 
 
 def _penalty(diag: Diagnosis) -> float:
@@ -89,15 +109,14 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
         # later one: the bracket's added mass was first taken for a quadratic drag, which
         # the added mass then left at zero)
         options = [(None, None)] + [
-            (s, alt) for s, alt in added.alternatives[:MAX_ALTERNATIVES]
+            (s, alt) for s, alt in added.alternatives[:MAX_ALTERNATIVES] + added.untried
             if alt.retractable and not any(h is not None and h.candidate.physics == alt.physics
                                            for h in history)]
         for s, alt in options:
             label = (f"reconsider {cand.physics} -> {alt.physics}" if alt is not None
                      else f"reconsider without {cand.physics}")
-            diag.tell(f"{label}: " + (f"round {i + 1}'s runner-up in its place"
-                                      if alt is not None else "taken out")
-                      + f", with {later} in")
+            diag.tell(f"{label}: " + (_what(s, i) + " in its place" if alt is not None
+                                      else "taken out") + f", with {later} in")
             without = cand.retract(current.experiment, added.zeros)
             try:
                 fit = diag.calibrate(alt.extend(without) if alt is not None else without,
@@ -140,7 +159,7 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
                                    f"{later} were in ({change})"})
         entry = dict(added.entry)
         entry.update(physics=alt.physics, score=s["score"], region=alt.region, rms_after=fit.rms,
-                     evidence=(f"round {i + 1}'s runner-up (score S = {s['score']:.4g}); "
+                     evidence=(f"{_what(s, i)} (score S = {s['score']:.4g}); "
                                f"replaced {cand.physics} once {later} were in: chi2 "
                                f"{current.chi2:.6g} -> {fit.chi2:.6g}, held-out rms "
                                f"{fmt(current.heldout_rms)} -> {fmt(fit.heldout_rms)} m"

@@ -164,7 +164,7 @@ def _repeats(entry: dict, others: list[dict]) -> tuple[dict, float] | None:
     return None
 
 
-def shortlist(ranked: list, max_tries: int) -> tuple[list, str | None]:
+def shortlist(ranked: list, max_tries: int) -> tuple[list, str | None, list]:
     """The candidates of a round to fit: the ``max_tries`` best of ``ranked`` (significant
     (score entry, candidate) pairs, best first), except that the last of them whose first-order
     change repeats a better one's (:data:`DUPLICATE_COS`) gives its place to the best candidate
@@ -173,28 +173,41 @@ def shortlist(ranked: list, max_tries: int) -> tuple[list, str | None]:
     (dry friction, quadratic and linear drag, mass damping; scores 7.1e4-8.4e4, directions
     |cos| 0.96-0.996 apart) filled the shortlist two runs in a row and the added mass (7.1e4,
     fifth by 0.5 %, |cos| 0.38-0.43 with them) was not fitted in round 1, which then took a
-    drag for it; now the linear drag gives it its place. Returns (the pairs to fit, a line
-    saying what was exchanged, or None)."""
+    drag for it; now the linear drag gives it its place.
+
+    Returns
+    -------
+    picked : list
+        The (score entry, candidate) pairs to fit.
+    line : str or None
+        What was exchanged, for the log and the report.
+    left_out : list
+        The (score entry, candidate) pair that gave its place (empty when none did): a twin
+        of a fitted candidate to first order (its entry's ``_repeats`` names which), which
+        :mod:`petsoft.diagnosis.reconsider` still tries in the place of the term its round
+        adds.
+    """
     top, rest = list(ranked[:max_tries]), ranked[max_tries:]
     if not rest or not top:
-        return top, None
+        return top, None, []
     best = max(s["score"] for s, _ in ranked)
     repeating = [i for i in range(1, len(top))
                  if _repeats(top[i][0], [s for s, _ in top[:i]]) is not None]
     if not repeating:
-        return top, None
+        return top, None, []
     new = next(((s, c) for s, c in rest
                 if s["score"] >= DISTINCT_SHARE * best and s.get("_direction") is not None
                 and _repeats(s, [e for e, _ in top]) is None), None)
     if new is None:
-        return top, None
+        return top, None, []
     i = repeating[-1]
     (_, out_c), (twin, cos) = top[i], _repeats(top[i][0], [s for s, _ in top[:i]])
     picked = top[:i] + top[i + 1:] + [new]
+    top[i][0]["_repeats"] = twin["physics"]
     return picked, (f"shortlist: {new[1].physics} (S = {new[0]['score']:.4g}, "
                     f"{new[0]['score'] / best:.0%} of the best) is fitted in place of "
                     f"{out_c.physics}, whose first-order change repeats {twin['physics']}'s "
-                    f"(|cos| {cos:.3f})")
+                    f"(|cos| {cos:.3f})"), [top[i]]
 
 
 def worth_fitting(significant: list) -> tuple[list, list]:
