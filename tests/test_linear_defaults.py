@@ -40,8 +40,8 @@ def test_large_or_user_chosen_systems_keep_their_solver():
     linear_defaults(ksp, dofs=DIRECT_DOFS + 1)
     assert ksp.getType() == PETSc.KSP.Type.CG
     ksp.destroy()
-    # 10-node elements: direct far longer (denser rows; bench_linear_solvers.py --order 2)
-    for dofs, expected in ((DIRECT_DOFS + 1, PETSc.KSP.Type.PREONLY),
+    # 10-node elements: their own limit
+    for dofs, expected in ((DIRECT_DOFS_QUADRATIC, PETSc.KSP.Type.PREONLY),
                            (DIRECT_DOFS_QUADRATIC + 1, PETSc.KSP.Type.CG)):
         ksp = _ksp(PETSc.COMM_SELF, "ld_quadratic_")
         linear_defaults(ksp, dofs=dofs, order=2)

@@ -7,16 +7,23 @@ from contextlib import contextmanager
 
 from petsc4py import PETSc
 
-#: Systems up to this many dofs are solved directly by default: a forward run or a calibration
-#: makes thousands of solves, and on a few thousand dofs one factorisation costs less than an
-#: algebraic-multigrid set-up plus its iterations (scripts/benchmarks/bench_linear_solvers.py).
-DIRECT_DOFS = 6000
+#: Systems up to this many dofs are solved directly by default (on one rank): a forward run or
+#: a calibration makes thousands of solves, and since the steps factor once (the chord method,
+#: :func:`factor_once_per_step`) and forward runs keep their factors across steps, one
+#: factorisation serves many solves. Measured with ``ForwardModel.simulate`` on bench_forward's
+#: neo-Hookean bar (generalized-alpha, 1 rank, this limit patched to one or the other): 46,644
+#: dofs 0.84 s a step against CG + GAMG's 3.59 s (trajectories equal to 7e-15 m); 125,388 dofs
+#: 5.4 s against 11.1 s, peak memory 1.9 GB against 1.5 GB. The limit was 6000 before the chord
+#: (bench_linear_solvers.py: one factorisation against one multigrid set-up per solve).
+DIRECT_DOFS = 100_000
 #: The same for 10-node tetrahedra, whose denser rows favour the direct solve far longer:
 #: generalized-alpha runs of a linear bar (bench_linear_solvers.py --order 2, 1 rank, at
 #: ecf72b0) took 0.23x / 0.29x / 0.30x CG + GAMG's time a step at 1875 / 11907 / 37011 dofs
 #: (MUMPS's symmetric factor); CG + GAMG on a neo-Hookean bar broke down (indefinite Newton
-#: iterate) where the direct solve went on.
-DIRECT_DOFS_QUADRATIC = 40000
+#: iterate) where the direct solve went on. With the chord, the same neo-Hookean forward run as
+#: above at 72,225 dofs of 10-node elements: 2.66 s a step against CG + GAMG's 13.0 s (peak
+#: memory 1.33 GB against 1.08 GB). The limit was 40,000.
+DIRECT_DOFS_QUADRATIC = 100_000
 #: Up to this many dofs the direct solve is PETSc's own LU with a nested-dissection ordering:
 #: MUMPS costs ~1.5 ms a factorisation whatever the size (its set-up per call), which was most of
 #: a 351-dof bar's Newton iteration; PETSc's LU is faster up to ~1200 dofs, MUMPS beyond
