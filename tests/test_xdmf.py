@@ -328,29 +328,76 @@ def test_failure_while_updating_xdmf(tmp_path, mesh, monkeypatch):
     with pytest.raises(OSError, match="short write"):
         out.write(1.0, {"u": mesh.points})
     monkeypatch.undo()
-    assert path.read_bytes() == before and out.num_frames == 1
+    # the frame's place is left a comment: the same series, and the next frame goes after it
+    assert len(path.read_bytes()) == len(before) and out.num_frames == 1
+    assert [f[0] for f in _read_series(path)[2]] == [0.0]
     out.write(2.0, {"u": mesh.points})
     out.close()
     assert [f[0] for f in _read_series(path)[2]] == [0.0, 2.0]
 
 
-def test_frames_are_appended_in_place(tmp_path, mesh):
-    """Each frame adds the same number of bytes and leaves every byte before the closing tags
-    as it was (O(1) a frame, not a rewrite of the whole series)."""
+def test_frames_are_written_in_place(tmp_path, mesh):
+    """Each frame goes into the reserve of spaces before the closing tags: the file keeps its
+    size and every byte before the frame's place (O(1) a frame, not a rewrite of the series)
+    until the reserve is used up; then the document is made anew with a reserve as large as
+    itself, and close() removes the reserve."""
     path = tmp_path / "run.xdmf"
     out = XdmfWriter(path, mesh.points, mesh.tets)
-    sizes, docs = [], []
-    for k in range(6):
+    docs = []
+    for k in range(60):
         out.write(float(k), {"u": mesh.points * k})
         docs.append(path.read_bytes())
-        sizes.append(len(docs[-1]))
+    sizes = [len(d) for d in docs]
+    remade = [k for k in range(1, 60) if sizes[k] != sizes[k - 1]]
+    assert 1 <= len(remade) <= 3, sizes          # 16 kB, then doubling
+    assert all(sizes[k] >= 2 * sizes[k - 1] - 4096 for k in remade)
+    for k in range(1, 60):
+        if k not in remade:
+            tail = len(b"</Grid>\n</Domain>\n</Xdmf>\n")
+            start = len(docs[k - 1][:-tail].rstrip(b" "))      # where the last frame ends
+            assert docs[k][:start] == docs[k - 1][:start]
+    assert docs[-1].count(b"<!--") == docs[-1].count(b"-->") == 0
     out.close()
-    growth = np.diff(sizes[1:])
-    assert np.all(np.abs(growth - growth[0]) <= 4), sizes      # (digits of k and of the time)
-    tail = len(b"</Grid>\n</Domain>\n</Xdmf>\n")
-    for old, new in zip(docs[:-1], docs[1:], strict=True):
-        assert new.startswith(old[:-tail])
-    assert [f[0] for f in _read_series(path)[2]] == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+    closed = path.read_bytes()
+    assert len(closed) < len(docs[-1]) and b"    \n</Grid>" not in closed
+    assert [f[0] for f in _read_series(path)[2]] == [float(k) for k in range(60)]
+
+
+def test_every_write_of_a_frame_leaves_a_well_formed_document(tmp_path, mesh, monkeypatch):
+    """A process killed during a frame's update leaves what its writes made so far, a write to
+    a regular file torn at a page boundary: before every write of the .xdmf, the document with
+    that write done up to any byte (the markers' writes, within one page, whole or not at all)
+    must parse. Also with a name holding "--", which a comment cannot (the document is made
+    anew for that frame)."""
+    import mmap
+
+    path = tmp_path / "run.xdmf"
+    out = XdmfWriter(path, mesh.points, mesh.tets)
+    out.write(0.0, {"u": mesh.points})
+    real = os.pwrite
+    writes = []
+
+    def checked(fd, data, offset):
+        doc = bytearray(path.read_bytes())
+        small = len(data) <= 4
+        if small:
+            assert offset // mmap.PAGESIZE == (offset + len(data) - 1) // mmap.PAGESIZE
+        for cut in ((0, len(data)) if small else range(0, len(data) + 1, 7)):
+            torn = doc.copy()
+            torn[offset:offset + cut] = data[:cut]
+            ET.fromstring(bytes(torn))
+        writes.append(len(data))
+        return real(fd, data, offset)
+
+    monkeypatch.setattr(xdmf_mod.os, "pwrite", checked)
+    for k in range(1, 25):
+        out.write(float(k), {"u": mesh.points * k} if k != 7 else {"a--b": mesh.points})
+    monkeypatch.undo()
+    assert len(writes) >= 5 * 20        # five writes a frame in place
+    out.close()
+    frames = _read_series(path)[2]
+    assert [f[0] for f in frames] == [float(k) for k in range(25)]
+    assert list(frames[7][1]) == ["a--b"]
 
 
 # Before each frame had its own file, this failed now and then (2 of ~30 CI runs): a writer
