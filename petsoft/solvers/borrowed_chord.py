@@ -131,9 +131,10 @@ class ChordBorrower:
         made it), where the stepper's solver is the default direct chord and its Jacobian is
         not constant (a constant one is factored once anyway). The run's steps
         then converge to the same tolerances from other Jacobians: the trajectory equals one
-        made without to that tolerance, not bit for bit, and a run restarted mid-way would not
-        repeat it bit for bit: for runs that are not checkpointed
-        (:meth:`petsoft.calibration.forward.ForwardModel.simulate`)."""
+        made without to that tolerance, not bit for bit. Calling it again (``True``) makes the
+        next step factor afresh: a checkpointed run (:class:`petsoft.dynamics.simulate.
+        Simulation`) does after each checkpoint, so that a run restarted there, whose first
+        step factors afresh, repeats the uninterrupted one bit for bit."""
         self._keep_factors = bool(on)
         self._kept = None
 
