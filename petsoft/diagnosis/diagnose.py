@@ -273,8 +273,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         added.append(accepted[0])
         history.append(Added(accepted[0], choice.candidate, choice.alternatives,
                              choice.candidate.zero_values(current.experiment),
-                             untried=[(s, c) for s, c in left_out
-                                      if c.physics != choice.candidate.physics]))
+                             untried=left_out))
         current = accepted[1]
         ev = evidence_of(diag, current)
         diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")

@@ -322,38 +322,6 @@ def _pwrite_all(fd: int, data: bytes, offset: int, path: Path) -> None:
                       "added")
 
 
-def _write_into_reserve(path: Path, at: int, end: int, text: bytes, fsync: bool,
-                        placed: list) -> int | None:
-    """Put ``text`` into the reserve of spaces ``[at, end)`` of the ``.xdmf`` by the commented
-    writes of the module docstring; returns where the reserve now starts, or None (nothing
-    written) when ``text`` holds ``--`` or does not fit. Once the first marker is written,
-    ``placed`` holds where the reserve starts after this frame's place, also when a later
-    write fails (the place is a comment or stray text then, never to be written again)."""
-    if b"--" in text:
-        return None
-    opener = at if _within_one_page(at, len(_OPEN)) else _page_after(at)
-    closer = opener + len(_OPEN) + len(text)
-    if not _within_one_page(closer, len(_CLOSE)):
-        closer = _page_after(closer)
-    if closer + len(_CLOSE) > end:
-        return None
-    fd = os.open(path, os.O_WRONLY)
-    try:
-        placed.append(closer + len(_CLOSE))
-        _pwrite_all(fd, _CLOSE, closer, path)
-        _pwrite_all(fd, _OPEN, opener, path)
-        _pwrite_all(fd, text, opener + len(_OPEN), path)
-        if fsync:
-            os.fsync(fd)      # the frame's text before the writes that make it part of the series
-        _pwrite_all(fd, b" " * len(_OPEN), opener, path)
-        _pwrite_all(fd, b" " * len(_CLOSE), closer, path)
-        if fsync:
-            os.fsync(fd)
-    finally:
-        os.close(fd)
-    return closer + len(_CLOSE)
-
-
 def _read_prefix(path: Path, size: int) -> bytes:
     with open(path, "rb") as f:
         data = f.read(size)
@@ -573,20 +541,44 @@ class XdmfWriter:
             )
             grids.append(_grid(f"frame_{k0 + j}", self._mesh_xml, fields, time=t))
         text = "".join(grids).encode("utf-8")
-        placed: list[int] = []
-        try:
-            at = (_write_into_reserve(self.path, self._reserve_at, self._tail_at, text,
-                                      self.fsync, placed) if k0 else None)
-        finally:
-            if placed:
-                self._reserve_at = placed[0]
-        if at is None:
+        if not (k0 and self._write_into_reserve(text)):
             body = (_read_prefix(self.path, self._reserve_at) if k0
                     else (_DOC_HEAD + _SERIES_HEAD).encode("utf-8")) + text
             self._recreate(body, reserve=max(_RESERVE_MIN, len(body)))
         self.times.extend(t for t, _, _ in batch)
         self._pending, self._pending_bytes = [], 0
         self._flushed_at = perf_counter()
+
+    def _write_into_reserve(self, text: bytes) -> bool:
+        """Put ``text`` into the reserve of spaces of the ``.xdmf`` by the commented writes of
+        the module docstring; False (nothing written) when ``text`` holds ``--`` or does not
+        fit. The reserve starts after this frame's place from the first write on, also when a
+        later write fails (the place is a comment or stray text then, never written again)."""
+        if b"--" in text:
+            return False
+        at = self._reserve_at
+        opener = at if _within_one_page(at, len(_OPEN)) else _page_after(at)
+        closer = opener + len(_OPEN) + len(text)
+        if not _within_one_page(closer, len(_CLOSE)):
+            closer = _page_after(closer)
+        if closer + len(_CLOSE) > self._tail_at:
+            return False
+        path = self.path
+        fd = os.open(path, os.O_WRONLY)
+        try:
+            self._reserve_at = closer + len(_CLOSE)
+            _pwrite_all(fd, _CLOSE, closer, path)
+            _pwrite_all(fd, _OPEN, opener, path)
+            _pwrite_all(fd, text, opener + len(_OPEN), path)
+            if self.fsync:
+                os.fsync(fd)    # the frame's text before the writes that make it part of the series
+            _pwrite_all(fd, b" " * len(_OPEN), opener, path)
+            _pwrite_all(fd, b" " * len(_CLOSE), closer, path)
+            if self.fsync:
+                os.fsync(fd)
+        finally:
+            os.close(fd)
+        return True
 
     def _recreate(self, body: bytes, reserve: int) -> None:
         """Write the ``.xdmf`` anew (temporary file, rename): ``body`` (the document up to the
