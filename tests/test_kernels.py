@@ -400,3 +400,78 @@ def test_linear_projection_with_nonphysical_parameters(mu, lam, rng):
     assert np.abs(H_full - H_ref).max() > 1e-3 * scale.max()
     assert np.all(np.abs(H_c - H_ref) <= 1e-12 * scale)
     assert np.all(np.linalg.eigvalsh(H_c).min(axis=1) > -1e-12 * scale[:, 0, 0])
+
+
+def _shared_node_mesh(rng, n_elements=60, n_nodes=40):
+    """Random tetrahedra sharing nodes (so the scatter adds), with their node displacements."""
+    points = rng.standard_normal((n_nodes, 3))
+    cells = np.array([rng.choice(n_nodes, 4, replace=False) for _ in range(3 * n_elements)])
+    dN, vol = mesh_shape_gradients(points, cells[:, [0, 1, 2, 3]])
+    flip = vol < 0
+    cells[flip] = cells[flip][:, [0, 2, 1, 3]]
+    dN, vol = mesh_shape_gradients(points, cells)
+    u = 0.02 * rng.standard_normal((n_nodes, 3))
+    keep = (np.abs(vol) > 1e-3) & (np.linalg.det(reference.deformation_gradient(dN, u[cells]))
+                                    > 0.3)
+    cells, dN, vol = cells[keep][:n_elements], dN[keep][:n_elements], vol[keep][:n_elements]
+    assert len(cells) == n_elements
+    mu, lam = rng.uniform(0.5, 2.0, n_elements), rng.uniform(0.5, 5.0, n_elements)
+    return cells.astype(np.int64), np.ascontiguousarray(dN), vol, u, mu, lam
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+@pytest.mark.parametrize("model", MODELS)
+def test_indexed_gradient_is_the_scattered_element_gradients(model, backend, rng):
+    cells, dN, vol, u, mu, lam = _shared_node_mesh(rng)
+    g, _ = reference.element_gradient_hessian(model, dN, vol, u[cells], mu, lam, hessian=False)
+    expected = np.full(u.shape, 0.5)        # added to what the output holds
+    np.add.at(expected, cells, g.reshape(-1, 4, 3))
+    out = np.full(u.shape, 0.5)
+    gradient = elastic.IndexedGradient(model, cells, dN, vol, mu, lam, len(u), backend=backend)
+    gradient.add(u, out)
+    np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    # the Lame parameters are read at every call: changed in place, the law changes
+    mu *= 2.0
+    lam *= 2.0
+    out[:] = 0.0
+    gradient.add(u.ravel(), out.reshape(-1))
+    np.testing.assert_allclose(out, 2.0 * (expected - 0.5), rtol=1e-12,
+                               atol=1e-12 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_indexed_gradient_names_the_inverted_element(backend, rng):
+    cells, dN, vol, u, mu, lam = _shared_node_mesh(rng)
+    bad = 17
+    u_bad = u.copy()
+    # move its first node through the opposite face: det(I + d (x) dN_a) = 1 + dN_a . d = -1
+    grad_a = dN[bad, 0]
+    u_bad[cells[bad, 0]] += -2.0 * grad_a / grad_a.dot(grad_a)
+    X = np.linalg.det(reference.deformation_gradient(dN, u_bad[cells]))
+    first = int(np.flatnonzero(X <= 0)[0])
+    gradient = elastic.IndexedGradient("neohookean", cells, dN, vol, mu, lam, len(u),
+                                       backend=backend)
+    with pytest.raises(InvertedElementError) as err:
+        gradient.add(u_bad, np.zeros_like(u))
+    assert err.value.element == first
+
+
+def test_indexed_gradient_rejects_bad_arrays(rng):
+    cells, dN, vol, u, mu, lam = _shared_node_mesh(rng)
+    with pytest.raises(ValueError, match="conn names nodes"):
+        compiled.IndexedGradient("linear", cells, dN, vol, mu, lam, int(cells.max()))
+    with pytest.raises(ValueError, match="mu must be"):
+        compiled.IndexedGradient("linear", cells, dN, vol, mu[:-1], lam, len(u))
+    with pytest.raises(ValueError, match="dN must be"):
+        compiled.IndexedGradient("linear", cells, np.asfortranarray(dN), vol, mu, lam, len(u))
+    with pytest.raises(MeshError):
+        compiled.IndexedGradient("linear", cells, dN, -vol, mu, lam, len(u))
+    with pytest.raises(PetsoftError):
+        compiled.IndexedGradient("rubber", cells, dN, vol, mu, lam, len(u))
+    gradient = compiled.IndexedGradient("linear", cells, dN, vol, mu, lam, len(u))
+    with pytest.raises(ValueError, match="nodal arrays"):
+        gradient.add(u[:-1], np.zeros_like(u))
+    with pytest.raises(ValueError, match="nodal arrays"):
+        gradient.add(u, np.zeros(u.shape, np.float32))
+    with pytest.raises(ValueError, match="nodal arrays"):
+        gradient.add(np.asfortranarray(u), np.zeros_like(u))

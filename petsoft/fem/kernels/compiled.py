@@ -25,6 +25,8 @@ _lib.petsoft_elastic_energy.argtypes = [_i32, _i64] + [_ptr] * 7
 _lib.petsoft_elastic_energy.restype = _i64
 _lib.petsoft_elastic_gradient_hessian.argtypes = [_i32, _i64] + [_ptr] * 5 + [_i32] + [_ptr] * 3
 _lib.petsoft_elastic_gradient_hessian.restype = _i64
+_lib.petsoft_elastic_gradient_indexed.argtypes = [_i32, _i64] + [_ptr] * 8
+_lib.petsoft_elastic_gradient_indexed.restype = _i64
 _lib.petsoft_material_response.argtypes = [_i32, _i64] + [_ptr] * 7
 _lib.petsoft_material_response.restype = _i64
 _lib.petsoft_elastic_quadrature.argtypes = ([_i32, _i64, _i32, _i32] + [_ptr] * 5 + [_i32]
@@ -40,6 +42,7 @@ __all__ = [
     "element_energy",
     "element_gradient_hessian",
     "element_gradient_hessian_into",
+    "IndexedGradient",
     "material_response",
     "project_spd",
     "quadrature_into",
@@ -172,6 +175,72 @@ def element_gradient_hessian_into(
         ctypes.addressof(bad_J),
     )  # fmt: skip
     _check_status(status, bad_J)
+
+
+class IndexedGradient:
+    """The assembled gradient of a fixed set of 4-node elements, added into a nodal array:
+    the gather of each element's displacements, the element loop and the scatter in one C call.
+
+    The residual's path: the element arrays are checked here once and their addresses kept
+    (they are held, so the addresses stay valid; their values may change in place, as a
+    calibration's new Lame parameters do), and a call checks only the two nodal arrays.
+
+    Parameters
+    ----------
+    model : str
+    conn : ndarray (n, 4), int64
+        Node indices into the nodal arrays, all below ``nnodes``.
+    dN, volume, mu, lam : ndarray (n, 4, 3), (n,), (n,), (n,), float64, C-contiguous
+        ``mu`` and ``lam`` are read at every call (not copied).
+    nnodes : int
+        Number of nodes of the nodal arrays.
+    """
+
+    def __init__(self, model: str, conn, dN, volume, mu, lam, nnodes: int):
+        self.code = check_model(model)
+        self.conn = np.ascontiguousarray(conn, dtype=np.int64)
+        n = self.conn.shape[0]
+        if self.conn.shape != (n, 4):
+            raise ValueError(f"conn must have shape (n, 4), got {self.conn.shape}")
+        if n and (int(self.conn.min()) < 0 or int(self.conn.max()) >= nnodes):
+            raise ValueError(f"conn names nodes {int(self.conn.min())}..{int(self.conn.max())}"
+                             f" of 0..{nnodes - 1}")
+        for a, shape, name in ((dN, (n, 4, 3), "dN"), (volume, (n,), "volume"),
+                               (mu, (n,), "mu"), (lam, (n,), "lam")):
+            if not isinstance(a, np.ndarray) or a.dtype != np.float64 or a.shape != shape \
+                    or not a.flags.c_contiguous:
+                raise ValueError(f"{name} must be a C-contiguous float64 {shape} array")
+        check_volumes(volume)
+        self.arrays = (dN, volume, mu, lam)
+        self.n, self.size = n, 3 * nnodes
+        self._args = (addr(self.conn), addr(dN), addr(volume))
+        self._lame = (addr(mu), addr(lam))
+        self._bad_J = ctypes.c_double(0.0)
+
+    def add(self, u_nodes: np.ndarray, out: np.ndarray) -> None:
+        """out += sum_e dW_e/du at nodal displacements ``u_nodes``.
+
+        Parameters
+        ----------
+        u_nodes, out : ndarray (nnodes, 3) or (3 nnodes,), float64, C-contiguous
+            (``out`` writeable).
+
+        Raises
+        ------
+        InvertedElementError
+            neo-Hookean with det F <= 0, naming the first such element (of ``conn``); the
+            elements before it have been added.
+        """
+        for a in (u_nodes, out):
+            if a.dtype != np.float64 or a.size != self.size or not a.flags.c_contiguous:
+                raise ValueError(f"nodal arrays must be C-contiguous float64 of {self.size} "
+                                 f"values, got {a.dtype} {a.shape}")
+        if not out.flags.writeable:
+            raise ValueError("out must be writeable")
+        status = _lib.petsoft_elastic_gradient_indexed(
+            self.code, self.n, *self._args, addr(u_nodes), *self._lame, addr(out),
+            ctypes.addressof(self._bad_J))
+        _check_status(status, self._bad_J)
 
 
 def element_gradient_hessian(

@@ -679,6 +679,35 @@ int64_t petsoft_elastic_gradient_hessian(int32_t model, int64_t n, const double 
                                  hessian, bad_jacobian);
 }
 
+/* The residual's path: one call gathers each element's displacements from the nodal array,
+ * evaluates P and adds V P dN_a into the nodal output. A Newton iteration of a small model
+ * spends more in Python around the element loop (gather, checks, scatter) than in it. */
+int64_t petsoft_elastic_gradient_indexed(int32_t model, int64_t n, const int64_t *conn,
+                                         const double *dN, const double *volume,
+                                         const double *u_nodes, const double *mu,
+                                         const double *lam, double *out_nodes,
+                                         double *bad_jacobian)
+{
+    if (model < PETSOFT_MODEL_LINEAR || model > PETSOFT_MODEL_NEOHOOKEAN) return PETSOFT_BAD_MODEL;
+    for (int64_t e = 0; e < n; ++e) {
+        const int64_t *ce = conn + 4 * e;
+        const double *dNe = dN + 12 * e;
+        double ue[12], g[12];
+        for (int a = 0; a < 4; ++a)
+            for (int i = 0; i < 3; ++i) ue[3 * a + i] = u_nodes[3 * ce[a] + i];
+        State s;
+        deformation_gradient(dNe, ue, s.F);
+        if (evaluate(model, &s, mu[e], lam[e], 1)) {
+            if (bad_jacobian) *bad_jacobian = s.J;
+            return e;
+        }
+        element_gradient(&s, dNe, volume[e], g);
+        for (int a = 0; a < 4; ++a)
+            for (int i = 0; i < 3; ++i) out_nodes[3 * ce[a] + i] += g[3 * a + i];
+    }
+    return -1;
+}
+
 int64_t petsoft_elastic_energy(int32_t model, int64_t n, const double *dN, const double *volume,
                                const double *u, const double *mu, const double *lam,
                                double *energy, double *bad_jacobian)

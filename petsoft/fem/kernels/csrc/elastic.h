@@ -43,6 +43,15 @@ int64_t petsoft_elastic_gradient_hessian(int32_t model, int64_t n, const double 
                                          int32_t project_spd, double *gradient, double *hessian,
                                          double *bad_jacobian);
 
+/* Gradients of n elements whose displacements are gathered from u_nodes (nv, 3) through
+ * conn (n, 4) (local node indices), added into out_nodes (nv, 3): the assembled dW/du. Elements
+ * before a failing one have been added. */
+int64_t petsoft_elastic_gradient_indexed(int32_t model, int64_t n, const int64_t *conn,
+                                         const double *dN, const double *volume,
+                                         const double *u_nodes, const double *mu,
+                                         const double *lam, double *out_nodes,
+                                         double *bad_jacobian);
+
 /* Pointwise constitutive law: psi (n,), P (n, 3, 3), dPdF (n, 3, 3, 3, 3) from F (n, 3, 3).
  * P and dPdF may be NULL. */
 int64_t petsoft_material_response(int32_t model, int64_t n, const double *F, const double *mu,
