@@ -421,26 +421,28 @@ def _shared_node_mesh(rng, n_elements=60, n_nodes=40):
 
 @pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("model", MODELS)
-def test_indexed_gradient_is_the_scattered_element_gradients(model, backend, rng):
+def test_indexed_elements_energy_and_scattered_gradient(model, backend, rng):
     cells, dN, vol, u, mu, lam = _shared_node_mesh(rng)
     g, _ = reference.element_gradient_hessian(model, dN, vol, u[cells], mu, lam, hessian=False)
     expected = np.full(u.shape, 0.5)        # added to what the output holds
     np.add.at(expected, cells, g.reshape(-1, 4, 3))
     out = np.full(u.shape, 0.5)
-    gradient = elastic.IndexedGradient(model, cells, dN, vol, mu, lam, len(u), backend=backend)
-    gradient.add(u, out)
+    gradient = elastic.IndexedElements(model, cells, dN, vol, mu, lam, len(u), backend=backend)
+    gradient.add_gradient(u, out)
     np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    energy = reference.element_energy(model, dN, vol, u[cells], mu, lam).sum()
+    assert gradient.energy(u) == pytest.approx(energy, rel=1e-13)
     # the Lame parameters are read at every call: changed in place, the law changes
     mu *= 2.0
     lam *= 2.0
     out[:] = 0.0
-    gradient.add(u.ravel(), out.reshape(-1))
+    gradient.add_gradient(u.ravel(), out.reshape(-1))
     np.testing.assert_allclose(out, 2.0 * (expected - 0.5), rtol=1e-12,
                                atol=1e-12 * np.abs(expected).max())
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
-def test_indexed_gradient_names_the_inverted_element(backend, rng):
+def test_indexed_elements_name_the_inverted_element(backend, rng):
     cells, dN, vol, u, mu, lam = _shared_node_mesh(rng)
     bad = 17
     u_bad = u.copy()
@@ -449,29 +451,34 @@ def test_indexed_gradient_names_the_inverted_element(backend, rng):
     u_bad[cells[bad, 0]] += -2.0 * grad_a / grad_a.dot(grad_a)
     X = np.linalg.det(reference.deformation_gradient(dN, u_bad[cells]))
     first = int(np.flatnonzero(X <= 0)[0])
-    gradient = elastic.IndexedGradient("neohookean", cells, dN, vol, mu, lam, len(u),
+    gradient = elastic.IndexedElements("neohookean", cells, dN, vol, mu, lam, len(u),
                                        backend=backend)
     with pytest.raises(InvertedElementError) as err:
-        gradient.add(u_bad, np.zeros_like(u))
+        gradient.add_gradient(u_bad, np.zeros_like(u))
+    assert err.value.element == first
+    with pytest.raises(InvertedElementError) as err:
+        gradient.energy(u_bad)
     assert err.value.element == first
 
 
-def test_indexed_gradient_rejects_bad_arrays(rng):
+def test_indexed_elements_reject_bad_arrays(rng):
     cells, dN, vol, u, mu, lam = _shared_node_mesh(rng)
     with pytest.raises(ValueError, match="conn names nodes"):
-        compiled.IndexedGradient("linear", cells, dN, vol, mu, lam, int(cells.max()))
+        compiled.IndexedElements("linear", cells, dN, vol, mu, lam, int(cells.max()))
     with pytest.raises(ValueError, match="mu must be"):
-        compiled.IndexedGradient("linear", cells, dN, vol, mu[:-1], lam, len(u))
+        compiled.IndexedElements("linear", cells, dN, vol, mu[:-1], lam, len(u))
     with pytest.raises(ValueError, match="dN must be"):
-        compiled.IndexedGradient("linear", cells, np.asfortranarray(dN), vol, mu, lam, len(u))
+        compiled.IndexedElements("linear", cells, np.asfortranarray(dN), vol, mu, lam, len(u))
     with pytest.raises(MeshError):
-        compiled.IndexedGradient("linear", cells, dN, -vol, mu, lam, len(u))
+        compiled.IndexedElements("linear", cells, dN, -vol, mu, lam, len(u))
     with pytest.raises(PetsoftError):
-        compiled.IndexedGradient("rubber", cells, dN, vol, mu, lam, len(u))
-    gradient = compiled.IndexedGradient("linear", cells, dN, vol, mu, lam, len(u))
+        compiled.IndexedElements("rubber", cells, dN, vol, mu, lam, len(u))
+    gradient = compiled.IndexedElements("linear", cells, dN, vol, mu, lam, len(u))
     with pytest.raises(ValueError, match="nodal arrays"):
-        gradient.add(u[:-1], np.zeros_like(u))
+        gradient.add_gradient(u[:-1], np.zeros_like(u))
     with pytest.raises(ValueError, match="nodal arrays"):
-        gradient.add(u, np.zeros(u.shape, np.float32))
+        gradient.add_gradient(u, np.zeros(u.shape, np.float32))
     with pytest.raises(ValueError, match="nodal arrays"):
-        gradient.add(np.asfortranarray(u), np.zeros_like(u))
+        gradient.add_gradient(np.asfortranarray(u), np.zeros_like(u))
+    with pytest.raises(ValueError, match="nodal arrays"):
+        gradient.energy(u[:-1])

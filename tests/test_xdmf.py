@@ -452,7 +452,7 @@ def test_killed_at_any_moment_leaves_a_valid_series(tmp_path, flush_seconds):
 
 def test_collected_frames_are_written_in_batches(tmp_path, mesh, monkeypatch):
     """A collecting writer writes its first frame at once, then batches: one file per batch
-    (a group per frame), referenced once complete, by flush(), by close() and when
+    (a dataset per field and frame), referenced once complete, by flush(), by close() and when
     flush_seconds have passed; a failed batch stays collected and is written by the next
     flush. meshio reads the series as it reads one written frame by frame."""
     import time
@@ -470,7 +470,10 @@ def test_collected_frames_are_written_in_batches(tmp_path, mesh, monkeypatch):
     out.flush()
     assert out.num_frames == 5 and out.num_pending == 0
     with h5py.File(tmp_path / "run_frames" / "1.h5", "r") as f:
-        assert sorted(f) == ["1", "2", "3", "4"] and f["3"].attrs["time"] == 0.1 * 3
+        assert sorted(f["point/u"]) == ["1", "2", "3", "4"] and sorted(f["cell/e"]) == sorted(
+            f["point/u"])
+        np.testing.assert_array_equal(f.attrs["times"], [0.1, 0.2, 0.1 * 3, 0.4])
+        np.testing.assert_array_equal(f["point/u/3"][()], mesh.points * 3)
     # a batch whose file cannot be written stays collected; the series on disk is unchanged
     out.write(0.5, {"u": mesh.points * 5}, {"e": np.full(mesh.num_cells, 5.0)})
     before = path.read_bytes()

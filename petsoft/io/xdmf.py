@@ -44,10 +44,13 @@ Layout (``out/run.xdmf``)::
     out/run_frames/<k>.h5:/                 attrs: time
 
 A writer that collects frames (``flush_seconds > 0``) writes each batch to one file named after
-its first frame, a group per frame: ``out/run_frames/<k>.h5:/<j>/point/<name>`` for the frames
-j = k, k + 1, ... of the batch (``/<j>`` attrs: time). The ``.xdmf`` mentions them once the file
-is in place, as for single frames: a crash loses the frames collected since the last batch
-(at most ``flush_seconds`` of them), never the consistency of those written.
+its first frame, a dataset per field and frame: ``out/run_frames/<k>.h5:/point/<name>/<j>`` (and
+``/cell/<name>/<j>``) for the frames j = k, k + 1, ... of the batch (``/`` attrs: times, the
+batch's frame times). (A group per frame, with its time as attribute, cost 0.34 ms a frame at
+600 dofs in HDF5's object creation, a tenth of a time step; these datasets 0.20 ms.) The
+``.xdmf`` mentions them once the file is in place, as for single frames: a crash loses the
+frames collected since the last batch (at most ``flush_seconds`` of them), never the
+consistency of those written.
 
 Each frame is a ``Uniform`` grid of a ``Temporal`` collection, with its own ``<Time>`` and
 references to the shared geometry and topology (no ``xi:include``), which both ParaView's XDMF3
@@ -261,16 +264,27 @@ class _DatasetMaker:
         self._types: dict = {}
         self._lcpl = h5py.h5p.create(h5py.h5p.LINK_CREATE)
         self._lcpl.set_create_intermediate_group(True)
+        self._time_type = h5py.h5t.py_create(np.dtype(np.float64))
+        self._scalar = h5py.h5s.create(h5py.h5s.SCALAR)
 
     def __call__(self, group, name: str, arr: np.ndarray) -> None:
+        """Dataset ``name`` under ``group`` (an h5py group or file, or a low-level id)."""
         h5 = self._h5py
         arr = np.ascontiguousarray(arr)
         key = (arr.dtype.str, arr.shape)
         if key not in self._types:
             self._types[key] = (h5.h5t.py_create(arr.dtype), h5.h5s.create_simple(arr.shape))
         tid, sid = self._types[key]
-        dset = h5.h5d.create(group.id, name.encode(), tid, sid, lcpl=self._lcpl)
+        loc = group.id if isinstance(group, h5.Group) else group
+        dset = h5.h5d.create(loc, name.encode(), tid, sid, lcpl=self._lcpl)
         dset.write(h5.h5s.ALL, h5.h5s.ALL, arr)
+
+    def time(self, f, time: float) -> None:
+        """Attribute ``time`` of file ``f``: a single frame's time (high-level h5py cost 0.1 ms
+        an attribute)."""
+        h5 = self._h5py
+        attr = h5.h5a.create(f.id, b"time", self._time_type, self._scalar)
+        attr.write(np.array(time, dtype=np.float64))
 
 
 def _remove_old_frames(frames_dir: Path) -> None:
@@ -505,18 +519,20 @@ class XdmfWriter:
         single = len(batch) == 1
         frame_file = f"{k0}.h5"
 
-        def group(j: int) -> str:
-            return "" if single else f"{k0 + j}/"
+        def dataset(j: int, center: str, key: str) -> str:
+            return f"{center}/{key}" if single else f"{center}/{key}/{k0 + j}"
 
         def fill(f):
             put = _DatasetMaker()
-            for j, (t, pdata, cdata) in enumerate(batch):
-                where = f if single else f.create_group(str(k0 + j))
-                where.attrs["time"] = t
+            if single:
+                put.time(f, batch[0][0])
+            else:
+                f.attrs["times"] = np.array([t for t, _, _ in batch])
+            for j, (_, pdata, cdata) in enumerate(batch):
                 for key, arr in zip(_dataset_names(list(pdata)), pdata.values(), strict=True):
-                    put(where, f"point/{key}", arr)
+                    put(f, dataset(j, "point", key), arr)
                 for key, arr in zip(_dataset_names(list(cdata)), cdata.values(), strict=True):
-                    put(where, f"cell/{key}", arr)
+                    put(f, dataset(j, "cell", key), arr)
 
         self.frames_dir.mkdir(exist_ok=True)
         # The batch's file is complete (renamed into place) before the .xdmf mentions it.
@@ -531,11 +547,11 @@ class XdmfWriter:
             fields = (
                 static
                 + [
-                    _attribute(name, "Node", frame_h5, f"/{group(j)}point/{key}", arr)
+                    _attribute(name, "Node", frame_h5, "/" + dataset(j, "point", key), arr)
                     for key, (name, arr) in zip(pkeys, pdata.items(), strict=True)
                 ]
                 + [
-                    _attribute(name, "Cell", frame_h5, f"/{group(j)}cell/{key}", arr)
+                    _attribute(name, "Cell", frame_h5, "/" + dataset(j, "cell", key), arr)
                     for key, (name, arr) in zip(ckeys, cdata.items(), strict=True)
                 ]
             )

@@ -98,7 +98,7 @@ class ElasticTerm:
         self._H = np.empty((CHUNK, self.nd, self.nd))
         self._g = np.empty((CHUNK, self.nd))
         self._e = np.empty(CHUNK)
-        #: the groups' compiled residual paths (4-node), made at the first gradient
+        #: the groups' compiled energy and residual paths (4-node): :meth:`_p1_elements`
         self._indexed = None
 
     def connectivities(self) -> dict[str, np.ndarray]:
@@ -116,6 +116,14 @@ class ElasticTerm:
     def energy(self, u_local: np.ndarray) -> float:
         """This rank's share of the elastic energy (sum over ranks gives the total)."""
         total = 0.0
+        if self.nd == 12:
+            u_local = np.ascontiguousarray(u_local, dtype=np.float64)
+            for g, elements in zip(self.groups, self._p1_elements(), strict=True):
+                try:
+                    total += elements.energy(u_local)
+                except InvertedElementError as err:
+                    raise self._file_error(g, 0, err) from None
+            return total
         for g in self.groups:
             for start, stop, ue in self._chunks(g, u_local):
                 e = self._e[:stop - start]
@@ -145,17 +153,21 @@ class ElasticTerm:
                 if assembler is not None:
                     assembler.add(g.name, H, start)
 
-    def _add_gradient_p1(self, u_local: np.ndarray, out: np.ndarray) -> None:
-        """The residual's path for 4-node elements: gather, element loop and scatter of each
-        group in one compiled call (at 384 elements 0.13 ms -> 0.03 ms a gradient)."""
+    def _p1_elements(self) -> list[kernels.IndexedElements]:
+        """The groups' compiled energy and residual paths (4-node elements), made once."""
         if self._indexed is None:
-            self._indexed = [kernels.IndexedGradient(g.model, g.conn, g.dN, g.volume, g.mu,
+            self._indexed = [kernels.IndexedElements(g.model, g.conn, g.dN, g.volume, g.mu,
                                                      g.lam, self.dmesh.nvertices)
                              for g in self.groups]
+        return self._indexed
+
+    def _add_gradient_p1(self, u_local: np.ndarray, out: np.ndarray) -> None:
+        """The residual's path for 4-node elements: gather, element loop and scatter of each
+        group in one compiled call (at 384 elements 0.13 ms -> 0.04 ms a gradient)."""
         u_local = np.ascontiguousarray(u_local, dtype=np.float64)
-        for g, gradient in zip(self.groups, self._indexed, strict=True):
+        for g, elements in zip(self.groups, self._p1_elements(), strict=True):
             try:
-                gradient.add(u_local, out)
+                elements.add_gradient(u_local, out)
             except InvertedElementError as err:
                 raise self._file_error(g, 0, err) from None
 

@@ -27,6 +27,8 @@ _lib.petsoft_elastic_gradient_hessian.argtypes = [_i32, _i64] + [_ptr] * 5 + [_i
 _lib.petsoft_elastic_gradient_hessian.restype = _i64
 _lib.petsoft_elastic_gradient_indexed.argtypes = [_i32, _i64] + [_ptr] * 8
 _lib.petsoft_elastic_gradient_indexed.restype = _i64
+_lib.petsoft_elastic_energy_indexed.argtypes = [_i32, _i64] + [_ptr] * 8
+_lib.petsoft_elastic_energy_indexed.restype = _i64
 _lib.petsoft_material_response.argtypes = [_i32, _i64] + [_ptr] * 7
 _lib.petsoft_material_response.restype = _i64
 _lib.petsoft_elastic_quadrature.argtypes = ([_i32, _i64, _i32, _i32] + [_ptr] * 5 + [_i32]
@@ -42,7 +44,7 @@ __all__ = [
     "element_energy",
     "element_gradient_hessian",
     "element_gradient_hessian_into",
-    "IndexedGradient",
+    "IndexedElements",
     "material_response",
     "project_spd",
     "quadrature_into",
@@ -177,9 +179,10 @@ def element_gradient_hessian_into(
     _check_status(status, bad_J)
 
 
-class IndexedGradient:
-    """The assembled gradient of a fixed set of 4-node elements, added into a nodal array:
-    the gather of each element's displacements, the element loop and the scatter in one C call.
+class IndexedElements:
+    """The summed energy and the assembled gradient of a fixed set of 4-node elements at nodal
+    displacements: the gather of each element's displacements, the element loop and (for the
+    gradient) the scatter into a nodal array in one C call.
 
     The residual's path: the element arrays are checked here once and their addresses kept
     (they are held, so the addresses stay valid; their values may change in place, as a
@@ -217,7 +220,7 @@ class IndexedGradient:
         self._lame = (addr(mu), addr(lam))
         self._bad_J = ctypes.c_double(0.0)
 
-    def add(self, u_nodes: np.ndarray, out: np.ndarray) -> None:
+    def add_gradient(self, u_nodes: np.ndarray, out: np.ndarray) -> None:
         """out += sum_e dW_e/du at nodal displacements ``u_nodes``.
 
         Parameters
@@ -232,15 +235,34 @@ class IndexedGradient:
             elements before it have been added.
         """
         for a in (u_nodes, out):
-            if a.dtype != np.float64 or a.size != self.size or not a.flags.c_contiguous:
-                raise ValueError(f"nodal arrays must be C-contiguous float64 of {self.size} "
-                                 f"values, got {a.dtype} {a.shape}")
+            self._check_nodal(a)
         if not out.flags.writeable:
             raise ValueError("out must be writeable")
         status = _lib.petsoft_elastic_gradient_indexed(
             self.code, self.n, *self._args, addr(u_nodes), *self._lame, addr(out),
             ctypes.addressof(self._bad_J))
         _check_status(status, self._bad_J)
+
+    def energy(self, u_nodes: np.ndarray) -> float:
+        """sum_e V_e psi(F_e) at nodal displacements ``u_nodes`` (as :meth:`add_gradient`'s).
+
+        Raises
+        ------
+        InvertedElementError
+            As :meth:`add_gradient`.
+        """
+        self._check_nodal(u_nodes)
+        total = ctypes.c_double(0.0)
+        status = _lib.petsoft_elastic_energy_indexed(
+            self.code, self.n, *self._args, addr(u_nodes), *self._lame,
+            ctypes.addressof(total), ctypes.addressof(self._bad_J))
+        _check_status(status, self._bad_J)
+        return total.value
+
+    def _check_nodal(self, a: np.ndarray) -> None:
+        if a.dtype != np.float64 or a.size != self.size or not a.flags.c_contiguous:
+            raise ValueError(f"nodal arrays must be C-contiguous float64 of {self.size} "
+                             f"values, got {a.dtype} {a.shape}")
 
 
 def element_gradient_hessian(

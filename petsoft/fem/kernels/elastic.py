@@ -20,7 +20,7 @@ __all__ = [
     "element_energy",
     "element_gradient_hessian",
     "element_gradient_hessian_into",
-    "IndexedGradient",
+    "IndexedElements",
     "lame_parameters",
     "quadrature_into",
 ]
@@ -152,14 +152,14 @@ def element_gradient_hessian_into(
     )
 
 
-class IndexedGradient:
-    """The assembled gradient ``sum_e dW_e/du`` of a fixed set of 4-node elements, added into
-    a nodal array.
+class IndexedElements:
+    """The summed energy and the assembled gradient ``sum_e dW_e/du`` of a fixed set of
+    4-node elements at nodal displacements.
 
-    What :func:`element_gradient_hessian_into` followed by a scatter of the element vectors
-    computes; the C backend gathers the element displacements, loops and scatters in one
-    compiled call (the residual's path: for small models the Python around the element loop
-    cost more than the loop).
+    What :func:`element_energy` and :func:`element_gradient_hessian_into` (followed by a
+    scatter of the element vectors) compute; the C backend gathers the element displacements,
+    loops and scatters in one compiled call (the residual's path: for small models the Python
+    around the element loop cost more than the loop).
 
     Parameters
     ----------
@@ -180,10 +180,10 @@ class IndexedGradient:
         self._numpy = backend == "numpy"
         self._model, self._conn = model, np.asarray(conn)
         self._arrays = (dN, volume, mu, lam)
-        self._c = None if self._numpy else _backend(backend).IndexedGradient(
+        self._c = None if self._numpy else _backend(backend).IndexedElements(
             model, conn, dN, volume, mu, lam, nnodes)
 
-    def add(self, u_nodes: np.ndarray, out: np.ndarray) -> None:
+    def add_gradient(self, u_nodes: np.ndarray, out: np.ndarray) -> None:
         """``out += sum_e dW_e/du`` at nodal displacements ``u_nodes`` ((nnodes, 3) or
         (3 nnodes,), float64, C-contiguous; ``out`` of the same size, writeable).
 
@@ -193,13 +193,28 @@ class IndexedGradient:
             neo-Hookean with det F <= 0, naming the first such element (of ``conn``).
         """
         if not self._numpy:
-            self._c.add(u_nodes, out)
+            self._c.add_gradient(u_nodes, out)
             return
         dN, volume, mu, lam = self._arrays
         u = np.asarray(u_nodes).reshape(-1, 3)
         g, _ = reference.element_gradient_hessian(self._model, dN, volume, u[self._conn], mu,
                                                   lam, hessian=False)
         np.add.at(out.reshape(-1, 3), self._conn, g.reshape(-1, 4, 3))
+
+    def energy(self, u_nodes: np.ndarray) -> float:
+        """``sum_e V_e psi(F_e)`` at nodal displacements ``u_nodes`` (as :meth:`add_gradient`).
+
+        Raises
+        ------
+        InvertedElementError
+            As :meth:`add_gradient`.
+        """
+        if not self._numpy:
+            return self._c.energy(u_nodes)
+        dN, volume, mu, lam = self._arrays
+        u = np.asarray(u_nodes).reshape(-1, 3)
+        return float(reference.element_energy(self._model, dN, volume, u[self._conn], mu,
+                                              lam).sum())
 
 
 def quadrature_into(model: str, dN, weight, u, mu, lam, energy_out: np.ndarray | None,

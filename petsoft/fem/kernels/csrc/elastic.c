@@ -708,6 +708,31 @@ int64_t petsoft_elastic_gradient_indexed(int32_t model, int64_t n, const int64_t
     return -1;
 }
 
+/* The summed energy of n elements whose displacements are gathered through conn. */
+int64_t petsoft_elastic_energy_indexed(int32_t model, int64_t n, const int64_t *conn,
+                                       const double *dN, const double *volume,
+                                       const double *u_nodes, const double *mu,
+                                       const double *lam, double *total, double *bad_jacobian)
+{
+    if (model < PETSOFT_MODEL_LINEAR || model > PETSOFT_MODEL_NEOHOOKEAN) return PETSOFT_BAD_MODEL;
+    double sum = 0.0;
+    for (int64_t e = 0; e < n; ++e) {
+        const int64_t *ce = conn + 4 * e;
+        double ue[12];
+        for (int a = 0; a < 4; ++a)
+            for (int i = 0; i < 3; ++i) ue[3 * a + i] = u_nodes[3 * ce[a] + i];
+        State s;
+        deformation_gradient(dN + 12 * e, ue, s.F);
+        if (evaluate(model, &s, mu[e], lam[e], 0)) {
+            if (bad_jacobian) *bad_jacobian = s.J;
+            return e;
+        }
+        sum += volume[e] * s.psi;
+    }
+    *total = sum;
+    return -1;
+}
+
 int64_t petsoft_elastic_energy(int32_t model, int64_t n, const double *dN, const double *volume,
                                const double *u, const double *mu, const double *lam,
                                double *energy, double *bad_jacobian)

@@ -52,6 +52,12 @@ int64_t petsoft_elastic_gradient_indexed(int32_t model, int64_t n, const int64_t
                                          const double *lam, double *out_nodes,
                                          double *bad_jacobian);
 
+/* The summed energy sum_e V_e psi(F_e) of the same elements, into *total. */
+int64_t petsoft_elastic_energy_indexed(int32_t model, int64_t n, const int64_t *conn,
+                                       const double *dN, const double *volume,
+                                       const double *u_nodes, const double *mu,
+                                       const double *lam, double *total, double *bad_jacobian);
+
 /* Pointwise constitutive law: psi (n,), P (n, 3, 3), dPdF (n, 3, 3, 3, 3) from F (n, 3, 3).
  * P and dPdF may be NULL. */
 int64_t petsoft_material_response(int32_t model, int64_t n, const double *F, const double *mu,
