@@ -217,7 +217,7 @@ class GeneralizedAlpha(ChordBorrower, SolverReuse):
         if modes is not None:
             self.J.setNearNullSpace(modes)
         (self.R, self.q0, self.v0, self.a0, self.a1, self.v1, self.qf, self.vf, self.work,
-         self.load) = (s.create_vec() for _ in range(10))
+         self.load, self._grad) = (s.create_vec() for _ in range(11))
         self._last = None
         self._bad = None
         self._branch = NoBranch()
@@ -292,9 +292,7 @@ class GeneralizedAlpha(ChordBorrower, SolverReuse):
         am.waxpy(-1.0, self.a0, self.a1)
         am.aypx(self.am, self.a0)
         s.M.mult(am, R)
-        grad = s.internal_gradient(self.qf, s.create_vec())
-        R.axpy(1.0, grad)
-        grad.destroy()
+        R.axpy(1.0, s.internal_gradient(self.qf, self._grad))
         R.axpy(1.0, s.damping_apply(self.vf, self.work))
         R.axpy(-1.0, self.load)
         self._branch.add_force(q1, R, self.work)       # the viscoelastic branch at alpha_f
@@ -444,5 +442,5 @@ class GeneralizedAlpha(ChordBorrower, SolverReuse):
         self.snes.destroy()
         self._destroy_chord()
         for vec in (self.J, self.R, self.q0, self.v0, self.a0, self.a1, self.v1, self.qf,
-                    self.vf, self.work, self.load):
+                    self.vf, self.work, self.load, self._grad):
             vec.destroy()

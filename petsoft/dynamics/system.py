@@ -284,6 +284,14 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
         Raises InvertedElementError on every rank when an element inverted on one: after the
         collective sum, which a rank that stopped at its own element left the others waiting in
         (a 2-rank chord whose iterate inverted an element never returned)."""
+        if self.comm.getSize() == 1 and out.handle != q.handle:
+            # one rank: the local vertices are the global vector's, in its order, so the
+            # gradient goes straight into ``out`` (no scatters and copies: a tenth of a small
+            # model's residual)
+            g = out.getArray()
+            g[:] = 0.0
+            self.elastic.add_gradient(q.getArray(readonly=True).reshape(-1, 3), g)
+            return out
         u = self.dmesh.to_local(q)
         self._g[:] = 0.0
         inverted = None
