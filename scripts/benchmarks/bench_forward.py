@@ -9,7 +9,9 @@ caps the steps of the big sizes), at about 600, 5,000 and 50,000 dofs. Per size 
 
 * ``simulate``: the command ``petsoft simulate`` (XDMF output of every step, summary), timed as a
   whole process; per step = (time of the full run - time of a 5-step run) / (steps - 5), so
-  interpreter start, set-up and the first steps drop out;
+  interpreter start, set-up and the first steps drop out (each the fastest of ``--repeat``
+  processes below 20,000 dofs: a process's start varies by tenths of a second, as much as a
+  millisecond a step at 1000 steps);
 * ``forward``: ``ForwardModel.simulate`` (what every calibration run does: 8 markers at 40
   frames), the second of two calls (the first builds solvers), per step;
 * ``DOLFINx``: DOLFINx 0.5's Newmark loop (trapezoidal rule, beta = 1/4, gamma = 1/2) on the same
@@ -54,6 +56,9 @@ def _args(argv=None):
                     help="at most this many steps per run (default 1000)")
     ap.add_argument("--big-steps", type=int, default=60,
                     help="steps of the sizes above 20,000 dofs (default 60)")
+    ap.add_argument("--repeat", type=int, default=3,
+                    help="simulate runs of each length below 20,000 dofs; the fastest counts "
+                         "(a process's start varies by tenths of a second; default 3)")
     ap.add_argument("--base", default="57eb1aa", help="the earlier commit (label)")
     ap.add_argument("--base-dir", default="/work/wt/start",
                     help="its worktree with a .venv (skipped when absent)")
@@ -237,7 +242,9 @@ def main() -> None:
         short.write_text(experiment_text(cells, 5, tmp / "out_short"))
         row = {"dofs": dofs, "steps": steps}
         for label, python in codes.items():
-            t_full, t_short = time_simulate(python, full), time_simulate(python, short)
+            repeat = args.repeat if dofs <= 20000 else 1
+            t_full = min(time_simulate(python, full) for _ in range(repeat))
+            t_short = min(time_simulate(python, short) for _ in range(repeat))
             row[f"simulate {label}"] = (t_full - t_short) / (steps - 5)
             res = run_json([python, __file__, "--worker", "forward"],
                            {"toml": str(full), "steps": steps})
