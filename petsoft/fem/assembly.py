@@ -41,7 +41,9 @@ class MatrixAssembler:
         self._owned_nnz = None     # per owned row, in parallel (computed once)
 
     def create_matrix(self) -> PETSc.Mat:
-        """A new AIJ matrix (block size 3) with exactly this pattern's nonzeros.
+        """A new AIJ matrix (block size 3; serially 1: petsc4py 3.18's ``createAIJWithArrays``
+        drops it, and setting it afterwards changed nothing measurable for GAMG on a 27,300-dof
+        step) with exactly this pattern's nonzeros.
 
         Serially the matrix is made on the pattern's own arrays; in parallel it is preallocated
         exactly from counts computed once per assembler (:func:`owned_rows_nnz`) and its pattern
