@@ -158,10 +158,11 @@ def test_assembler_matches_elementwise_petsc_insertion(dmesh):
 
 
 def test_values_copied_in_place_equal_inserted_ones_and_solvers_see_them(dmesh):
-    """finish() on a matrix of its own pattern copies the values into PETSc's array (serially):
-    the same matrix as the inserted values, a solver set up before the change sees the new
-    values, and a matrix whose storage PETSc replaced (MatAXPY builds a new one for a
-    "different" pattern) still gets them (the array is asked of PETSc every time)."""
+    """finish() on a matrix of its own pattern copies the values into PETSc's arrays (serially
+    the matrix's, in parallel its diagonal and off-diagonal blocks, the ghost rows' values
+    sent to their owners): the same matrix as the inserted values, a solver set up before the
+    change sees the new values, and a matrix whose storage PETSc replaced (MatAXPY builds a new
+    one for a "different" pattern) still gets them (the arrays are asked of PETSc every time)."""
     rng = np.random.default_rng(2)
     asm = MatrixAssembler(dmesh, {"cells": dmesh.cells})
     A = asm.create_matrix()
@@ -173,9 +174,12 @@ def test_values_copied_in_place_equal_inserted_ones_and_solvers_see_them(dmesh):
     asm.add("cells", ke)
     asm.finish(A)
     asm.finish(ref)
+    if dmesh.comm.size > 1:         # the in-place path was taken (not the generic insertion)
+        assert asm._parallel is not None and asm._parallel.write(A, asm.values)
     diff = A.copy()
     diff.axpy(-1.0, ref)
-    assert diff.norm() == 0.0
+    # equal on 1 and 2 ranks; from 3 ranks on a sum of three differs in its order (1e-16)
+    assert diff.norm() <= (0.0 if dmesh.comm.size <= 2 else 1e-14 * ref.norm())
     ksp = PETSc.KSP().create(comm=dmesh.comm)
     ksp.setOperators(A)
     ksp.setType("cg")
@@ -190,15 +194,14 @@ def test_values_copied_in_place_equal_inserted_ones_and_solvers_see_them(dmesh):
     ksp.solve(b, x2)
     x2.scale(2.0)
     assert (x2 - x1).norm() <= 1e-8 * x1.norm()
-    if dmesh.comm.size == 1:
-        # new storage made by PETSc (a diagonal matrix added as of a different pattern)
-        D = PETSc.Mat().createAIJ(A.getSizes(), nnz=1, comm=dmesh.comm)
-        D.setDiagonal(b)
-        D.assemble()
-        A.axpy(1.0, D, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
-        asm.finish(A)
-        diff = A.copy()
-        diff.axpy(-2.0, ref)
-        assert diff.norm() <= 1e-12 * ref.norm()
-    for obj in (A, ref, ksp, b, x1, x2, diff):
+    # new storage made by PETSc (a diagonal matrix added as of a different pattern)
+    D = PETSc.Mat().createAIJ(A.getSizes(), nnz=(1, 0), comm=dmesh.comm)
+    D.setDiagonal(b)
+    D.assemble()
+    A.axpy(1.0, D, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+    asm.finish(A)
+    diff = A.copy()
+    diff.axpy(-2.0, ref)
+    assert diff.norm() <= 1e-12 * ref.norm()
+    for obj in (A, ref, ksp, b, x1, x2, diff, D):
         obj.destroy()

@@ -13,7 +13,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from petsoft.fem.kernels.scatter import BlockPattern, block_pattern, block_rows, scatter_add_matrix
-from petsoft.fem.matrix_values import copy_into_seqaij
+from petsoft.fem.matrix_values import ParallelValues, copy_into_seqaij
 
 #: The attribute naming the pattern a sequential matrix was made with (its values can be copied).
 _PATTERN = "petsoft_pattern"
@@ -39,6 +39,7 @@ class MatrixAssembler:
         self.positions = dict(zip(names, positions, strict=True))
         self.values = np.zeros(self.pattern.nvalues)
         self._owned_nnz = None     # per owned row, in parallel (computed once)
+        self._parallel = None      # ParallelValues of the parallel matrices (at first finish)
 
     def create_matrix(self) -> PETSc.Mat:
         """A new AIJ matrix (block size 3; serially 1: petsc4py 3.18's ``createAIJWithArrays``
@@ -77,7 +78,20 @@ class MatrixAssembler:
             A.setValuesLocalCSR(self.pattern.indptr, self.pattern.indices,
                                 np.zeros(len(self.pattern.indices)))
             A.assemble()
+            A.setAttr(_PATTERN, self.pattern)
         return A
+
+    def _parallel_values(self, A: PETSc.Mat) -> ParallelValues:
+        """Where this rank's values go in the matrices of :meth:`create_matrix` (all alike),
+        found at the first :meth:`finish` (collective)."""
+        if self._parallel is None:
+            dof = self.dmesh.global_dof.ravel()
+            local_rows = np.repeat(np.arange(len(self.pattern.indptr) - 1, dtype=np.int64),
+                                   np.diff(self.pattern.indptr))
+            self._parallel = ParallelValues(
+                A, dof[local_rows], dof[self.pattern.indices],
+                local_rows < 3 * self.dmesh.nowned)
+        return self._parallel
 
     def begin(self) -> None:
         """Start a new assembly (zero the local values)."""
@@ -96,8 +110,12 @@ class MatrixAssembler:
         the values are copied into its array (:mod:`petsoft.fem.matrix_values`), 100x faster
         than inserting them; other matrices get them through ``MatSetValuesLocal``.
         """
-        if A.getAttr(_PATTERN) is self.pattern and copy_into_seqaij(A, self.values):
-            return A
+        if A.getAttr(_PATTERN) is self.pattern:
+            if self.dmesh.comm.size == 1:
+                if copy_into_seqaij(A, self.values):
+                    return A
+            elif self._parallel_values(A).write(A, self.values):
+                return A
         A.zeroEntries()
         A.setValuesLocalCSR(self.pattern.indptr, self.pattern.indices, self.values,
                             addv=PETSc.InsertMode.ADD_VALUES)

@@ -1,4 +1,5 @@
-"""Writing a sequential AIJ matrix's values in place (PETSc's ``MatSeqAIJGetArray``).
+"""Writing an AIJ matrix's values in place (PETSc's ``MatSeqAIJGetArray``): a sequential one's,
+and a parallel one's diagonal and off-diagonal blocks (``MatMPIAIJGetSeqAIJ``).
 
 petsc4py 3.18 has no binding for the value array of an AIJ matrix, so an assembled CSR value array
 reaches PETSc through ``MatSetValues`` (a search per entry: 30 ns an entry, 0.3 ms a Jacobian of
@@ -7,6 +8,11 @@ exactly the assembler's pattern (sorted CSR, same count), its value array *is* l
 assembler's, and one copy replaces the insertion. The functions are taken from the PETSc library
 petsc4py already loaded (by ctypes; ``MatSeqAIJRestoreArray`` marks the matrix changed, so solvers
 refactor it). Where the library cannot be found the caller keeps the generic path.
+
+In parallel (:class:`ParallelValues`) every local value's place is found once: in this rank's
+diagonal or off-diagonal block for an owned row, else on the rank owning the row, which receives
+it by one ``Alltoallv`` a matrix and adds it in. ``MatSetValuesLocal`` searched every entry and
+stashed the ghost rows': 23 ms of a 41 ms Jacobian on 2 ranks (27,300 dofs).
 """
 
 from __future__ import annotations
@@ -17,7 +23,7 @@ from functools import lru_cache
 import numpy as np
 from petsc4py import PETSc
 
-__all__ = ["copy_into_seqaij", "seqaij_available"]
+__all__ = ["ParallelValues", "copy_into_seqaij", "seqaij_available"]
 
 
 @lru_cache(maxsize=1)
@@ -35,6 +41,9 @@ def _petsc_library():
                 fn = getattr(lib, name)
                 fn.argtypes = [ctypes.c_void_p, ctypes.POINTER(ctypes.c_void_p)]
                 fn.restype = ctypes.c_int
+            fn = lib.MatMPIAIJGetSeqAIJ
+            fn.argtypes = [ctypes.c_void_p] + [ctypes.POINTER(ctypes.c_void_p)] * 3
+            fn.restype = ctypes.c_int
             return lib
     return None
 
@@ -66,3 +75,121 @@ def copy_into_seqaij(A: PETSc.Mat, values: np.ndarray) -> bool:
     if lib.MatSeqAIJRestoreArray(handle, ctypes.byref(ptr)):
         raise PETSc.Error(1)
     return True
+
+
+def _write_seqaij(lib, handle: ctypes.c_void_p, n: int, fill) -> None:
+    """``fill(target)`` on the n values of the sequential AIJ matrix ``handle``, in place."""
+    ptr = ctypes.c_void_p()
+    if lib.MatSeqAIJGetArray(handle, ctypes.byref(ptr)):
+        raise PETSc.Error(1)
+    if n:
+        fill(np.ctypeslib.as_array((ctypes.c_double * n).from_address(ptr.value)))
+    if lib.MatSeqAIJRestoreArray(handle, ctypes.byref(ptr)):
+        raise PETSc.Error(1)
+
+
+class ParallelValues:
+    """Where the values of an assembler's local pattern go in a parallel AIJ matrix whose
+    nonzeros are the union of every rank's pattern (made so by the assembler), found once.
+
+    Parameters
+    ----------
+    A : PETSc.Mat
+        The MPIAIJ matrix, assembled, with its final structure (collective).
+    rows, cols : ndarray (nvalues,) int64
+        Global scalar row and column of each local value (the assembler's CSR order).
+    owned : ndarray (nvalues,) bool
+        Whether the value's row is owned here (else it goes to the row's owner).
+    """
+
+    def __init__(self, A: PETSc.Mat, rows: np.ndarray, cols: np.ndarray, owned: np.ndarray):
+        from mpi4py import MPI
+
+        self.comm = A.getComm().tompi4py()
+        rstart, rend = A.getOwnershipRange()
+        cstart, cend = A.getOwnershipRangeColumn()
+        ai, aj, _ = A.getValuesCSR()
+        ai, aj = np.asarray(ai, np.int64), np.asarray(aj, np.int64)
+        ncols = int(A.getSize()[1])
+        # this rank's entries in row-major order, each row's columns ascending: the diagonal
+        # block holds the k-th diagonal entry at value k, the off-diagonal block likewise (its
+        # compressed columns keep the global order)
+        diagonal = (aj >= cstart) & (aj < cend)
+        self.nnz = (int(diagonal.sum()), int((~diagonal).sum()))
+        slot = np.empty(len(aj), dtype=np.int64)
+        slot[diagonal] = np.arange(self.nnz[0])
+        slot[~diagonal] = self.nnz[0] + np.arange(self.nnz[1])
+        keys = np.repeat(np.arange(rend - rstart, dtype=np.int64), np.diff(ai)) * ncols + aj
+
+        def slots_of(r, c):
+            k = (r - rstart) * ncols + c
+            at = np.searchsorted(keys, k)
+            if len(k) and (at.max() >= len(keys) or (keys[at] != k).any()):
+                raise ValueError("the matrix lacks entries of the assembler's pattern")
+            return slot[at]
+
+        self.own_values = np.flatnonzero(owned)
+        self.own_slots = slots_of(rows[owned], cols[owned])
+        # ghost rows: to their owners, ordered by rank
+        ghost = np.flatnonzero(~owned)
+        starts = np.array(self.comm.allgather(rstart) + [int(A.getSize()[0])], dtype=np.int64)
+        owner = np.searchsorted(starts, rows[ghost], side="right") - 1
+        order = np.argsort(owner, kind="stable")
+        self.send_values = ghost[order]
+        self.send_counts = np.bincount(owner, minlength=self.comm.size).astype(np.int64)
+        self.recv_counts = np.empty_like(self.send_counts)
+        self.comm.Alltoall(self.send_counts, self.recv_counts)
+        pairs = np.ascontiguousarray(np.column_stack([rows[ghost], cols[ghost]])[order])
+        received = np.empty((int(self.recv_counts.sum()), 2), dtype=np.int64)
+        self.comm.Alltoallv([pairs, 2 * self.send_counts, MPI.INT64_T],
+                            [received, 2 * self.recv_counts, MPI.INT64_T])
+        recv_slots = slots_of(received[:, 0], received[:, 1])
+        # several ranks may send to one place: summed by reduceat over the sorted places
+        self.recv_order = np.argsort(recv_slots, kind="stable")
+        sorted_slots = recv_slots[self.recv_order]
+        first = np.flatnonzero(np.r_[True, sorted_slots[1:] != sorted_slots[:-1]]
+                               if len(sorted_slots) else np.zeros(0, bool))
+        self.recv_starts, self.recv_slots = first, sorted_slots[first]
+        self._mpi_double = MPI.DOUBLE
+
+    def write(self, A: PETSc.Mat, values: np.ndarray) -> bool:
+        """Replace ``A``'s values by the sums over ranks of the local ``values`` (collective).
+        False (nothing written, on every rank) when the PETSc library cannot be reached or the
+        matrix's nonzero count is not the one this was made for."""
+        lib = _petsc_library()
+        fits = (lib is not None and A.getType() == PETSc.Mat.Type.MPIAIJ
+                and int(A.getInfo(PETSc.Mat.InfoType.LOCAL)["nz_used"]) == sum(self.nnz))
+        if not self.comm.allreduce(fits, op=_land()):
+            return False
+        send = np.ascontiguousarray(values[self.send_values])
+        recv = np.empty(int(self.recv_counts.sum()))
+        self.comm.Alltoallv([send, self.send_counts, self._mpi_double],
+                            [recv, self.recv_counts, self._mpi_double])
+        buffer = np.zeros(sum(self.nnz))
+        buffer[self.own_slots] = values[self.own_values]
+        if len(recv):
+            buffer[self.recv_slots] += np.add.reduceat(recv[self.recv_order], self.recv_starts)
+        blocks = [ctypes.c_void_p(), ctypes.c_void_p()]
+        colmap = ctypes.c_void_p()
+        if lib.MatMPIAIJGetSeqAIJ(ctypes.c_void_p(A.handle), ctypes.byref(blocks[0]),
+                                  ctypes.byref(blocks[1]), ctypes.byref(colmap)):
+            raise PETSc.Error(1)
+        nd = self.nnz[0]
+
+        def diagonal(target):
+            target[:] = buffer[:nd]
+
+        def off_diagonal(target):
+            target[:] = buffer[nd:]
+
+        _write_seqaij(lib, blocks[0], nd, diagonal)
+        _write_seqaij(lib, blocks[1], self.nnz[1], off_diagonal)
+        # the blocks' states rose; the matrix's rises with an assembly (nothing stashed)
+        A.assemble()
+        return True
+
+
+def _land():
+    from mpi4py import MPI
+
+    return MPI.LAND
