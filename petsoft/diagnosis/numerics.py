@@ -64,9 +64,6 @@ SCREEN_BELOW = 3.0
 #: its 3000 s while checking the step again on the final model.
 DEFER_MISFIT_RMS = 3.0
 DEFER_CHANGE = 2.0
-#: The largest system the measuring run solves directly (one rank): see
-#: :func:`petsoft.solvers.linear.direct_solve_up_to`.
-MEASURE_DIRECT_DOFS = 60000
 
 
 def _why_not(r, experiment) -> str | None:
@@ -140,12 +137,12 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r) -> dict:
     Returns the round entry of the refinement (``measured_only``: True), in the keys of a
     fitted one.
     """
-    from petsoft.solvers.linear import direct_solve_up_to
-
     exp = fit.experiment
     diag.tell(f"numerics: {r.label} ({r.describe(exp)}) is over diagnose's fitting limit; "
               "simulating it once to measure the error of the current mesh")
-    with direct_solve_up_to(MEASURE_DIRECT_DOFS), doing(f"numerics {r.label} (one run)"):
+    # (one rank solves it directly up to the default's 100,000 dofs, a direct solve's limit
+    # that once had to be raised here from 6000)
+    with doing(f"numerics {r.label} (one run)"):
         moved = diag.simulate(r.make(exp))
     gc.collect()
     cols = None if diag.all_differenced(exp) else _sensitivities(diag, fit)
