@@ -374,8 +374,7 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
     @property
     def moving_boundary(self) -> bool:
         """Whether some prescribed displacement depends on time."""
-        return any(disp is not None and any("t" in e.variables for e in disp)
-                   for _, _, disp in self.dirichlet.conditions)
+        return self.dirichlet.time_dependent
 
     # -- parameters (calibration gradients; see petsoft.dynamics.parameters) ---------------------
     @property
