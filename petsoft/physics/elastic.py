@@ -117,13 +117,7 @@ class ElasticTerm:
         """This rank's share of the elastic energy (sum over ranks gives the total)."""
         total = 0.0
         if self.nd == 12:
-            u_local = np.ascontiguousarray(u_local, dtype=np.float64)
-            for g, elements in zip(self.groups, self._p1_elements(), strict=True):
-                try:
-                    total += elements.energy(u_local)
-                except InvertedElementError as err:
-                    raise self._file_error(g, 0, err) from None
-            return total
+            return float(sum(self._each_p1_group("energy", u_local)))
         for g in self.groups:
             for start, stop, ue in self._chunks(g, u_local):
                 e = self._e[:stop - start]
@@ -164,12 +158,19 @@ class ElasticTerm:
     def _add_gradient_p1(self, u_local: np.ndarray, out: np.ndarray) -> None:
         """The residual's path for 4-node elements: gather, element loop and scatter of each
         group in one compiled call (at 384 elements 0.13 ms -> 0.04 ms a gradient)."""
+        self._each_p1_group("add_gradient", u_local, out)
+
+    def _each_p1_group(self, method: str, u_local: np.ndarray, *args) -> list:
+        """``IndexedElements.<method>(u_local, *args)`` of every group, an inverted element
+        named by its file number."""
         u_local = np.ascontiguousarray(u_local, dtype=np.float64)
+        results = []
         for g, elements in zip(self.groups, self._p1_elements(), strict=True):
             try:
-                elements.add_gradient(u_local, out)
+                results.append(getattr(elements, method)(u_local, *args))
             except InvertedElementError as err:
                 raise self._file_error(g, 0, err) from None
+        return results
 
     def add_hessian(self, u_local: np.ndarray, assembler: MatrixAssembler) -> None:
         """Add d2W/du2 into the assembler."""
