@@ -57,8 +57,8 @@ NUMPY_VERSION="$(/usr/bin/python3 -c 'import numpy; print(numpy.__version__)')"
 echo "numpy==$NUMPY_VERSION" > "$VENV/constraints.txt"
 
 STAMP="$VENV/.petsoft-install-stamp"
-digest="$(cd "$ROOT" && find pyproject.toml CMakeLists.txt petsoft/fem/kernels/csrc -type f -print0 | sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)"
-if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$digest" ] || ! "$VENV/bin/python" -c "import petsoft.fem.kernels._ckernels" 2>/dev/null; then
+digest="$(cd "$ROOT" && find pyproject.toml CMakeLists.txt petsoft/fem/kernels/csrc petsoft/mesh/csrc -type f -print0 | sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)"
+if [ ! -f "$STAMP" ] || [ "$(cat "$STAMP")" != "$digest" ] || ! "$VENV/bin/python" -c "import petsoft.fem.kernels._ckernels, petsoft.mesh._cmesh" 2>/dev/null; then
   log "pip install -e .[test] (numpy pinned to $NUMPY_VERSION)"
   PIP_CONSTRAINT="$VENV/constraints.txt" "$VENV/bin/python" -m pip install -q --disable-pip-version-check -e "$ROOT[test]"
   echo "$digest" > "$STAMP"

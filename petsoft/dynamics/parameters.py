@@ -57,7 +57,7 @@ from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, key_part
 from petsoft.fem.element import cell_integrals
 from petsoft.fem.kernels.scatter import scatter_add_vector
-from petsoft.mesh.ordering import morton_order
+from petsoft.mesh.ordering import cell_morton_order
 from petsoft.physics.loads import gravity_forces
 from petsoft.physics.model import cell_materials
 from petsoft.physics.support import shared_compliance
@@ -72,7 +72,7 @@ GROUP_PATTERN = re.compile(r"^material\.youngs_modulus#(\d+)$")
 
 def morton_groups(points: np.ndarray, tets: np.ndarray, count: int) -> np.ndarray:
     """Group index (0..count-1) of every cell of a mesh (file numbering): Morton chunks."""
-    order = morton_order(points[tets].mean(axis=1))
+    order = cell_morton_order(points, tets)
     group = np.empty(len(tets), dtype=np.int64)
     for k, chunk in enumerate(np.array_split(order, count)):
         group[chunk] = k

@@ -28,7 +28,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.mesh.ordering import cell_centroids, first_touch, morton_order
+from petsoft.mesh.ordering import cell_morton_order, first_touch
 from petsoft.mesh.topology import exterior_faces
 
 
@@ -67,12 +67,14 @@ class DistributedMesh:
     def __init__(self, mesh, comm: PETSc.Comm | None = None):
         self.comm = comm if comm is not None else PETSc.COMM_WORLD
         mpi = self.comm.tompi4py()
-        self.mesh = mesh = mpi.bcast(mesh if mpi.rank == 0 else None, root=0)
+        if mpi.size > 1:     # (a broadcast to oneself still pickles the mesh: 0.07 s at 1M tets)
+            mesh = mpi.bcast(mesh if mpi.rank == 0 else None, root=0)
+        self.mesh = mesh
         ncells, nvert = len(mesh.tets), len(mesh.points)
         size, rank = mpi.size, mpi.rank
         self.order = mesh.order
 
-        cell_perm = morton_order(cell_centroids(mesh.points, mesh.tets))
+        cell_perm = cell_morton_order(mesh.points, mesh.tets)
         sfc_tets = mesh.cells[cell_perm]
         # global vertex g = vertex_perm[g] in file numbers, first touched by cell first_cell[g]
         vertex_perm, first_cell = first_touch(sfc_tets, nvert)
@@ -88,15 +90,21 @@ class DistributedMesh:
         lo, hi = int(vstart[rank]), int(vend[rank])
         c0, c1 = int(bounds[rank]), int(bounds[rank + 1])
         local_cells_global = global_of_file[sfc_tets[c0:c1]]
-        touched = np.zeros(nvert, dtype=bool)
-        touched[local_cells_global.ravel()] = True
-        ghosts = np.flatnonzero(touched[:lo])      # owned by lower ranks (first touched earlier)
-        global_of_local = np.concatenate([np.arange(lo, hi, dtype=np.int64), ghosts])
-        local_of_global = np.full(nvert, -1, dtype=np.int64)
-        local_of_global[global_of_local] = np.arange(len(global_of_local))
-        self.cells = local_of_global[local_cells_global]
-        if self.cells.size and self.cells.min() < 0:
-            raise RuntimeError("distributed mesh lost a vertex of a local cell")
+        if size == 1:
+            # one rank: no ghosts, the local numbering is the global one (two passes over the
+            # cells fewer: 0.05 s at 1M tets)
+            global_of_local = np.arange(nvert, dtype=np.int64)
+            self.cells = local_cells_global
+        else:
+            touched = np.zeros(nvert, dtype=bool)
+            touched[local_cells_global.ravel()] = True
+            ghosts = np.flatnonzero(touched[:lo])  # owned by lower ranks (first touched earlier)
+            global_of_local = np.concatenate([np.arange(lo, hi, dtype=np.int64), ghosts])
+            local_of_global = np.full(nvert, -1, dtype=np.int64)
+            local_of_global[global_of_local] = np.arange(len(global_of_local))
+            self.cells = local_of_global[local_cells_global]
+            if self.cells.size and self.cells.min() < 0:
+                raise RuntimeError("distributed mesh lost a vertex of a local cell")
         self.cell_ids = cell_perm[c0:c1]
         self.vertex_ids = vertex_perm[global_of_local]
         self.points = mesh.points[self.vertex_ids]
