@@ -3,16 +3,17 @@
  * The matrix layout is the scalar CSR of a 3x3-block vertex graph, stored so that the three
  * scalar rows of block row r are contiguous: block row r with nb blocks starts at 9*bptr[r];
  * scalar row 3r+i holds, for each block k of the row, the columns 3*bcol[k]+j (j = 0,1,2).
- * bpos[e][a][b] is the index (into bcol) of the block coupling element vertices a and b, so each
- * element entry lands at a position computed with no search. */
+ * bpos[e][a][b] (int32: half the memory of int64, and a rank never holds 2^31 blocks) is the
+ * index (into bcol) of the block coupling element vertices a and b, so each element entry lands
+ * at a position computed with no search. */
 #include <stdint.h>
 
-void petsoft_scatter_add_matrix(int64_t ne, int32_t npe, const int64_t *conn, const int64_t *bpos,
+void petsoft_scatter_add_matrix(int64_t ne, int32_t npe, const int64_t *conn, const int32_t *bpos,
                                 const int64_t *bptr, const double *ke, double *vals) {
   const int64_t n = 3 * (int64_t)npe;
   for (int64_t e = 0; e < ne; ++e) {
     const int64_t *ce = conn + e * npe;
-    const int64_t *pe = bpos + e * npe * npe;
+    const int32_t *pe = bpos + e * npe * npe;
     const double *k = ke + e * n * n;
     for (int32_t a = 0; a < npe; ++a) {
       const int64_t r = ce[a];
