@@ -61,6 +61,22 @@ def test_compiled_block_pattern_equals_the_numpy_reference(dtype):
     assert got.bptr[-1] == got.bptr[-2]        # the unused last vertex has an empty row
 
 
+def test_block_pattern_of_long_rows_equals_the_numpy_reference():
+    """Rows longer than the compiled builder's first guess (16 a row: its buffer grows) and
+    than its insertion sort (64: qsort): every pair of 90 vertices as a spring, and a hub."""
+    nv = 90
+    pairs = np.array([(i, j) for i in range(nv) for j in range(i + 1, nv)])
+    hub = np.column_stack([np.zeros(nv - 1, dtype=np.int64), np.arange(1, nv)])
+    for sets in ([pairs[::-1]], [hub, pairs[:5]]):
+        got, pos_c = block_pattern(nv, sets)
+        ref, pos_np = block_pattern(nv, sets, backend="numpy")
+        for name in ("bptr", "bcol", "indptr", "indices"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(ref, name), err_msg=name)
+        for a, b in zip(pos_c, pos_np, strict=True):
+            np.testing.assert_array_equal(a, b)
+    assert got.bptr[1] == nv                   # the hub's row holds every vertex
+
+
 @pytest.fixture(scope="module")
 def dmesh():
     mesh = box_mesh([1.0, 0.5, 0.25], [6, 4, 3]) if MPI.COMM_WORLD.rank == 0 else None
@@ -155,6 +171,44 @@ def test_assembler_matches_elementwise_petsc_insertion(dmesh):
     assert B.norm() <= 1e-12 * A.norm()
     A.destroy()
     B.destroy()
+
+
+def test_parallel_values_leave_a_matrix_with_unreached_places_to_insertion(dmesh):
+    """The in-place writer sets each place its rank owns a value of, and sets (not adds) the
+    places only other ranks' values reach. A matrix with an entry beyond every rank's pattern
+    (a place no value reaches, which an in-place write would leave stale) is refused: finish()
+    inserts generically, the extra entry is zeroed, the rest equals the inserted values."""
+    if dmesh.comm.size == 1:
+        pytest.skip("the parallel writer needs two ranks")
+    rng = np.random.default_rng(5)
+    asm = MatrixAssembler(dmesh, {"cells": dmesh.cells})
+    A = asm.create_matrix()
+    ref = asm.create_matrix()
+    ref.setAttr("petsoft_pattern", None)
+    n = A.getSize()[0]
+    X = PETSc.Mat().createAIJ(A.getSizes(), nnz=(2, 2), comm=dmesh.comm)
+    if dmesh.comm.rank == 0:
+        X.setValue(0, n - 1, 7.0)             # first and last dof: no element couples them
+    X.assemble()
+    A.axpy(1.0, X, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+    A.setAttr("petsoft_pattern", asm.pattern)  # (MatAXPY's new storage lost the attribute)
+    ke = rng.standard_normal((len(dmesh.cells), 12, 12))
+    asm.begin()
+    asm.add("cells", ke)
+    asm.finish(A)
+    asm.finish(ref)
+    assert asm._parallel is not None
+    # (the place is in rank 0's rows: its writer cannot reach it, the others' can)
+    assert asm._parallel._covers_all == (dmesh.comm.rank != 0)
+    assert not asm._parallel.write(A, asm.values)
+    if A.getOwnershipRange()[0] == 0:
+        cols, vals = A.getRow(0)
+        assert n - 1 in cols and vals[list(cols).index(n - 1)] == 0.0
+    diff = A.copy()
+    diff.axpy(-1.0, ref, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+    assert diff.norm() <= 1e-14 * ref.norm()
+    for obj in (A, ref, X, diff):
+        obj.destroy()
 
 
 def test_values_copied_in_place_equal_inserted_ones_and_solvers_see_them(dmesh):
