@@ -6,7 +6,12 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from petsoft.fem.assembly import MatrixAssembler
-from petsoft.fem.kernels.scatter import block_pattern, scatter_add_matrix, scatter_add_vector
+from petsoft.fem.kernels.scatter import (
+    block_pattern,
+    csr_find,
+    scatter_add_matrix,
+    scatter_add_vector,
+)
 from petsoft.mesh.distributed import DistributedMesh
 from petsoft.mesh.serial import box_mesh
 from petsoft.physics.loads import consistent_mass_matrices, gravity_forces, lumped_masses
@@ -75,6 +80,25 @@ def test_block_pattern_of_long_rows_equals_the_numpy_reference():
         for a, b in zip(pos_c, pos_np, strict=True):
             np.testing.assert_array_equal(a, b)
     assert got.bptr[1] == nv                   # the hub's row holds every vertex
+
+
+def test_csr_find_equals_a_search_of_every_entry():
+    """csr_find against the definition (a search of row * ncols + column in the sorted keys):
+    present entries, absent columns, rows out of range and empty rows give -1."""
+    rng = np.random.default_rng(3)
+    nrows, ncols = 50, 70
+    rows = [np.sort(rng.choice(ncols, rng.integers(0, 12), replace=False)) for _ in range(nrows)]
+    ai = np.r_[0, np.cumsum([len(r) for r in rows])]
+    aj = np.concatenate(rows)
+    qr = rng.integers(-2, nrows + 2, size=2000)
+    qc = rng.integers(0, ncols, size=2000)
+    keys = np.repeat(np.arange(nrows), np.diff(ai)) * ncols + aj
+    at = np.searchsorted(keys, qr * ncols + qc)
+    want = np.where((qr >= 0) & (qr < nrows) & (at < len(keys))
+                    & (keys[np.minimum(at, len(keys) - 1)] == qr * ncols + qc), at, -1)
+    got = csr_find(ai, aj, qr, qc)
+    np.testing.assert_array_equal(got, want)
+    assert (got >= 0).sum() > 100 and (got < 0).sum() > 100     # both kinds were asked
 
 
 @pytest.fixture(scope="module")
@@ -171,6 +195,18 @@ def test_assembler_matches_elementwise_petsc_insertion(dmesh):
     assert B.norm() <= 1e-12 * A.norm()
     A.destroy()
     B.destroy()
+
+
+def test_matrix_holds_exactly_the_whole_mesh_pattern(dmesh):
+    """create_matrix on any number of ranks: assembled, every nonzero of the whole mesh's
+    pattern (counted serially from the file mesh) and no other, allocated without mallocs."""
+    A = MatrixAssembler(dmesh, {"cells": dmesh.cells}).create_matrix()
+    whole, _ = block_pattern(len(dmesh.mesh.points), [dmesh.mesh.tets])
+    info = A.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)
+    assert A.assembled
+    assert int(info["nz_used"]) == whole.nvalues
+    assert int(info["mallocs"]) == 0
+    A.destroy()
 
 
 def test_parallel_values_leave_a_matrix_with_unreached_places_to_insertion(dmesh):

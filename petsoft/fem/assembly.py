@@ -12,7 +12,13 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.fem.kernels.scatter import BlockPattern, block_pattern, block_rows, scatter_add_matrix
+from petsoft.fem.kernels.scatter import (
+    BlockPattern,
+    block_pattern,
+    block_rows,
+    scalar_csr,
+    scatter_add_matrix,
+)
 from petsoft.fem.matrix_values import ParallelValues, copy_into_seqaij
 
 #: The attribute naming the pattern a sequential matrix was made with (its values can be copied).
@@ -38,7 +44,7 @@ class MatrixAssembler:
         self.connectivity = {n: np.ascontiguousarray(connectivities[n], np.int64) for n in names}
         self.positions = dict(zip(names, positions, strict=True))
         self.values = np.zeros(self.pattern.nvalues)
-        self._owned_nnz = None     # per owned row, in parallel (computed once)
+        self._owned_csr = None     # the owned rows' global CSR, in parallel (computed once)
         self._parallel = None      # ParallelValues of the parallel matrices (at first finish)
 
     def create_matrix(self) -> PETSc.Mat:
@@ -46,10 +52,13 @@ class MatrixAssembler:
         drops it, and setting it afterwards changed nothing measurable for GAMG on a 27,300-dof
         step) with exactly this pattern's nonzeros.
 
-        Serially the matrix is made on the pattern's own arrays; in parallel it is preallocated
-        exactly from counts computed once per assembler (:func:`owned_rows_nnz`) and its pattern
-        filled with zeros. PETSc's ``DMCreateMatrix`` redid its own preallocation for
-        every matrix: 0.8 s a matrix at 384k tets, more than the distribution and the pattern.
+        Serially the matrix is made on the pattern's own arrays; in parallel from the CSR of
+        its owned rows (:func:`owned_rows_csr`, computed once per assembler), which PETSc takes
+        with explicit zeros in one call (``MatMPIAIJSetPreallocationCSR``). PETSc's
+        ``DMCreateMatrix`` redid its own preallocation for every matrix (0.8 s a matrix at 384k
+        tets, more than the distribution and the pattern); zeros inserted through
+        ``MatSetValuesLocal`` searched every entry and sent the ghost rows' (0.4 s a matrix at
+        1M tets on 2 ranks).
         """
         if self.dmesh.comm.size == 1:
             # PETSc uses the arrays as they are (no copy of the pattern; petsc4py keeps them
@@ -59,38 +68,31 @@ class MatrixAssembler:
             A = PETSc.Mat().createAIJWithArrays(
                 (n, n), (self.pattern.indptr, self.pattern.indices,
                          np.zeros(len(self.pattern.indices))), bsize=3, comm=self.dmesh.comm)
-            A.setAttr(_PATTERN, self.pattern)
         else:
-            if self._owned_nnz is None:
-                self._owned_nnz = owned_rows_nnz(self.dmesh, self.pattern)
-            n = len(self._owned_nnz[0])
+            if self._owned_csr is None:
+                self._owned_csr = owned_rows_csr(self.dmesh, self.pattern)
+            n = 3 * self.dmesh.nowned
             A = PETSc.Mat().create(comm=self.dmesh.comm)
             A.setSizes(((n, PETSc.DETERMINE), (n, PETSc.DETERMINE)), bsize=3)
             A.setType(PETSc.Mat.Type.AIJ)
-            A.setPreallocationNNZ(self._owned_nnz)
+            # every entry of the pattern present (explicit zeros, assembled), as a matrix from
+            # DMCreateMatrix had: one may be copied or combined with another before its first
+            # assembly
+            A.setPreallocationCSR(self._owned_csr)
+        A.setAttr(_PATTERN, self.pattern)
         A.setLGMap(self.dmesh.lgmap, self.dmesh.lgmap)
         A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         A.setOption(PETSc.Mat.Option.KEEP_NONZERO_PATTERN, True)
         A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-        if self.dmesh.comm.size > 1:
-            # explicit zeros on the whole pattern, as a matrix from DMCreateMatrix had: one may
-            # be copied or combined with another before its first assembly
-            A.setValuesLocalCSR(self.pattern.indptr, self.pattern.indices,
-                                np.zeros(len(self.pattern.indices)))
-            A.assemble()
-            A.setAttr(_PATTERN, self.pattern)
         return A
 
     def _parallel_values(self, A: PETSc.Mat) -> ParallelValues:
         """Where this rank's values go in the matrices of :meth:`create_matrix` (all alike),
         found at the first :meth:`finish` (collective)."""
         if self._parallel is None:
-            dof = self.dmesh.global_dof.ravel()
-            local_rows = np.repeat(np.arange(len(self.pattern.indptr) - 1, dtype=np.int64),
-                                   np.diff(self.pattern.indptr))
-            self._parallel = ParallelValues(
-                A, dof[local_rows], dof[self.pattern.indices],
-                local_rows < 3 * self.dmesh.nowned)
+            self._parallel = ParallelValues(A, self.pattern.indptr, self.pattern.indices,
+                                            self.dmesh.global_dof.ravel(),
+                                            3 * self.dmesh.nowned)
         return self._parallel
 
     def begin(self) -> None:
@@ -123,12 +125,13 @@ class MatrixAssembler:
         return A
 
 
-def owned_rows_nnz(dmesh, pattern: BlockPattern) -> tuple[np.ndarray, np.ndarray]:
-    """(d_nnz, o_nnz): nonzeros per owned scalar row in the diagonal and off-diagonal blocks of
-    a parallel matrix (PETSc's preallocation), counted exactly.
+def owned_rows_csr(dmesh, pattern: BlockPattern) -> tuple[np.ndarray, np.ndarray]:
+    """(indptr, indices): the scalar CSR of the rows this rank owns in a parallel matrix of the
+    ranks' local patterns, with global column numbers, sorted (PETSc's
+    ``MatMPIAIJSetPreallocationCSR``).
 
     Every local block row (owned or ghost vertex), in global numbering, goes to the rank owning
-    its vertex, which counts the distinct columns of each of its rows (the union of what it
+    its vertex, which takes the distinct columns of each of its rows (the union of what it
     receives, by :func:`~petsoft.fem.kernels.scatter.block_rows` on the received pairs: the
     pattern is symmetric, so a pair (row, column) as a two-vertex element adds nothing else).
     """
@@ -148,9 +151,5 @@ def owned_rows_nnz(dmesh, pattern: BlockPattern) -> tuple[np.ndarray, np.ndarray
     pairs = np.empty((int(recv_counts.sum()), 2), dtype=np.int64)
     mpi.Alltoallv([send, 2 * counts, MPI.INT64_T], [pairs, 2 * recv_counts, MPI.INT64_T])
     bptr, bcol = block_rows(nglobal, [pairs], np.arange(lo, hi, dtype=np.int64))
-    inside = (bcol >= lo) & (bcol < hi)
-    row_of = np.repeat(np.arange(hi - lo), np.diff(bptr))
-    d = np.bincount(row_of[inside], minlength=hi - lo)
-    o = np.diff(bptr) - d
-    # three scalar rows per block row, three scalar columns per block
-    return (np.repeat(3 * d, 3).astype(PETSc.IntType), np.repeat(3 * o, 3).astype(PETSc.IntType))
+    # block column c becomes the global scalar columns 3c, 3c+1, 3c+2 (scalar_csr's default)
+    return scalar_csr(bptr, bcol, PETSc.IntType)

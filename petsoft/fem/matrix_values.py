@@ -23,6 +23,8 @@ from functools import lru_cache
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.fem.kernels.scatter import csr_find, csr_find_local
+
 __all__ = ["ParallelValues", "copy_into_seqaij", "seqaij_available"]
 
 
@@ -96,21 +98,24 @@ class ParallelValues:
     ----------
     A : PETSc.Mat
         The MPIAIJ matrix, assembled, with its final structure (collective).
-    rows, cols : ndarray (nvalues,) int64
-        Global scalar row and column of each local value (the assembler's CSR order).
-    owned : ndarray (nvalues,) bool
-        Whether the value's row is owned here (else it goes to the row's owner).
+    indptr, indices : ndarray
+        The assembler's local scalar CSR (local rows and columns), in whose order the values
+        come.
+    dof : ndarray (nlocal,) int64
+        Global scalar number of each local one.
+    nowned : int
+        Local rows owned here: the first ``nowned`` (the others go to their owners).
     """
 
-    def __init__(self, A: PETSc.Mat, rows: np.ndarray, cols: np.ndarray, owned: np.ndarray):
+    def __init__(self, A: PETSc.Mat, indptr: np.ndarray, indices: np.ndarray, dof: np.ndarray,
+                 nowned: int):
         from mpi4py import MPI
 
         self.comm = A.getComm().tompi4py()
-        rstart, rend = A.getOwnershipRange()
+        rstart = A.getOwnershipRange()[0]
         cstart, cend = A.getOwnershipRangeColumn()
         ai, aj, _ = A.getValuesCSR()
         ai, aj = np.asarray(ai, np.int64), np.asarray(aj, np.int64)
-        ncols = int(A.getSize()[1])
         # this rank's entries in row-major order, each row's columns ascending: the diagonal
         # block holds the k-th diagonal entry at value k, the off-diagonal block likewise (its
         # compressed columns keep the global order)
@@ -119,31 +124,35 @@ class ParallelValues:
         slot = np.empty(len(aj), dtype=np.int64)
         slot[diagonal] = np.arange(self.nnz[0])
         slot[~diagonal] = self.nnz[0] + np.arange(self.nnz[1])
-        keys = np.repeat(np.arange(rend - rstart, dtype=np.int64), np.diff(ai)) * ncols + aj
 
-        def slots_of(r, c):
-            k = (r - rstart) * ncols + c
-            at = np.searchsorted(keys, k)
-            if len(k) and (at.max() >= len(keys) or (keys[at] != k).any()):
+        def checked(at):
+            if len(at) and at.min() < 0:
                 raise ValueError("the matrix lacks entries of the assembler's pattern")
             return slot[at]
 
-        self.own_values = np.flatnonzero(owned)
-        self.own_slots = slots_of(rows[owned], cols[owned])
+        # the owned rows' values come first: found in place, no (nnz,) rows and columns
+        indptr = np.asarray(indptr, dtype=np.int64)
+        dof = np.asarray(dof, dtype=np.int64)
+        nown = int(indptr[nowned])
+        self.own_values = np.arange(nown)
+        self.own_slots = checked(csr_find_local(ai, aj, rstart, indptr[:nowned + 1], indices,
+                                                dof))
+        ghost = np.arange(nown, int(indptr[-1]))
+        ghost_rows = np.repeat(dof[nowned:len(indptr) - 1], np.diff(indptr[nowned:]))
+        ghost_cols = dof[np.asarray(indices[nown:], dtype=np.int64)]
         # ghost rows: to their owners, ordered by rank
-        ghost = np.flatnonzero(~owned)
         starts = np.array(self.comm.allgather(rstart) + [int(A.getSize()[0])], dtype=np.int64)
-        owner = np.searchsorted(starts, rows[ghost], side="right") - 1
+        owner = np.searchsorted(starts, ghost_rows, side="right") - 1
         order = np.argsort(owner, kind="stable")
         self.send_values = ghost[order]
         self.send_counts = np.bincount(owner, minlength=self.comm.size).astype(np.int64)
         self.recv_counts = np.empty_like(self.send_counts)
         self.comm.Alltoall(self.send_counts, self.recv_counts)
-        pairs = np.ascontiguousarray(np.column_stack([rows[ghost], cols[ghost]])[order])
+        pairs = np.ascontiguousarray(np.column_stack([ghost_rows, ghost_cols])[order])
         received = np.empty((int(self.recv_counts.sum()), 2), dtype=np.int64)
         self.comm.Alltoallv([pairs, 2 * self.send_counts, MPI.INT64_T],
                             [received, 2 * self.recv_counts, MPI.INT64_T])
-        recv_slots = slots_of(received[:, 0], received[:, 1])
+        recv_slots = checked(csr_find(ai, aj, received[:, 0] - rstart, received[:, 1]))
         # several ranks may send to one place: summed by reduceat over the sorted places
         self.recv_order = np.argsort(recv_slots, kind="stable")
         sorted_slots = recv_slots[self.recv_order]

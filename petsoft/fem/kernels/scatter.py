@@ -36,6 +36,12 @@ def _library() -> ctypes.CDLL:
     lib.petsoft_pattern_build.restype = ctypes.c_void_p
     lib.petsoft_pattern_take.argtypes = [ctypes.c_void_p, _i64p]
     lib.petsoft_pattern_take.restype = None
+    lib.petsoft_csr_find.argtypes = [ctypes.c_int64, _i64p, _i64p, ctypes.c_int64, _i64p, _i64p,
+                                     _i64p]
+    lib.petsoft_csr_find.restype = None
+    lib.petsoft_csr_find_local.argtypes = [ctypes.c_int64, _i64p, _i64p, _i64p, ctypes.c_int64,
+                                           ctypes.c_int64, _i64p, _i64p, _i64p]
+    lib.petsoft_csr_find_local.restype = None
     for bits in (32, 64):
         fn = getattr(lib, f"petsoft_pattern_scalar{bits}")
         fn.argtypes = [ctypes.c_int64, _i64p, _i64p, _i64p, _i64p, _i64p]
@@ -156,6 +162,46 @@ def scalar_csr(bptr: np.ndarray, bcol: np.ndarray, index_dtype=np.int32,
         nrows, addr(bptr), addr(np.ascontiguousarray(bcol)), None if cmap is None else addr(cmap),
         addr(indptr), addr(indices))
     return indptr, indices
+
+
+def csr_find(ai: np.ndarray, aj: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """Index into ``aj`` of each entry (rows[q], cols[q]) of a CSR structure (ai, aj) whose rows
+    hold sorted columns, -1 where absent (compiled: a bisection within the row per entry).
+
+    Parameters
+    ----------
+    ai : ndarray (nrows + 1,)
+    aj : ndarray (nnz,)
+    rows, cols : ndarray (n,)
+        Row (0-based, into ai) and column of each entry sought.
+    """
+    ai, aj = (np.ascontiguousarray(a, dtype=np.int64) for a in (ai, aj))
+    rows, cols = (np.ascontiguousarray(a, dtype=np.int64) for a in (rows, cols))
+    if rows.shape != cols.shape or rows.ndim != 1:
+        raise ValueError("rows and cols must be 1-D arrays of one length")
+    if len(ai) < 1 or ai[-1] > len(aj):
+        raise ValueError("ai does not fit aj")
+    out = np.empty(len(rows), dtype=np.int64)
+    _library().petsoft_csr_find(len(rows), addr(rows), addr(cols), len(ai) - 1, addr(ai),
+                                addr(aj), addr(out))
+    return out
+
+
+def csr_find_local(ai: np.ndarray, aj: np.ndarray, row0: int, indptr: np.ndarray,
+                   indices: np.ndarray, dof: np.ndarray) -> np.ndarray:
+    """:func:`csr_find` of every entry of a local CSR (``indptr``, ``indices``: local rows and
+    columns) in global numbers (``dof``: the global number of each local one; rows of ``ai``
+    count from global row ``row0``): ``out[k]`` for ``indptr[0] <= k < indptr[-1]``."""
+    ai, aj, indptr, indices, dof = (np.ascontiguousarray(a, dtype=np.int64)
+                                    for a in (ai, aj, indptr, indices, dof))
+    if len(indptr) < 1 or indptr[-1] > len(indices) or len(dof) < len(indptr) - 1:
+        raise ValueError("indptr, indices and dof do not fit each other")
+    if len(indices) and (indices.min() < 0 or indices.max() >= len(dof)):
+        raise ValueError("indices refer to dofs that do not exist")
+    out = np.empty(int(indptr[-1] - indptr[0]), dtype=np.int64)
+    _library().petsoft_csr_find_local(len(indptr) - 1, addr(indptr), addr(indices), addr(dof),
+                                      int(row0), len(ai) - 1, addr(ai), addr(aj), addr(out))
+    return out
 
 
 def _block_pattern_numpy(nvertices: int, connectivities: list[np.ndarray], index_dtype):
