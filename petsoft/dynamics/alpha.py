@@ -36,12 +36,7 @@ from petsoft.errors import InvertedElementError
 from petsoft.physics.viscoelastic import MaxwellRule
 from petsoft.solvers.borrowed_chord import ChordBorrower
 from petsoft.solvers.convergence import on_any_rank, outcome, reason_name, stop_at_round_off
-from petsoft.solvers.linear import (
-    factor_once_per_step,
-    is_direct,
-    keep_supports,
-    multigrid_once_per_step,
-)
+from petsoft.solvers.linear import reuse_across_iterations
 from petsoft.solvers.options import scoped_defaults
 
 
@@ -247,11 +242,7 @@ class GeneralizedAlpha(ChordBorrower, SolverReuse):
         s.linear_defaults(self.ksp)
         with scoped_defaults(**{self.prefix + "snes_linesearch_type": "basic"}):
             snes.setFromOptions()
-        self._lagged = factor_once_per_step(snes)
-        if not self._lagged:
-            multigrid_once_per_step(snes)
-        if not is_direct(self.ksp):
-            snes.setLineSearchPreCheck(keep_supports, args=(s,))
+        self._lagged = reuse_across_iterations(snes, s)
 
     def consistent_acceleration(self, t0, q0, v0, out) -> None:
         """out = M^-1 (f(t0) - grad W(q0) - D v0) (zero on supports)."""

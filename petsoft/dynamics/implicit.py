@@ -46,12 +46,7 @@ from petsoft.dynamics.interfaces import StepperDefaults, length_scale
 from petsoft.errors import InvertedElementError
 from petsoft.solvers.borrowed_chord import ChordBorrower
 from petsoft.solvers.convergence import on_any_rank, outcome, stop_at_round_off
-from petsoft.solvers.linear import (
-    factor_once_per_step,
-    is_direct,
-    keep_supports,
-    multigrid_once_per_step,
-)
+from petsoft.solvers.linear import reuse_across_iterations
 from petsoft.solvers.options import scoped_defaults
 
 METHODS = ("be", "si", "midpoint", "trapezoidal")
@@ -247,11 +242,7 @@ class ImplicitIntegrator(ChordBorrower, SolverReuse, StepperDefaults):
                 defaults.update({prefix + "ksp_type": "cg", prefix + "pc_type": "jacobi"})
             with scoped_defaults(**defaults):
                 snes.setFromOptions()
-            self._lagged = not shell and factor_once_per_step(snes)
-            if not self._lagged:
-                multigrid_once_per_step(snes)
-            if not is_direct(self.ksp):
-                snes.setLineSearchPreCheck(keep_supports, args=(s,))
+            self._lagged = reuse_across_iterations(snes, s, chord=not shell)
             # -<prefix>snes_type ngs: petsoft's per-node update (petsoft.dynamics.nonlinear_gs)
             self.ngs = nonlinear_gs.install(self, snes, prefix)
         else:

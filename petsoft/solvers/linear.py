@@ -238,6 +238,20 @@ def keep_supports(x: PETSc.Vec, y: PETSc.Vec, system) -> bool:
     return True
 
 
+def reuse_across_iterations(snes: PETSc.SNES, system, chord: bool = True) -> bool:
+    """Set a time step's Newton solver to reuse what it can across its iterations: the chord's
+    factorisation (:func:`factor_once_per_step`, unless ``chord`` is False), else the multigrid
+    hierarchy (:func:`multigrid_once_per_step`); a solver that is not direct keeps ``system``'s
+    supports in place (:func:`keep_supports`). Call after ``snes.setFromOptions()``; returns
+    whether the chord is used (a failed step then calls :func:`refactor_every_iteration`)."""
+    lagged = chord and factor_once_per_step(snes)
+    if not lagged:
+        multigrid_once_per_step(snes)
+    if not is_direct(snes.getKSP()):
+        snes.setLineSearchPreCheck(keep_supports, args=(system,))
+    return lagged
+
+
 def refactor_every_iteration(snes: PETSc.SNES) -> None:
     """Undo :func:`factor_once_per_step`'s lag: the Jacobian is assembled and factored at every
     Newton iteration (full Newton), by LU where the chord used a symmetric factorisation."""
