@@ -134,8 +134,7 @@ class ParallelValues:
         indptr = np.asarray(indptr, dtype=np.int64)
         dof = np.asarray(dof, dtype=np.int64)
         nown = int(indptr[nowned])
-        self.own_values = np.arange(nown)
-        self.own_slots = checked(csr_find_local(ai, aj, rstart, indptr[:nowned + 1], indices,
+        own_slots = checked(csr_find_local(ai, aj, rstart, indptr[:nowned + 1], indices,
                                                 dof))
         ghost = np.arange(nown, int(indptr[-1]))
         ghost_rows = np.repeat(dof[nowned:len(indptr) - 1], np.diff(indptr[nowned:]))
@@ -158,22 +157,22 @@ class ParallelValues:
         sorted_slots = recv_slots[self.recv_order]
         first = np.flatnonzero(np.r_[True, sorted_slots[1:] != sorted_slots[:-1]]
                                if len(sorted_slots) else np.zeros(0, bool))
-        self.recv_starts, self.recv_slots = first, sorted_slots[first]
+        self.recv_starts, recv_slots = first, sorted_slots[first]
         # the places split by block, so that write() fills PETSc's arrays directly (a buffer of
         # every value, zeroed and copied at every assembly, was 88 MB a rank at 1M tets)
         # a received sum is added where this rank's own value was written, written elsewhere
         nd = self.nnz[0]
-        self._own = _by_block(self.own_slots, self.own_values, nd)
+        self._own = _by_block(own_slots, np.arange(nown), nd)
         written = np.zeros(sum(self.nnz), dtype=bool)
-        written[self.own_slots] = True
-        also = written[self.recv_slots]
-        index = np.arange(len(self.recv_slots))
-        self._received_added = _by_block(self.recv_slots[also], index[also], nd)
-        self._received_only = _by_block(self.recv_slots[~also], index[~also], nd)
+        written[own_slots] = True
+        also = written[recv_slots]
+        index = np.arange(len(recv_slots))
+        self._received_added = _by_block(recv_slots[also], index[also], nd)
+        self._received_only = _by_block(recv_slots[~also], index[~also], nd)
         # the structure of the assembler's matrices is the union of the ranks' patterns, so
         # the values sent here and the ones received cover every place; a matrix given places
         # beyond it is left to the caller's generic insertion (write() returns False)
-        written[self.recv_slots] = True
+        written[recv_slots] = True
         self._covers_all = bool(written.all())
         self._mpi_double = MPI.DOUBLE
 

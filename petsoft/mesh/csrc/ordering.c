@@ -22,7 +22,7 @@ static uint64_t spread_bits(uint64_t v) {
   return v;
 }
 
-/* The centroid of cell e: its first npe vertices (row stride `stride` in `cells`). */
+/* The centroid c of a cell: the mean of its first npe vertices, summed in order. */
 static void centroid(const double *points, const int64_t *cell, int32_t npe, double *c) {
   const double *p = points + 3 * cell[0];
   c[0] = p[0];

@@ -124,10 +124,8 @@ void *petsoft_pattern_build(int64_t nv, int32_t nsets, const int64_t *ne, const 
   int64_t capacity = 16 * (nrows > 0 ? nrows : 1);
   pattern_rows_t *out = malloc(sizeof(pattern_rows_t));
   int64_t *col = malloc((size_t)capacity * sizeof(int64_t));
-  if (!marker || (pos && !where) || !out || !col || incidence(nv, nsets, ne, npe, conn, &inc)) {
-    free(marker); free(where); free(out); free(col); free(inc.ptr); free(inc.elt);
-    return NULL;
-  }
+  if (!marker || (pos && !where) || !out || !col || incidence(nv, nsets, ne, npe, conn, &inc))
+    goto fail;
   for (int64_t v = 0; v < nv; ++v) marker[v] = -1;
   bptr[0] = 0;
   for (int64_t i = 0; i < nrows; ++i) {
@@ -136,10 +134,7 @@ void *petsoft_pattern_build(int64_t nv, int32_t nsets, const int64_t *ne, const 
     if (bptr[i] + most > capacity) {
       capacity = 2 * capacity > bptr[i] + most ? 2 * capacity : bptr[i] + most;
       int64_t *grown = realloc(col, (size_t)capacity * sizeof(int64_t));
-      if (!grown) {
-        free(marker); free(where); free(out); free(col); free(inc.ptr); free(inc.elt);
-        return NULL;
-      }
+      if (!grown) goto fail;
       col = grown;
     }
     int64_t *row = col + bptr[i];
@@ -148,9 +143,8 @@ void *petsoft_pattern_build(int64_t nv, int32_t nsets, const int64_t *ne, const 
     bptr[i + 1] = bptr[i] + n;
     if (!pos) continue;
     if (bptr[i + 1] > INT32_MAX) {
-      free(marker); free(where); free(out); free(col); free(inc.ptr); free(inc.elt);
       *status = 2;
-      return NULL;
+      goto fail;
     }
     for (int64_t k = 0; k < n; ++k) where[row[k]] = bptr[i] + k;
     for (int64_t k = inc.ptr[r]; k < inc.ptr[r + 1]; ++k) {
@@ -170,6 +164,9 @@ void *petsoft_pattern_build(int64_t nv, int32_t nsets, const int64_t *ne, const 
   out->size = bptr[nrows];
   *status = 0;
   return out;
+fail: /* *status says why (1: an allocation, 2: too many blocks) */
+  free(marker); free(where); free(out); free(col); free(inc.ptr); free(inc.elt);
+  return NULL;
 }
 
 /* Copy the rows built by petsoft_pattern_build into bcol (bptr[nrows] entries) and free them;
