@@ -19,6 +19,7 @@ from petsoft.dynamics.checkpoint import checkpoint_files
 from petsoft.dynamics.simulate import Simulation
 from petsoft.experiment import experiment_from_dict
 from petsoft.physics.model import build_model
+from petsoft.solvers.options import experiment_options
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 
@@ -59,19 +60,38 @@ def _shared_dir(tmp_path_factory, name):
 def _run(exp, out, restart=False):
     model = build_model(exp)
     sim = Simulation(model, exp, out=out)
-    result = sim.run(restart=restart)
+    with experiment_options(exp.petsc):        # as petsoft simulate applies [petsc]
+        result = sim.run(restart=restart)
     q = MPI.COMM_WORLD.bcast(model.dmesh.gather_global(result.q))
     sim.destroy()
     return q
 
 
-@pytest.mark.parametrize("integrator", ["be", "midpoint", "alpha"])
-def test_restart_is_bitwise_on_the_same_ranks(tmp_path_factory, integrator):
-    """Stop after the step-60 checkpoint (the later ones are deleted, as if the run died), restart:
+#: CG + algebraic multigrid on a bar large enough for a hierarchy of several levels (the run
+#: keeps the hierarchy's interpolation across steps and renews it after each checkpoint)
+MULTIGRID = """
+[petsc]
+ksp_type = "cg"
+pc_type = "gamg"
+"""
+
+
+@pytest.mark.parametrize("integrator, solver", [("be", "default"), ("midpoint", "default"),
+                                                ("alpha", "default"), ("be", "gamg"),
+                                                ("alpha", "gamg")])
+def test_restart_is_bitwise_on_the_same_ranks(tmp_path_factory, integrator, solver):
+    """Stop after the step-20 checkpoint (the later ones are deleted, as if the run died), restart:
     final state, energies and probe trajectories equal the uninterrupted run bit for bit."""
-    base = _shared_dir(tmp_path_factory, f"restart-{integrator}")
-    exp = experiment_from_dict(
-        tomllib.loads(EXPERIMENT.format(integrator=integrator)))
+    if solver == "gamg" and MPI.COMM_WORLD.size > 2:
+        # measured: on 3 ranks two uninterrupted GAMG runs in one process already differ, with
+        # a new hierarchy at every step as before hierarchies were kept (PETSc 3.18's GAMG
+        # carries state between objects there); on 1 and 2 ranks they repeat bit for bit
+        pytest.skip("GAMG runs do not repeat bit for bit on more than 2 ranks")
+    base = _shared_dir(tmp_path_factory, f"restart-{integrator}-{solver}")
+    text = EXPERIMENT.format(integrator=integrator)
+    if solver == "gamg":
+        text = text.replace("cells = [6, 1, 1]", "cells = [24, 3, 3]") + MULTIGRID
+    exp = experiment_from_dict(tomllib.loads(text))
     q_full = _run(exp, base / "full")
     q_first = _run(exp, base / "cut")
     assert np.array_equal(q_first, q_full)

@@ -29,9 +29,9 @@ MARKERS = np.array([[0.3, 0.04, 0.04], [0.15, 0.0, 0.02]])
 FRAMES = np.array([0.004, 0.01, 0.02])
 
 
-def _experiment(method: str, model: str = "linear"):
+def _experiment(method: str, model: str = "linear", cells=(6, 1, 1)):
     return experiment_from_dict({
-        "mesh": {"box": {"size": [0.3, 0.04, 0.04], "cells": [6, 1, 1]}},
+        "mesh": {"box": {"size": [0.3, 0.04, 0.04], "cells": list(cells)}},
         "material": {"model": model, "youngs_modulus": 1e5, "poisson_ratio": 0.3,
                      "density": 1000.0},
         "damping": {"mass": 0.5, "stiffness": 1e-3},
@@ -134,3 +134,68 @@ def test_parameters_changed_between_runs_are_seen(method):
     assert np.abs(first - ref_sim).max() > 1e-3 * scale      # E matters at this size
     assert np.abs(sim - ref_sim).max() <= 1e-10 * scale
     assert np.abs(jac - ref_jac).max() <= 1e-8 * np.abs(ref_jac).max()
+
+
+def _multigrid_run(method: str, keep: bool, steps: int = 6, **options):
+    """``steps`` steps of a corotated bar (24 x 3 x 3 cells: a hierarchy of several levels)
+    under CG + GAMG; returns (the SNES of each step, the final state on rank 0's view)."""
+    from petsoft.dynamics.alpha import GeneralizedAlpha
+    from petsoft.dynamics.implicit import ImplicitIntegrator
+    from petsoft.physics.model import build_model
+    from petsoft.solvers.options import scoped_defaults
+
+    exp = _experiment(method, "corotated", cells=(24, 3, 3))
+    system = DynamicSystem(build_model(exp), exp.damping.mass, exp.damping.stiffness)
+    settings = {"mg_ksp_type": "cg", "mg_pc_type": "gamg",
+                **{"mg_" + k: v for k, v in options.items()}}
+    with scoped_defaults(**settings):
+        if method == "alpha":
+            integrator = GeneralizedAlpha(system, radius=0.9, prefix="mg_")
+        else:
+            integrator = ImplicitIntegrator(system, method, prefix="mg_")
+        integrator.keep_factors(keep)
+        q, v = system.create_vec(), system.create_vec()
+        q.zeroEntries()
+        v.zeroEntries()
+        q1, v1 = q.duplicate(), v.duplicate()
+        solvers = []
+        for n in range(steps):
+            report = integrator.step(n * 0.002, q, v, 0.002, q1, v1)
+            assert report.converged
+            solvers.append(integrator.snes)
+            q1.copy(q)
+            v1.copy(v)
+        assert integrator.snes.getKSP().getPC().getType() == "gamg"
+    final = system.model.dmesh.gather_global(q)
+    return solvers, final
+
+
+@pytest.mark.parametrize("method", ["be", "alpha"])
+def test_a_run_that_keeps_factors_keeps_its_multigrid_until_renewed(method):
+    """With keep_factors (petsoft simulate, ForwardModel.simulate) a GAMG solver is kept from
+    step to step (its set-up on each new matrix keeps the interpolation); without, a new one
+    every step. Both trajectories meet the same Newton tolerance: they agree to ~1e-9."""
+    kept, q_kept = _multigrid_run(method, True)
+    fresh, q_fresh = _multigrid_run(method, False)
+    assert all(s is kept[0] for s in kept)
+    assert len({id(s) for s in fresh}) == len(fresh)
+    if q_kept is not None:
+        scale = np.abs(q_fresh).max()
+        assert 0 < np.abs(q_kept - q_fresh).max() <= 1e-8 * scale
+
+
+def test_a_stale_or_unreused_hierarchy_is_set_up_anew(monkeypatch):
+    """The kept hierarchy is renewed at the step after one whose linear iterations exceed
+    twice the first kept step's plus MULTIGRID_SLACK (here made negative: every step), and
+    never kept when the options ask GAMG not to reuse its interpolation (its set-up would
+    then draw new random numbers: a restart could not repeat it)."""
+    import petsoft.dynamics.implicit as implicit
+
+    unreused, _ = _multigrid_run("be", True, steps=4, pc_gamg_reuse_interpolation="false")
+    assert len({id(s) for s in unreused}) == 4
+    monkeypatch.setattr(implicit, "MULTIGRID_SLACK", -1000)
+    stale, _ = _multigrid_run("be", True, steps=5)
+    # step 1 keeps the first solver (measuring its first step's iterations), step 2 finds
+    # them exceeded and sets up anew, step 3 keeps that one, step 4 renews again
+    assert stale[0] is stale[1] and stale[2] is stale[3]
+    assert stale[1] is not stale[2] and stale[3] is not stale[4]

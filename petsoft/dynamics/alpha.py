@@ -385,7 +385,9 @@ class GeneralizedAlpha(ChordBorrower, SolverReuse):
         # A fresh solver each step: algebraic multigrid keeps state between set-ups (its random
         # generator survives KSPReset), and a run restarted from a checkpoint must compute
         # bit for bit what the uninterrupted run did. Creating a SNES costs microseconds.
-        # Except with a constant Jacobian (keeps_solver).
+        # Except where keeps_solver says a kept one computes the same (a constant Jacobian,
+        # a set-up that depends on the matrix alone), or a run keeps its multigrid
+        # interpolation until a renewal a restart repeats.
         if not self.keeps_solver():
             self._new_solver()
         snes = self._newton(q1)

@@ -134,9 +134,15 @@ class ChordBorrower:
         made without to that tolerance, not bit for bit. Calling it again (``True``) makes the
         next step factor afresh: a checkpointed run (:class:`petsoft.dynamics.simulate.
         Simulation`) does after each checkpoint, so that a run restarted there, whose first
-        step factors afresh, repeats the uninterrupted one bit for bit."""
+        step factors afresh, repeats the uninterrupted one bit for bit.
+
+        Where the stepper's solver is algebraic multigrid, its hierarchy's interpolation is
+        kept the same way (:meth:`petsoft.dynamics.implicit.SolverReuse._keeps_multigrid`),
+        and calling this renews it at the next step."""
         self._keep_factors = bool(on)
         self._kept = None
+        self._keep_multigrid = bool(on)
+        self.new_run()
 
     def borrow_chord(self, ksp: PETSc.KSP | None) -> None:
         """Solve the next step's Newton systems by ``ksp``, set up on an approximation of the
