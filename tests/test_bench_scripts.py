@@ -36,6 +36,22 @@ def test_bench_step_quick():
 
 
 @pytest.mark.serial_only
+def test_bench_multigrid_loop_small():
+    """``bench_multigrid_loop.py`` on a small bar: both ways end in the same state (the script
+    exits non-zero otherwise), and the kept way sets up fewer hierarchies than steps."""
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "benchmarks" / "bench_multigrid_loop.py"),
+         "--cells", "20", "3", "3", "--steps", "6", "--repeat", "1"],
+        cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "kept / new =" in proc.stdout, proc.stdout
+    kept = next(line for line in proc.stdout.splitlines() if " kept:" in line)
+    new = next(line for line in proc.stdout.splitlines() if " new :" in line)
+    assert "hierarchies 6," in new, proc.stdout
+    assert int(kept.split("hierarchies ")[1].split(",")[0]) < 6, proc.stdout
+
+
+@pytest.mark.serial_only
 def test_bench_gradient_quick():
     """``bench_gradient.py --quick`` exits 0 and prints a row per integrator and parameter count,
     each with the adjoint and forward-sensitivity gradients agreeing."""
