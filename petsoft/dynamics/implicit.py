@@ -144,7 +144,7 @@ class SolverReuse:
         :attr:`_keep_multigrid`): its set-up on the new matrix then reuses the interpolation
         (PETSc's ``-pc_gamg_reuse_interpolation``, on by default) and only recomputes the
         coarse operators: on one backward-Euler step of a bent neo-Hookean bar at 306,372 dofs
-        on 2 ranks (``bench_step.py``) 0.5 s against 2.4 s for a new hierarchy, a quarter of
+        on 2 ranks (``bench_step.py``) 0.6 s against 2.4 s for a new hierarchy, a quarter of
         the step. A DOLFINx time loop does the same (its KSP lives across steps).
 
         Not bit for bit a new solver (the interpolation is an earlier matrix's): the steps
