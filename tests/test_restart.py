@@ -83,11 +83,12 @@ def test_restart_is_bitwise_on_the_same_ranks(tmp_path_factory, integrator, solv
     """Stop after the step-20 checkpoint (the later ones are deleted, as if the run died), restart:
     final state, energies and probe trajectories equal the uninterrupted run bit for bit."""
     if solver == "gamg" and MPI.COMM_WORLD.size > 2:
-        # measured: on 3 ranks two uninterrupted runs of this Simulation in one process
-        # already differ (by ~3e-17 m), also with a new hierarchy at every step as before
-        # hierarchies were kept; the direct solve repeats on 3 and 4 ranks, and so do a bare
-        # loop of integrator steps and bare GAMG solves on 3 ranks. Cause not found; on 1 and
-        # 2 ranks the runs repeat bit for bit
+        # measured: on 3 ranks two uninterrupted runs in one process already differ (by ~3e-17
+        # m), also with a new hierarchy at every step as before hierarchies were kept, and so
+        # does a bare loop of backward-Euler steps from a bent state; the direct solve and CG +
+        # Jacobi repeat on 3 ranks, and GAMG repeats when its coarse solve is replaced
+        # (-mg_coarse_ksp_type cg -mg_coarse_pc_type jacobi): PETSc 3.18's default GAMG coarse
+        # solve is where the bits change. On 1 and 2 ranks the runs repeat bit for bit
         pytest.skip("GAMG runs do not repeat bit for bit on more than 2 ranks")
     base = _shared_dir(tmp_path_factory, f"restart-{integrator}-{solver}")
     text = EXPERIMENT.format(integrator=integrator)
