@@ -14,21 +14,19 @@ from functools import lru_cache
 
 import numpy as np
 
+from petsoft.carrays import addr
+
 _BITS = 21  # 3 x 21 bits fit an int64 key
 
 
 @lru_cache(maxsize=1)
 def _library() -> ctypes.CDLL:
     lib = ctypes.CDLL(importlib.import_module("petsoft.mesh._cmesh").__file__)
-    # arrays go in as plain addresses (see petsoft.fem.kernels.compiled.addr for why)
+    # arrays go in as plain addresses (see petsoft.carrays.addr for why)
     lib.petsoft_cell_morton_keys.argtypes = [ctypes.c_int64, ctypes.c_int32, ctypes.c_int64,
                                              ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
     lib.petsoft_cell_morton_keys.restype = None
     return lib
-
-
-def _addr(a: np.ndarray) -> int:
-    return a.__array_interface__["data"][0]
 
 
 def _spread_bits(v: np.ndarray) -> np.ndarray:
@@ -74,8 +72,8 @@ def cell_morton_keys(points: np.ndarray, cells: np.ndarray) -> np.ndarray:
     keys = np.empty(len(cells), dtype=np.uint64)
     if len(cells):
         _library().petsoft_cell_morton_keys(len(cells), cells.shape[1],
-                                            cells.strides[0] // cells.itemsize, _addr(cells),
-                                            _addr(points), _addr(keys))
+                                            cells.strides[0] // cells.itemsize, addr(cells),
+                                            addr(points), addr(keys))
     return keys
 
 

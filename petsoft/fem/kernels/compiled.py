@@ -13,6 +13,7 @@ import importlib
 
 import numpy as np
 
+from petsoft.carrays import addr
 from petsoft.errors import InvertedElementError, PetsoftError
 from petsoft.fem.kernels.materials import MODELS, check_model
 from petsoft.fem.kernels.reference import check_volumes
@@ -55,17 +56,6 @@ def library() -> ctypes.CDLL:
     """The compiled kernels' shared library, for the modules that declare their own functions
     of it (:mod:`petsoft.fem.kernels.tet`)."""
     return _lib
-
-
-def addr(a: np.ndarray) -> int:
-    """The address of ``a``'s data.
-
-    Not ``a.ctypes.data``: numpy builds that from a ``ctypes.cast`` result, which references
-    itself, so every call leaves a reference cycle that keeps the array alive until Python's
-    cyclic collector runs -- gigabytes over a calibration run with the collector paused (as
-    ``petsoft diagnose`` does on several ranks).
-    """
-    return a.__array_interface__["data"][0]
 
 
 def _ptr_of(a: np.ndarray | None) -> int | None:

@@ -15,11 +15,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from petsoft.fem.kernels.compiled import addr
+from petsoft.carrays import addr
 
 # Arrays go in as plain addresses (checked contiguous and typed by the callers below): numpy's
 # ndpointer/``.ctypes`` conversion leaves a self-referencing ctypes object per call that keeps the
-# array alive until the cyclic collector runs (see petsoft.fem.kernels.compiled.addr).
+# array alive until the cyclic collector runs (see petsoft.carrays.addr).
 _i64p = _f64p = ctypes.c_void_p
 
 

@@ -11,8 +11,9 @@ from functools import lru_cache
 
 import numpy as np
 
+from petsoft.carrays import addr
 from petsoft.errors import MeshError
-from petsoft.fem.kernels.compiled import addr, library
+from petsoft.fem.kernels.compiled import library
 
 #: An element whose |6 V| is below this fraction of (longest edge)^3 counts as degenerate: its
 #: shape gradients would be dominated by rounding error.
