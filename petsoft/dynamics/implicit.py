@@ -125,11 +125,14 @@ class SolverReuse:
         (:data:`REPEATABLE_PCS`: a factorisation keeps its symbolic analysis, the pattern never
         changes, and refactors the new values): a new SNES, KSP and MUMPS instance per step
         was most of a small model's step (7.5 of 13 ms at 351 dofs). Not for algebraic
-        multigrid, whose set-up draws random numbers from a generator that survives it.
+        multigrid, whose set-up draws random numbers from a generator that survives it --
+        unless the run keeps its factors, when the multigrid keeps its interpolation
+        (:meth:`_keeps_multigrid`).
 
         A run restarted from a checkpoint still computes bit for bit what the uninterrupted run
         did: its first step sets the solver up on the same matrix, and a kept solver computes
-        the same factors or iterates from the same matrix as a new one would.
+        the same factors or iterates from the same matrix as a new one would (a kept multigrid
+        is renewed where the restart sets up its first).
         """
         if not self._solver_used or self.snes is None:
             self._solver_used = True

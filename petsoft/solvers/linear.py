@@ -200,8 +200,10 @@ def multigrid_once_per_step(snes: PETSc.SNES) -> bool:
     Newton direction stays exact up to the Krylov tolerance); the hierarchy of the first one
     preconditions the others (PETSc's ``-snes_lag_preconditioner``), and the Krylov tolerance
     follows the residual's decrease (``-snes_ksp_ew``): 9 Newton iterations, 72 CG iterations,
-    one hierarchy, 1.44 s, to the same Newton tolerance. A fresh solver per step still sets up
-    afresh at each step (restarts stay bit for bit).
+    one hierarchy, 1.44 s, to the same Newton tolerance. A fresh solver per step sets up afresh
+    at each step (restarts stay bit for bit); a run that keeps its factors keeps the
+    hierarchy's interpolation across steps too
+    (:meth:`petsoft.dynamics.implicit.SolverReuse._keeps_multigrid`).
 
     Either option given (``-<prefix>snes_lag_preconditioner``, ``-<prefix>snes_ksp_ew``) leaves
     the solver as the options made it. Call after ``snes.setFromOptions()``; returns whether it
