@@ -12,13 +12,13 @@ experiment in ``cases/added-mass/user.toml`` raised to 10 nodes, starting from d
 values. It prints every evaluation (chi2 on the identification window, held-out rms / noise) and
 the best point.
 
-Measured with an earlier copy of this script (the same calibrations, started from E 20 MPa,
-59 evaluations, ~22 s each, one core, beside other jobs): from diagnose's placement (centre
-(0.1585, 0.0215, 0.176), r 0.0339: chi2 9854, held-out 1.55x) to centre (0.1446, 0.0136,
-0.1533), r 0.0497: chi2 7229, held-out **1.30x**. The truth's own sphere ((0.14, 0.02, 0.18),
-r 0.03) with E and density fitted gives 1.94x on this mesh: the fitted sphere, larger and
-lower, makes up for how a sphere sits on 513 cells. Radius alone (r 0.0389 at diagnose's
-centre): 1.50x.
+Measured at 99d4f12 (60 evaluations, 1802 s on one core beside the test suite): from diagnose's
+placement (centre (0.1585, 0.0215, 0.176), r 0.0339: chi2 9854.2, held-out 1.547x the noise, as
+diagnose's report) to centre (0.1439, 0.0119, 0.1541), r 0.0495: chi2 7220.9, held-out
+**1.30x**, E 20.36 MPa, sphere density 3711 kg/m^3. The truth's own sphere ((0.14, 0.02, 0.18),
+r 0.03) with E and density fitted gives 1.94x on this mesh: the fitted sphere, larger and lower,
+makes up for how a sphere sits on 513 cells. Radius alone (r 0.0389 at diagnose's centre, an
+earlier copy started from E 20 MPa): 1.50x.
 
 Run (the .venv python; minutes per ten evaluations)::
 
