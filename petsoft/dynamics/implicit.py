@@ -102,9 +102,9 @@ class SolverReuse:
 
     _solver_used = False
     snes = None     # the subclass's SNES, once it has one
-    #: whether a changing matrix may keep its multigrid solver across steps (set by
-    #: ChordBorrower.keep_factors: runs that keep factors keep hierarchies too)
-    _keep_multigrid = False
+    #: whether the run keeps its factors (ChordBorrower.keep_factors sets it): a changing
+    #: matrix then keeps its multigrid solver across steps too
+    _keep_factors = False
     #: linear iterations of the first step of the kept multigrid solver (None: not measured)
     _multigrid_its: int | None = None
 
@@ -144,7 +144,7 @@ class SolverReuse:
 
     def _keeps_multigrid(self, ksp: PETSc.KSP) -> bool:
         """Whether this step keeps the previous step's algebraic multigrid (only while
-        :attr:`_keep_multigrid`): its set-up on the new matrix then reuses the interpolation
+        :attr:`_keep_factors`): its set-up on the new matrix then reuses the interpolation
         (PETSc's ``-pc_gamg_reuse_interpolation``, on by default) and only recomputes the
         coarse operators: on one backward-Euler step of a bent neo-Hookean bar at 306,372 dofs
         on 2 ranks (``bench_step.py``) 0.6 s against 2.4 s for a new hierarchy, a quarter of
@@ -156,7 +156,7 @@ class SolverReuse:
         checkpoint, a failed step), and when a step's linear iterations exceed twice the first
         kept step's plus :data:`MULTIGRID_SLACK` (the interpolation has gone stale): a function
         of the run since its last renewal, so a restart repeats the run bit for bit."""
-        if not self._keep_multigrid or not reuses_interpolation(ksp):
+        if not self._keep_factors or not reuses_interpolation(ksp):
             return False
         its = self.snes.getLinearSolveIterations()      # the previous step's
         if self._multigrid_its is None:

@@ -134,8 +134,7 @@ class ParallelValues:
         indptr = np.asarray(indptr, dtype=np.int64)
         dof = np.asarray(dof, dtype=np.int64)
         nown = int(indptr[nowned])
-        own_slots = checked(csr_find_local(ai, aj, rstart, indptr[:nowned + 1], indices,
-                                                dof))
+        own_slots = checked(csr_find_local(ai, aj, rstart, indptr[:nowned + 1], indices, dof))
         ghost = np.arange(nown, int(indptr[-1]))
         ghost_rows = np.repeat(dof[nowned:len(indptr) - 1], np.diff(indptr[nowned:]))
         ghost_cols = dof[np.asarray(indices[nown:], dtype=np.int64)]

@@ -141,7 +141,6 @@ class ChordBorrower:
         and calling this renews it at the next step."""
         self._keep_factors = bool(on)
         self._kept = None
-        self._keep_multigrid = bool(on)
         self.new_run()
 
     def borrow_chord(self, ksp: PETSc.KSP | None) -> None:
