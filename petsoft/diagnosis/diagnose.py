@@ -56,6 +56,7 @@ from petsoft.diagnosis.context import (  # noqa: F401
     petsc_comm,
     scored_together,
 )
+from petsoft.diagnosis.geometry import refit_added_sphere
 from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
 from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings
 from petsoft.diagnosis.outputs import DiagnoseResult, build_diagnosis_report, write_outputs
@@ -270,11 +271,12 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         rank_round(scores, accepted, all_scores, rnd)
         if accepted is None:
             break
-        added.append(accepted[0])
-        history.append(Added(accepted[0], choice.candidate, choice.alternatives,
-                             choice.candidate.zero_values(current.experiment),
-                             untried=left_out))
-        current = accepted[1]
+        # a spatial term's sphere is where the map placed it: fit its centre and radius too
+        entry, fitted, candidate = refit_added_sphere(diag, *accepted, choice.candidate)
+        added.append(entry)
+        history.append(Added(entry, candidate, choice.alternatives,
+                             candidate.zero_values(current.experiment), untried=left_out))
+        current = fitted
         ev = evidence_of(diag, current)
         diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
     if len(history) > 1:

@@ -145,7 +145,7 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r) -> dict:
     with doing(f"numerics {r.label} (one run)"):
         moved = diag.simulate(r.make(exp))
     gc.collect()
-    cols = None if diag.all_differenced(exp) else _sensitivities(diag, fit)
+    cols = None if diag.all_differenced(exp) else model_sensitivities(diag, fit)
     o = linearised_refit(diag, fit, r, moved, cols)
     current = r.error_factors(exp, diag.integrator)[0]
     diag.tell(f"numerics: {r.label} measured: the simulation changes by "
@@ -163,7 +163,7 @@ def linearised_refit(diag: Diagnosis, fit: Fit, r, moved: np.ndarray,
     """The refit of refinement ``r`` of ``fit``'s model, linearised: the change the refined
     simulation ``moved`` (at ``fit``'s parameters) makes, less its least-squares part in the
     span of ``cols``, the current model's sensitivities on the identification window
-    (:func:`_sensitivities`: what a refit would absorb; the fit's residual is orthogonal to
+    (:func:`model_sensitivities`: what a refit would absorb; the fit's residual is orthogonal to
     them). Without ``cols`` (no exact sensitivities) the change at the same parameters, an
     upper bound.
 
@@ -180,11 +180,7 @@ def linearised_refit(diag: Diagnosis, fit: Fit, r, moved: np.ndarray,
         how = "the same parameters (no exact sensitivities to linearise a refit)"
     else:
         c = cols[seen]                # (samples, parameters)
-        scale = np.linalg.norm(c, axis=0)
-        scale[scale == 0.0] = 1.0
-        # the refit's step: the refined residual's least-squares part in the sensitivities
-        r_ref = moved[ident][seen] - data[seen]
-        step = -np.linalg.lstsq(c / scale, r_ref, rcond=None)[0] / scale
+        step = refit_step(c, moved[ident][seen] - data[seen])
         lin = d + c @ step
         how = "linearised refit"
     refit_sim = fit.sim[ident][seen] + lin
@@ -205,7 +201,16 @@ def linearised_refit(diag: Diagnosis, fit: Fit, r, moved: np.ndarray,
             "remaining_estimate": change * remaining}
 
 
-def _sensitivities(diag: Diagnosis, fit: Fit) -> np.ndarray:
+def refit_step(cols: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    """The linearised refit's parameter step: minus the least-squares coefficients of
+    ``residual`` (simulation - data, seen samples) in the span of ``cols`` (samples, parameters),
+    the columns scaled to unit norm first (parameters of very different sizes)."""
+    scale = np.linalg.norm(cols, axis=0)
+    scale[scale == 0.0] = 1.0
+    return -np.linalg.lstsq(cols / scale, residual, rcond=None)[0] / scale
+
+
+def model_sensitivities(diag: Diagnosis, fit: Fit) -> np.ndarray:
     """d(simulated markers)/d(parameters) of ``fit``'s model at its values on the
     identification window (one Jacobian run), kept for the measurements of the same fit."""
     from petsoft.calibration.calibrate import build_forward
@@ -302,7 +307,7 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
         # refit (one Jacobian run, shared with a measurement of the same fit), whatever the
         # misfit: on the independent L-bracket with damping and added mass (chi2/dof 49 on the
         # adopted 10-node model) the halved step, 0.47x the noise, was refitted for 270 s
-        cols = (_sensitivities(diag, fit) if any(small) and not diag.all_differenced(exp)
+        cols = (model_sensitivities(diag, fit) if any(small) and not diag.all_differenced(exp)
                 else None)
         fits = map_on_groups(lambda item, sub, fit=fit, cols=cols:
                              _refit(diag, fit, item[0], sub, cols, item[1]),
