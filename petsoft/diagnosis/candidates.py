@@ -23,7 +23,8 @@ data's speed and dominant frequency, :func:`petsoft.diagnosis.diagnose.model_sca
 * ``damping.mass`` / ``damping.stiffness``: Rayleigh alpha / beta from 0;
 * ``gravity``: the three components of ``gravity.acceleration``, freed at their current values;
 * ``material.heterogeneous``: a spherical ``[region]`` whose Young's modulus starts at the
-  surrounding modulus, placed where the adjoint per-cell map of d misfit/d E is largest;
+  surrounding modulus, placed where the adjoint per-cell map of d misfit/d E is largest (once
+  added, its sphere is fitted too: :mod:`petsoft.diagnosis.geometry`; likewise an added mass');
 * ``mass.added``: a spherical region whose density starts at the surrounding one (extra mass =
   a denser region, so the density can only grow), placed where the adjoint per-cell map of
   d misfit/d rho is most negative, i.e. where added mass lowers the misfit most (else at the

@@ -16,7 +16,9 @@ The loop (issue 6, first increment):
 4. **Model it.** Candidates with a significant score are tried in the order of their p-value
    (then S): the extended model is re-calibrated (all parameters), and kept only if the
    likelihood-ratio statistic chi2_old - chi2_new is significant (chi-square with k dof at
-   ``alpha``) **and** the held-out rms improves. Repeat (at most ``max_additions``) until the
+   ``alpha``) **and** the held-out rms improves. An added spatial term's sphere (placed by the
+   map) is then fitted too, its centre and radius, and moved when that passes the same two tests
+   (:mod:`petsoft.diagnosis.geometry`). Repeat (at most ``max_additions``) until the
    verdict is consistent or nothing is accepted. A consistent verdict that counts an estimated
    discretisation error (measured while a large physical misfit dominated) is checked once more
    by :func:`resolve_numerics` on the final model; if a refinement now matters it is adopted,

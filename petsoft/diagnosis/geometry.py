@@ -9,16 +9,17 @@ sphere fitted as well reaches 1.30x (``scripts/benchmarks/independent/region_fit
 
 Once such a term is added, :func:`fit_sphere` searches its centre and radius by a compass
 (pattern) search: from the placed sphere, the centre moved by +-h along each axis and the radius
-scaled by f and 1/f; the best trial that lowers the misfit becomes the new point, else h and
-log f halve. A region holds cells by centroid, so the misfit is piecewise constant in the
-geometry: a derivative-free search with steps of a cell's size is the method that fits it, and
-trials holding the same cells as one already seen cost nothing. Each trial is one simulation
-of the identification window with the model's values kept (an added mass's density rescaled so
-that its extra mass stays the same: radius and density trade off), scored by its
-*linearised refit*: the residual less its least-squares part in the current model's
-sensitivities (what re-calibrating every parameter would absorb, to first order;
-:func:`~petsoft.diagnosis.numerics.refit_step`). The best sphere is then calibrated in full
-and kept only if it passes the tests a term passes to be added
+scaled by f and 1/f; the best trial that lowers the misfit becomes the new point and h and log f
+double (at most twice their start), else they halve. A region holds cells by centroid, so the
+misfit is piecewise constant in the geometry: a derivative-free search with steps of a cell's
+size is the method that fits it, and trials holding the same cells as one already seen cost
+nothing. Each trial is one run of the identification window with the model's values kept (an
+added mass's density rescaled so that its extra mass stays the same: radius and density trade
+off) and the sensitivity to the sphere's own value, scored by its *linearised refit*: the
+residual less its least-squares part, within the parameters' bounds, in the sensitivities (the
+sphere's value's own column, the others the current model's), i.e. what re-calibrating every
+parameter would absorb, to first order. The best sphere is then calibrated in full and kept
+only if it passes the tests a term passes to be added
 (:func:`~petsoft.diagnosis.selection.judge`): a significant likelihood ratio for its four
 geometry parameters **and** a better held-out prediction.
 """
@@ -30,10 +31,12 @@ import gc
 
 import numpy as np
 from scipy import stats
+from scipy.optimize import lsq_linear
 
+from petsoft.calibration.calibrate import build_forward
 from petsoft.calibration.groups import map_on_groups
 from petsoft.diagnosis.candidates import REGION, sphere_condition
-from petsoft.diagnosis.context import Diagnosis, Fit, cell_geometry, fmt
+from petsoft.diagnosis.context import Diagnosis, Fit, cell_geometry, fmt, petsc_comm
 from petsoft.diagnosis.numerics import model_sensitivities, refit_step
 from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
 from petsoft.physics.model import load_mesh
@@ -74,6 +77,10 @@ class _Sphere:
         self.data = diag.data[diag.ident]
         self.seen = np.isfinite(self.data)
         self.cols = model_sensitivities(diag, fit)[self.seen]
+        self.names = list(fit.names)
+        self.index = self.names.index(self.parameter)
+        bounds = np.array([fit.experiment.calibrate[n] for n in self.names], dtype=float)
+        self.lower, self.upper = bounds[:, 0], bounds[:, 1]
 
     def cells(self, region: dict) -> np.ndarray:
         """(E,) bool: the cells whose centroid is inside ``region`` (as the model's regions)."""
@@ -98,17 +105,40 @@ class _Sphere:
             exp = with_parameters(exp, {self.parameter: float(np.clip(value, *self.bounds))})
         return exp
 
-    def misfit(self, sim: np.ndarray) -> tuple[float, np.ndarray]:
+    def misfit(self, sim: np.ndarray, cols: np.ndarray, values: np.ndarray
+               ) -> tuple[float, np.ndarray]:
         """(chi2 after the linearised refit, the refit's parameter step) of a simulation of
-        the identification window."""
+        the identification window at parameter ``values`` with sensitivities ``cols`` (seen
+        samples, parameters): the least-squares step within the parameters' bounds (a trial's
+        refit must not count on a density below the surrounding one)."""
         r = (sim - np.where(self.seen, self.data, 0.0))[self.seen]
-        step = refit_step(self.cols, r)
-        return float(np.sum(((r + self.cols @ step) / self.diag.sigma) ** 2)), step
+        scale = np.linalg.norm(cols, axis=0)
+        scale[scale == 0.0] = 1.0
+        lo, hi = self.lower - values, self.upper - values
+        if np.all(hi > lo):
+            step = lsq_linear(cols / scale, -r, bounds=(lo * scale, hi * scale)).x / scale
+        else:
+            step = refit_step(cols, r)
+        return float(np.sum(((r + cols @ step) / self.diag.sigma) ** 2)), step
 
-    def trial(self, region: dict, comm) -> tuple[float, np.ndarray]:
+    def trial(self, region: dict, comm) -> tuple[float, np.ndarray, dict]:
+        """One trial sphere: its linearised refit's chi2 and step, and its start values. One
+        run of the identification window with the sensitivity to the sphere's own value (the
+        other parameters' columns are the current model's: the sphere's place changes its own
+        column most)."""
         diag = self.diag
-        sim = diag.simulate(self.experiment(region), comm=comm, times=diag.times[diag.ident])
-        return self.misfit(sim)
+        exp = self.experiment(region)
+        values = np.array([get_parameter(exp, n) for n in self.names])
+        fm = build_forward(exp, [self.parameter], diag.recording, diag.times[diag.ident],
+                           petsc_comm(comm), diag.integrator)
+        try:
+            sim, own = fm.jacobian(values[[self.index]])
+        finally:
+            fm.destroy()
+        cols = self.cols.copy()
+        cols[:, self.index] = np.asarray(own)[self.seen][:, 0]
+        chi2_lin, step = self.misfit(sim, cols, values)
+        return chi2_lin, step, dict(zip(self.names, map(float, values), strict=True))
 
 
 def _polls(region: dict, h: float, f: float) -> list[dict]:
@@ -149,9 +179,12 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS
     search = _Sphere(diag, fit, candidate)
     label = f"{candidate.physics} sphere"
     best = dict(candidate.region)
-    best_chi2, best_step = search.misfit(fit.sim[diag.ident])
+    best_chi2, best_step = search.misfit(fit.sim[diag.ident], search.cols,
+                                         np.asarray(fit.values, dtype=float))
+    best_values = dict(zip(search.names, map(float, fit.values), strict=True))
     seen = {search.cells(best).tobytes()}
-    h = max(0.5 * float(best["radius"]), float(diag.scales["cell"]) if diag.scales else 0.0)
+    h0 = h = max(0.5 * float(best["radius"]),
+                 float(diag.scales["cell"]) if diag.scales else 0.0)
     f = RADIUS_FACTOR
     min_h = 0.25 * float(np.cbrt(np.mean(search.volumes)))
     start_chi2 = best_chi2
@@ -167,27 +200,25 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS
                 trials.append(region)
         results = map_on_groups(lambda r, sub: search.trial(r, sub), trials, diag.comm)
         gc.collect()                    # every rank, same point (see run_diagnose)
-        scored = [(res.value[0], res.value[1], r) for res, r in zip(results, trials,
-                                                                     strict=True) if res.ok]
+        scored = [(*res.value, r) for res, r in zip(results, trials, strict=True) if res.ok]
         moved = False
         if scored:
-            c2, step, region = min(scored, key=lambda t: t[0])
+            c2, step, values, region = min(scored, key=lambda t: t[0])
             if c2 < best_chi2:
-                best_chi2, best_step, best, moved = c2, step, region, True
+                best_chi2, best_step, best_values, best, moved = c2, step, values, region, True
         diag.tell(f"  {label}: poll {poll}: {len(trials)} new cell sets (centre step "
                   f"{h:.3g} m, radius x {f:.3g}); best centre "
                   f"{np.round(best['center'], 4).tolist()} r {best['radius']:.4g}, chi2 "
                   f"{best_chi2:.6g} (linearised refit)")
-        if not moved:
-            h *= 0.5
-            f = float(np.sqrt(f))
+        if moved:               # a step that worked may be too short: try a longer one next
+            h, f = min(2.0 * h, 2.0 * h0), min(f * f, RADIUS_FACTOR ** 2)
+        else:
+            h, f = 0.5 * h, float(np.sqrt(f))
     if best_chi2 >= start_chi2:
         diag.tell(f"  {label}: the placed sphere is the best the search found")
         return None
-    names = list(fit.names)
-    lo_hi = [fit.experiment.calibrate[n] for n in names]
-    start = {n: float(np.clip(v + s, *b)) for n, v, s, b in zip(names, fit.values, best_step,
-                                                                  lo_hi, strict=True)}
+    start = {n: float(np.clip(best_values[n] + s, lo, hi)) for n, s, lo, hi in
+             zip(search.names, best_step, search.lower, search.upper, strict=True)}
     ext = search.experiment(best, values=start)
     new = diag.calibrate(ext, label=label)
     lr = fit.chi2 - new.chi2
