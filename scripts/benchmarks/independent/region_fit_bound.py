@@ -1,8 +1,10 @@
 """How well can a sphere of added mass fit the independent ``added-mass`` case on the user's mesh?
 
 ``petsoft diagnose`` places a spatial candidate's sphere (``mass.added``,
-``material.heterogeneous``) where the adjoint map of d misfit / d density (or E) points, and
-fits only its value. On the independent ``added-mass`` case (the bracket, 513 user tets raised
+``material.heterogeneous``) where the adjoint map of d misfit / d density (or E) points; up to
+da5d4c6 it fitted only its value (since then it fits the sphere too, by a cheaper search:
+``petsoft/diagnosis/geometry.py``; this script stays as the bound by a full calibration at every
+point). On the independent ``added-mass`` case (the bracket, 513 user tets raised
 to 10 nodes; the truth a sphere of 4x density, cells by centroid, on DOLFINx's fine mesh) that
 leaves the held-out window at 1.55x the noise, over issue 14's 1.5x. This script asks what
 fitting the sphere's *geometry* would give: Nelder-Mead over its centre and radius (cells by
