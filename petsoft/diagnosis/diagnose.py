@@ -18,7 +18,9 @@ The loop (issue 6, first increment):
    likelihood-ratio statistic chi2_old - chi2_new is significant (chi-square with k dof at
    ``alpha``) **and** the held-out rms improves. An added spatial term's sphere (placed by the
    map) is then fitted too, its centre and radius, and moved when that passes the same two tests
-   (:mod:`petsoft.diagnosis.geometry`). Repeat (at most ``max_additions``) until the
+   (:mod:`petsoft.diagnosis.geometry`). Once two or more terms are in, each earlier term of
+   values is reconsidered beside the later ones (:mod:`petsoft.diagnosis.reconsider`) before
+   the next round. Repeat (at most ``max_additions``) until the
    verdict is consistent or nothing is accepted. A consistent verdict that counts an estimated
    discretisation error (measured while a large physical misfit dominated) is checked once more
    by :func:`resolve_numerics` on the final model; if a refinement now matters it is adopted,
@@ -186,6 +188,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     all_scores: list[dict] = []
     not_modelled: dict = {}
     checks = NumericsChecks(diag, numerics)
+    reconsidered = None             # the fit the earlier terms were last reconsidered beside
 
     current, ev = checks.first(current, ev, len(added))
     diag.fix_scales(current, ev)
@@ -281,14 +284,13 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         current = fitted
         ev = evidence_of(diag, current)
         diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
-    if len(history) > 1:
-        before = [h.candidate.physics for h in history]
-        current = reconsider(diag, current, history, rejected)
-        if [h.candidate.physics for h in history] != before:
-            added = [h.entry for h in history]
-            ev = evidence_of(diag, current)
-            diag.tell(f"verdict: {ev['verdict']} (chi2/dof "
-                      f"{ev['noise_test'].chi2_per_dof:.4g})")
+        if len(history) > 1:
+            # before the next round: a term an earlier round took for the one just added
+            # must not call for a third (reconsider.py)
+            current, added, ev = _reconsidered(diag, current, history, rejected, added, ev)
+            reconsidered = current
+    if len(history) > 1 and current is not reconsidered:
+        current, added, ev = _reconsidered(diag, current, history, rejected, added, ev)
     # a physics rejected in one round and added in a later one is reported as added only
     names_added = {a["physics"] for a in added}
     rejected = [r for r in rejected if r["physics"] not in names_added]
@@ -327,3 +329,16 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                       spelled_out=spelled_out)
         diag.tell(f"wrote {out}/ (report.json, report.md, figures, diagnosed.toml, summary.json)")
     return result
+
+
+def _reconsidered(diag, current, history, rejected, added, ev):
+    """(fit, added entries, evidence) after :func:`reconsider` tried each earlier term's
+    runners-up in its place beside the later ones (the entries and the verdict are new only
+    when a term was replaced or taken out)."""
+    before = [h.candidate.physics for h in history]
+    current = reconsider(diag, current, history, rejected)
+    if [h.candidate.physics for h in history] != before:
+        added = [h.entry for h in history]
+        ev = evidence_of(diag, current)
+        diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
+    return current, added, ev

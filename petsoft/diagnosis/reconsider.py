@@ -6,8 +6,9 @@ missing, and a term that absorbs part of it can win: on the independent L-bracke
 damping and an added mass, round 1 chose quadratic drag (held-out rms 0.363 mm against the mass
 damping's 0.421 mm, the added mass still missing) and round 2 the added mass.
 
-So, after the last round, each earlier term of values only (:attr:`Candidate.retractable`) is
-taken out, alone and with each of its round's runners-up (candidates that passed both tests,
+So, after every round that leaves two or more terms (before the next round is ranked) and
+after the last one (when the model changed since), each earlier term of values only
+(:attr:`Candidate.retractable`) is taken out, alone and with each of its round's runners-up (candidates that passed both tests,
 up to :data:`MAX_ALTERNATIVES`) in its place, every later term kept, and refitted. Alone: on
 the bracket with an added mass only, round 1 took a quadratic drag for it, which the added
 mass of round 2 left at zero. The best option by chi2 + k ln n replaces the term when it fits
@@ -17,6 +18,12 @@ the identification window better by that criterion (by more than
 quadratic one predicted the held-out window 8 % better but fitted 2450 worse in chi2; a rule
 on the held-out window alone took it (the verdict went from consistent to missing-physics)
 before the true mass damping, third in round 1, was tried.
+
+After every round, not only the last: with the added mass's sphere fitted
+(:mod:`petsoft.diagnosis.geometry`, 3734038), the same bracket's verdict after round 2 stayed
+missing-physics, round 3 added a dry friction beside the quadratic drag, and reconsidered only
+then, beside the friction, the mass damping in the drag's place fitted 80 worse in chi2: two
+terms stood in for the one missing.
 
 A candidate its round's shortlist left out because its first-order change repeated a fitted
 one's (:func:`~petsoft.diagnosis.selection.shortlist`, :attr:`Added.untried`) is tried in the
