@@ -86,6 +86,8 @@ def test_a_wrong_first_term_is_replaced_once_the_second_is_in(diag_exp, untried)
     assert abs(alpha - TRUE_ALPHA) < max(3.0 * history[0].entry["std"]["damping.mass"], 1.0)
     assert rejected and rejected[0]["physics"] == "damping.stiffness"
     assert "replaced by damping.mass" in rejected[0]["reason"]
+    # the replaced term is the replacement's runner-up (a later reconsideration tries it back)
+    assert [c.physics for _, c in history[0].alternatives] == ["damping.stiffness"]
     if untried:
         return          # the rule's own checks below need no second run
     # the rule: a lower chi2 + k ln n (by more than 2) and a held-out rms no worse (2 %)

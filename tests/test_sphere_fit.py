@@ -1,11 +1,11 @@
 """diagnose fits an added spatial term's sphere (petsoft.diagnosis.geometry).
 
 A cantilever of 12 x 2 x 2 box cells (288 tets) carries a sphere of denser material (5x) near
-its tip; ``petsoft synth`` records it. The user's model has the sphere's term but placed
-a cell towards the clamp, and calibrates the sphere's density (E is the truth's: on this bar a lower E
-trades off against the mass' place): the compass
-search must move the sphere towards the truth, lower chi2 significantly and predict the
-held-out window better. Placed at the truth, no move passes the tests.
+its tip; ``petsoft synth`` records it. The user's model has the sphere's term but placed a
+cell towards the clamp, and calibrates the sphere's density (E is the truth's: on this bar a
+lower E trades off against the mass' place): the compass search must move the sphere towards
+the truth, lower chi2 significantly and predict the held-out window better. Placed at the
+truth, no move passes the tests.
 """
 
 from pathlib import Path

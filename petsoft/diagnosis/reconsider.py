@@ -8,8 +8,9 @@ damping's 0.421 mm, the added mass still missing) and round 2 the added mass.
 
 So, after every round that leaves two or more terms (before the next round is ranked) and
 after the last one (when the model changed since), each earlier term of values only
-(:attr:`Candidate.retractable`) is taken out, alone and with each of its round's runners-up (candidates that passed both tests,
-up to :data:`MAX_ALTERNATIVES`) in its place, every later term kept, and refitted. Alone: on
+(:attr:`Candidate.retractable`) is taken out, alone and with each of its round's runners-up
+(candidates that passed both tests, up to :data:`MAX_ALTERNATIVES`; for a term that replaced
+another, the one it replaced) in its place, every later term kept, and refitted. Alone: on
 the bracket with an added mass only, round 1 took a quadratic drag for it, which the added
 mass of round 2 left at zero. The best option by chi2 + k ln n replaces the term when it fits
 the identification window better by that criterion (by more than
@@ -65,6 +66,8 @@ class Added:
 def _what(s: dict, i: int) -> str:
     """What an option of round ``i`` (0-based) was: a runner-up, or a candidate the shortlist
     left out as a repeat of another's first-order change."""
+    if s.get("_replaced"):
+        return f"the term it replaced (round {i + 1})"
     if s.get("_repeats"):
         return (f"round {i + 1}'s candidate not fitted there (its first-order change repeated "
                 f"{s['_repeats']}'s)")
@@ -171,7 +174,10 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
                                f"{current.chi2:.6g} -> {fit.chi2:.6g}, held-out rms "
                                f"{fmt(current.heldout_rms)} -> {fmt(fit.heldout_rms)} m"
                                + (f"; {alt.reason}" if alt.reason else "")))
-        history[i] = Added(entry, alt, [], alt.zero_values(current.experiment))
+        # the replaced term is the replacement's runner-up: a later reconsideration (after
+        # another round, or on a refined model) tries it back and says when they tie
+        back = {"score": added.entry["score"], "_replaced": True}
+        history[i] = Added(entry, alt, [(back, cand)], alt.zero_values(current.experiment))
         current = fit
         swapped = True
     history[:] = [h for h in history if h is not None]
