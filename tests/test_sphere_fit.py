@@ -107,3 +107,16 @@ def test_the_search_moves_a_misplaced_sphere_towards_the_truth(recording):
 def test_a_sphere_placed_at_the_truth_stays(recording):
     diag, fit, cand = _start(recording, TRUE_CENTRE, "placed.toml")
     assert fit_sphere(diag, fit, cand) is None
+
+
+def test_no_sphere_search_without_exact_sensitivities(recording, monkeypatch):
+    """With a viscoelastic branch the integrator cannot differentiate, a trial could not be
+    scored: the placed sphere stays and the log says why."""
+    diag, fit, cand = _start(recording, (0.225, 0.02, 0.02), "branch.toml")
+    said = []
+    diag.say = said.append
+    monkeypatch.setattr(diag, "all_differenced", lambda experiment: True)
+    entry = {"evidence": "score test", "region": cand.region}
+    assert refit_added_sphere(diag, entry, fit, cand) == (entry, fit, cand)
+    if MPI.COMM_WORLD.rank == 0:                # the first rank says the progress lines
+        assert any("not fitted (no exact sensitivities" in line for line in said)

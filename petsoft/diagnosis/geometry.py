@@ -234,10 +234,10 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS
         return None
     diag.tell(f"  {label}: fitted ({what})")
     region = {"center": [float(c) for c in best["center"]], "radius": float(best["radius"])}
-    moved = dataclasses.replace(
+    placed = dataclasses.replace(
         candidate, region=region,
         regions={search.name: sphere_condition(region["center"], region["radius"])})
-    return SphereFit(moved, new, region, f"sphere fitted: {what}")
+    return SphereFit(placed, new, region, f"sphere fitted: {what}")
 
 
 #: At most this many searches in a row (each from the last calibrated sphere: the
@@ -252,6 +252,12 @@ def refit_added_sphere(diag: Diagnosis, entry: dict, fit: Fit, candidate,
     one's sphere; the entry's values, region and evidence follow. A term without a region is
     returned as it is."""
     if candidate.region is None:
+        return entry, fit, candidate
+    if diag.all_differenced(fit.experiment):
+        # a trial is scored with exact sensitivities, which this integrator refuses for the
+        # viscoelastic branch in the model
+        diag.tell(f"  {candidate.physics} sphere: not fitted (no exact sensitivities with the "
+                  "viscoelastic branch under this integrator)")
         return entry, fit, candidate
     said = []
     for _ in range(searches):
