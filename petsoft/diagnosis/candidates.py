@@ -215,9 +215,15 @@ def sensitivity_region(centroids: np.ndarray, cell_map: np.ndarray, volumes: np.
     return {"center": center.tolist(), "radius": radius, "cells": int(pick.sum())}
 
 
-def _cells_in(centroids: np.ndarray, region: dict) -> int:
+def cells_in_sphere(centroids: np.ndarray, region: dict) -> np.ndarray:
+    """(E,) bool: the cells whose centroid is inside the sphere ``region`` ({"center",
+    "radius"}), as :func:`sphere_condition` selects them."""
     c = np.asarray(region["center"], dtype=float)
-    return int((np.sum((centroids - c) ** 2, axis=1) < float(region["radius"]) ** 2).sum())
+    return np.sum((centroids - c) ** 2, axis=1) < float(region["radius"]) ** 2
+
+
+def _cells_in(centroids: np.ndarray, region: dict) -> int:
+    return int(cells_in_sphere(centroids, region).sum())
 
 
 def _grow_to_cell(centroids: np.ndarray, region: dict) -> dict:

@@ -69,6 +69,17 @@ class Fit:
     stopped: str = ""
 
 
+def term_values(fit: Fit, names) -> tuple[dict, dict]:
+    """({name: value}, {name: std}) of a term's parameters ``names`` in ``fit`` (the report
+    entry's ``parameters`` and ``std``: deviations only where finite; names the fit does not
+    calibrate are left out)."""
+    have = [n for n in names if n in fit.names]
+    values = {n: float(fit.values[fit.names.index(n)]) for n in have}
+    std = {n: float(fit.std[fit.names.index(n)]) for n in have
+           if np.isfinite(fit.std[fit.names.index(n)])}
+    return values, std
+
+
 def petsc_comm(comm):
     if comm is None:
         return PETSc.COMM_WORLD

@@ -35,8 +35,15 @@ from scipy.optimize import lsq_linear
 
 from petsoft.calibration.calibrate import build_forward
 from petsoft.calibration.groups import map_on_groups
-from petsoft.diagnosis.candidates import REGION, sphere_condition
-from petsoft.diagnosis.context import Diagnosis, Fit, cell_geometry, fmt, petsc_comm
+from petsoft.diagnosis.candidates import REGION, cells_in_sphere, sphere_condition
+from petsoft.diagnosis.context import (
+    Diagnosis,
+    Fit,
+    cell_geometry,
+    fmt,
+    petsc_comm,
+    term_values,
+)
 from petsoft.diagnosis.numerics import model_sensitivities, refit_step
 from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
 from petsoft.physics.model import load_mesh
@@ -65,14 +72,15 @@ class _Sphere:
     identification window and scored by its linearised refit."""
 
     def __init__(self, diag: Diagnosis, fit: Fit, candidate):
-        self.diag, self.fit, self.candidate = diag, fit, candidate
+        self.diag, self.fit = diag, fit
         self.name = REGION[candidate.physics]
         key = "density" if candidate.physics == "mass.added" else "youngs_modulus"
         self.parameter = f"material.{self.name}.{key}"
         self.background = get_parameter(fit.experiment, f"material.{key}")
         self.value = get_parameter(fit.experiment, self.parameter)
-        self.bounds = fit.experiment.calibrate[self.parameter]
         self.centroids, self.volumes = cell_geometry(load_mesh(fit.experiment))
+        #: a typical cell's size (the model's ``scales["cell"]``): the search's step scale
+        self.cell = float(np.cbrt(np.mean(self.volumes)))
         self.volume = float(self.volumes[self.cells(candidate.region)].sum())
         self.data = diag.data[diag.ident]
         self.seen = np.isfinite(self.data)
@@ -84,8 +92,7 @@ class _Sphere:
 
     def cells(self, region: dict) -> np.ndarray:
         """(E,) bool: the cells whose centroid is inside ``region`` (as the model's regions)."""
-        c = np.asarray(region["center"], dtype=float)
-        return np.sum((self.centroids - c) ** 2, axis=1) < float(region["radius"]) ** 2
+        return cells_in_sphere(self.centroids, region)
 
     def experiment(self, region: dict, values: dict | None = None):
         """The fitted model with the sphere at ``region`` (an added mass keeps its extra mass:
@@ -102,7 +109,9 @@ class _Sphere:
         if self.parameter.endswith("density"):
             volume = float(self.volumes[self.cells(region)].sum())
             value = self.background + (self.value - self.background) * self.volume / volume
-            exp = with_parameters(exp, {self.parameter: float(np.clip(value, *self.bounds))})
+            i = self.index
+            exp = with_parameters(exp, {self.parameter: float(np.clip(value, self.lower[i],
+                                                                       self.upper[i]))})
         return exp
 
     def misfit(self, sim: np.ndarray, cols: np.ndarray, values: np.ndarray
@@ -183,10 +192,9 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS
                                          np.asarray(fit.values, dtype=float))
     best_values = dict(zip(search.names, map(float, fit.values), strict=True))
     seen = {search.cells(best).tobytes()}
-    h0 = h = max(0.5 * float(best["radius"]),
-                 float(diag.scales["cell"]) if diag.scales else 0.0)
+    h0 = h = max(0.5 * float(best["radius"]), search.cell)
     f = RADIUS_FACTOR
-    min_h = 0.25 * float(np.cbrt(np.mean(search.volumes)))
+    min_h = 0.25 * search.cell
     start_chi2 = best_chi2
     for poll in range(1, max_polls + 1):
         if h < min_h:
@@ -268,13 +276,8 @@ def refit_added_sphere(diag: Diagnosis, entry: dict, fit: Fit, candidate,
         said.append(moved.summary)
     if not said:
         return entry, fit, candidate
-    idx = [fit.names.index(n) for n in candidate.parameters]
-    entry = {**entry,
-             "parameters": {n: float(fit.values[i]) for n, i in zip(candidate.parameters, idx,
-                                                                     strict=True)},
-             "std": {n: float(fit.std[i]) for n, i in zip(candidate.parameters, idx,
-                                                          strict=True)
-                     if np.isfinite(fit.std[i])},
+    values, std = term_values(fit, candidate.parameters)
+    entry = {**entry, "parameters": values, "std": std,
              "rms_after": fit.rms, "region": candidate.region,
              "evidence": entry["evidence"] + "; " + "; then ".join(said)}
     return entry, fit, candidate

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from petsoft.diagnosis.context import Diagnosis, Fit, fmt
+from petsoft.diagnosis.context import Diagnosis, Fit, fmt, term_values
 from petsoft.diagnosis.selection import TIE_CHI2, heldout_noise_level, n_parameters
 from petsoft.errors import PetsoftError
 
@@ -185,9 +185,6 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
         # every term's values and deviations from the final fit: the later terms were
         # refitted beside the replacement
         for h in history:
-            names = [n for n in h.candidate.parameters if n in current.names]
-            h.entry["parameters"] = {n: float(current.values[current.names.index(n)])
-                                     for n in names}
-            h.entry["std"] = {n: float(current.std[current.names.index(n)]) for n in names
-                              if np.isfinite(current.std[current.names.index(n)])}
+            h.entry["parameters"], h.entry["std"] = term_values(current,
+                                                                h.candidate.parameters)
     return current

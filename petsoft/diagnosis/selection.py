@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
-from petsoft.diagnosis.context import Diagnosis, Fit, fmt
+from petsoft.diagnosis.context import Diagnosis, Fit, fmt, term_values
 
 #: Fitted chi2 values within this of the best are statistically tied (see _run_diagnose).
 TIE_CHI2 = 2.0
@@ -94,13 +94,9 @@ def judge(diag: Diagnosis, current: Fit, s: dict, c) -> dict:
             why.append(f"held-out rms did not improve ({fmt(current.heldout_rms)} -> "
                        f"{fmt(new.heldout_rms)} m)")
         return {"added": False, "reason": "; ".join(why)}
-    idx = [new.names.index(n) for n in c.parameters]
     what = "switch score test" if c.kind == "switch" else "score test"
-    entry = {"physics": c.physics,
-             "parameters": {n: float(new.values[i]) for n, i in zip(c.parameters, idx,
-                                                                     strict=True)},
-             "std": {n: float(new.std[i]) for n, i in zip(c.parameters, idx, strict=True)
-                     if np.isfinite(new.std[i])},
+    values, std = term_values(new, c.parameters)
+    entry = {"physics": c.physics, "parameters": values, "std": std,
              "score": s["score"], "rms_after": new.rms,
              "evidence": (f"{what} S = {s['score']:.4g} (p = {s['p_value']:.3g}); likelihood "
                           f"ratio {lr:.4g} (p = {p_lr:.3g}); held-out rms "
