@@ -60,6 +60,7 @@ from petsoft.diagnosis.context import (  # noqa: F401
     petsc_comm,
     scored_together,
 )
+from petsoft.diagnosis.clock import PhaseClock
 from petsoft.diagnosis.geometry import refit_added_sphere
 from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
 from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings
@@ -170,11 +171,13 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                       gradient=gradient, integrator=integrator, noise=noise, comm=comm,
                       say=say)
     diag.t0 = t0
+    clock = PhaseClock()
     diag.tell(f"petsoft diagnose: {len(diag.times)} frames, identification t <= {diag.cut:.4g} s "
               f"({int(diag.ident.sum())} frames), held out {int(diag.held.sum())}; noise "
               f"{diag.sigma:.3g} m ({diag.sigma_source})")
-    base = diag.calibrate(diag.frequency_matched(experiment, label="base fit"),
-                          label="base fit")
+    with clock.phase("base_fit"):
+        base = diag.calibrate(diag.frequency_matched(experiment, label="base fit"),
+                              label="base fit")
     dof = diag.dof(len(base.names))
     diag.tell(f"base fit: {format_values(base.names, base.values)}; chi2/dof "
               f"{base.chi2 / dof:.4g}, held-out rms {fmt(base.heldout_rms)} m")
@@ -190,7 +193,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     checks = NumericsChecks(diag, numerics)
     reconsidered = None             # the fit the earlier terms were last reconsidered beside
 
-    current, ev = checks.first(current, ev, len(added))
+    with clock.phase("numerics"):
+        current, ev = checks.first(current, ev, len(added))
     diag.fix_scales(current, ev)
     rechecked = False
     while True:
@@ -198,14 +202,17 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             if rechecked:
                 break
             rechecked = True
-            current, ev, ran = checks.recheck_final(current, ev, len(added))
+            with clock.phase("numerics"):
+                current, ev, ran = checks.recheck_final(current, ev, len(added))
             if not (ran and ev["verdict"] != "consistent" and len(added) < max_additions):
                 break
         rnd = len(added) + 1
         if rnd > 1:
-            current, ev = checks.first(current, ev, len(added))
+            with clock.phase("numerics"):
+                current, ev = checks.first(current, ev, len(added))
             if ev["verdict"] == "consistent":
                 break
+        clock.switch("scoring")
         maps = (diag.sensitivity_regions(current) if not current.experiment.is_mass_spring
                 else dict(NO_REGIONS))
         plane = escape_plane(diag.data[diag.ident], current.sim[diag.ident], diag.sigma)
@@ -265,6 +272,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         # branch) makes nearly the same first-order change, and a score's p-value favours
         # terms of several parameters (gravity's 3 components out-scored a hidden added mass
         # on a cantilever), so the score alone decides neither.
+        clock.switch("fits")
         contenders, hopeless = worth_fitting(significant)
         rejected += hopeless
         fit_simplest_first(diag, current, contenders)
@@ -275,6 +283,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             checks.switch_since_check = choice.switch
         rank_round(scores, accepted, all_scores, rnd)
         if accepted is None:
+            clock.switch(None)
             break
         # a spatial term's sphere is where the map placed it: fit its centre and radius too
         entry, fitted, candidate = refit_added_sphere(diag, *accepted, choice.candidate)
@@ -289,8 +298,10 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             # must not call for a third (reconsider.py)
             current, added, ev = _reconsidered(diag, current, history, rejected, added, ev)
             reconsidered = current
+        clock.switch(None)
     if len(history) > 1 and current is not reconsidered:
-        current, added, ev = _reconsidered(diag, current, history, rejected, added, ev)
+        with clock.phase("fits"):
+            current, added, ev = _reconsidered(diag, current, history, rejected, added, ev)
     # a physics rejected in one round and added in a later one is reported as added only
     names_added = {a["physics"] for a in added}
     rejected = [r for r in rejected if r["physics"] not in names_added]
@@ -298,6 +309,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     for r in rejected:
         seen_r.setdefault(r["physics"], r)
     rejected = list(seen_r.values())
+    clock.switch("final")
     num = numerics_check(diag, current) if numerics else {}
     if checks.refinements:
         num["refinements"] = checks.refinements
@@ -315,6 +327,9 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             for k, v in num.items() if isinstance(v, dict) and "change" in v))
     report = build_diagnosis_report(diag, base, current, base_ev, ev, added, rejected,
                                     numerics={k: num[k] for k in REPORT_KEYS if k in num})
+    # where the time went (report.json ``timings``): the report and figures are written after
+    # this split is taken, so ``final`` leaves them out and ``total`` is the run up to here
+    report["timings"] = clock.seconds()
     result = DiagnoseResult(verdict=base_ev["verdict"], final_verdict=ev["verdict"],
                             report=report, base=base, final=current, added=added,
                             rejected=rejected, scores=all_scores,
