@@ -224,7 +224,14 @@ def test_concealed_mass_damping_is_found(case):
     assert not res.numerics["mesh x2"]["resolved"]
     out = case["dir"] / "out_damped"
     MPI.COMM_WORLD.Barrier()
-    assert read_report(out / "report.json")["added"][0]["physics"] == "damping.mass"
+    written = read_report(out / "report.json")
+    assert written["added"][0]["physics"] == "damping.mass"
+    # where the time went: a base fit, a numerics check, a scoring round and candidate fits
+    # each took time, and the phases add up to the total they were taken from
+    t = written["timings"]
+    assert all(t[k] > 0.0 for k in ("base_fit", "numerics", "scoring", "fits", "final"))
+    assert sum(t[k] for k in ("base_fit", "numerics", "scoring", "fits", "final", "other")) \
+        == pytest.approx(t["total"], abs=0.02)
     final = load_experiment(out / "diagnosed.toml")
     assert final.damping.mass == pytest.approx(alpha)
     assert "damping.mass" in final.calibrate

@@ -225,7 +225,9 @@ def validate_report(report: Mapping) -> None:
     """
     top = {"format", "version", "verdict", "noise_std", "fit", "mismatch", "added", "rejected",
            "parameters"}
-    _keys(report, "(report)", top, frozenset({"numerics"}))
+    _keys(report, "(report)", top, frozenset({"numerics", "timings"}))
+    for k, v in report.get("timings", {}).items():
+        _number(v, f"timings.{k}")
     if "numerics" in report:
         _keys(report["numerics"], "numerics", {"findings"}, frozenset({"recommendation", "mesh"}))
         for i, f in enumerate(report["numerics"]["findings"]):
