@@ -35,6 +35,7 @@ from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.experiment import with_parameters
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.physics.model import build_model, load_mesh, on_root
+from petsoft.results import FitResult
 from petsoft.solvers.rest_shape import RestShapeError, RestShapeSolver
 
 
@@ -142,9 +143,10 @@ def rest_markers(recording: Recording, captured, rest) -> Recording:
     return dataclasses.replace(recording, reference=ref)
 
 
-@dataclass
-class SplittingResult:
-    """The splitting's outcome (identical on every rank).
+@dataclass(repr=False)
+class SplittingResult(FitResult):
+    """The splitting's outcome (identical on every rank): ``success`` when the outer iteration
+    converged, ``params`` by name (``param_std`` is NaN: the splitting gives no deviations).
 
     Attributes
     ----------
@@ -170,6 +172,20 @@ class SplittingResult:
     rounds: list[dict] = field(default_factory=list)
     converged: bool = False
     calibration: CalibrationResult | None = None
+
+    @property
+    def std(self) -> np.ndarray:
+        return np.full(len(self.names), np.nan)
+
+    @property
+    def success(self) -> bool:
+        return bool(self.converged)
+
+    @property
+    def message(self) -> str:
+        state = "converged" if self.converged else "not converged"
+        return (f"{state} in {len(self.rounds)} rounds: rms {self.rms_before:.4g} -> "
+                f"{self.rms_after:.4g} m")
 
 
 class _Reduced:
