@@ -17,6 +17,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.calibration.check_mesh import check_mesh as check_mesh_refinement
+from petsoft.calibration.methods import METHOD_ALIASES, METHODS
 from petsoft.calibration.misfit import make_misfit
 from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
 from petsoft.dynamics.simulate import initial_state
@@ -28,9 +29,6 @@ from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.io.summary import write_summary
 from petsoft.results import FitResult
 
-METHODS = ("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead")
-#: Other names a user may give a method (the spelled-out name of the short one).
-METHOD_ALIASES = {"gradient-descent": "gd"}
 GRADIENTS = ("adjoint", "sensitivity", "fd")
 
 

@@ -50,7 +50,7 @@ from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.fem.element import cell_integrals
 from petsoft.io.frequencies import read_frequencies
 from petsoft.io.progress import IterationPace
-from petsoft.io.recording import on_rank0_for_all, read_recording
+from petsoft.io.recording import HDF5_SIGNATURE, on_rank0_for_all, read_recording
 from petsoft.mesh.probes import embed
 from petsoft.physics.model import build_model
 from petsoft.results import FitResult
@@ -58,9 +58,6 @@ from petsoft.solvers.modes import compute_modes
 
 __all__ = ["FrequencyFit", "FrequencyModel", "PairingWarning", "calibrate_frequencies",
            "mac_matrix", "read_measured_modes", "write_frequency_outputs"]
-
-#: The first bytes of an HDF5 file (a petsoft recording, formats.md section 2).
-HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 #: Model eigenvalues closer than this (relative) form a cluster (module docstring).
 CLUSTER_RTOL = 1e-6

@@ -13,6 +13,7 @@ import re
 import sys
 from pathlib import Path
 
+from petsoft.calibration.methods import METHOD_ALIASES, METHODS
 from petsoft.dependencies import require
 from petsoft.errors import PetsoftError
 from petsoft.version import __version__
@@ -255,8 +256,8 @@ def _add_calibrate_parser(sub) -> None:
                         "recording (HDF5): its frequencies, std and shapes at the markers are "
                         "estimated from the trajectories")
     c.add_argument("--method", default="gauss-newton",
-                   choices=("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead"),
-                   help="optimizer (default %(default)s)")
+                   choices=(*METHODS, *METHOD_ALIASES),
+                   help="optimizer (default %(default)s; gd is also spelled gradient-descent)")
     c.add_argument("--gradient", default="adjoint", choices=("adjoint", "sensitivity", "fd"),
                    help="gradients by discrete adjoint, forward sensitivities or finite "
                         "differences (Jacobians always by sensitivities unless fd)")
@@ -316,8 +317,9 @@ def _add_diagnose_parser(sub) -> None:
     c.add_argument("--max-additions", type=_positive_int, default=3,
                    help="at most this many physics terms are added (default %(default)s)")
     c.add_argument("--method", default="gauss-newton",
-                   choices=("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead"),
-                   help="optimizer of every calibration (default %(default)s)")
+                   choices=(*METHODS, *METHOD_ALIASES),
+                   help="optimizer of every calibration (default %(default)s; gd is also spelled "
+                        "gradient-descent)")
     c.add_argument("--integrator", choices=("be", "si", "alpha"),
                    help="override [time] integrator for the forward model")
     c.add_argument("--noise", type=float, help="position noise std (m) when the recording "
