@@ -36,7 +36,7 @@ def summarise(value) -> str:
     if isinstance(value, (float, np.floating)):
         return f"{float(value):.6g}"
     if isinstance(value, str):
-        return repr(value if len(value) <= 80 else value[:77] + "...")
+        return repr(value if len(value) <= 240 else value[:237] + "...")
     if isinstance(value, Path):
         return repr(str(value))
     if isinstance(value, np.ndarray):

@@ -134,7 +134,7 @@ def _add_simulate_parser(sub) -> None:
                    help="continue from the latest checkpoint in the output directory")
     s.add_argument("--alpha-backend", choices=("petsoft", "ts"), default="petsoft",
                    help="generalized-alpha: petsoft's step (second order) or PETSc TS alpha2 "
-                        "(first order for r < 1 in PETSc 3.18, see README)")
+                        "(first order for r < 1 in PETSc 3.18, see petsoft/dynamics/README.md)")
     s.add_argument("--spd", action="store_true",
                    help="mass-spring models: clamped (positive semi-definite) spring and contact "
                         "Hessians in the Jacobians")
