@@ -35,13 +35,14 @@ from petsoft.experiment import Experiment
 from petsoft.experiment import load_experiment as _load_experiment
 from petsoft.experiment import with_parameters as _with_parameters
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
+from petsoft.results import Result
 from petsoft.solvers.options import experiment_options
 from petsoft.solvers.run_static import StaticOutcome, solve_experiment
 
-__all__ = ["load_experiment", "with_parameters", "read_recording", "static", "simulate", "synth",
-           "calibrate", "calibrate_modes", "calibrate_rest_shape", "rest_shape", "diagnose",
-           "Experiment",
-           "Recording", "StaticResult", "SimulationRun",
+__all__ = ["load_experiment", "with_parameters", "read_recording", "static", "simulate",
+           "modes", "synth", "calibrate", "calibrate_modes", "calibrate_rest_shape",
+           "rest_shape", "diagnose",
+           "Experiment", "Recording", "StaticResult", "SimulationRun", "Modes",
            "SynthOptions", "SynthResult", "CalibrationResult", "DiagnoseResult"]
 
 
@@ -109,9 +110,12 @@ def read_recording(path: str | Path) -> Recording:
     return read_recording_on_all_ranks(path)
 
 
-@dataclass(frozen=True)
-class StaticResult:
+@dataclass(frozen=True, repr=False)
+class StaticResult(Result):
     """The quasistatic solution of :func:`static` (the same on every rank).
+
+    ``success`` when the displacement is finite (a diverged Newton solve raises a
+    :class:`~petsoft.errors.SolverError` instead of returning).
 
     Attributes
     ----------
@@ -133,6 +137,15 @@ class StaticResult:
     linear_iterations: int
     load_steps: int
     out: Path | None
+
+    @property
+    def success(self) -> bool:
+        return bool(np.isfinite(self.displacement).all())
+
+    @property
+    def message(self) -> str:
+        return (f"equilibrium in {self.load_steps} load step(s), {self.newton_iterations} Newton "
+                f"iterations; largest displacement {self.max_displacement:.4g} m")
 
 
 def static(experiment: Experiment, *, out: str | Path | None = None, method: str = "snes",
@@ -213,6 +226,92 @@ def simulate(experiment: Experiment, *, out: str | Path | None = None,
         alpha_backend=alpha_backend, spd=spd, say=say)
 
 
+@dataclass(frozen=True, repr=False)
+class Modes(Result):
+    """Natural frequencies and mode shapes of :func:`modes`, ascending (the same on every rank).
+
+    ``success`` when every requested mode was found with a finite frequency (an inaccurate pair
+    raises a :class:`~petsoft.errors.SolverError` instead of returning).
+
+    Attributes
+    ----------
+    frequencies_hz : ndarray (n,)
+    eigenvalues : ndarray (n,)
+        omega^2 in (rad/s)^2; exactly 0 for rigid-body modes.
+    shapes : ndarray (n, N, 3)
+        Mass-normalised mode shapes at the mesh's nodes (zero on supported components).
+    relative_errors : ndarray (n,)
+        ||K x - omega^2 M x|| / (omega^2 ||M x||) of each pair.
+    rigid_modes : int
+        How many of the modes are rigid-body modes (the first ones).
+    requested : int
+    iterations : int
+        Krylov-Schur restarts.
+    """
+
+    frequencies_hz: np.ndarray
+    eigenvalues: np.ndarray
+    shapes: np.ndarray
+    relative_errors: np.ndarray
+    rigid_modes: int
+    requested: int
+    iterations: int
+
+    @property
+    def success(self) -> bool:
+        return bool(len(self.frequencies_hz) == self.requested
+                    and np.isfinite(self.frequencies_hz).all())
+
+    @property
+    def message(self) -> str:
+        f = self.frequencies_hz
+        span = f"{f[0]:.6g} to {f[-1]:.6g} Hz" if len(f) else "none"
+        return (f"{len(f)} of {self.requested} modes, {span} ({self.rigid_modes} rigid body), "
+                f"largest relative residual {self.relative_errors.max(initial=0.0):.2g}")
+
+
+def modes(experiment: Experiment, n: int = 6, *, say=_quiet) -> Modes:
+    """The ``n`` lowest natural frequencies and mode shapes of ``experiment`` (``petsoft
+    modes``): K x = omega^2 M x at the unloaded reference state, consistent mass, the
+    experiment's supports held at zero, solved by SLEPc (options ``-eps_type``, ``-eps_tol``,
+    ``-st_pc_factor_mat_solver_type``...). Unsupported rigid motions come first at 0 Hz.
+
+    Parameters
+    ----------
+    experiment : Experiment
+        A continuum ([material]) model.
+    n : int
+        Number of modes (>= 1).
+    say : callable(str)
+        Progress lines (rank 0); default silent.
+
+    Returns
+    -------
+    Modes
+    """
+    from petsoft.physics.model import build_model
+    from petsoft.solvers.modes import compute_modes
+
+    if int(n) < 1:
+        raise ValueError(f"modes: n must be >= 1, not {n}")
+    comm = PETSc.COMM_WORLD
+    mpi = comm.tompi4py()
+    with experiment_options(experiment.petsc):
+        model = build_model(experiment, comm)
+        result = compute_modes(model, int(n), monitor=say if comm.rank == 0 else None)
+    try:
+        # gather is collective; rank 0 receives (N, 3) per mode and shares the stack
+        shapes = [model.dmesh.gather_global(x) for x in result.modes]
+        shapes = mpi.bcast(np.array(shapes) if comm.rank == 0 else None, root=0)
+    finally:
+        result.destroy()
+    return Modes(frequencies_hz=np.asarray(result.frequencies_hz, float),
+                 eigenvalues=np.asarray(result.eigenvalues, float), shapes=shapes,
+                 relative_errors=np.asarray(result.relative_errors, float),
+                 rigid_modes=int(result.rigid_modes), requested=int(n),
+                 iterations=int(result.iterations))
+
+
 def synth(experiment: Experiment, *, out: str | Path, noise: float = 0.0, markers: int = 8,
           markers_file: str | Path | None = None, dropout: float = 0.0, refine: int = 1,
           integrator: str | None = None, seed: int = 0, say=_quiet) -> SynthResult:
@@ -267,7 +366,7 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
         the experiment).
     recording : Recording or path
     method : str
-        gauss-newton, lbfgs, newton, gradient-descent or nelder-mead.
+        gauss-newton, lbfgs, newton, gd (also spelled gradient-descent), brgn or nelder-mead.
     gradient : str
         adjoint, sensitivity or fd (finite differences).
     integrator : str, optional

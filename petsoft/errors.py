@@ -11,8 +11,9 @@ class PetsoftError(Exception):
     """Base class of errors caused by user input, reported without a traceback."""
 
 
-class ExperimentError(PetsoftError):
-    """An experiment file (TOML) is malformed, has unknown keys or out-of-range values."""
+class ExperimentError(PetsoftError, ValueError):
+    """An experiment file (TOML) is malformed, has unknown keys or out-of-range values (also a
+    ``ValueError``, as a bad argument value is in Python)."""
 
 
 class ExpressionError(ExperimentError):

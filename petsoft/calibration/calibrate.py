@@ -17,6 +17,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.calibration.check_mesh import check_mesh as check_mesh_refinement
+from petsoft.calibration.methods import METHOD_ALIASES, METHODS
 from petsoft.calibration.misfit import make_misfit
 from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
 from petsoft.dynamics.simulate import initial_state
@@ -26,14 +27,35 @@ from petsoft.experiment.writer import write_experiment_update
 from petsoft.io.progress import IterationPace
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.io.summary import write_summary
+from petsoft.results import FitResult
 
-METHODS = ("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead")
 GRADIENTS = ("adjoint", "sensitivity", "fd")
 
 
-@dataclass
-class CalibrationResult:
-    """What a calibration found (identical on every rank)."""
+def canonical_method(method: str) -> str:
+    """The calibration method ``method`` names (one of :data:`METHODS`; an alias of
+    :data:`METHOD_ALIASES` is translated).
+
+    Raises
+    ------
+    ExperimentError
+        For a name that is neither, listing the valid ones.
+    """
+    method = METHOD_ALIASES.get(method, method)
+    if method not in METHODS:
+        aliases = ", ".join(f"{a} (= {m})" for a, m in METHOD_ALIASES.items())
+        raise ExperimentError(f"unknown calibration method {method!r}; valid: "
+                              f"{', '.join(METHODS)}, or {aliases}")
+    return method
+
+
+@dataclass(repr=False)
+class CalibrationResult(FitResult):
+    """What a calibration found (identical on every rank).
+
+    ``success`` when the optimizer stopped on a convergence test (``reason`` CONVERGED_...);
+    ``params`` and ``param_std`` give ``values`` and ``std`` by the ``[calibrate]`` names.
+    """
 
     names: list[str]
     start: np.ndarray
@@ -58,6 +80,15 @@ class CalibrationResult:
     #: ``check_mesh=True``: the fit on the refined mesh and the parameters' shifts in standard
     #: deviations (:func:`petsoft.calibration.check_mesh.check_mesh`)
     mesh_check: dict | None = None
+
+    @property
+    def success(self) -> bool:
+        return self.reason.startswith("CONVERGED")
+
+    @property
+    def message(self) -> str:
+        return (f"{self.reason} after {self.iterations} iterations ({self.evaluations} "
+                f"simulations): rms {self.rms_before:.4g} -> {self.rms_after:.4g} m")
 
 
 def calibration_parameters(experiment) -> tuple[list[str], np.ndarray, list[tuple[float, float]]]:
@@ -273,7 +304,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         The data: :class:`Observations` (recording and noise), a
         :class:`~petsoft.io.recording.Recording` already read (every rank holds it), or the
         path of one (read once here, on rank 0, and shared).
-    method : one of :data:`METHODS`
+    method : one of :data:`METHODS` or :data:`METHOD_ALIASES`
     gradient : one of :data:`GRADIENTS`
     integrator : {"be", "si", "alpha"}, optional
         Overrides ``[time] integrator`` for the forward model.
@@ -324,8 +355,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         if say is not None and rank0:
             say(line)
 
-    if method not in METHODS:
-        raise ExperimentError(f"unknown calibration method {method!r}; valid: {', '.join(METHODS)}")
+    method = canonical_method(method)
     if gradient not in GRADIENTS:
         raise ExperimentError(f"unknown gradient method {gradient!r}; valid: "
                               f"{', '.join(GRADIENTS)}")

@@ -50,16 +50,14 @@ from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.fem.element import cell_integrals
 from petsoft.io.frequencies import read_frequencies
 from petsoft.io.progress import IterationPace
-from petsoft.io.recording import on_rank0_for_all, read_recording
+from petsoft.io.recording import HDF5_SIGNATURE, on_rank0_for_all, read_recording
 from petsoft.mesh.probes import embed
 from petsoft.physics.model import build_model
+from petsoft.results import FitResult
 from petsoft.solvers.modes import compute_modes
 
 __all__ = ["FrequencyFit", "FrequencyModel", "PairingWarning", "calibrate_frequencies",
            "mac_matrix", "read_measured_modes", "write_frequency_outputs"]
-
-#: The first bytes of an HDF5 file (a petsoft recording, formats.md section 2).
-HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 #: Model eigenvalues closer than this (relative) form a cluster (module docstring).
 CLUSTER_RTOL = 1e-6
@@ -316,9 +314,10 @@ class FrequencyModel:
         return np.asarray(dm.comm.tompi4py().allreduce(out))
 
 
-@dataclass
-class FrequencyFit:
-    """The result of :func:`calibrate_frequencies` (physical parameters)."""
+@dataclass(repr=False)
+class FrequencyFit(FitResult):
+    """The result of :func:`calibrate_frequencies` (physical parameters): ``success`` when the
+    optimizer stopped on a convergence test, ``params``/``param_std`` by name."""
 
     names: list[str]
     start: np.ndarray
@@ -344,6 +343,15 @@ class FrequencyFit:
     #: rms of (f_model - f_measured) / std over degrees of freedom (None without std): ~1 when
     #: the model fits the frequencies to their stated std
     residual_over_std: float | None = None
+
+    @property
+    def success(self) -> bool:
+        return self.reason.startswith("CONVERGED")
+
+    @property
+    def message(self) -> str:
+        return (f"{self.reason} after {self.iterations} iterations ({self.evaluations} "
+                "eigen-solves)")
 
     def summary(self) -> dict:
         """A JSON-able dict of the fit (summary.json)."""

@@ -35,12 +35,14 @@ from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.experiment import with_parameters
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.physics.model import build_model, load_mesh, on_root
+from petsoft.results import FitResult, Result
 from petsoft.solvers.rest_shape import RestShapeError, RestShapeSolver
 
 
-@dataclass
-class RestShape:
-    """A computed rest shape (identical on every rank).
+@dataclass(repr=False)
+class RestShape(Result):
+    """A computed rest shape (identical on every rank): ``success`` when every rest position is
+    finite (no rest shape found raises a ``RestShapeError`` instead of returning).
 
     Attributes
     ----------
@@ -59,6 +61,16 @@ class RestShape:
     @property
     def points(self) -> np.ndarray:
         return self.mesh.points
+
+    @property
+    def success(self) -> bool:
+        return bool(np.isfinite(self.points).all())
+
+    @property
+    def message(self) -> str:
+        shift = float(np.abs(self.captured.points - self.points).max())
+        return (f"rest shape in {self.load_steps} load step(s), {self.newton_iterations} Newton "
+                f"iterations; the captured shape lies up to {shift:.4g} m from it")
 
 
 def compute_rest_shape(experiment, comm=None, *, captured=None, initial=None,
@@ -142,9 +154,10 @@ def rest_markers(recording: Recording, captured, rest) -> Recording:
     return dataclasses.replace(recording, reference=ref)
 
 
-@dataclass
-class SplittingResult:
-    """The splitting's outcome (identical on every rank).
+@dataclass(repr=False)
+class SplittingResult(FitResult):
+    """The splitting's outcome (identical on every rank): ``success`` when the outer iteration
+    converged, ``params`` by name (``param_std`` is NaN: the splitting gives no deviations).
 
     Attributes
     ----------
@@ -170,6 +183,20 @@ class SplittingResult:
     rounds: list[dict] = field(default_factory=list)
     converged: bool = False
     calibration: CalibrationResult | None = None
+
+    @property
+    def std(self) -> np.ndarray:
+        return np.full(len(self.names), np.nan)
+
+    @property
+    def success(self) -> bool:
+        return bool(self.converged)
+
+    @property
+    def message(self) -> str:
+        state = "converged" if self.converged else "not converged"
+        return (f"{state} in {len(self.rounds)} rounds: rms {self.rms_before:.4g} -> "
+                f"{self.rms_after:.4g} m")
 
 
 class _Reduced:

@@ -8,10 +8,13 @@ options before any module that imports it, so the command line always wins over 
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import sys
 from pathlib import Path
 
+from petsoft.calibration.methods import METHOD_ALIASES, METHODS
+from petsoft.dependencies import require
 from petsoft.errors import PetsoftError
 from petsoft.version import __version__
 
@@ -56,8 +59,11 @@ class _VersionAction(argparse.Action):
     """``petsoft --version``: petsoft's version and the PETSc it runs on."""
 
     def __call__(self, parser, namespace, values, option_string=None):
+        try:
+            require(("petsc4py",), "petsoft --version")
+        except PetsoftError as exc:
+            parser.exit(2, f"petsoft: error: {exc}\n")
         import petsc4py
-
 
         petsc4py.init([])
         from petsc4py import PETSc  # after init: the version query must not read argv
@@ -128,7 +134,7 @@ def _add_simulate_parser(sub) -> None:
                    help="continue from the latest checkpoint in the output directory")
     s.add_argument("--alpha-backend", choices=("petsoft", "ts"), default="petsoft",
                    help="generalized-alpha: petsoft's step (second order) or PETSc TS alpha2 "
-                        "(first order for r < 1 in PETSc 3.18, see README)")
+                        "(first order for r < 1 in PETSc 3.18, see petsoft/dynamics/README.md)")
     s.add_argument("--spd", action="store_true",
                    help="mass-spring models: clamped (positive semi-definite) spring and contact "
                         "Hessians in the Jacobians")
@@ -250,8 +256,8 @@ def _add_calibrate_parser(sub) -> None:
                         "recording (HDF5): its frequencies, std and shapes at the markers are "
                         "estimated from the trajectories")
     c.add_argument("--method", default="gauss-newton",
-                   choices=("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead"),
-                   help="optimizer (default %(default)s)")
+                   choices=(*METHODS, *METHOD_ALIASES),
+                   help="optimizer (default %(default)s; gd is also spelled gradient-descent)")
     c.add_argument("--gradient", default="adjoint", choices=("adjoint", "sensitivity", "fd"),
                    help="gradients by discrete adjoint, forward sensitivities or finite "
                         "differences (Jacobians always by sensitivities unless fd)")
@@ -311,8 +317,9 @@ def _add_diagnose_parser(sub) -> None:
     c.add_argument("--max-additions", type=_positive_int, default=3,
                    help="at most this many physics terms are added (default %(default)s)")
     c.add_argument("--method", default="gauss-newton",
-                   choices=("gauss-newton", "lbfgs", "gd", "newton", "brgn", "nelder-mead"),
-                   help="optimizer of every calibration (default %(default)s)")
+                   choices=(*METHODS, *METHOD_ALIASES),
+                   help="optimizer of every calibration (default %(default)s; gd is also spelled "
+                        "gradient-descent)")
     c.add_argument("--integrator", choices=("be", "si", "alpha"),
                    help="override [time] integrator for the forward model")
     c.add_argument("--noise", type=float, help="position noise std (m) when the recording "
@@ -330,6 +337,30 @@ def _static_options(s) -> None:
                    help="project element tangents to positive semi-definite")
 
 
+#: Integrators that need SLEPc (the explicit step limit, ERE's matrix functions, IMEX's modes).
+_SLEPC_INTEGRATORS = ("explicit", "ere", "imex")
+
+
+def needed_modules(args: argparse.Namespace) -> tuple[str, ...]:
+    """The Debian-packaged modules a parsed command needs (:mod:`petsoft.dependencies`)."""
+    needs = ["petsc4py", "mpi4py"]
+    if args.command not in ("damping", "rest-shape"):
+        needs.append("h5py")          # recordings, XDMF output, checkpoints
+    if (args.command in ("modes", "damping")
+            or (args.command == "calibrate" and args.modes is not None)
+            or getattr(args, "integrator", None) in _SLEPC_INTEGRATORS):
+        needs.append("slepc4py")
+    return tuple(needs)
+
+
+def _rank0() -> bool:
+    """Rank 0 of an MPI launch, told by the launcher's environment (before MPI is loaded)."""
+    for key in ("OMPI_COMM_WORLD_RANK", "PMI_RANK", "PMIX_RANK"):
+        if key in os.environ:
+            return os.environ[key] == "0"
+    return True
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``petsoft`` command."""
     argv = sys.argv[1:] if argv is None else argv
@@ -337,6 +368,13 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(ours)
     if getattr(args, "load_steps", 1) < 1:
         _parser().error("--load-steps must be >= 1")
+    try:
+        # before any work: a missing h5py used to fail only when the solved results were written
+        require(needed_modules(args), f"petsoft {args.command}")
+    except PetsoftError as exc:
+        if _rank0():
+            print(f"petsoft: error: {exc}", file=sys.stderr, flush=True)
+        return 2
     import petsc4py
 
     petsc4py.init(["petsoft", *petsc_args])
@@ -346,13 +384,26 @@ def main(argv: list[str] | None = None) -> int:
     try:
         from petsoft.cli import commands
 
-        return commands.run(args)
+        status = commands.run(args)
+        _warn_unused_options(PETSc.COMM_WORLD)
+        return status
     except PetsoftError as exc:
         if PETSc.COMM_WORLD.rank == 0:
             print(f"petsoft: error: {exc}", file=sys.stderr, flush=True)
         return 2
     except KeyboardInterrupt:
         return 130
+
+
+def _warn_unused_options(comm) -> None:
+    """PETSc's ``-options_left`` at the end of a run, as a warning (collective)."""
+    from petsoft.solvers.options import unused_options
+
+    unused = unused_options(comm)
+    if unused and comm.rank == 0:
+        print(f"petsoft: warning: PETSc option{'s' if len(unused) > 1 else ''} never used "
+              f"(misspelled, or for a solver this command does not run): {', '.join(unused)}",
+              file=sys.stderr, flush=True)
 
 
 if __name__ == "__main__":  # python -m petsoft.cli.main

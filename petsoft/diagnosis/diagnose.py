@@ -44,6 +44,7 @@ import gc
 import time
 from pathlib import Path
 
+from petsoft.calibration.calibrate import canonical_method
 from petsoft.calibration.groups import TaskResult, map_on_groups
 
 # names the tests and scripts import from here
@@ -64,8 +65,9 @@ from petsoft.diagnosis.clock import PhaseClock
 from petsoft.diagnosis.geometry import refit_added_sphere
 from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
 from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings
-from petsoft.diagnosis.outputs import DiagnoseResult, build_diagnosis_report, write_outputs
+from petsoft.diagnosis.outputs import build_diagnosis_report, write_outputs
 from petsoft.diagnosis.reconsider import Added, reconsider
+from petsoft.diagnosis.result import DiagnoseResult
 from petsoft.diagnosis.selection import (
     choose,
     escape_plane,
@@ -104,7 +106,8 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
     max_tries : int
         At most this many significant candidates are re-calibrated per round.
     method : str
-        Calibration method (:data:`petsoft.calibration.calibrate.METHODS`).
+        Calibration method (:data:`petsoft.calibration.calibrate.METHODS`, or an alias of
+        :data:`~petsoft.calibration.calibrate.METHOD_ALIASES`).
     gradient : str
         Calibration gradient (:data:`petsoft.calibration.calibrate.GRADIENTS`); finite
         differences are used where a candidate allows no other.
@@ -135,6 +138,7 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
     files and figures) interleaved those collectives with the solvers' on 2 ranks (seen:
     ranks stuck in VecCreate_MPI vs VecNorm).
     """
+    method = canonical_method(method)     # a bad name fails before any work
     enabled = gc.isenabled()
     gc.collect()
     gc.disable()

@@ -73,6 +73,7 @@ from __future__ import annotations
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.dependencies import slepc
 from petsoft.dynamics.implicit import StepReport
 from petsoft.dynamics.interfaces import StepperDefaults
 from petsoft.errors import InvertedElementError
@@ -112,8 +113,7 @@ class EREIntegrator(StepperDefaults):
 
     def __init__(self, system, *, mass: str = "lumped", krylov_tol: float = 1e-10,
                  time_derivative: bool = True, prefix: str = "ere_"):
-        from slepc4py import SLEPc
-
+        SLEPc = slepc("the ERE integrator (SLEPc's matrix functions)")
         if mass not in MASSES:
             raise ValueError(f"ERE mass must be one of {MASSES}, not {mass!r}")
         self.system, self.mass = system, mass

@@ -15,6 +15,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from petsoft.dependencies import slepc
 from petsoft.dynamics.implicit import StepReport
 from petsoft.errors import ExperimentError
 
@@ -23,8 +24,7 @@ SCHEMES = ("euler", "verlet")
 
 def largest_frequency(system, q: PETSc.Vec) -> float:
     """omega_max (rad/s): sqrt of the largest eigenvalue of K(q) x = omega^2 M_lumped x."""
-    from slepc4py import SLEPc
-
+    SLEPc = slepc("the explicit integrator (its stable step from the largest eigenvalue)")
     K = system.create_matrix()
     system.assemble_combination(q, 0.0, 1.0, 0.0, K, eliminate=False)
     mass = system.lumped.copy()

@@ -17,17 +17,23 @@ from petsc4py import PETSc
 from petsoft.dynamics.mass_spring import build_mass_spring_model
 from petsoft.dynamics.simulate import Simulation
 from petsoft.physics.model import build_model
+from petsoft.results import Result
 from petsoft.solvers.options import experiment_options
 
 
-@dataclass(frozen=True)
-class SimulationRun:
+@dataclass(frozen=True, repr=False)
+class SimulationRun(Result):
     """What :func:`simulate_experiment` computed (the same on every rank).
+
+    ``success`` when the run reached ``[time] end`` with a finite state (a diverged step raises
+    a :class:`~petsoft.errors.SolverError` instead of returning).
 
     Attributes
     ----------
     time : float
         The final time (s).
+    end : float
+        The end time the run was asked for (``[time] end``, s).
     steps, retries, newton_iterations, linear_iterations : int
     wall_time : float
         Seconds.
@@ -55,6 +61,19 @@ class SimulationRun:
     probe_times: np.ndarray
     probe_displacements: np.ndarray
     integrator: str
+    end: float
+
+    @property
+    def success(self) -> bool:
+        reached = self.time >= self.end * (1 - 1e-9)
+        return bool(reached and np.isfinite(self.displacement).all()
+                    and np.isfinite(self.velocity).all())
+
+    @property
+    def message(self) -> str:
+        where = "reached" if self.time >= self.end * (1 - 1e-9) else "stopped before"
+        return (f"{where} t = {self.end:g} s ({self.integrator}: {self.steps} steps, "
+                f"{self.retries} retries, {self.newton_iterations} Newton iterations)")
 
 
 def simulate_experiment(experiment, *, out: Path | None = None, integrator: str | None = None,
@@ -112,7 +131,7 @@ def simulate_experiment(experiment, *, out: Path | None = None, integrator: str 
                 energies=np.asarray(mpi.bcast(result.energies, root=0)),
                 probe_times=np.asarray(mpi.bcast(result.probe_times, root=0)),
                 probe_displacements=np.asarray(mpi.bcast(result.probe_displacements, root=0)),
-                integrator=sim.name)
+                integrator=sim.name, end=float(experiment.time.end))
         finally:
             sim.destroy()
     tell(f"t = {run.time:g} s after {run.steps} steps ({run.retries} retried), "

@@ -16,6 +16,8 @@ import numpy as np
 from petsoft.errors import ExperimentError, PetsoftError
 
 FORMAT = "petsoft-recording"
+#: The first bytes of an HDF5 file.
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 VERSION = 1
 
 
@@ -206,6 +208,28 @@ def _frames(f, key: str, shape: tuple, where: str, names: list[str]) -> np.ndarr
     return arr
 
 
+def marker_file_kind(path: Path) -> str | None:
+    """"CSV" or "C3D" when ``path`` is a marker file :mod:`petsoft.io.importers` converts
+    (given where a recording is expected), else None. By content, with the extension for CSV:
+    a C3D file's second byte is 0x50 (its parameter block key), and an HDF5 file starts with
+    its signature (which no CSV or C3D file does)."""
+    with open(path, "rb") as f:
+        head = f.read(512)
+    if head.startswith(HDF5_SIGNATURE):
+        return None
+    if len(head) >= 2 and head[1] == 0x50 and path.suffix.lower() == ".c3d":
+        return "C3D"
+    if path.suffix.lower() in (".csv", ".txt", ".tsv"):
+        return "CSV"
+    if len(head) >= 2 and head[1] == 0x50 and head[0] > 0:
+        return "C3D"        # the header's first byte points to the parameter block (>= 1)
+    try:
+        lines = head.decode("utf-8").splitlines()
+    except UnicodeDecodeError:
+        return None
+    return "CSV" if lines and "," in lines[0] else None
+
+
 def read_recording(path: Path) -> Recording:
     """Read and validate a recording (formats.md section 2).
 
@@ -229,10 +253,18 @@ def read_recording(path: Path) -> Recording:
     where = str(path)
     if not path.is_file():
         raise RecordingError(f"{where}: recording not found")
+    kind = marker_file_kind(path)
+    if kind is not None:
+        raise RecordingError(
+            f"{where}: this is a {kind} marker file, not a recording (HDF5): convert it first "
+            f"with `petsoft import {where} --out recording.h5` (add --units mm if its lengths "
+            "are in mm; formats.md section 2)")
     try:
         f = h5py.File(path, "r")
     except OSError as exc:
-        raise RecordingError(f"{where}: not an HDF5 file ({exc})") from None
+        raise RecordingError(f"{where}: not an HDF5 file ({exc}); a recording is the HDF5 file "
+                             "of formats.md section 2 (`petsoft import` makes one from CSV or "
+                             "C3D marker files)") from None
     with f:
         fmt = f.attrs.get("format")
         fmt = fmt.decode() if isinstance(fmt, bytes) else fmt

@@ -31,16 +31,20 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from petsc4py import PETSc
-from slepc4py import SLEPc
 
+from petsoft.dependencies import slepc
 from petsoft.errors import PetsoftError, SolverError
 from petsoft.fem.assembly import CHUNK, MatrixAssembler
 from petsoft.io.progress import duration
 from petsoft.physics.loads import consistent_mass_matrices
 from petsoft.solvers.convergence import reason_name
+
+if TYPE_CHECKING:
+    from slepc4py import SLEPc
 
 # Shift (as a fraction of trace(K)/trace(M), an upper-end eigenvalue scale ~ c^2/h^2) used when
 # rigid-body modes make K singular. It must lie well below the lowest elastic eigenvalue, or
@@ -215,6 +219,7 @@ def rigid_body_modes(model, M: PETSc.Mat) -> list[PETSc.Vec]:
 
 def _eps_defaults(eps: SLEPc.EPS, nev: int, target: float, prefix: str) -> None:
     """Petsoft's defaults: GHEP, Krylov-Schur, shift-and-invert with a direct solve."""
+    SLEPc = slepc()
     eps.setOptionsPrefix(prefix)
     eps.setProblemType(SLEPc.EPS.ProblemType.GHEP)
     eps.setType(SLEPc.EPS.Type.KRYLOVSCHUR)
@@ -312,6 +317,8 @@ def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "",
         raise PetsoftError(f"modes: the number of modes must be between 1 and the number of "
                            f"unconstrained dofs ({nfree}), not {nmodes}")
     nmodes = int(nmodes)
+    # imported here, not with the module: only the commands that compute modes need SLEPc
+    SLEPc = slepc("natural frequencies (SLEPc's eigensolver)")
     K, M, scale = assemble_operators(model)
     rigid = rigid_body_modes(model, M)
     created = list(rigid)        # destroyed on error; handed to the result otherwise

@@ -9,6 +9,7 @@ solvers can have different defaults and a user's option always wins.
 
 from __future__ import annotations
 
+import ctypes
 from contextlib import contextmanager
 
 from petsc4py import PETSc
@@ -72,3 +73,40 @@ def scoped_defaults(**defaults: str):
         for k in placed:
             opts.delValue(k)
             _inserted_by_us.discard(k)
+
+
+def unused_options(comm=None) -> list[str]:
+    """The options in the database no solver or lookup ever used, on every rank (collective).
+
+    PETSc's ``-options_left`` logic (``PetscOptionsLeftGet``, which petsc4py does not wrap, so
+    called through the library petsc4py loaded): a misspelled option (``-ksp_tyep cg``) or one
+    for a solver the run never made is otherwise silently ignored. Options petsoft set itself
+    (:func:`set_default_option`) are left out; the experiment's ``[petsc]`` table is removed
+    from the database when its run ends, so only the command line's options remain to report.
+    An option counts as unused when no rank used it.
+
+    Returns
+    -------
+    list of str
+        ``"-name value"`` (or ``"-name"``) per unused option, in the database's order.
+    """
+    comm = PETSc.COMM_WORLD if comm is None else comm
+    lib = ctypes.CDLL(PETSc.__file__)      # dlsym finds libpetsc's symbols through it
+    int_type = ctypes.c_int64 if PETSc.IntType().itemsize == 8 else ctypes.c_int32
+    count = int_type()
+    names, values = ctypes.POINTER(ctypes.c_char_p)(), ctypes.POINTER(ctypes.c_char_p)()
+    if lib.PetscOptionsLeftGet(None, ctypes.byref(count), ctypes.byref(names),
+                               ctypes.byref(values)) != 0:
+        raise RuntimeError("PetscOptionsLeftGet failed")
+    try:
+        left = [(names[i].decode(), None if values[i] is None else values[i].decode())
+                for i in range(count.value)]
+    finally:
+        lib.PetscOptionsLeftRestore(None, ctypes.byref(count), ctypes.byref(names),
+                                    ctypes.byref(values))
+    mine = [f"-{k}" + ("" if v is None else f" {v}") for k, v in left
+            if k not in _inserted_by_us]
+    everywhere = set(mine)
+    for other in comm.tompi4py().allgather(mine):
+        everywhere &= set(other)
+    return [m for m in mine if m in everywhere]

@@ -8,7 +8,7 @@ shows (energy + physically dissipated energy) / initial energy: what is missing 
 damping the time discretisation itself added. Measured (12x2x2 cells, 2 s): backward Euler and
 semi-implicit remove 16%, generalized-alpha (r = 0.5) 1.5% (the high frequencies), midpoint
 nothing (to the Newton tolerance), and the exponential Rosenbrock-Euler method (ERE) adds about
-5% (it is not energy-stable at this step; see README).
+5% (it is not energy-stable at this step; see petsoft/dynamics/README.md).
 
 Run::
 

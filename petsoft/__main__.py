@@ -1,0 +1,5 @@
+"""``python -m petsoft``: the ``petsoft`` command (:mod:`petsoft.cli.main`)."""
+
+from petsoft.cli.main import main
+
+raise SystemExit(main())
