@@ -318,7 +318,7 @@ class Diagnosis:
         comm = self.comm if comm is None else petsc_comm(comm)
         if sim is None:
             with doing(label):
-                sim = self.simulate(experiment, comm=comm)
+                sim = self.simulate_identification(experiment, comm=comm)
         current = experiment
         misfit = chi2(sim[self.ident], self.data[self.ident], self.sigma)
         # repeated: on a short window the two estimates share a bias that cancels as the
@@ -335,7 +335,7 @@ class Diagnosis:
                 break
             moved = with_parameters(current, {name: scaled})
             with doing(label):
-                moved_sim = self.simulate(moved, comm=comm)
+                moved_sim = self.simulate_identification(moved, comm=comm)
             gc.collect()                # every rank, same point (see run_diagnose)
             after = chi2(moved_sim[self.ident], self.data[self.ident], self.sigma)
             of = f" ({ratio:.4g}x the current fit's {target:.4g})" if target != 1.0 else ""
@@ -501,10 +501,23 @@ class Diagnosis:
 
     def simulate(self, experiment, h=None, comm=None, times=None) -> np.ndarray:
         """Marker positions of ``experiment`` at every frame of the record (or ``times``)."""
+        return self._run(experiment, h, comm, self.times if times is None else times)
+
+    def simulate_identification(self, experiment, comm=None) -> np.ndarray:
+        """Marker positions of ``experiment`` on the identification window only, in an array
+        of every frame's shape whose held-out frames are NaN (indexed as :meth:`simulate`'s by
+        ``ident``). For the runs only that window is compared on (the numerics check's
+        refinements, the frequency matching): the run stops at the cut, 30 % of the record
+        earlier by default; a use of a held-out frame gives NaN, not a silent value."""
+        sim = self._run(experiment, None, comm, self.times[self.ident])
+        out = np.full((len(self.times),) + sim.shape[1:], np.nan)
+        out[self.ident] = sim
+        return out
+
+    def _run(self, experiment, h, comm, times) -> np.ndarray:
         names = list(experiment.calibrate)
         p = np.array([get_parameter(experiment, n) for n in names])
-        fm = build_forward(experiment, names, self.recording,
-                           self.times if times is None else times,
+        fm = build_forward(experiment, names, self.recording, times,
                            self.comm if comm is None else petsc_comm(comm), self.integrator,
                            h=h)
         try:

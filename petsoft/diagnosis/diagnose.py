@@ -46,6 +46,7 @@ from pathlib import Path
 
 from petsoft.calibration.calibrate import canonical_method
 from petsoft.calibration.groups import TaskResult, map_on_groups
+from petsoft.diagnosis.clock import PhaseClock
 
 # names the tests and scripts import from here
 from petsoft.diagnosis.context import (  # noqa: F401
@@ -61,7 +62,6 @@ from petsoft.diagnosis.context import (  # noqa: F401
     petsc_comm,
     scored_together,
 )
-from petsoft.diagnosis.clock import PhaseClock
 from petsoft.diagnosis.geometry import refit_added_sphere
 from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
 from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings

@@ -143,7 +143,7 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r) -> dict:
     # (one rank solves it directly up to the default's 100,000 dofs, a direct solve's limit
     # that once had to be raised here from 6000)
     with doing(f"numerics {r.label} (one run)"):
-        moved = diag.simulate(r.make(exp))
+        moved = diag.simulate_identification(r.make(exp))
     gc.collect()
     cols = None if diag.all_differenced(exp) else model_sensitivities(diag, fit)
     o = linearised_refit(diag, fit, r, moved, cols)
@@ -548,7 +548,7 @@ def screened(o: dict, excess: float, sigma: float) -> bool:
 def _simulate_refined(diag: Diagnosis, fit: Fit, what: str, comm) -> np.ndarray:
     """Refinement ``what`` of ``fit``'s model simulated at the current parameters."""
     with doing(f"numerics {what}"):
-        return diag.simulate(refined(fit.experiment, what), comm=comm)
+        return diag.simulate_identification(refined(fit.experiment, what), comm=comm)
 
 
 def _change(diag: Diagnosis, fit: Fit, moved: np.ndarray, seen: np.ndarray) -> float:
