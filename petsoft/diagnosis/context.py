@@ -44,6 +44,15 @@ from petsoft.solvers.options import scoped_defaults
 #: (finite-difference gradients, 50 s an iteration) spent its last five of 13 iterations moving
 #: chi2 by less than 1.
 FIT_DTOL = 1e-2
+#: diagnose's forward runs stop a time step's Newton iteration when its residual has fallen by
+#: this factor (``-fm_snes_rtol``; the forward model's own default is 1e-12, for gradients as
+#: exact as the solves), unless the user set it. The chord's last iterations only chase
+#: round-off: on the independent control-plate's 10-node model (3672 dofs, 140 steps of 2 ms,
+#: a forward run and its sensitivities: scripts/benchmarks/bench_newton_tolerance.py) 8.4
+#: residuals and 7.9 back-substitutions a step at 1e-12, 5.5 and 5.0 at 1e-6, and the markers
+#: moved by at most 5e-5 of the recording's noise: a chi2 change of ~1e-3 on ~5,000 samples,
+#: where a term is added for 6.6.
+NEWTON_RTOL = 1e-6
 
 
 class DiagnoseError(PetsoftError):

@@ -50,6 +50,7 @@ from petsoft.diagnosis.clock import PhaseClock
 
 # names the tests and scripts import from here
 from petsoft.diagnosis.context import (  # noqa: F401
+    NEWTON_RTOL,
     NO_REGIONS,
     DiagnoseError,
     Diagnosis,
@@ -77,6 +78,7 @@ from petsoft.diagnosis.selection import (
     worth_fitting,
 )
 from petsoft.io.progress import heartbeat
+from petsoft.solvers.options import experiment_options
 
 
 def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: float = 0.7,
@@ -152,7 +154,11 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
             say(f"[{time.perf_counter() - t0:7.1f} s]   {line}")
 
     try:
-        with heartbeat(pulse, interval=10.0):
+        # every forward run of the diagnosis (context.NEWTON_RTOL): one place, the whole run,
+        # as a caller's option (the forward model's own default, 1e-12 for gradients as exact
+        # as the solves, gives way to it; the user's -fm_snes_rtol wins over both)
+        with heartbeat(pulse, interval=10.0), \
+                experiment_options({"fm_snes_rtol": repr(NEWTON_RTOL)}):
             return _run_diagnose(experiment, recording, out=out, fraction=fraction, alpha=alpha,
                                  max_additions=max_additions, max_tries=max_tries,
                                  method=method, gradient=gradient, integrator=integrator,
