@@ -12,7 +12,10 @@ from __future__ import annotations
 from petsoft.calibration.refinement import levels_needed, mesh_cells, refinement
 
 #: The keys of :func:`numerics_findings` that go to report.json's ``numerics``.
-REPORT_KEYS = ("findings", "recommendation", "mesh")
+REPORT_KEYS = ("findings", "recommendation", "mesh", "summary", "adopted")
+
+#: The order and the name of each refinement in the summary (one sentence each).
+_SUMMARY_ORDER = ("step/2", "mesh x2", "P2", "mesh x2 + step/2")
 
 #: How each kind of refinement is said: (the action, the thing refined).
 _WORDS = {"step": ("the time step is halved", "time step"),
@@ -79,7 +82,7 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
                        "blamed on physics (not refitted).")
         elif o.get("screened"):
             # not refitted: its linearised refit was no closer to the data
-            out.append(f"{head}" + (f": the {noun} is fine for this recording" if x < 1.0 else
+            out.append(f"{head}" + (": less than the noise on this model" if x < 1.0 else
                                     f", but a linearised refit is no closer to the data "
                                     f"({fit}): the {noun} is not what the model misses")
                        + " (not refitted).")
@@ -98,7 +101,7 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
                        f"{_x(o.get('error_estimate', 0.0) / sigma)}x the noise and checked "
                        "again once the misfit is smaller.")
         elif x < 1.0:
-            out.append(f"{head}: the {noun} is fine for this recording.")
+            out.append(f"{head}: less than the noise on this model.")
         elif o.get("error_estimate", 0.0) > 0.0:
             out.append(f"{head}, but refitted it improves little ({fit}{moved}): counted "
                        f"as a {noun} error of {_x(o['error_estimate'] / sigma)}x the noise, "
@@ -120,6 +123,80 @@ def measured_error(rounds: list[dict]) -> tuple[float, str | None]:
             label = max(measured, key=measured.get)
             return measured[label], label
     return 0.0, None
+
+
+def _adopted_setting(label: str, final) -> str:
+    """What an adopted refinement made of the model, in the user's terms."""
+    kind = refinement(label).kind
+    if kind == "step":
+        return f"a time step of {final.experiment.time.step:.4g} s"
+    if kind == "order":
+        return "10-node tetrahedra"
+    return f"the refined mesh ({mesh_cells(final.experiment)} tets)"
+
+
+def numerics_summary(num: dict, rounds: list[dict], final) -> tuple[list[str], list[str],
+                                                                     dict[str, str]]:
+    """(one sentence per refinement, the labels adopted, {label: why} of the refinements never
+    made): what a reader needs of the numerics.
+
+    Each sentence quotes one number, the change of the simulation in units of the noise when
+    the refinement is made on the model the diagnosis ended with (its last check; the first
+    rounds' changes, on other models, stay in ``findings``). A refinement is said to be fine
+    only when that change is below the noise.
+    """
+    adopted = [r["adopted"] for r in rounds if r.get("adopted")]
+    last: dict[str, tuple[dict, bool]] = {}      # label -> (its last measurement, refitted?)
+    closer: dict[str, bool] = {}                 # label -> a refit came closer to the data
+    largest: dict[str, float] = {}               # label -> its largest change on any model
+    not_tried: dict[str, str] = {}
+    for r in rounds:
+        for label, o in r["options"].items():
+            if "error" in o:
+                continue
+            refitted = not (o.get("screened") or o.get("measured_only"))
+            last[label] = ({"x": o.get("change_same_parameters_over_noise",
+                                       o["change_over_noise"]), "how": o["how"]}, refitted)
+            closer[label] = closer.get(label, False) or bool(o.get("matters"))
+            largest[label] = max(largest.get(label, 0.0), last[label][0]["x"])
+        not_tried.update(r.get("not_tried", {}))
+    for label, v in num.items():
+        if isinstance(v, dict) and "change" in v:
+            last[label] = ({"x": v["change_over_noise"], "how": v["how"]},
+                           last.get(label, ({}, False))[1])
+    out = []
+    unchecked: dict[str, str] = {}
+    for label in sorted(set(last) | set(not_tried),
+                        key=lambda k: _SUMMARY_ORDER.index(k) if k in _SUMMARY_ORDER else 9):
+        noun = _words(label)[1]
+        name = noun[0].upper() + noun[1:]
+        if label not in last:
+            out.append(f"{name}: not checked ({not_tried[label]}).")
+            unchecked[label] = not_tried[label]
+            continue
+        m, refitted = last[label]
+        x = f"{_x(m['x'])}x the noise"
+        if label in adopted:
+            again = (f"; refining once more ({m['how']}) changes the simulation by {x}"
+                     + (", so it still limits what the diagnosis can tell apart"
+                        if m["x"] >= 1.0 else ""))
+            out.append(f"{name}: part of the mismatch; {_adopted_setting(label, final)} was "
+                       f"adopted{again}.")
+        elif m["x"] < 1.0 and largest.get(label, 0.0) < 1.0:
+            out.append(f"{name}: refining it ({m['how']}) changes the simulation by {x}: "
+                       "it is fine for this recording.")
+        elif m["x"] < 1.0:
+            # more than the noise on an earlier model (in ``findings``), less on the final one
+            out.append(f"{name}: refining it ({m['how']}) changes the final model by {x}: "
+                       f"the {noun} does not limit this diagnosis.")
+        elif refitted or label in closer:
+            out.append(f"{name}: refining it ({m['how']}) changes the simulation by {x}, but "
+                       f"refitted it came no closer to the data: the {noun} is not what the "
+                       f"model misses, though the calibrated values are those of this {noun}.")
+        else:
+            out.append(f"{name}: refining it ({m['how']}) changes the simulation by {x} (not "
+                       f"refitted): the {noun} limits what this diagnosis can tell apart.")
+    return out, adopted, unchecked
 
 
 def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
@@ -189,7 +266,9 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
             findings.append(f"On the final model, the simulation changes by "
                             f"{_x(v['change_over_noise'])}x the noise when {action} "
                             f"({v['how']}){limits}.")
-    out = {"findings": findings, "recommendation": None}
+    summary, adopted, unchecked = numerics_summary(num, rounds, final)
+    out = {"findings": findings, "recommendation": None, "summary": summary,
+           "adopted": adopted, "unchecked": unchecked}
     if base.experiment.is_mass_spring:
         return out
     user, now = mesh_cells(base.experiment), mesh_cells(final.experiment)
@@ -216,6 +295,13 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
         advice.append(f"Refine the mesh ({user} tets){' and the time step' if both else ''}: "
                       f"one run of the split mesh{' at half the step' if both else ''} measured "
                       f"an error of {_x(measured / sigma)}x the noise on the final model.")
+    elif unresolved := [label for label in ("mesh x2", "P2")
+                        if isinstance(num.get(label), dict) and "change" in num[label]
+                        and not num[label]["resolved"]]:
+        advice.append(f"Refine the mesh ({user} tets) before using the calibrated values "
+                      "beyond this recording: on the final model, refining the "
+                      + " or the ".join(_words(label)[1] for label in unresolved)
+                      + " changes the simulation by more than the noise.")
     elif (any("mesh x2" in r["options"] or "P2" in r["options"] for r in rounds)
           or isinstance(num.get("mesh x2"), dict)):
         raised = final.experiment.mesh.order > base.experiment.mesh.order
