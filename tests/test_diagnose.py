@@ -24,6 +24,7 @@ from petsoft.diagnosis.candidates import build_candidates, sensitivity_region, s
 from petsoft.diagnosis.diagnose import DiagnoseError, escape_plane, run_diagnose
 from petsoft.diagnosis.report import PHYSICS, read_report
 from petsoft.diagnosis.score import ScoreError, score_test
+from petsoft.diagnosis.story import pm, quoted_conflicts
 from petsoft.experiment import experiment_from_dict, get_parameter, load_experiment
 from petsoft.io.recording import read_recording
 
@@ -237,6 +238,23 @@ def test_concealed_mass_damping_is_found(case):
     md = (out / "report.md").read_text()
     assert "damping.mass" in md and "friction.dry" in md          # not-modelled terms listed
     assert (out / "summary.json").exists() and (out / "displacement.png").exists()
+    # one story: the added value with its std and unit, quoted from the final parameters,
+    # never two values of one quantity, never a fine mesh a refinement contradicts
+    quoted = f"damping.mass = {pm(alpha, std)} 1/s"
+    assert quoted in md.split("<details>")[0].split("## In short")[0]    # in the verdict box
+    rep_file = read_report(out / "report.json")
+    assert rep_file["cause"] in ("physics", "both") and rep_file["final_verdict"] == "consistent"
+    assert rep_file["parameters"]["damping.mass"] == alpha
+    assert quoted_conflicts(md) == [] and quoted_conflicts((out / "report.html").read_text()) == []
+    # the console ends with the conclusion: verdict, what was added, held-out, report.html
+    if PETSc.COMM_WORLD.getRank() == 0:
+        lines = case["results"]["damped lines"]
+        start = max(i for i, line in enumerate(lines) if line.startswith("verdict: "))
+        tail = lines[start:]
+        assert tail[0].startswith("verdict: missing physics"), tail
+        assert any(line.startswith("added: " + quoted) for line in tail), tail
+        assert any(line.startswith("held-out rms: ") and " mm " in line for line in tail), tail
+        assert tail[-1].startswith(f"report: {out}/report.html"), tail
 
 
 def test_control_without_missing_physics_is_consistent(case):

@@ -146,3 +146,18 @@ def test_new_report_keys_are_validated():
     old = example_report()
     report.validate_report(old)
     assert Story(old).cause == "physics"
+
+
+def test_the_formats_md_example_report_is_valid_and_tells_its_story():
+    import json
+    import re
+    from pathlib import Path
+
+    import petsoft
+
+    doc = (Path(petsoft.__file__).parent / "formats.md").read_text()
+    block = next(b for b in re.findall(r"```json\n(.*?)```", doc, flags=re.S)
+                 if '"petsoft-diagnosis"' in b)
+    rep = json.loads(block)
+    report.validate_report(rep)
+    assert Story(rep).verdict_box().startswith("**Verdict: missing physics.**")

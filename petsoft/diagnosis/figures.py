@@ -44,8 +44,9 @@ CAPTIONS = {
                         "its residual over the noise (1 = the noise), spread from the markers "
                         "(dots). A hot patch points to a local cause (added mass, a soft "
                         "region); an even colour to a global one (damping, stiffness).",
-    "residual_markers": "Residual of the model as given per marker (mm). A red bar stands out "
-                        "from the others (above the dashed line); the dotted line is the noise.",
+    "residual_markers": "Residual of the model as given per marker (mm). Red bars, if any, stand "
+                        "out from the others (above the dashed line); the dotted line is the "
+                        "noise.",
     "residual_time": "When the model as given misses: the residual's chi2/dof over time "
                      "(1 = the noise); red bands exceed the noise threshold (dashed).",
     "spectra": "Amplitude spectra of the marker motion (mm): the recording (black), the model "
@@ -184,7 +185,9 @@ def plot_residual_on_body(path, points, facets, marker_positions, marker_rms, no
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_zlim(lo[2], hi[2])
-    ax.set_box_aspect(np.maximum(hi - lo, 1e-3 * (hi - lo).max()))
+    # a slender bar drawn to scale is a line: thin sides are drawn at least a quarter as long
+    ax.set_box_aspect(np.maximum(hi - lo, 0.25 * (hi - lo).max()))
+    ax.view_init(elev=22, azim=-60)
     for setter, axis in zip((ax.set_xlabel, ax.set_ylabel, ax.set_zlabel), "xyz", strict=True):
         setter(f"{axis} (mm)")
     sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
@@ -273,15 +276,18 @@ def plot_spectra_before_after(path, times, data, before, after, data_modes=()) -
             continue
         # the simulations seen where the data are: the same channels, the same gaps filled
         x = fill_gaps(t, np.where(seen, np.asarray(arr, float), np.nan))
-        x = (x - x.mean(axis=0)) * np.hanning(len(t))[:, None]
-        spec = 1e3 * np.sqrt(np.sum(np.abs(np.fft.rfft(x, axis=0)) ** 2, axis=1))
+        window = np.hanning(len(t))
+        x = (x - x.mean(axis=0)) * window[:, None]
+        # 2 / sum(window): a sinusoid of amplitude A mm on a bin reads A (root-sum-square over
+        # the channels)
+        spec = 2e3 / window.sum() * np.sqrt(np.sum(np.abs(np.fft.rfft(x, axis=0)) ** 2, axis=1))
         spectra[label] = spec
         ax.semilogy(f[1:], spec[1:], label=label, **style)
     modes_hz = [float(m["frequency_hz"]) for m in data_modes or () if m["frequency_hz"] > 0]
     for hz in modes_hz:
         ax.axvline(hz, c="k", ls=":", lw=0.8)
     ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel("amplitude spectrum (mm)")
+    ax.set_ylabel("amplitude (mm, all markers)")
     ax.set_title("Spectra of the marker motion (dotted: the recording's fitted modes)")
     ax.legend(fontsize=8)
     save_figure(fig, path)

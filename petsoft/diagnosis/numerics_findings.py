@@ -150,19 +150,27 @@ def numerics_summary(num: dict, rounds: list[dict], final) -> tuple[list[str], l
     closer: dict[str, bool] = {}                 # label -> a refit came closer to the data
     largest: dict[str, float] = {}               # label -> its largest change on any model
     not_tried: dict[str, str] = {}
+    covered: dict[str, bool] = {}
     for r in rounds:
         for label, o in r["options"].items():
             if "error" in o:
                 continue
             refitted = not (o.get("screened") or o.get("measured_only"))
+            # "adopting": the change is the one that made the refinement adopted, not a
+            # further refinement of the adopted model
             last[label] = ({"x": o.get("change_same_parameters_over_noise",
-                                       o["change_over_noise"]), "how": o["how"]}, refitted)
+                                       o["change_over_noise"]), "how": o["how"],
+                            "adopting": r.get("adopted") == label}, refitted)
             closer[label] = closer.get(label, False) or bool(o.get("matters"))
             largest[label] = max(largest.get(label, 0.0), last[label][0]["x"])
-        not_tried.update(r.get("not_tried", {}))
+        for label, why in r.get("not_tried", {}).items():
+            not_tried[label] = why
+            # the split mesh is not made when 10-node elements, which have its nodes, are
+            # tried in its place: then it is covered, not unchecked
+            covered[label] = label == "mesh x2" and "P2" in r["options"]
     for label, v in num.items():
         if isinstance(v, dict) and "change" in v:
-            last[label] = ({"x": v["change_over_noise"], "how": v["how"]},
+            last[label] = ({"x": v["change_over_noise"], "how": v["how"], "adopting": False},
                            last.get(label, ({}, False))[1])
     out = []
     unchecked: dict[str, str] = {}
@@ -170,18 +178,25 @@ def numerics_summary(num: dict, rounds: list[dict], final) -> tuple[list[str], l
                         key=lambda k: _SUMMARY_ORDER.index(k) if k in _SUMMARY_ORDER else 9):
         noun = _words(label)[1]
         name = noun[0].upper() + noun[1:]
+        if label not in last and covered.get(label):
+            out.append(f"{name}: not refined by itself ({not_tried[label]}).")
+            continue
         if label not in last:
             out.append(f"{name}: not checked ({not_tried[label]}).")
             unchecked[label] = not_tried[label]
             continue
         m, refitted = last[label]
         x = f"{_x(m['x'])}x the noise"
-        if label in adopted:
+        if label in adopted and m["adopting"]:
+            out.append(f"{name}: part of the mismatch: refining it ({m['how']}) changed the "
+                       f"simulation by {x} and brought it closer to the data; adopted: "
+                       f"{_adopted_setting(label, final)}.")
+        elif label in adopted:
             again = (f"; refining once more ({m['how']}) changes the simulation by {x}"
                      + (", so it still limits what the diagnosis can tell apart"
                         if m["x"] >= 1.0 else ""))
-            out.append(f"{name}: part of the mismatch; {_adopted_setting(label, final)} was "
-                       f"adopted{again}.")
+            out.append(f"{name}: part of the mismatch; adopted: "
+                       f"{_adopted_setting(label, final)}{again}.")
         elif m["x"] < 1.0 and largest.get(label, 0.0) < 1.0:
             out.append(f"{name}: refining it ({m['how']}) changes the simulation by {x}: "
                        "it is fine for this recording.")
@@ -302,6 +317,10 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
                       "beyond this recording: on the final model, refining the "
                       + " or the ".join(_words(label)[1] for label in unresolved)
                       + " changes the simulation by more than the noise.")
+    elif "mesh x2" in unchecked and measured == 0.0:
+        advice.append(f"Your mesh ({user} tets) could not be refined within diagnose's limit "
+                      f"({unchecked['mesh x2']}): check the calibrated parameters with "
+                      "`petsoft calibrate --check-mesh`.")
     elif (any("mesh x2" in r["options"] or "P2" in r["options"] for r in rounds)
           or isinstance(num.get("mesh x2"), dict)):
         raised = final.experiment.mesh.order > base.experiment.mesh.order
