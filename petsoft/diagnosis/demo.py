@@ -88,7 +88,7 @@ def run_diagnosis_demo(out: Path, say=print) -> dict:
                                                             seed=3))
     comm.Barrier()
     res = run_diagnose(load_experiment(out / "user.toml"), out / "recording.h5",
-                       out=out / "diagnosis", say=say, conclude=False)
+                       out=out / "diagnosis", say=say)
     named = [a["physics"] for a in res.added]
     name, true = HIDDEN["parameter"]
     found = (float(res.final.values[res.final.names.index(name)])

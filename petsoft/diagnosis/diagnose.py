@@ -62,7 +62,7 @@ from petsoft.diagnosis.context import (  # noqa: F401
 )
 from petsoft.diagnosis.geometry import refit_added_sphere
 from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
-from petsoft.diagnosis.numerics_findings import REPORT_KEYS, _words, numerics_findings
+from petsoft.diagnosis.numerics_findings import REPORT_KEYS, refinement_words, numerics_findings
 from petsoft.diagnosis.outputs import DiagnoseResult, build_diagnosis_report, write_outputs
 from petsoft.diagnosis.reconsider import Added, reconsider
 from petsoft.diagnosis.selection import (
@@ -73,7 +73,7 @@ from petsoft.diagnosis.selection import (
     shortlist,
     worth_fitting,
 )
-from petsoft.diagnosis.story import Story, skipped_numerics
+from petsoft.diagnosis.story import skipped_numerics
 from petsoft.io.progress import heartbeat
 
 
@@ -82,7 +82,7 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
                  method: str = "gauss-newton", gradient: str = "sensitivity",
                  integrator: str | None = None, noise: float | None = None,
                  numerics: bool = True, comm=None, say=None,
-                 spelled_out: bool = False, conclude: bool = True) -> DiagnoseResult:
+                 spelled_out: bool = False) -> DiagnoseResult:
     """Diagnose ``experiment`` against a recording (module docstring). All ranks call.
 
     Parameters
@@ -121,9 +121,6 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
     spelled_out : bool
         Write diagnosed.toml with every value spelled out instead of as the user's file with
         the calibrated values replaced and the added physics appended.
-    conclude : bool
-        End the progress lines with the conclusion (:meth:`~petsoft.diagnosis.story.Story.
-        conclusion`); a caller that says more after the run (the demo) says it itself.
 
     Returns
     -------
@@ -156,7 +153,7 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
                                  max_additions=max_additions, max_tries=max_tries,
                                  method=method, gradient=gradient, integrator=integrator,
                                  noise=noise, numerics=numerics, comm=comm, say=say,
-                                 spelled_out=spelled_out, t0=t0, conclude=conclude)
+                                 spelled_out=spelled_out, t0=t0)
     finally:
         gc.collect()
         if enabled:
@@ -165,7 +162,7 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
 
 def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions, max_tries,
                   method, gradient, integrator, noise, numerics, comm, say,
-                  spelled_out, t0: float, conclude: bool = True) -> DiagnoseResult:
+                  spelled_out, t0: float) -> DiagnoseResult:
     """The diagnosis of :func:`run_diagnose` (call that: it handles the garbage collector and
     the heartbeat); its log's times count from ``t0``."""
     from petsoft.diagnosis.candidates import build_candidates
@@ -316,8 +313,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                 diag.tell(f"numerics: {line}")
     # a check not made is said in the verdict box and on the console, with what it risks
     skipped = [] if numerics else [skipped_numerics()]
-    skipped += [{"check": f"{_words(label)[1]} refinement", "why": why,
-                 "risk": f"the {_words(label)[1]}'s error is not known: a mismatch it causes "
+    skipped += [{"check": f"{refinement_words(label)[1]} refinement", "why": why,
+                 "risk": f"the {refinement_words(label)[1]}'s error is not known: a mismatch it causes "
                          "may be blamed on physics"}
                 for label, why in num.get("unchecked", {}).items()]
     report = build_diagnosis_report(diag, base, current, base_ev, ev, added, rejected,
@@ -337,11 +334,6 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                       spelled_out=spelled_out)
         diag.tell(f"wrote {out}/ (report.html, report.md, report.json, figures, diagnosed.toml, "
                   "summary.json)")
-    if conclude and diag.say is not None and diag.rank0:
-        # the conclusion last, in the words and numbers of the report (story.py)
-        diag.say("")
-        for line in Story(report).conclusion(out):
-            diag.say(line)
     return result
 
 

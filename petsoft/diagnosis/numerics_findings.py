@@ -28,7 +28,9 @@ def _x(v: float) -> str:
     return f"{v:.2g}" if v < 10 else f"{v:.0f}"
 
 
-def _words(label: str) -> tuple[str, str]:
+def refinement_words(label: str) -> tuple[str, str]:
+    """How refinement ``label`` is said: (the action, the thing refined), e.g. ("the time step
+    is halved", "time step")."""
     try:
         return _WORDS[refinement(label).kind]
     except KeyError:
@@ -57,7 +59,7 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
     where = ("" if first else "Checked again on the final model: " if r.get("final_check")
              else "Then, on the adopted model: ")
     for label, o in r["options"].items():
-        action, noun = _words(label)
+        action, noun = refinement_words(label)
         if "error" in o:
             out.append(f"{where}when {action}, the refined fit failed: {o['error']}.")
             continue
@@ -93,7 +95,7 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
                        "adopted.")
         elif o["matters"]:
             out.append(f"{head}; refitted, the fit improves ({fit}), but less than when "
-                       f"{_words(r['adopted'])[0]}.")
+                       f"{refinement_words(r['adopted'])[0]}.")
         elif o.get("deferred"):
             out.append(f"{head}; refitted, the fit improves ({fit}{moved}), but while the "
                        f"model misses the data by {_x(o['deferred'])}x the noise an error this "
@@ -176,7 +178,7 @@ def numerics_summary(num: dict, rounds: list[dict], final) -> tuple[list[str], l
     unchecked: dict[str, str] = {}
     for label in sorted(set(last) | set(not_tried),
                         key=lambda k: _SUMMARY_ORDER.index(k) if k in _SUMMARY_ORDER else 9):
-        noun = _words(label)[1]
+        noun = refinement_words(label)[1]
         name = noun[0].upper() + noun[1:]
         if label not in last and covered.get(label):
             out.append(f"{name}: not refined by itself ({not_tried[label]}).")
@@ -237,14 +239,14 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
             if label not in said_not_tried:
                 said_not_tried.add(label)
                 again = " again" if any(label in q["options"] for q in rounds) else ""
-                findings.append(f"The {_words(label)[1]} was not refined{again}: {why}.")
+                findings.append(f"The {refinement_words(label)[1]} was not refined{again}: {why}.")
     remaining = {}
     for r in rounds:
         label = r.get("adopted")
         if label:
             remaining[label] = r["options"][label]
     for label, o in remaining.items():
-        noun = _words(label)[1]
+        noun = refinement_words(label)[1]
         if o["remaining_estimate"] == 0.0:
             # a refinement whose own error is taken as nil (10-node elements on the same mesh:
             # their error falls as h^3), not estimated from the change it made
@@ -275,7 +277,7 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
         findings.append(text + ".")
     for label, v in num.items():
         if isinstance(v, dict) and "change" in v:
-            action, noun = _words(label)
+            action, noun = refinement_words(label)
             limits = ("" if v["resolved"] else f": more than the noise, so the {noun} still "
                       "limits what this diagnosis can tell apart")
             findings.append(f"On the final model, the simulation changes by "
@@ -315,7 +317,7 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
                         and not num[label]["resolved"]]:
         advice.append(f"Refine the mesh ({user} tets) before using the calibrated values "
                       "beyond this recording: on the final model, refining the "
-                      + " or the ".join(_words(label)[1] for label in unresolved)
+                      + " or the ".join(refinement_words(label)[1] for label in unresolved)
                       + " changes the simulation by more than the noise.")
     elif "mesh x2" in unchecked and measured == 0.0:
         advice.append(f"Your mesh ({user} tets) could not be refined within diagnose's limit "

@@ -133,9 +133,9 @@ class Story:
         """What the model as given missed, in physical words."""
         parts = [PHYSICS[p] for p in self.added]
         if self.adopted:
-            from petsoft.diagnosis.numerics_findings import _words
+            from petsoft.diagnosis.numerics_findings import refinement_words
 
-            parts.append("its discretisation (" + ", ".join(_words(a)[1] for a in self.adopted)
+            parts.append("its discretisation (" + ", ".join(refinement_words(a)[1] for a in self.adopted)
                          + ")")
         return "; ".join(parts)
 
