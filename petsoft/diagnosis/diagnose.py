@@ -62,7 +62,7 @@ from petsoft.diagnosis.context import (  # noqa: F401
 )
 from petsoft.diagnosis.geometry import refit_added_sphere
 from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
-from petsoft.diagnosis.numerics_findings import REPORT_KEYS, refinement_words, numerics_findings
+from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings, refinement_words
 from petsoft.diagnosis.outputs import DiagnoseResult, build_diagnosis_report, write_outputs
 from petsoft.diagnosis.reconsider import Added, reconsider
 from petsoft.diagnosis.selection import (
@@ -313,10 +313,11 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                 diag.tell(f"numerics: {line}")
     # a check not made is said in the verdict box and on the console, with what it risks
     skipped = [] if numerics else [skipped_numerics()]
-    skipped += [{"check": f"{refinement_words(label)[1]} refinement", "why": why,
-                 "risk": f"the {refinement_words(label)[1]}'s error is not known: a mismatch it causes "
-                         "may be blamed on physics"}
-                for label, why in num.get("unchecked", {}).items()]
+    for label, why in num.get("unchecked", {}).items():
+        noun = refinement_words(label)[1]
+        skipped.append({"check": f"{noun} refinement", "why": why,
+                        "risk": f"the {noun}'s error is not known: a mismatch it causes may be "
+                                "blamed on physics"})
     report = build_diagnosis_report(diag, base, current, base_ev, ev, added, rejected,
                                     numerics={k: num[k] for k in REPORT_KEYS if k in num},
                                     skipped=skipped)

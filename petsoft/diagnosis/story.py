@@ -135,8 +135,8 @@ class Story:
         if self.adopted:
             from petsoft.diagnosis.numerics_findings import refinement_words
 
-            parts.append("its discretisation (" + ", ".join(refinement_words(a)[1] for a in self.adopted)
-                         + ")")
+            parts.append("its discretisation ("
+                         + ", ".join(refinement_words(a)[1] for a in self.adopted) + ")")
         return "; ".join(parts)
 
     def headline(self) -> str:
