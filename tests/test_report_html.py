@@ -39,6 +39,9 @@ def test_markdown_subset_becomes_html():
         "# Title\n\n**Verdict: missing physics.** The <residual> is `big`.\n\n"
         "| a | b |\n|---|---|\n| 1 | 2 |\n\n- one\n- **two**\n\n![fig](x.png)\n")
     assert "<h1>Title</h1>" in body and '<p class="verdict">' in body
+    for words, cls in (("consistent.", "verdict consistent"),
+                       ("numerics, no missing physics.", "verdict numerics")):
+        assert f'<p class="{cls}">' in markdown_to_html(f"**Verdict: {words}** x")[0]
     assert "&lt;residual&gt;" in body and "<code>big</code>" in body       # escaped, inline code
     assert "<th>a</th>" in body and "<td>2</td>" in body and "---" not in body
     assert "<li><strong>two</strong></li>" in body and images == ["x.png"]

@@ -42,6 +42,7 @@ details { margin-top: 2em; border-top: 1px solid #bbb; padding-top: 0.5em; }
 summary { cursor: pointer; font-weight: bold; }
 .verdict { font-size: 1.15em; background: #f4f4f4; padding: 0.8em; border-left: 5px solid #c33; }
 .verdict.consistent { border-left-color: #3a3; }
+.verdict.numerics { border-left-color: #d90; }
 code { background: #f2f2f2; padding: 0 0.2em; }
 """
 
@@ -77,8 +78,10 @@ def markdown_to_html(md: str, figure=None) -> tuple[str, list[str]]:
             text = " ".join(para)
             cls = ""
             if text.startswith("**Verdict:"):
-                cls = ' class="verdict consistent"' if "consistent" in text[:30] else \
-                    ' class="verdict"'
+                # green: nothing missed; amber: only the numerics; red: physics missed
+                cls = (' class="verdict consistent"' if text.startswith("**Verdict: consistent")
+                       else ' class="verdict numerics"' if text.startswith("**Verdict: numerics")
+                       else ' class="verdict"')
             blocks.append(f"<p{cls}>{_inline(text)}</p>")
             para.clear()
         if items:
