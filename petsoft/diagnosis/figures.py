@@ -188,6 +188,10 @@ def plot_residual_on_body(path, points, facets, marker_positions, marker_rms, no
     # a slender bar drawn to scale is a line: thin sides are drawn at least a quarter as long
     ax.set_box_aspect(np.maximum(hi - lo, 0.25 * (hi - lo).max()))
     ax.view_init(elev=22, azim=-60)
+    from matplotlib.ticker import MaxNLocator
+
+    for axis in (ax.yaxis, ax.zaxis):              # the short sides: few ticks, readable
+        axis.set_major_locator(MaxNLocator(3))
     for setter, axis in zip((ax.set_xlabel, ax.set_ylabel, ax.set_zlabel), "xyz", strict=True):
         setter(f"{axis} (mm)")
     sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)

@@ -524,8 +524,17 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
     for a in report["added"]:
         lines.append(f"- added {a['physics']} (score {a['score']:.4g}; rms after it was added "
                      f"{a['rms_after']:.4g} m): {a['evidence']}.")
+    shortlist = []
     for r in report["rejected"]:
-        lines.append(f"- {r['physics']} (score {r['score']:.4g}): {r['reason']}.")
+        reason = r["reason"]
+        if reason.startswith("not tried:") and " (" in reason:
+            # the round's shortlist sentence is about other terms: said once, below
+            reason, why = reason.split(" (", 1)
+            why = why[:-1] if why.endswith(")") else why
+            if why not in shortlist:
+                shortlist.append(why)
+        lines.append(f"- {r['physics']} (score {r['score']:.4g}): {reason}.")
+    lines += [f"- {w[0].upper()}{w[1:]}." for w in shortlist]
     notes = ev.get("notes", [])
     if notes:
         lines += ["", "### Log", ""] + [f"- {n}" for n in notes]
