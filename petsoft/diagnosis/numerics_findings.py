@@ -2,9 +2,10 @@
 
 :func:`numerics_findings` turns the rounds of :func:`~petsoft.diagnosis.numerics.resolve_numerics`
 and the final :func:`~petsoft.diagnosis.numerics.numerics_check` into report.json's ``numerics``
-(``findings``: which refinement matters and by how much, what was adopted and what error is left;
-``recommendation``: the mesh and step to use; ``mesh``: the tet counts behind them), which
-report.md prints under "Mesh and time step".
+(``findings``: which refinement matters and by how much, what was adopted and what error is left,
+round by round; ``summary``: one sentence and one number per refinement, on the final model;
+``adopted``; ``recommendation``: the mesh and step to use; ``mesh``: the tet counts behind them).
+report.md says ``summary`` and ``recommendation`` in "In short", ``findings`` in its appendix.
 """
 
 from __future__ import annotations
