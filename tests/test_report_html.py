@@ -61,7 +61,7 @@ def test_page_is_self_contained_with_the_verdict_first_and_figures_in_their_sect
     assert body.index("Where and when") < shown < body.index("Physics")
     assert body.index("Physics") < body.rindex("<img") < body.index("<details>")
     assert "<details><summary>Appendix" in body and "<details open" not in body
-    assert body.index("<details>") < body.index("Raw fit") < body.index("</details>")
+    assert body.index("<details>") < body.index("<h3>Fit</h3>") < body.index("</details>")
     assert quoted_conflicts(page) == []
 
 

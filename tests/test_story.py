@@ -91,7 +91,7 @@ def test_added_values_come_from_the_final_parameters_once(tmp_path):
     assert md.count("damping.mass = 1.930 +- 0.050 1/s") >= 2      # box and "In short"
     assert quoted_conflicts(md) == []
     # the details are folded: the raw numbers come after <details>
-    assert md.index("## In short") < md.index("<details>") < md.index("### Raw fit")
+    assert md.index("## In short") < md.index("<details>") < md.index("### Fit")
 
 
 def test_ties_are_read_from_the_evidence():

@@ -417,9 +417,7 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
     validate_report(report)
     ev = dict(evidence or {})
     story = Story(report)
-    fit = report["fit"]
     mm = report["mismatch"]
-    sigma = report["noise_std"]
     lines = ["# Diagnosis report", "", story.verdict_box(), "", "## In short", ""]
     lines += [f"- {b}" for b in story.in_short()]
     lines += ["", "## Where and when", ""]
@@ -473,21 +471,20 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
     # the details: collapsed (GitHub's Markdown and report.html both fold <details>)
     lines += ["", "<details><summary>Appendix: the evidence in detail (raw fit numbers, noise "
               "tests, modes, score tests, the numerics round by round)</summary>", "",
-              "### Raw fit", "",
-              "| model | rms (m) | chi2/dof |", "|---|---|---|",
-              f"| as given, calibrated | {fit['base']['rms']:.4g} | "
-              f"{fit['base']['chi2_per_dof']:.4g} |",
-              f"| final | {fit['final']['rms']:.4g} | {fit['final']['chi2_per_dof']:.4g} |"]
-    if fit.get("validation") is not None:
-        v = fit["validation"]
-        lines += [f"| held out, as given | {v['base_rms']:.4g} | |",
-                  f"| held out, final | {v['final_rms']:.4g} | |"]
+              "### Fit", "",
+              # the numbers "In short" quotes, from the same strings (story.py)
+              "| model | rms, identification window | chi2/dof | rms, held out |",
+              "|---|---|---|---|",
+              f"| as given, calibrated | {story.rms[0]} | {story.chi2[0]} | "
+              f"{story.heldout[0] if story.heldout else '-'} |",
+              f"| final | {story.rms[1]} | {story.chi2[1]} | "
+              f"{story.heldout[1] if story.heldout else '-'} |"]
     test = ev.get("noise_test")
     if test is not None:
         t = test if isinstance(test, Mapping) else test.as_dict()
         src = ev.get("noise_source", "")
         lines += ["", "### Is the residual of the final model noise?", "",
-                  f"Noise level {sigma:.3g} m{f' ({src})' if src else ''}. "
+                  f"Noise level {story.noise}{f' ({src})' if src else ''}. "
                   f"Chi-square: {t['chi2']:.4g} on {t['dof']} degrees of freedom "
                   f"(p = {t['p_value']:.3g}): the level "
                   f"{'passes' if t['level_ok'] else 'fails'}. Whiteness (autocorrelation, "

@@ -121,6 +121,7 @@ class Story:
         self.ties = ties(report)
         fit = report["fit"]
         self.chi2 = (f"{fit['base']['chi2_per_dof']:.3g}", f"{fit['final']['chi2_per_dof']:.3g}")
+        self.rms = (_mm(fit["base"]["rms"]), _mm(fit["final"]["rms"]))
         v = fit.get("validation")
         self.heldout = None
         if v is not None:
