@@ -208,6 +208,28 @@ def test_residual_plot_axis_survives_an_exactly_zero_frame(tmp_path, monkeypatch
     assert high / low < 1e6, (low, high)
 
 
+def test_calibration_figures_draw_millimetres(tmp_path):
+    """Positions and residuals in mm, as the diagnosis' figures: the drawn arrays are 1e3 x the
+    metres, the most-moving marker first."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from petsoft.calibration import plots
+
+    t = np.linspace(0.0, 0.1, 51)
+    data = np.zeros((51, 2, 3))
+    data[:, 1, 2] = 2e-3 * np.sin(40 * t)                 # marker 1 moves 2 mm along z
+    after = data + 1e-5
+    drawn = plots.plot_trajectories(tmp_path / "t.png", t, data, None, after, ["a", "b"], 1)
+    assert drawn["picks"] == [(1, 2)]
+    np.testing.assert_allclose(drawn["recorded_mm"][:, 0], 1e3 * data[:, 1, 2])
+    res = plots.plot_residuals(tmp_path / "r.png", t, data, data + 1e-3, after, ["a", "b"],
+                               1e-5)
+    np.testing.assert_allclose(res["per_marker_mm"]["before"], [1.0, 1.0])
+    np.testing.assert_allclose(res["per_marker_mm"]["calibrated"], [0.01, 0.01])
+    assert res["noise_mm"] == pytest.approx(0.01)
+
+
 def test_observations_hold_the_window_checks_and_the_noise_policy():
     """The recording's /noise wins over the given noise, which wins over estimating it; the
     window keeps frames up to [time] end and rejects frames before t = 0 and position-less data."""

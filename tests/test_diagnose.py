@@ -24,6 +24,7 @@ from petsoft.diagnosis.candidates import build_candidates, sensitivity_region, s
 from petsoft.diagnosis.diagnose import DiagnoseError, escape_plane, run_diagnose
 from petsoft.diagnosis.report import PHYSICS, read_report
 from petsoft.diagnosis.score import ScoreError, score_test
+from petsoft.diagnosis.story import Story, pm, quoted_conflicts
 from petsoft.experiment import experiment_from_dict, get_parameter, load_experiment
 from petsoft.io.recording import read_recording
 
@@ -225,6 +226,8 @@ def test_concealed_mass_damping_is_found(case):
     out = case["dir"] / "out_damped"
     MPI.COMM_WORLD.Barrier()
     written = read_report(out / "report.json")
+    # readable by everyone, as every other output (it was written 0600 through mkstemp)
+    assert (out / "report.json").stat().st_mode & 0o777 == 0o644
     assert written["added"][0]["physics"] == "damping.mass"
     # where the time went: a base fit, a numerics check, a scoring round and candidate fits
     # each took time, and the phases add up to the total they were taken from
@@ -244,6 +247,20 @@ def test_concealed_mass_damping_is_found(case):
     md = (out / "report.md").read_text()
     assert "damping.mass" in md and "friction.dry" in md          # not-modelled terms listed
     assert (out / "summary.json").exists() and (out / "displacement.png").exists()
+    # one story: the added value with its std and unit, quoted from the final parameters,
+    # never two values of one quantity, never a fine mesh a refinement contradicts
+    quoted = f"damping.mass = {pm(alpha, std)} 1/s"
+    assert quoted in md.split("<details>")[0].split("## In short")[0]    # in the verdict box
+    rep_file = read_report(out / "report.json")
+    assert rep_file["cause"] in ("physics", "both") and rep_file["final_verdict"] == "consistent"
+    assert rep_file["parameters"]["damping.mass"] == alpha
+    assert quoted_conflicts(md) == [] and quoted_conflicts((out / "report.html").read_text()) == []
+    # the conclusion the console ends with: verdict, what was added, held-out, report.html
+    tail = Story(res.report).conclusion(out)
+    assert tail[0].startswith("verdict: missing physics"), tail
+    assert any(line.startswith("added: " + quoted) for line in tail), tail
+    assert any(line.startswith("held-out rms: ") and " mm " in line for line in tail), tail
+    assert tail[-1].startswith(f"report: {out}/report.html"), tail
 
 
 def test_control_without_missing_physics_is_consistent(case):
@@ -253,6 +270,28 @@ def test_control_without_missing_physics_is_consistent(case):
     assert res.added == [] and res.scores == []
     assert res.final.values[0] == pytest.approx(TRUE_E, rel=0.01)
     assert res.report["fit"]["final"]["chi2_per_dof"] < 1.3
+
+
+@pytest.mark.serial_only      # a few seconds: the command line once
+def test_the_console_ends_with_the_conclusion_and_says_the_skipped_check(case, capsys):
+    """`petsoft diagnose --no-numerics` on the control: consistent, and the skipped check is
+    said in the verdict paragraph and on the console's last lines, with what it risks."""
+    from petsoft.cli.main import main
+
+    out = case["dir"] / "out_cli"
+    assert main(["diagnose", str(case["user"]), str(case["plain"]), "--no-numerics",
+                 "--out", str(out)]) == 0
+    lines = capsys.readouterr().out.rstrip("\n").splitlines()
+    start = max(i for i, line in enumerate(lines) if line.startswith("verdict: "))
+    tail = lines[start:]
+    assert tail[0] == "verdict: consistent (cause: none)", tail
+    assert any(line.startswith("NOT CHECKED: numerics") and "blamed on physics" in line
+               for line in tail), tail
+    assert tail[-1].startswith(f"report: {out}/report.html"), tail
+    rep = read_report(out / "report.json")
+    assert rep["cause"] == "none" and rep["skipped"][0]["why"] == "--no-numerics"
+    box = (out / "report.md").read_text().split("\n\n")[1]
+    assert box.startswith("**Verdict: consistent.**") and "Not checked: numerics" in box
 
 
 def test_two_ranks_agree_with_one(case):

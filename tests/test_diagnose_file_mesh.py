@@ -22,6 +22,7 @@ from petsc4py import PETSc
 from petsoft.calibration.synth import SynthOptions, synth
 from petsoft.diagnosis.diagnose import run_diagnose
 from petsoft.diagnosis.report import read_report
+from petsoft.diagnosis.story import quoted_conflicts
 from petsoft.experiment import load_experiment
 
 TRUE_E, NOISE = 2.0e7, 5e-5
@@ -100,7 +101,12 @@ def test_control_on_a_coarse_mesh_file_adds_nothing_and_refines_the_mesh(case):
     assert "[mesh] order = 2" in report["numerics"]["recommendation"]
     assert report["numerics"]["mesh"]["order_final"] == 2
     md = (out / "report.md").read_text()
-    assert "## Mesh and time step" in md and "**Recommendation:**" in md
+    # the verdict names the cause: the element order, not missing physics (issue 39)
+    assert report["cause"] == "numerics" and "P2" in report["numerics"]["adopted"]
+    assert md.startswith("# Diagnosis report\n\n**Verdict: numerics, no missing physics.**")
+    assert "adopted: 10-node tetrahedra" in md and "**Next:**" in md
+    assert "is fine" not in md.split("<details>")[0]          # the mesh was not refined
+    assert quoted_conflicts(md) == [] and quoted_conflicts((out / "report.html").read_text()) == []
     # the adopted refinement is a value of the experiment: diagnosed.toml reads back with it
     assert load_experiment(out / "diagnosed.toml").mesh.order == 2
 

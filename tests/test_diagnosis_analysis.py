@@ -346,8 +346,8 @@ def test_report_markdown_and_figures(tmp_path):
     test = noise.chi_square_test(data - sim, sigma)
     rep = example_report()
     figs = [
-        report.plot_marker_residuals(tmp_path / "markers.png", res, sigma),
-        report.plot_residual_time(tmp_path / "time.png", t, win),
+        report.plot_marker_residuals(tmp_path / "markers.png", res, sigma)["path"],
+        report.plot_residual_time(tmp_path / "time.png", t, win)["path"],
         report.plot_spectra(tmp_path / "spectra.png", t, data, sim,
                             spectral.dominant_modes(t, data), spectral.dominant_modes(t, sim)),
     ]
@@ -356,7 +356,7 @@ def test_report_markdown_and_figures(tmp_path):
     md = report.write_report_md(tmp_path / "report.md", rep, {"noise_test": test},
                                 [f.name for f in figs]).read_text()
     assert "missing physics" in md and "m07, m12" in md and "damping.mass" in md
-    assert "0.8-1.4 s" in md and "![markers](markers.png)" in md and "Whiteness" in md
+    assert "0.8-1.4 s" in md and "](markers.png)" in md and "Whiteness" in md
 
 
 def test_envelope_mixed_viscous_and_dry_law():

@@ -23,6 +23,7 @@ from petsoft.calibration.rest_shape import (
 from petsoft.calibration.synth import run_synth
 from petsoft.diagnosis.demo import run_diagnosis_demo
 from petsoft.diagnosis.diagnose import run_diagnose
+from petsoft.diagnosis.story import Story
 from petsoft.dynamics import damping_analysis as damping
 from petsoft.dynamics.run_simulation import simulate_experiment
 from petsoft.errors import ExperimentError, PetsoftError
@@ -108,11 +109,15 @@ def run(args) -> int:
         out = Path(args.out) if args.out else experiment.output.directory
         recording = read_recording_on_all_ranks(args.recording)
         with experiment_options(experiment.petsc):
-            run_diagnose(experiment, recording, out=out, fraction=args.fraction,
-                         alpha=args.alpha, max_additions=args.max_additions, method=args.method,
-                         integrator=args.integrator, noise=args.noise,
-                         numerics=not args.no_numerics, say=_print,
-                         spelled_out=args.spelled_out)
+            result = run_diagnose(experiment, recording, out=out, fraction=args.fraction,
+                                  alpha=args.alpha, max_additions=args.max_additions,
+                                  method=args.method, integrator=args.integrator,
+                                  noise=args.noise, numerics=not args.no_numerics, say=_print,
+                                  spelled_out=args.spelled_out)
+        # the console ends with the conclusion, in the report's words and numbers
+        _print("")
+        for line in Story(result.report).conclusion(out):
+            _print(line)
         return 0
     if args.command == "demo":
         out = Path(args.out)

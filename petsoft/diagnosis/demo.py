@@ -15,7 +15,8 @@
    locates the mismatch, ranks every vocabulary term, adds the best one, re-calibrates, and keeps
    it only if the fit and the held-out prediction improve.
 
-Everything lands in ``OUT/diagnosis/``: ``report.md`` (the evidence in words), ``report.json``
+Everything lands in ``OUT/diagnosis/``: ``report.html`` and ``report.md`` (the evidence in
+words), ``report.json``
 (formats.md section 3), the figures, ``residual_field.xdmf`` (ParaView) and ``diagnosed.toml``.
 """
 
@@ -62,6 +63,7 @@ def run_diagnosis_demo(out: Path, say=print) -> dict:
         ``validation`` (held-out rms before/after) and ``noise``.
     """
     from petsoft.diagnosis.diagnose import run_diagnose
+    from petsoft.diagnosis.story import Story
 
     comm = MPI.COMM_WORLD
     out = Path(out)
@@ -92,15 +94,15 @@ def run_diagnosis_demo(out: Path, say=print) -> dict:
     found = (float(res.final.values[res.final.names.index(name)])
              if name in res.final.names else None)
     val = res.report["fit"].get("validation") or {}
-    say("")
-    say(f"hidden: {HIDDEN['physics']}; diagnose named: {', '.join(named) or 'nothing'} "
-        f"(verdict on the user's model: {res.verdict})")
-    if found is not None:
-        say(f"{name}: true {true:g}, found {found:.4g} ({abs(found - true) / true:.1%} off)")
-    if val:
-        say(f"held-out rms: {val['base_rms']:.3g} m before, {val['final_rms']:.3g} m after "
-            f"(noise {noise:g} m)")
-    say(f"report: {out / 'diagnosis' / 'report.md'} (and report.json, figures, diagnosed.toml)")
+    # what only the demo knows, the truth; then the diagnosis' conclusion, last
+    if comm.rank == 0:
+        say("")
+        say(f"demo: the truth hid {HIDDEN['physics']} ({name} {true:g}); diagnose named "
+            f"{', '.join(named) or 'nothing'}"
+            + (f", {name} found {found:.4g} ({abs(found - true) / true:.1%} off)"
+               if found is not None else ""))
+        for line in Story(res.report).conclusion(out / "diagnosis"):
+            say(line)
     return {"hidden": HIDDEN["physics"], "named": named, "verdict": res.verdict,
             "parameter": {"name": name, "true": true, "found": found},
             "validation": val, "noise": noise}

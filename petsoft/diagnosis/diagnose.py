@@ -65,7 +65,7 @@ from petsoft.diagnosis.context import (  # noqa: F401
 )
 from petsoft.diagnosis.geometry import refit_added_sphere
 from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
-from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings
+from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings, refinement_words
 from petsoft.diagnosis.outputs import build_diagnosis_report, write_outputs
 from petsoft.diagnosis.reconsider import Added, reconsider
 from petsoft.diagnosis.result import DiagnoseResult
@@ -77,6 +77,7 @@ from petsoft.diagnosis.selection import (
     shortlist,
     worth_fitting,
 )
+from petsoft.diagnosis.story import skipped_numerics
 from petsoft.io.progress import heartbeat
 from petsoft.solvers.options import experiment_options
 
@@ -328,15 +329,20 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         num["sigma_verdict"] = diag.sigma_verdict
     if numerics:
         num.update(numerics_findings(diag, num, checks.refinements, base, current))
-        for line in num["findings"] + [num["recommendation"] or ""]:
+        # one sentence per refinement (the rounds' own findings are in the report's appendix)
+        for line in num["summary"] + [num["recommendation"] or ""]:
             if line:
                 diag.tell(f"numerics: {line}")
-    if num:
-        diag.tell("numerics: " + "; ".join(
-            f"{k}: residual change {v['change']:.3g} m ({v['change_over_noise']:.3g} x noise)"
-            for k, v in num.items() if isinstance(v, dict) and "change" in v))
+    # a check not made is said in the verdict box and on the console, with what it risks
+    skipped = [] if numerics else [skipped_numerics()]
+    for label, why in num.get("unchecked", {}).items():
+        noun = refinement_words(label)[1]
+        skipped.append({"check": f"{noun} refinement", "why": why,
+                        "risk": f"the {noun}'s error is not known: a mismatch it causes may be "
+                                "blamed on physics"})
     report = build_diagnosis_report(diag, base, current, base_ev, ev, added, rejected,
-                                    numerics={k: num[k] for k in REPORT_KEYS if k in num})
+                                    numerics={k: num[k] for k in REPORT_KEYS if k in num},
+                                    skipped=skipped)
     # where the time went (report.json ``timings``): the report and figures are written after
     # this split is taken, so ``final`` leaves them out and ``total`` is the run up to here
     report["timings"] = clock.seconds()
@@ -352,7 +358,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     if out is not None:
         write_outputs(Path(out), diag, result, base_ev, time.perf_counter() - t0,
                       spelled_out=spelled_out)
-        diag.tell(f"wrote {out}/ (report.json, report.md, figures, diagnosed.toml, summary.json)")
+        diag.tell(f"wrote {out}/ (report.html, report.md, report.json, figures, diagnosed.toml, "
+                  "summary.json)")
     return result
 
 

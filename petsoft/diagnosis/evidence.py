@@ -265,15 +265,17 @@ def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
 
 
 def write_figures(out: str | Path, evidence: dict, times: np.ndarray, data: np.ndarray,
-                  sim: np.ndarray) -> list[Path]:
+                  sim: np.ndarray, modes: bool = True) -> list[Path]:
     """The evidence's figures (residual per marker, over time, the identification window's
     spectra with the fitted modes) from :func:`collect_evidence` output; returns the PNGs.
-    The diagnosis adds its own (:mod:`petsoft.diagnosis.figures`)."""
+    The diagnosis adds its own (:mod:`petsoft.diagnosis.figures`) and asks for no modes.png
+    (``modes=False``): its spectra.png marks the modes."""
     out = Path(out)
     figs = [report.plot_marker_residuals(out / "residual_markers.png", evidence["markers"],
-                                         evidence["noise_std"]),
-            report.plot_residual_time(out / "residual_time.png", times, evidence["windows"])]
-    if evidence["data_modes"] is not None and evidence["sim_modes"] is not None:
+                                         evidence["noise_std"])["path"],
+            report.plot_residual_time(out / "residual_time.png", times,
+                                      evidence["windows"])["path"]]
+    if modes and evidence["data_modes"] is not None and evidence["sim_modes"] is not None:
         figs.append(report.plot_spectra(out / "modes.png", times, data, sim,
                                         evidence["data_modes"], evidence["sim_modes"]))
     return figs

@@ -5,11 +5,17 @@
   with a legend): data as dots, the model before and after as lines, over the whole record, the
   held-out part (where the prediction decides) shaded. Absolute positions would put x near 0.3 m
   on one axis with y, z near 0.04 m while the motion is millimetres: every curve would look flat.
-* ``residual_on_body.png``: each marker's rms residual (model as given) over the noise, drawn
-  where the marker sits on the body, in the two views that show the body largest.
+* ``residual_on_body.png``: the body's surface in 3-D (mm), each triangle coloured by the
+  residual of the model as given over the noise, spread from the markers
+  (:func:`~petsoft.diagnosis.locate.nodal_residual_field`, the field residual_field.xdmf holds),
+  the markers drawn on it.
 * ``candidates.png``: the candidate terms' score-test statistics, sorted, on a log axis, the
-  added ones marked.
-* ``spectra.png``: amplitude spectra of the data, the model before and after.
+  added ones marked, each term's significance threshold drawn, a zero score said as such.
+* ``spectra.png``: amplitude spectra (mm) of the data, the model before and after, the fitted
+  modes of the data marked (the only spectra figure).
+
+Displacements and lengths are in millimetres in every figure. :data:`CAPTIONS` says under each
+figure what to see in it.
 
 Every function writes its PNG and returns what it drew (arrays and limits), so a test can check
 the figure shows what it should without looking at pixels.
@@ -18,16 +24,39 @@ the figure shows what it should without looking at pixels.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from pathlib import Path
 
 import numpy as np
 
 from petsoft.diagnosis.report import pyplot_agg, save_figure
 
-__all__ = ["plot_candidates", "plot_displacement", "plot_residual_on_body",
+__all__ = ["CAPTIONS", "plot_candidates", "plot_displacement", "plot_residual_on_body",
            "plot_spectra_before_after", "rms_per_marker"]
 
 _COMPONENT_COLOURS = ("tab:blue", "tab:orange", "tab:green")
+
+#: What to see in each figure (its caption in report.md and report.html), by file stem.
+CAPTIONS = {
+    "displacement": "The markers the model as given misses most: recorded displacement (dots), "
+                    "the model as given (thin lines) and as diagnosed (dashed), in mm. Where "
+                    "the dashed lines follow the dots in the grey held-out part, the diagnosed "
+                    "model predicts what it was not fitted to.",
+    "residual_on_body": "Where on the body the model as given misses: the surface coloured by "
+                        "its residual over the noise (1 = the noise), spread from the markers "
+                        "(dots). A hot patch points to a local cause (added mass, a soft "
+                        "region); an even colour to a global one (damping, stiffness).",
+    "residual_markers": "Residual of the model as given per marker (mm). Red bars, if any, stand "
+                        "out from the others (above the dashed line); the dotted line is the "
+                        "noise.",
+    "residual_time": "When the model as given misses: the residual's chi2/dof over time "
+                     "(1 = the noise); red bands exceed the noise threshold (dashed).",
+    "spectra": "Amplitude spectra of the marker motion (mm): the recording (black), the model "
+               "as given (red) and as diagnosed (blue dashed); dotted lines at the recording's "
+               "fitted modes. A peak the model as given misses or shifts is what the diagnosis "
+               "had to explain.",
+    "candidates": "How strongly the recording asks for each candidate term (score-test "
+                  "statistic, log scale; green: added). A bar right of its tick (the 1 % "
+                  "significance threshold) is significant; a zero score is marked 0.",
+}
 
 
 def rms_per_marker(data: np.ndarray, sim: np.ndarray) -> np.ndarray:
@@ -102,86 +131,139 @@ def plot_displacement(path, times, data, before, after, reference, cut: float,
     return drawn
 
 
-def _two_views(points: np.ndarray) -> list[tuple[int, int]]:
-    """The two coordinate planes in which the body looks largest (axes by extent)."""
-    order = np.argsort(-np.ptp(points, axis=0))
-    return [(int(order[0]), int(order[1])), (int(order[0]), int(order[2]))]
-
-
-def plot_residual_on_body(path, surface_points, marker_positions, marker_rms, noise: float,
+def plot_residual_on_body(path, points, facets, marker_positions, marker_rms, noise: float,
                           names: Sequence[str] | None = None) -> dict:
-    """Each marker's rms residual over the noise, drawn where it sits, over the body's surface.
+    """The body's surface in 3-D coloured by the residual over the noise (module docstring).
 
-    Returns ``views`` (the coordinate pairs drawn), ``values`` (rms / noise per marker) and
-    ``colour_range``.
+    Parameters
+    ----------
+    points : (N, 3) array
+        Mesh nodes (reference configuration, m).
+    facets : (F, 3) int array
+        The exterior triangles (:func:`~petsoft.mesh.topology.boundary_facets`).
+    marker_positions : (M, 3) array
+        The markers' reference positions (m).
+    marker_rms : (M,) array
+        Each marker's rms residual (m; NaN: never seen).
+    noise : float
+        The noise std (m).
+
+    Returns
+    -------
+    dict
+        ``facet_values`` (F,): each triangle's residual / noise (the mean of its nodes' field),
+        ``marker_values`` (M,): rms / noise per marker, ``colour_range``, ``worst`` (the marker
+        named on the figure).
     """
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    from petsoft.diagnosis.locate import nodal_residual_field
+
     plt = pyplot_agg()
-    pts = np.asarray(surface_points, float)
-    pos = np.asarray(marker_positions, float)
+    pts = 1e3 * np.asarray(points, float)                       # mm
+    tri = np.asarray(facets, int)
+    pos = 1e3 * np.asarray(marker_positions, float)
     values = np.asarray(marker_rms, float) / noise
-    views = _two_views(pts)
+    node = nodal_residual_field(np.asarray(points, float), np.asarray(marker_positions, float),
+                                values)
+    facet_values = node[tri].mean(axis=1)
     finite = values[np.isfinite(values)]
     vmax = float(max(finite.max() if finite.size else 1.0, 1.0))
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for ax, (i, j) in zip(axes, views, strict=True):
-        ax.scatter(pts[:, i], pts[:, j], s=2, c="0.8", zorder=0)
-        sc = ax.scatter(pos[:, i], pos[:, j], c=values, cmap="viridis", vmin=0.0, vmax=vmax,
-                        s=45, edgecolors="k", linewidths=0.5, zorder=2)
-        worst = int(np.nanargmax(values)) if finite.size else None
-        if worst is not None:
-            ax.annotate(names[worst] if names is not None else str(worst),
-                        (pos[worst, i], pos[worst, j]), fontsize=7, xytext=(4, 4),
-                        textcoords="offset points")
-        ax.set_xlabel(f"{'xyz'[i]} (m)")
-        ax.set_ylabel(f"{'xyz'[j]} (m)")
-        ax.set_aspect("equal", adjustable="datalim")
-    fig.colorbar(sc, ax=list(axes), label="rms residual / noise")
-    fig.suptitle("Where on the body the model as given misses (grey: surface nodes)")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return {"views": views, "values": values, "colour_range": (0.0, vmax)}
+    cmap = plt.get_cmap("viridis")
+    norm = plt.Normalize(0.0, vmax)
+    fig = plt.figure(figsize=(9, 5.4))
+    ax = fig.add_subplot(projection="3d")
+    poly = Poly3DCollection(pts[tri], facecolors=cmap(norm(facet_values)), edgecolors="0.3",
+                            linewidths=0.2)
+    ax.add_collection3d(poly)
+    ax.scatter(*pos.T, c=cmap(norm(np.nan_to_num(values))), s=40, edgecolors="k",
+               depthshade=False)
+    worst = int(np.nanargmax(values)) if finite.size else None
+    if worst is not None:
+        ax.text(*pos[worst], f"  {names[worst] if names is not None else worst}", fontsize=8)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
+    ax.set_zlim(lo[2], hi[2])
+    # a slender bar drawn to scale is a line: thin sides are drawn at least a quarter as long
+    ax.set_box_aspect(np.maximum(hi - lo, 0.25 * (hi - lo).max()))
+    ax.view_init(elev=22, azim=-60)
+    from matplotlib.ticker import MaxNLocator
+
+    for axis in (ax.yaxis, ax.zaxis):              # the short sides: few ticks, readable
+        axis.set_major_locator(MaxNLocator(3))
+    for setter, axis in zip((ax.set_xlabel, ax.set_ylabel, ax.set_zlabel), "xyz", strict=True):
+        setter(f"{axis} (mm)")
+    sm = plt.cm.ScalarMappable(norm=norm, cmap=cmap)
+    fig.colorbar(sm, ax=ax, shrink=0.6, label="residual / noise (model as given)")
+    ax.set_title("Where on the body the model as given misses")
+    save_figure(fig, path)
+    return {"facet_values": facet_values, "marker_values": values,
+            "colour_range": (0.0, vmax), "worst": worst}
 
 
-def plot_candidates(path, scores: Sequence[Mapping], added: Sequence[str]) -> dict:
-    """The candidates' score statistics (first round each was scored), sorted, log axis.
+def plot_candidates(path, scores: Sequence[Mapping], added: Sequence[str],
+                    alpha: float = 0.01) -> dict:
+    """The candidates' score statistics (the largest of the rounds each was scored in), sorted,
+    on a log axis, with each one's significance threshold (chi-square with its dof at
+    ``alpha``) and a zero score written as 0 instead of a bar.
 
-    Returns ``names`` and ``scores`` in the drawn order (largest first) and ``added``.
+    Returns ``names`` and ``scores`` in the drawn order (largest first; zeros are 0.0),
+    ``thresholds`` (per name), ``zero`` (names whose score is 0, drawn as text) and ``added``.
     """
+    from scipy import stats
+
     plt = pyplot_agg()
     best: dict[str, float] = {}
+    dof: dict[str, int] = {}
     for s in scores:
         if "score" in s and np.isfinite(s["score"]):
             key = s["physics"] + (f" ({s['region']['name']})" if isinstance(s.get("region"), dict)
                                   and s["region"].get("name") else "")
             best[key] = max(best.get(key, 0.0), float(s["score"]))
+            dof[key] = int(s.get("dof", 1))
     items = sorted(best.items(), key=lambda kv: -kv[1])
     names = [k for k, _ in items]
-    values = np.array([max(v, 1e-3) for _, v in items])     # a log axis: floor at 1e-3
+    values = np.array([v for _, v in items])
+    thresholds = np.array([stats.chi2.ppf(1.0 - alpha, dof[k]) for k in names])
+    zero = [k for k, v in items if v <= 0.0]
     is_added = [any(k == a or k.startswith(a + " ") for a in added) for k in names]
-    fig, ax = plt.subplots(figsize=(7, 0.32 * max(len(items), 1) + 1.4))
+    fig, ax = plt.subplots(figsize=(7.5, 0.34 * max(len(items), 1) + 1.6))
     if items:
+        positive = values[values > 0]
+        left = 0.3 * min(positive.min() if positive.size else 1.0, thresholds.min())
         colours = ["tab:green" if a else "0.6" for a in is_added]
         y = np.arange(len(items))
-        ax.barh(y, values, color=colours)
+        # a bar from the axis' left edge; a zero score has no bar on a log axis: text says 0
+        widths = np.where(values > 0, values - left, 0.0)
+        ax.barh(y, widths, left=left, color=colours)
+        ax.scatter(thresholds, y, marker="|", s=200, c="tab:red", zorder=3,
+                   label=f"significance threshold (p = {alpha:g})")
+        for yi, v in zip(y, values, strict=True):
+            if v <= 0.0:
+                ax.text(left * 1.15, yi, "0 (no sign of it)", va="center", fontsize=8)
         ax.set_yticks(y)
         ax.set_yticklabels([f"{n}  (added)" if a else n for n, a in zip(names, is_added,
                                                                         strict=True)],
                            fontsize=8)
         ax.invert_yaxis()
         ax.set_xscale("log")
+        ax.set_xlim(left, max(values.max(), thresholds.max()) * 3)
+        ax.legend(fontsize=8, loc="lower right")
     ax.set_xlabel("score-test statistic (log scale; larger: the data ask more for the term)")
     ax.set_title("Candidate physics, sorted (green: added)")
     save_figure(fig, path)
-    return {"names": names, "scores": values, "added": [n for n, a in zip(names, is_added,
-                                                                         strict=True) if a]}
+    return {"names": names, "scores": values, "thresholds": dict(zip(names, thresholds,
+                                                                      strict=True)),
+            "zero": zero,
+            "added": [n for n, a in zip(names, is_added, strict=True) if a]}
 
 
-def plot_spectra_before_after(path, times, data, before, after) -> dict:
-    """Amplitude spectra (summed over markers and components) of data, before and after.
+def plot_spectra_before_after(path, times, data, before, after, data_modes=()) -> dict:
+    """Amplitude spectra (mm, summed over markers and components) of data, before and after,
+    the data's fitted modes (:func:`~petsoft.diagnosis.spectral.dominant_modes`) dotted.
 
-    Returns ``frequency`` and the three ``spectra``.
+    Returns ``frequency``, the three ``spectra`` (mm) and ``modes_hz`` (the dotted lines).
     """
     from petsoft.diagnosis.spectral import fill_gaps
 
@@ -198,13 +280,19 @@ def plot_spectra_before_after(path, times, data, before, after) -> dict:
             continue
         # the simulations seen where the data are: the same channels, the same gaps filled
         x = fill_gaps(t, np.where(seen, np.asarray(arr, float), np.nan))
-        x = (x - x.mean(axis=0)) * np.hanning(len(t))[:, None]
-        spec = np.sqrt(np.sum(np.abs(np.fft.rfft(x, axis=0)) ** 2, axis=1))
+        window = np.hanning(len(t))
+        x = (x - x.mean(axis=0)) * window[:, None]
+        # 2 / sum(window): a sinusoid of amplitude A mm on a bin reads A (root-sum-square over
+        # the channels)
+        spec = 2e3 / window.sum() * np.sqrt(np.sum(np.abs(np.fft.rfft(x, axis=0)) ** 2, axis=1))
         spectra[label] = spec
         ax.semilogy(f[1:], spec[1:], label=label, **style)
+    modes_hz = [float(m["frequency_hz"]) for m in data_modes or () if m["frequency_hz"] > 0]
+    for hz in modes_hz:
+        ax.axvline(hz, c="k", ls=":", lw=0.8)
     ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel("amplitude spectrum (m)")
-    ax.set_title("Spectra of the marker motion")
+    ax.set_ylabel("amplitude (mm, all markers)")
+    ax.set_title("Spectra of the marker motion (dotted: the recording's fitted modes)")
     ax.legend(fontsize=8)
     save_figure(fig, path)
-    return {"frequency": f, "spectra": spectra}
+    return {"frequency": f, "spectra": spectra, "modes_hz": modes_hz}

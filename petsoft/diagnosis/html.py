@@ -2,10 +2,11 @@
 
 The page is made from ``report.md`` (so the two never say different things): its headings,
 paragraphs, lists, tables, **bold** and ``code`` become HTML, and every figure is embedded as a
-base64 PNG under the section it belongs to (the displacement and the residual on the body under
-"Where and when", the spectra under the modes, the candidates under "Physics"); figures no section
-claims close the page. Only the subset of Markdown that :func:`~petsoft.diagnosis.report.
-write_report_md` writes is understood.
+base64 PNG under the section it belongs to (the displacement, the residual on the body, the
+spectra under "Where and when", the candidates under "Physics"), captioned with what to see
+(:data:`~petsoft.diagnosis.figures.CAPTIONS`); figures no section claims follow. The appendix,
+a ``<details>`` block in report.md, stays folded on the page. Only the subset of Markdown that
+:func:`~petsoft.diagnosis.report.write_report_md` writes is understood.
 """
 
 from __future__ import annotations
@@ -21,8 +22,8 @@ __all__ = ["FIGURE_SECTIONS", "markdown_to_html", "write_report_html"]
 
 #: Which figures (file stems) go under which section heading of report.md.
 FIGURE_SECTIONS = {
-    "Where and when": ("displacement", "residual_on_body", "residual_markers", "residual_time"),
-    "Modes: data vs simulation": ("spectra", "modes"),
+    "Where and when": ("displacement", "residual_on_body", "residual_markers", "residual_time",
+                       "spectra"),
     "Physics": ("candidates",),
 }
 
@@ -36,9 +37,12 @@ td, th { border: 1px solid #bbb; padding: 0.25em 0.6em; text-align: left; }
 th { background: #eee; }
 figure { margin: 1em 0; }
 figure img { max-width: 100%; border: 1px solid #ddd; }
-figcaption { font-size: 0.85em; color: #555; }
+figcaption { font-size: 0.9em; color: #444; }
+details { margin-top: 2em; border-top: 1px solid #bbb; padding-top: 0.5em; }
+summary { cursor: pointer; font-weight: bold; }
 .verdict { font-size: 1.15em; background: #f4f4f4; padding: 0.8em; border-left: 5px solid #c33; }
 .verdict.consistent { border-left-color: #3a3; }
+.verdict.numerics { border-left-color: #d90; }
 code { background: #f2f2f2; padding: 0 0.2em; }
 """
 
@@ -74,8 +78,10 @@ def markdown_to_html(md: str, figure=None) -> tuple[str, list[str]]:
             text = " ".join(para)
             cls = ""
             if text.startswith("**Verdict:"):
-                cls = ' class="verdict consistent"' if "consistent" in text[:30] else \
-                    ' class="verdict"'
+                # green: nothing missed; amber: only the numerics; red: physics missed
+                cls = (' class="verdict consistent"' if text.startswith("**Verdict: consistent")
+                       else ' class="verdict numerics"' if text.startswith("**Verdict: numerics")
+                       else ' class="verdict"')
             blocks.append(f"<p{cls}>{_inline(text)}</p>")
             para.clear()
         if items:
@@ -87,6 +93,10 @@ def markdown_to_html(md: str, figure=None) -> tuple[str, list[str]]:
             table.clear()
 
     for line in md.splitlines():
+        if line.strip().startswith(("<details", "</details")):
+            flush()                     # the appendix's fold: passed through as it is
+            blocks.append(line.strip())
+            continue
         image = re.fullmatch(r"!\[(.*?)\]\((.+?)\)", line.strip())
         if image:
             flush()
@@ -127,6 +137,8 @@ def write_report_html(path: str | Path, md_path: str | Path,
 
     The figures are placed by :data:`FIGURE_SECTIONS`; the file is written atomically.
     """
+    from petsoft.diagnosis.figures import CAPTIONS
+
     path, md_path = Path(path), Path(md_path)
     # a figure is a path (as the caller has it) or a name beside report.md
     figures = [Path(f) if Path(f).exists() else md_path.parent / Path(f).name for f in figures]
@@ -134,21 +146,32 @@ def write_report_html(path: str | Path, md_path: str | Path,
     placed: set[str] = set()
     md = md_path.read_text()
     # the Markdown's own figure list is replaced by the placement below
-    md = md.split("\n## Figures\n")[0]
+    md, _, appendix = md.partition("\n## Figures\n")
+    md += appendix[appendix.find("<details>"):] if "<details>" in appendix else ""
     sections = re.split(r"(?m)^(?=## )", md)
     body = []
     for section in sections:
         part, _ = markdown_to_html(section)
-        body.append(part)
         heading = section.splitlines()[0][3:].strip() if section.startswith("## ") else ""
-        for stem in FIGURE_SECTIONS.get(heading, ()):
-            if stem in by_stem:
-                body.append(_figure_html(by_stem[stem], stem.replace("_", " ")))
-                placed.add(stem)
+        figs = [_figure_html(by_stem[stem], CAPTIONS.get(stem, stem.replace("_", " ")))
+                for stem in FIGURE_SECTIONS.get(heading, ()) if stem in by_stem]
+        placed.update(stem for stem in FIGURE_SECTIONS.get(heading, ()) if stem in by_stem)
+        rest = [s for s in by_stem if s not in placed]
+        if rest and "<details>" in part:
+            # figures no section claims go before the appendix
+            figs += ["<h2>Other figures</h2>"] + [
+                _figure_html(by_stem[s], CAPTIONS.get(s, s.replace("_", " "))) for s in rest]
+            placed.update(rest)
+        if "<details>" in part:
+            head, _, tail = part.partition("<details>")
+            body.append(head + "\n".join(figs) + "\n<details>" + tail)
+        else:
+            body.append("\n".join([part] + figs) if figs else part)
+        continue
     rest = [s for s in by_stem if s not in placed]
     if rest:
         body.append("<h2>Other figures</h2>")
-        body += [_figure_html(by_stem[s], s.replace("_", " ")) for s in rest]
+        body += [_figure_html(by_stem[s], CAPTIONS.get(s, s.replace("_", " "))) for s in rest]
     page = ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
             "<title>petsoft diagnosis report</title>\n<style>" + _CSS + "</style>\n</head>\n"
             "<body>\n" + "\n".join(body) + "\n</body>\n</html>\n")

@@ -2,9 +2,10 @@
 
 :func:`numerics_findings` turns the rounds of :func:`~petsoft.diagnosis.numerics.resolve_numerics`
 and the final :func:`~petsoft.diagnosis.numerics.numerics_check` into report.json's ``numerics``
-(``findings``: which refinement matters and by how much, what was adopted and what error is left;
-``recommendation``: the mesh and step to use; ``mesh``: the tet counts behind them), which
-report.md prints under "Mesh and time step".
+(``findings``: which refinement matters and by how much, what was adopted and what error is left,
+round by round; ``summary``: one sentence and one number per refinement, on the final model;
+``adopted``; ``recommendation``: the mesh and step to use; ``mesh``: the tet counts behind them).
+report.md says ``summary`` and ``recommendation`` in "In short", ``findings`` in its appendix.
 """
 
 from __future__ import annotations
@@ -12,7 +13,10 @@ from __future__ import annotations
 from petsoft.calibration.refinement import levels_needed, mesh_cells, refinement
 
 #: The keys of :func:`numerics_findings` that go to report.json's ``numerics``.
-REPORT_KEYS = ("findings", "recommendation", "mesh")
+REPORT_KEYS = ("findings", "recommendation", "mesh", "summary", "adopted")
+
+#: The order and the name of each refinement in the summary (one sentence each).
+_SUMMARY_ORDER = ("step/2", "mesh x2", "P2", "mesh x2 + step/2")
 
 #: How each kind of refinement is said: (the action, the thing refined).
 _WORDS = {"step": ("the time step is halved", "time step"),
@@ -25,7 +29,9 @@ def _x(v: float) -> str:
     return f"{v:.2g}" if v < 10 else f"{v:.0f}"
 
 
-def _words(label: str) -> tuple[str, str]:
+def refinement_words(label: str) -> tuple[str, str]:
+    """How refinement ``label`` is said: (the action, the thing refined), e.g. ("the time step
+    is halved", "time step")."""
     try:
         return _WORDS[refinement(label).kind]
     except KeyError:
@@ -54,7 +60,7 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
     where = ("" if first else "Checked again on the final model: " if r.get("final_check")
              else "Then, on the adopted model: ")
     for label, o in r["options"].items():
-        action, noun = _words(label)
+        action, noun = refinement_words(label)
         if "error" in o:
             out.append(f"{where}when {action}, the refined fit failed: {o['error']}.")
             continue
@@ -79,7 +85,7 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
                        "blamed on physics (not refitted).")
         elif o.get("screened"):
             # not refitted: its linearised refit was no closer to the data
-            out.append(f"{head}" + (f": the {noun} is fine for this recording" if x < 1.0 else
+            out.append(f"{head}" + (": less than the noise on this model" if x < 1.0 else
                                     f", but a linearised refit is no closer to the data "
                                     f"({fit}): the {noun} is not what the model misses")
                        + " (not refitted).")
@@ -90,7 +96,7 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
                        "adopted.")
         elif o["matters"]:
             out.append(f"{head}; refitted, the fit improves ({fit}), but less than when "
-                       f"{_words(r['adopted'])[0]}.")
+                       f"{refinement_words(r['adopted'])[0]}.")
         elif o.get("deferred"):
             out.append(f"{head}; refitted, the fit improves ({fit}{moved}), but while the "
                        f"model misses the data by {_x(o['deferred'])}x the noise an error this "
@@ -98,7 +104,7 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
                        f"{_x(o.get('error_estimate', 0.0) / sigma)}x the noise and checked "
                        "again once the misfit is smaller.")
         elif x < 1.0:
-            out.append(f"{head}: the {noun} is fine for this recording.")
+            out.append(f"{head}: less than the noise on this model.")
         elif o.get("error_estimate", 0.0) > 0.0:
             out.append(f"{head}, but refitted it improves little ({fit}{moved}): counted "
                        f"as a {noun} error of {_x(o['error_estimate'] / sigma)}x the noise, "
@@ -120,6 +126,95 @@ def measured_error(rounds: list[dict]) -> tuple[float, str | None]:
             label = max(measured, key=measured.get)
             return measured[label], label
     return 0.0, None
+
+
+def _adopted_setting(label: str, final) -> str:
+    """What an adopted refinement made of the model, in the user's terms."""
+    kind = refinement(label).kind
+    if kind == "step":
+        return f"a time step of {final.experiment.time.step:.4g} s"
+    if kind == "order":
+        return "10-node tetrahedra"
+    return f"the refined mesh ({mesh_cells(final.experiment)} tets)"
+
+
+def numerics_summary(num: dict, rounds: list[dict], final) -> tuple[list[str], list[str],
+                                                                     dict[str, str]]:
+    """(one sentence per refinement, the labels adopted, {label: why} of the refinements never
+    made): what a reader needs of the numerics.
+
+    Each sentence quotes one number, the change of the simulation in units of the noise when
+    the refinement is made on the model the diagnosis ended with (its last check; the first
+    rounds' changes, on other models, stay in ``findings``). A refinement is said to be fine
+    only when that change is below the noise.
+    """
+    adopted = [r["adopted"] for r in rounds if r.get("adopted")]
+    last: dict[str, tuple[dict, bool]] = {}      # label -> (its last measurement, refitted?)
+    closer: dict[str, bool] = {}                 # label -> a refit came closer to the data
+    largest: dict[str, float] = {}               # label -> its largest change on any model
+    not_tried: dict[str, str] = {}
+    covered: dict[str, bool] = {}
+    for r in rounds:
+        for label, o in r["options"].items():
+            if "error" in o:
+                continue
+            refitted = not (o.get("screened") or o.get("measured_only"))
+            # "adopting": the change is the one that made the refinement adopted, not a
+            # further refinement of the adopted model
+            last[label] = ({"x": o.get("change_same_parameters_over_noise",
+                                       o["change_over_noise"]), "how": o["how"],
+                            "adopting": r.get("adopted") == label}, refitted)
+            closer[label] = closer.get(label, False) or bool(o.get("matters"))
+            largest[label] = max(largest.get(label, 0.0), last[label][0]["x"])
+        for label, why in r.get("not_tried", {}).items():
+            not_tried[label] = why
+            # the split mesh is not made when 10-node elements, which have its nodes, are
+            # tried in its place: then it is covered, not unchecked
+            covered[label] = label == "mesh x2" and "P2" in r["options"]
+    for label, v in num.items():
+        if isinstance(v, dict) and "change" in v:
+            last[label] = ({"x": v["change_over_noise"], "how": v["how"], "adopting": False},
+                           last.get(label, ({}, False))[1])
+    out = []
+    unchecked: dict[str, str] = {}
+    for label in sorted(set(last) | set(not_tried),
+                        key=lambda k: _SUMMARY_ORDER.index(k) if k in _SUMMARY_ORDER else 9):
+        noun = refinement_words(label)[1]
+        name = noun[0].upper() + noun[1:]
+        if label not in last and covered.get(label):
+            out.append(f"{name}: not refined by itself ({not_tried[label]}).")
+            continue
+        if label not in last:
+            out.append(f"{name}: not checked ({not_tried[label]}).")
+            unchecked[label] = not_tried[label]
+            continue
+        m, refitted = last[label]
+        x = f"{_x(m['x'])}x the noise"
+        if label in adopted and m["adopting"]:
+            out.append(f"{name}: part of the mismatch: refining it ({m['how']}) changed the "
+                       f"simulation by {x} and brought it closer to the data; adopted: "
+                       f"{_adopted_setting(label, final)}.")
+        elif label in adopted:
+            again = (f"; refining once more ({m['how']}) changes the simulation by {x}"
+                     + (", so it still limits what the diagnosis can tell apart"
+                        if m["x"] >= 1.0 else ""))
+            out.append(f"{name}: part of the mismatch; adopted: "
+                       f"{_adopted_setting(label, final)}{again}.")
+        elif m["x"] < 1.0 and largest.get(label, 0.0) < 1.0:
+            out.append(f"{name}: refining it ({m['how']}) changes the simulation by {x}: "
+                       "it is fine for this recording.")
+        elif m["x"] < 1.0:
+            # more than the noise on an earlier model (in ``findings``), less on the final one
+            out.append(f"{name}: refining it ({m['how']}) changes the final model by {x}: "
+                       f"the {noun} does not limit this diagnosis.")
+        elif refitted or label in closer:
+            out.append(f"{name}: refining it ({m['how']}) changes the simulation by {x}, but "
+                       f"refitted it came no closer to the data: the {noun} is not what the "
+                       f"model misses, though the calibrated values are those of this {noun}.")
+        else:
+            out.append(f"{name}: refining it ({m['how']}) changes the simulation by {x} (not "
+                       f"refitted): the {noun} limits what this diagnosis can tell apart.")
+    return out, adopted, unchecked
 
 
 def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
@@ -145,14 +240,14 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
             if label not in said_not_tried:
                 said_not_tried.add(label)
                 again = " again" if any(label in q["options"] for q in rounds) else ""
-                findings.append(f"The {_words(label)[1]} was not refined{again}: {why}.")
+                findings.append(f"The {refinement_words(label)[1]} was not refined{again}: {why}.")
     remaining = {}
     for r in rounds:
         label = r.get("adopted")
         if label:
             remaining[label] = r["options"][label]
     for label, o in remaining.items():
-        noun = _words(label)[1]
+        noun = refinement_words(label)[1]
         if o["remaining_estimate"] == 0.0:
             # a refinement whose own error is taken as nil (10-node elements on the same mesh:
             # their error falls as h^3), not estimated from the change it made
@@ -183,13 +278,15 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
         findings.append(text + ".")
     for label, v in num.items():
         if isinstance(v, dict) and "change" in v:
-            action, noun = _words(label)
+            action, noun = refinement_words(label)
             limits = ("" if v["resolved"] else f": more than the noise, so the {noun} still "
                       "limits what this diagnosis can tell apart")
             findings.append(f"On the final model, the simulation changes by "
                             f"{_x(v['change_over_noise'])}x the noise when {action} "
                             f"({v['how']}){limits}.")
-    out = {"findings": findings, "recommendation": None}
+    summary, adopted, unchecked = numerics_summary(num, rounds, final)
+    out = {"findings": findings, "recommendation": None, "summary": summary,
+           "adopted": adopted, "unchecked": unchecked}
     if base.experiment.is_mass_spring:
         return out
     user, now = mesh_cells(base.experiment), mesh_cells(final.experiment)
@@ -216,6 +313,17 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
         advice.append(f"Refine the mesh ({user} tets){' and the time step' if both else ''}: "
                       f"one run of the split mesh{' at half the step' if both else ''} measured "
                       f"an error of {_x(measured / sigma)}x the noise on the final model.")
+    elif unresolved := [label for label in ("mesh x2", "P2")
+                        if isinstance(num.get(label), dict) and "change" in num[label]
+                        and not num[label]["resolved"]]:
+        advice.append(f"Refine the mesh ({user} tets) before using the calibrated values "
+                      "beyond this recording: on the final model, refining the "
+                      + " or the ".join(refinement_words(label)[1] for label in unresolved)
+                      + " changes the simulation by more than the noise.")
+    elif "mesh x2" in unchecked and measured == 0.0:
+        advice.append(f"Your mesh ({user} tets) could not be refined within diagnose's limit "
+                      f"({unchecked['mesh x2']}): check the calibrated parameters with "
+                      "`petsoft calibrate --check-mesh`.")
     elif (any("mesh x2" in r["options"] or "P2" in r["options"] for r in rounds)
           or isinstance(num.get("mesh x2"), dict)):
         raised = final.experiment.mesh.order > base.experiment.mesh.order

@@ -6,8 +6,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from petsoft.diagnosis.context import Diagnosis, Fit
 from petsoft.diagnosis.figures import (
     plot_candidates,
@@ -41,8 +39,15 @@ class DiagnoseResult:
 
 
 def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict, added,
-                           rejected, numerics: dict | None = None) -> dict:
+                           rejected, numerics: dict | None = None,
+                           skipped: list[dict] = ()) -> dict:
+    """report.json of a diagnosis (formats.md section 3). An added term's ``parameters`` and
+    ``std`` are the final model's (a refinement adopted after the term was added moves them),
+    so that the report quotes one value of each; ``cause`` says whether the model as given
+    missed physics, numerics, both or neither."""
+    from petsoft.diagnosis.context import term_values
     from petsoft.diagnosis.report import build_report, fit_summary
+    from petsoft.diagnosis.story import mismatch_cause
 
     d = diag.data[diag.ident]
     validation = None
@@ -53,6 +58,14 @@ def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict,
     spatial = [a["region"] for a in added if a.get("region")]
     if spatial:
         region = spatial[0]
+    final_added = []
+    for a in added:
+        values, std = term_values(final, list(a["parameters"]))
+        final_added.append({**a, "parameters": {**a["parameters"], **values},
+                            "std": {**{k: v for k, v in a["std"].items() if k not in values},
+                                    **std}})
+    _, std_all = term_values(final, final.names)
+    adopted = (numerics or {}).get("adopted", [])
     return build_report(
         # the verdict is about the user's model: anything missing makes it missing-physics
         verdict=base_ev["verdict"],
@@ -62,10 +75,13 @@ def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict,
         parameters={n: float(v) for n, v in zip(final.names, final.values, strict=True)},
         validation=validation, markers=mismatch["markers"],
         time_windows=mismatch["time_windows"], frequencies_hz=mismatch["frequencies_hz"],
-        region=region, added=added, rejected=rejected, numerics=numerics or None)
+        region=region, added=final_added, rejected=rejected, numerics=numerics or None,
+        cause=mismatch_cause(base_ev["verdict"], added, adopted), skipped=skipped,
+        parameters_std=std_all, final_verdict=ev["verdict"])
 
 
-def write_diagnosis_figures(out: Path, diag: Diagnosis, result: DiagnoseResult) -> list[Path]:
+def write_diagnosis_figures(out: Path, diag: Diagnosis, result: DiagnoseResult,
+                            base_ev: dict | None = None) -> list[Path]:
     """displacement.png, residual_on_body.png, spectra.png and (when candidates were scored)
     candidates.png: the mismatch over the whole record, where it is, the candidates, and the
     frequencies (:mod:`petsoft.diagnosis.figures`)."""
@@ -78,15 +94,16 @@ def write_diagnosis_figures(out: Path, diag: Diagnosis, result: DiagnoseResult) 
     figs.append(out / "displacement.png")
     if not result.base.experiment.is_mass_spring:
         mesh = load_mesh(result.base.experiment)
-        surface = mesh.points[np.unique(boundary_facets(mesh.tets))]
-        plot_residual_on_body(out / "residual_on_body.png", surface, rec.reference,
+        plot_residual_on_body(out / "residual_on_body.png", mesh.points,
+                              boundary_facets(mesh.tets), rec.reference,
                               rms_per_marker(diag.data, before), diag.sigma, names)
         figs.append(out / "residual_on_body.png")
-    plot_spectra_before_after(out / "spectra.png", diag.times, diag.data, before, after)
+    plot_spectra_before_after(out / "spectra.png", diag.times, diag.data, before, after,
+                              data_modes=(base_ev or {}).get("data_modes") or ())
     figs.append(out / "spectra.png")
     if result.scores:
         plot_candidates(out / "candidates.png", result.scores,
-                        [a["physics"] for a in result.added])
+                        [a["physics"] for a in result.added], alpha=diag.alpha)
         figs.append(out / "candidates.png")
     return figs
 
@@ -109,8 +126,9 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
                              diag.recording.reference, base_ev["markers"])
     write_report(out / "report.json", result.report)
     t = diag.times[diag.ident]
-    figs = write_figures(out, base_ev, t, diag.data[diag.ident], result.base.sim[diag.ident])
-    figs += write_diagnosis_figures(out, diag, result)
+    figs = write_figures(out, base_ev, t, diag.data[diag.ident], result.base.sim[diag.ident],
+                         modes=False)
+    figs += write_diagnosis_figures(out, diag, result, base_ev)
     notes = list(result.evidence.get("notes", [])) if result.evidence else []
     notes.append(f"identification window t <= {diag.cut:.4g} s; held out: "
                  f"{int(diag.held.sum())} later frames")
@@ -134,18 +152,6 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
                                  result.numerics["model_error"].items())
                      + f"; the verdict tests the residual against the noise and this error in "
                      f"quadrature ({result.numerics['sigma_verdict']:.3g} m)")
-    for k, v in result.numerics.items():
-        if k in ("model_error", "sigma_verdict", "refinements", "findings", "recommendation",
-                 "mesh"):
-            continue
-        if isinstance(v, dict) and "change" in v:
-            notes.append(f"numerics {k}: the simulation changes by {v['change']:.3g} m rms "
-                         f"({v['change_over_noise']:.3g} x the noise)" + (
-                             "" if v["resolved"] else ": more than the noise, so part of the "
-                             "mismatch (and of the fitted parameters) may be discretisation "
-                             "error; refine the model before trusting the diagnosis"))
-        elif k != "base_rms_all":
-            notes.append(f"numerics {k}: {v}")
     ev = dict(result.evidence or {})
     ev["notes"] = notes
     write_report_md(out / "report.md", result.report, ev, [f.name for f in figs])

@@ -29,13 +29,18 @@ import numpy as np
 
 from petsoft.errors import PetsoftError
 
-__all__ = ["PHYSICS", "VERDICTS", "ReportError", "fit_summary", "build_report",
+__all__ = ["CAUSES", "PHYSICS", "VERDICTS", "ReportError", "fit_summary", "build_report",
            "validate_report", "write_report", "read_report", "write_report_md",
            "plot_marker_residuals", "plot_residual_time", "plot_spectra"]
 
 FORMAT = "petsoft-diagnosis"
 VERSION = 1
 VERDICTS = ("consistent", "missing-physics")
+#: What the model as given missed (report.json ``cause``, optional): ``none`` (nothing: the
+#: verdict is consistent), ``numerics`` (a refinement of mesh, element order or step was adopted
+#: and no physics added), ``physics`` (physics added, no refinement adopted), ``both``, or
+#: ``unexplained`` (a mismatch that neither a refinement nor a vocabulary term explained).
+CAUSES = ("none", "numerics", "physics", "both", "unexplained")
 
 #: The physics vocabulary of formats.md section 3 (extend it, never rename).
 PHYSICS = {
@@ -98,7 +103,10 @@ def build_report(*, verdict: str, noise_std: float, base: Mapping, final: Mappin
                  markers: Sequence[str] = (), time_windows: Sequence = (),
                  frequencies_hz: Sequence[float] = (), region: Mapping | None = None,
                  added: Sequence[Mapping] = (), rejected: Sequence[Mapping] = (),
-                 numerics: Mapping | None = None) -> dict:
+                 numerics: Mapping | None = None, cause: str | None = None,
+                 skipped: Sequence[Mapping] = (),
+                 parameters_std: Mapping[str, float] | None = None,
+                 final_verdict: str | None = None) -> dict:
     """Assemble a report dict in the layout of formats.md section 3 and validate it.
 
     Parameters
@@ -117,6 +125,16 @@ def build_report(*, verdict: str, noise_std: float, base: Mapping, final: Mappin
         The ``mismatch`` entries (:mod:`petsoft.diagnosis.locate`, :mod:`.spectral`).
     added, rejected : sequence of mapping
         Candidate physics kept (in the order added) and rejected.
+    numerics : mapping, optional
+        What the refinement checks found (:mod:`petsoft.diagnosis.numerics_findings`).
+    cause : str, optional
+        One of :data:`CAUSES`.
+    skipped : sequence of mapping
+        Checks not made: ``{"check", "why", "risk"}`` each.
+    parameters_std : mapping of str to float, optional
+        Standard deviations of the final parameters (where finite).
+    final_verdict : {"consistent", "missing-physics"}, optional
+        The verdict on the final model (``verdict`` is the one on the model as given).
 
     Returns
     -------
@@ -156,6 +174,15 @@ def build_report(*, verdict: str, noise_std: float, base: Mapping, final: Mappin
     }
     if numerics is not None:     # what the numerics checks found (diagnosis/numerics_findings)
         report["numerics"] = dict(numerics)
+    if parameters_std is not None:
+        report["parameters_std"] = {str(k): _num(v) for k, v in parameters_std.items()}
+    if cause is not None:
+        report["cause"] = cause
+    if final_verdict is not None:
+        report["final_verdict"] = final_verdict
+    if skipped:
+        report["skipped"] = [{"check": str(k["check"]), "why": str(k["why"]),
+                              "risk": str(k["risk"])} for k in skipped]
     validate_report(report)
     return report
 
@@ -225,13 +252,29 @@ def validate_report(report: Mapping) -> None:
     """
     top = {"format", "version", "verdict", "noise_std", "fit", "mismatch", "added", "rejected",
            "parameters"}
-    _keys(report, "(report)", top, frozenset({"numerics", "timings"}))
+    _keys(report, "(report)", top,
+          frozenset({"numerics", "cause", "skipped", "parameters_std", "final_verdict",
+                     "timings"}))
     for k, v in report.get("timings", {}).items():
         _number(v, f"timings.{k}")
     if "numerics" in report:
-        _keys(report["numerics"], "numerics", {"findings"}, frozenset({"recommendation", "mesh"}))
-        for i, f in enumerate(report["numerics"]["findings"]):
-            _string(f, f"numerics.findings[{i}]")
+        _keys(report["numerics"], "numerics", {"findings"},
+              frozenset({"recommendation", "mesh", "summary", "adopted"}))
+        for part in ("findings", "summary", "adopted"):
+            _list(report["numerics"].get(part, []), f"numerics.{part}")
+            for i, f in enumerate(report["numerics"].get(part, [])):
+                _string(f, f"numerics.{part}[{i}]")
+    if "final_verdict" in report and report["final_verdict"] not in VERDICTS:
+        _fail("final_verdict", f"must be one of {', '.join(VERDICTS)}, got "
+                               f"{report['final_verdict']!r}")
+    if "cause" in report and report["cause"] not in CAUSES:
+        _fail("cause", f"must be one of {', '.join(CAUSES)}, got {report['cause']!r}")
+    if "skipped" in report:
+        _list(report["skipped"], "skipped")
+        for i, k in enumerate(report["skipped"]):
+            _keys(k, f"skipped[{i}]", {"check", "why", "risk"})
+            for part in ("check", "why", "risk"):
+                _string(k[part], f"skipped[{i}].{part}")
     if report["format"] != FORMAT:
         _fail("format", f"must be {FORMAT!r}, got {report['format']!r}")
     if isinstance(report["version"], bool) or report["version"] != VERSION:
@@ -298,6 +341,11 @@ def validate_report(report: Mapping) -> None:
         _number(r["score"], key + ".score")
         _string(r["reason"], key + ".reason")
     _param_map(report["parameters"], "parameters")
+    if "parameters_std" in report:
+        _param_map(report["parameters_std"], "parameters_std", 0.0)
+        extra = sorted(set(report["parameters_std"]) - set(report["parameters"]))
+        if extra:
+            _fail("parameters_std", f"has {', '.join(extra)} which parameters does not")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -316,6 +364,7 @@ def write_report(path: str | Path, report: Mapping) -> Path:
             f.write(text)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; every other output is readable by all
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
@@ -345,6 +394,12 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
                     figures: Sequence[str] = ()) -> Path:
     """Write the report as plain-language Markdown (``report.md``).
 
+    The page opens with the verdict and "In short" (:class:`~petsoft.diagnosis.story.Story`:
+    what the model missed, what was added with its values, the held-out prediction, what the
+    numerics check found, ties, what to do next); then where and when, the physics, the mesh
+    and time step; the details (noise tests, modes, decay shape, score tests, the numerics round
+    by round, raw chi2) in a collapsed appendix (``<details>``).
+
     Parameters
     ----------
     path : path
@@ -355,52 +410,20 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
         Extra findings to state, any of: ``noise_test`` (a
         :class:`~petsoft.diagnosis.noise.ChiSquareResult` or its dict), ``noise_source``
         (str), ``envelope`` (:func:`~petsoft.diagnosis.spectral.decay_envelope`),
-        ``modes`` (:func:`~petsoft.diagnosis.spectral.compare_modes`), ``notes`` (list of str).
+        ``modes`` (:func:`~petsoft.diagnosis.spectral.compare_modes`), ``notes`` (list of str,
+        for the appendix).
     figures : sequence of str
         PNG file names (relative to the report) to embed.
     """
+    from petsoft.diagnosis.figures import CAPTIONS
+    from petsoft.diagnosis.story import Story
+
     validate_report(report)
     ev = dict(evidence or {})
-    fit = report["fit"]
+    story = Story(report)
     mm = report["mismatch"]
-    lines = ["# Diagnosis report", ""]
-    if report["verdict"] == "consistent":
-        lines.append(f"**Verdict: consistent.** After calibration the remaining residual "
-                     f"(rms {_fmt(fit['final']['rms'])} m) is explained by the measurement noise "
-                     f"({_fmt(report['noise_std'])} m).")
-    else:
-        # the verdict is about the model as given (fit.base); what was added is the final model
-        lines.append(f"**Verdict: missing physics.** Even after calibration the residual of the "
-                     f"model as given (rms {_fmt(fit['base']['rms'])} m, chi2/dof "
-                     f"{_fmt(fit['base']['chi2_per_dof'])}) is larger or more structured than "
-                     f"the measurement noise ({_fmt(report['noise_std'])} m) explains.")
-        if report["added"]:
-            lines.append(f"With {', '.join(a['physics'] for a in report['added'])} added, the "
-                         f"residual is rms {_fmt(fit['final']['rms'])} m, chi2/dof "
-                         f"{_fmt(fit['final']['chi2_per_dof'])}; the noise tests below are of "
-                         "this final model.")
-    lines += ["", "## Fit", "",
-              "| model | rms (m) | chi2/dof |", "|---|---|---|",
-              f"| as given, calibrated | {_fmt(fit['base']['rms'])} | "
-              f"{_fmt(fit['base']['chi2_per_dof'])} |",
-              f"| final | {_fmt(fit['final']['rms'])} | {_fmt(fit['final']['chi2_per_dof'])} |"]
-    if fit.get("validation") is not None:
-        v = fit["validation"]
-        lines += ["", f"On the validation recording the rms went from {_fmt(v['base_rms'])} m to "
-                  f"{_fmt(v['final_rms'])} m."]
-    test = ev.get("noise_test")
-    if test is not None:
-        t = test if isinstance(test, Mapping) else test.as_dict()
-        src = ev.get("noise_source", "")
-        lines += ["", "## Is the residual noise?", "",
-                  f"Noise level {_fmt(report['noise_std'])} m{f' ({src})' if src else ''}. "
-                  f"Chi-square: {_fmt(t['chi2'])} on {t['dof']} degrees of freedom "
-                  f"(chi2/dof {_fmt(t['chi2_per_dof'])}, p = {_fmt(t['p_value'])}): the level "
-                  f"{'passes' if t['level_ok'] else 'fails'}. Whiteness (autocorrelation, "
-                  f"portmanteau): Q = {_fmt(t['whiteness_q'])}, p = "
-                  f"{_fmt(t['whiteness_p_value'])}: the residual "
-                  f"{'looks white' if t['white_ok'] else 'is correlated in time, not noise'}"
-                  f" (runs test on its signs: z = {_fmt(t['runs_z'])})."]
+    lines = ["# Diagnosis report", "", story.verdict_box(), "", "## In short", ""]
+    lines += [f"- {b}" for b in story.in_short()]
     lines += ["", "## Where and when", ""]
     if mm["markers"]:
         lines.append(f"Markers that stand out: {', '.join(mm['markers'])}.")
@@ -409,19 +432,73 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
                      "the whole body.")
     if mm["region"] is not None:
         c = mm["region"]["center"]
-        lines.append(f"They lie within {_fmt(mm['region']['radius'])} m of "
-                     f"({_fmt(c[0])}, {_fmt(c[1])}, {_fmt(c[2])}) in the reference configuration.")
+        lines.append(f"They lie within {1e3 * mm['region']['radius']:.3g} mm of "
+                     f"({1e3 * c[0]:.4g}, {1e3 * c[1]:.4g}, {1e3 * c[2]:.4g}) mm in the "
+                     "reference configuration.")
     if mm["time_windows"]:
         wins = ", ".join(f"{_fmt(a)}-{_fmt(b)} s" for a, b in mm["time_windows"])
-        lines.append(f"The residual exceeds the noise in the time windows {wins}.")
+        lines.append(f"With the model as given, the residual exceeds the noise in the time "
+                     f"windows {wins}.")
     else:
         lines.append("No time window stands out.")
     if mm["frequencies_hz"]:
         lines.append("Frequencies involved: "
                      + ", ".join(f"{_fmt(f)} Hz" for f in mm["frequencies_hz"]) + ".")
+    lines.append("The residual over the whole body is in residual_field.xdmf (open it in "
+                 "ParaView) when the model has a mesh.")
+    lines += ["", "## Physics", ""]
+    if report["added"]:
+        lines.append("Added: " + ", ".join(a["physics"] for a in report["added"])
+                     + " (values above). The other candidates:")
+        lines.append("")
+    groups: dict[str, list[str]] = {}
+    for r in report["rejected"]:
+        if r["reason"].startswith("not tried"):
+            groups.setdefault("Not fitted (a round fits only its best-scoring candidates)",
+                              []).append(r["physics"])
+        elif r["reason"].startswith("score not significant"):
+            groups.setdefault("No sign of it in the data (score test not significant)",
+                              []).append(r["physics"])
+        elif r["reason"].startswith("fitted too"):
+            groups.setdefault("Fitted too, but an added term predicted better",
+                              []).append(r["physics"])
+        else:
+            groups.setdefault("Fitted and not kept (see the appendix)", []).append(r["physics"])
+    lines += [f"- {k}: {', '.join(v)}." for k, v in groups.items()]
+    if not report["added"] and not report["rejected"]:
+        lines.append("No candidate physics was tried.")
+    # the numerics' summary and recommendation are "In short"'s (one place); the rounds are in
+    # the appendix
+    if figures:
+        lines += ["", "## Figures", ""] + [
+            f"![{CAPTIONS.get(Path(f).stem, Path(f).stem)}]({f})" for f in figures]
+    # the details: collapsed (GitHub's Markdown and report.html both fold <details>)
+    lines += ["", "<details><summary>Appendix: the evidence in detail (raw fit numbers, noise "
+              "tests, modes, score tests, the numerics round by round)</summary>", "",
+              "### Fit", "",
+              # the numbers "In short" quotes, from the same strings (story.py)
+              "| model | rms, identification window | chi2/dof | rms, held out |",
+              "|---|---|---|---|",
+              f"| as given, calibrated | {story.rms[0]} | {story.chi2[0]} | "
+              f"{story.heldout[0] if story.heldout else '-'} |",
+              f"| final | {story.rms[1]} | {story.chi2[1]} | "
+              f"{story.heldout[1] if story.heldout else '-'} |"]
+    test = ev.get("noise_test")
+    if test is not None:
+        t = test if isinstance(test, Mapping) else test.as_dict()
+        src = ev.get("noise_source", "")
+        lines += ["", "### Is the residual of the final model noise?", "",
+                  f"Noise level {story.noise}{f' ({src})' if src else ''}. "
+                  f"Chi-square: {t['chi2']:.4g} on {t['dof']} degrees of freedom "
+                  f"(p = {t['p_value']:.3g}): the level "
+                  f"{'passes' if t['level_ok'] else 'fails'}. Whiteness (autocorrelation, "
+                  f"portmanteau): Q = {t['whiteness_q']:.3g}, p = "
+                  f"{t['whiteness_p_value']:.3g}: the residual "
+                  f"{'looks white' if t['white_ok'] else 'is correlated in time, not noise'}"
+                  f" (runs test on its signs: z = {t['runs_z']:.3g})."]
     modes = ev.get("modes")
     if modes:
-        lines += ["", "## Modes: data vs simulation", "",
+        lines += ["", "### Modes: data vs simulation", "",
                   "| data (Hz) | sim (Hz) | shift | data decay (1/s) | sim decay (1/s) |",
                   "|---|---|---|---|---|"]
         lines += [f"| {_fmt(m['data_hz'])} | {_fmt(m['sim_hz'])} | "
@@ -430,35 +507,43 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
         lines += [""] + [f"- {h}" for h in modes.get("hints", [])]
     env = ev.get("envelope")
     if env:
-        lines += ["", "## Shape of the amplitude decay", "",
-                  f"The oscillation amplitude decays most like the **{env['best']}** law, the "
-                  f"signature of **{env['friction']}** friction (residual {env['ratio']:.2g} x "
-                  f"smaller than the next law; general law dA/dt ~ -A^p with p = "
-                  f"{env['exponent_p']:.2f}: 0 dry, 1 viscous, 2 quadratic)."]
-        lines += ["", "| law | rms of fit |", "|---|---|"]
+        lines += ["", "### Shape of the amplitude decay (the recording)", ""]
+        if env["ratio"] < 2.0:
+            # a law whose fit is barely better than the next one's names no friction
+            lines.append(f"The decay's shape does not tell the friction laws apart: the best "
+                         f"law's fit ({env['best']}) is only {env['ratio']:.2g}x closer than "
+                         "the next one's.")
+        else:
+            lines.append(f"The oscillation amplitude decays most like the **{env['best']}** "
+                         f"law, the signature of **{env['friction']}** friction (its fit is "
+                         f"{env['ratio']:.2g}x closer than the next law's; general law dA/dt ~ "
+                         f"-A^p with p = {env['exponent_p']:.2f}: 0 dry, 1 viscous, 2 "
+                         "quadratic).")
+        lines += ["", "| law | rms of fit (m) |", "|---|---|"]
         lines += [f"| {k} | {_fmt(v['rms'])} |" for k, v in env["fits"].items()]
-    lines += ["", "## Physics", ""]
+    lines += ["", "### Candidates, as each was judged", ""]
     for a in report["added"]:
-        params = ", ".join(f"{k} = {_fmt(v)}" + (f" +- {_fmt(a['std'][k])}" if k in a["std"]
-                                                    else "") for k, v in a["parameters"].items())
-        lines.append(f"- added **{a['physics']}** ({PHYSICS[a['physics']]}): {params}; score "
-                     f"{_fmt(a['score'])}, rms after {_fmt(a['rms_after'])} m. Evidence: "
-                     f"{a['evidence']}.")
+        lines.append(f"- added {a['physics']} (score {a['score']:.4g}; rms after it was added "
+                     f"{a['rms_after']:.4g} m): {a['evidence']}.")
+    shortlist = []
     for r in report["rejected"]:
-        lines.append(f"- rejected {r['physics']} (score {_fmt(r['score'])}): {r['reason']}.")
-    if not report["added"] and not report["rejected"]:
-        lines.append("No candidate physics was tried.")
-    lines += [f"- {n}" for n in ev.get("notes", [])]
+        reason = r["reason"]
+        if reason.startswith("not tried:") and " (" in reason:
+            # the round's shortlist sentence is about other terms: said once, below
+            reason, why = reason.split(" (", 1)
+            why = why[:-1] if why.endswith(")") else why
+            if why not in shortlist:
+                shortlist.append(why)
+        lines.append(f"- {r['physics']} (score {r['score']:.4g}): {reason}.")
+    lines += [f"- {w[0].upper()}{w[1:]}." for w in shortlist]
+    notes = ev.get("notes", [])
+    if notes:
+        lines += ["", "### Log", ""] + [f"- {n}" for n in notes]
     num = report.get("numerics") or {}
-    if num.get("findings") or num.get("recommendation"):
-        lines += ["", "## Mesh and time step", ""] + [f"- {f}" for f in num["findings"]]
-        if num.get("recommendation"):
-            lines += ["", f"**Recommendation:** {num['recommendation']}"]
-    if report["parameters"]:
-        lines += ["", "## Final parameters", ""]
-        lines += [f"- {k} = {v:.6g}" for k, v in report["parameters"].items()]
-    if figures:
-        lines += ["", "## Figures", ""] + [f"![{Path(f).stem}]({f})" for f in figures]
+    if num.get("findings"):
+        lines += ["", "### The numerics round by round (each on the model of its round)", ""]
+        lines += [f"- {f}" for f in num["findings"]]
+    lines += ["", "</details>"]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
@@ -491,25 +576,40 @@ def save_figure(fig, path) -> Path:
     return path
 
 
-def plot_marker_residuals(path, res, noise_std: float | None = None) -> Path:
-    """Bar chart of each marker's rms residual; flagged markers in red, the robust bar dashed."""
+def plot_marker_residuals(path, res, noise_std: float | None = None) -> dict:
+    """Bar chart of each marker's rms residual (mm): the markers that stand out in red (the
+    title says so only when there are some), the robust bar dashed, the noise dotted.
+
+    Returns ``path``, ``rms_mm`` (the bars), ``red`` (names drawn red), ``threshold_mm`` and
+    ``noise_mm`` (the lines; None without a noise).
+    """
     plt = pyplot_agg()
     fig, ax = plt.subplots(figsize=(max(5, 0.25 * len(res.names) + 2), 3.5))
-    colours = np.where(res.flagged, "tab:red", "tab:blue")
-    ax.bar(np.arange(len(res.names)), np.nan_to_num(res.rms), color=colours)
-    ax.axhline(res.threshold_rms, ls="--", c="k", lw=1, label="median + k MAD")
+    flagged = np.asarray(res.flagged, bool)
+    colours = np.where(flagged, "tab:red", "tab:blue")
+    rms_mm = 1e3 * np.nan_to_num(np.asarray(res.rms, float))
+    ax.bar(np.arange(len(res.names)), rms_mm, color=colours)
+    threshold = 1e3 * float(res.threshold_rms)
+    ax.axhline(threshold, ls="--", c="k", lw=1, label="stands out above (median + k MAD)")
+    noise_mm = None
     if noise_std:
-        ax.axhline(np.sqrt(3) * noise_std, ls=":", c="gray", lw=1, label="noise (3D)")
+        noise_mm = 1e3 * np.sqrt(3) * noise_std
+        ax.axhline(noise_mm, ls=":", c="gray", lw=1, label="noise (3 components)")
     ax.set_xticks(np.arange(len(res.names)))
     ax.set_xticklabels(res.names, rotation=90, fontsize=7)
-    ax.set_ylabel("rms residual (m)")
-    ax.set_title("Residual per marker (red: stands out)")
+    ax.set_ylabel("rms residual (mm)")
+    red = [n for n, f in zip(res.names, flagged, strict=True) if f]
+    ax.set_title("Residual per marker" + (" (red: stands out)" if red
+                                          else " (no marker stands out)"))
     ax.legend(fontsize=8)
-    return save_figure(fig, path)
+    save_figure(fig, path)
+    return {"path": Path(path), "rms_mm": rms_mm, "red": red, "threshold_mm": threshold,
+            "noise_mm": noise_mm}
 
 
-def plot_residual_time(path, times, windows: Mapping) -> Path:
-    """Windowed chi2/dof against time with its noise threshold and the flagged intervals."""
+def plot_residual_time(path, times, windows: Mapping) -> dict:
+    """Windowed chi2/dof against time with its noise threshold and the flagged intervals (red
+    bands). Returns ``path``, ``window_chi2_per_dof`` and ``intervals`` (the bands drawn)."""
     plt = pyplot_agg()
     fig, ax = plt.subplots(figsize=(7, 3.5))
     t = np.asarray(times)
@@ -520,10 +620,13 @@ def plot_residual_time(path, times, windows: Mapping) -> Path:
         ax.axvspan(a, b, color="tab:red", alpha=0.2)
     ax.set_yscale("log")
     ax.set_xlabel("time (s)")
-    ax.set_ylabel("chi2 / dof")
-    ax.set_title("Residual over time (red: mismatch windows)")
+    ax.set_ylabel("chi2 / dof (1 = the noise)")
+    ax.set_title("Residual over time" + (" (red: mismatch windows)" if len(windows["intervals"])
+                                         else " (no window exceeds the noise)"))
     ax.legend(fontsize=8)
-    return save_figure(fig, path)
+    save_figure(fig, path)
+    return {"path": Path(path), "window_chi2_per_dof": np.asarray(windows["window_chi2_per_dof"]),
+            "intervals": [tuple(w) for w in windows["intervals"]]}
 
 
 def plot_spectra(path, times, data, sim, data_modes=(), sim_modes=()) -> Path:

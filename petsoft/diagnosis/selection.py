@@ -84,7 +84,7 @@ def judge(diag: Diagnosis, current: Fit, s: dict, c) -> dict:
     ok = p_lr < diag.alpha and better
     diag.tell(f"  try {c.physics}: LR {lr:.4g} (p {p_lr:.3g}), held-out rms "
               f"{fmt(current.heldout_rms)} -> {fmt(new.heldout_rms)} m: "
-              f"{'passes' if ok else 'rejected'}")
+              f"{'passes both tests' if ok else 'rejected'}")
     if not ok:
         why = []
         if p_lr >= diag.alpha:
@@ -340,6 +340,9 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
                 "predicted the held-out data no better (within 2 % or the noise): the "
                 "explanation with fewer parameters is kept")
         accepted = (v_best["entry"], s_best["fit"])
+        diag.tell(f"  chosen: {c_best.physics}" + (
+            f" (of {len(passed)} that pass both tests: the best held-out prediction, then the "
+            "fewest parameters)" if len(passed) > 1 else ""))
         if c_best.kind == "switch":
             switch = c_best.physics
         for chi2, _, s, c, _ in passed[1:]:

@@ -74,6 +74,34 @@ def parameter_table(exp: Experiment) -> dict[str, tuple[float, Range]]:
     return params
 
 
+#: The unit of each parameter kind (the last part of a dotted name; formats.md section 1).
+PARAMETER_UNITS = {
+    **{k: unit for k, (_rng, unit) in MATERIAL_RANGES.items()},
+    "damping.mass": "1/s", "damping.stiffness": "s", "drag.linear": "Pa s/m",
+    "drag.quadratic": "kg/m^3", "friction.dry": "m/s^2", "gravity.acceleration": "m/s^2",
+    "boundary.compliance": "m/Pa", "offset": "m", "springs.stiffness": "N/m",
+    "springs.damping": "N s/m", "springs.bending": "N/m", "springs.node_mass": "kg",
+    "viscoelastic.ratio": "", "viscoelastic.relaxation_time": "s",
+}
+
+
+def parameter_unit(name: str) -> str:
+    """The SI unit of a dotted parameter name (``""`` for a ratio), e.g. ``"Pa"`` for
+    ``"material.<region>.youngs_modulus"``, ``"1/s"`` for ``"damping.mass"``.
+
+    Raises
+    ------
+    ExperimentError
+        For a name that is no parameter kind of :func:`parameter_table`.
+    """
+    parts = split_parameter(name)
+    for key in (name, ".".join(parts[:2]), parts[-1]):
+        if key in PARAMETER_UNITS and (key != parts[-1] or parts[0] in ("material", "collider")):
+            return PARAMETER_UNITS[key]
+    raise ExperimentError(f'"{name}" is no parameter petsoft knows the unit of (known kinds: '
+                          f"{', '.join(PARAMETER_UNITS)})")
+
+
 def parameter_names(experiment: Experiment) -> list[str]:
     """The dotted names of the numeric parameters that ``[calibrate]`` and
     :func:`with_parameters` accept, e.g. ``"material.youngs_modulus"``,
