@@ -161,3 +161,15 @@ def test_the_formats_md_example_report_is_valid_and_tells_its_story():
     rep = json.loads(block)
     report.validate_report(rep)
     assert Story(rep).verdict_box().startswith("**Verdict: missing physics.**")
+
+
+def test_the_console_says_where_the_time_went():
+    """report.json's ``timings`` (the phase clock) end the console's conclusion before the path:
+    the total and each phase that took half a second or more, in the order they ran."""
+    rep = _report(timings={"base_fit": 12.4, "numerics": 95.0, "scoring": 20.2, "fits": 61.0,
+                           "final": 0.2, "other": 1.0, "total": 189.8})
+    lines = Story(rep).conclusion("out")
+    assert lines[-2] == ("time: 190 s (base fit 12 s, numerics 95 s, scoring 20 s, "
+                         "fits 61 s)")
+    rep.pop("timings")
+    assert not any(line.startswith("time:") for line in Story(rep).conclusion("out"))

@@ -232,6 +232,11 @@ class Story:
             lines.append(f"NOT CHECKED: {k['check']} ({k['why']}): {k['risk']}")
         for p, others in self.ties.items():
             lines.append(f"ambiguous: {', '.join(others)} fit as well as {p}")
+        t = self.report.get("timings")
+        if t:
+            parts = [f"{k.replace('_', ' ')} {t[k]:.0f} s" for k in
+                     ("base_fit", "numerics", "scoring", "fits", "final") if t.get(k, 0) >= 0.5]
+            lines.append(f"time: {t['total']:.0f} s" + (f" ({', '.join(parts)})" if parts else ""))
         if out is not None:
             lines.append(f"report: {out}/report.html (also report.md, report.json, figures, "
                          "diagnosed.toml)")
