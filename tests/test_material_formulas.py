@@ -17,22 +17,25 @@ at deformation gradients far from the identity: a rotation by 50 degrees of a st
 general non-symmetric F with det F = 1.4; a large compression (J ~ 0.35) with shear. Both the
 numpy reference and the production C kernel are compared, to 1e-12 of max |P|.
 
-Mutants that these tests catch (issue 36; made by hand, the tests run, reverted):
+Mutants (issue 36), made by hand one at a time, the tests run, reverted (scratch script, not
+kept). "new" = this file (F) and tests/test_hyperelastic_reference.py (R); "old" = the failures
+in tests/test_materials.py and tests/test_kernels.py under the same mutant:
 
-=====================================================================  ===========================
-mutant                                                                 caught by
-=====================================================================  ===========================
-neo-Hookean lam/2 (ln J)^2 -> lam/2 (J - 1)^2 (energy and stress) in   test_stress_energy[neohoo-
-  the numpy reference                                                  kean-numpy-*] (all 5 F),
-                                                                       test_hyperelastic_reference
-                                                                       neohookean cases
-the same in the C kernel (``evaluate``, psi and P)                     test_stress_energy[neohoo-
-                                                                       kean-c-*], test_hyperelast-
-                                                                       ic_reference neohookean
-StVK S = 2 mu E + lam tr E I -> S = mu E + lam tr E I (numpy; C)       test_stress_energy[stvk-*]
-co-rotated P = 2 mu (F - R) + ... -> mu (F - R) + ... (numpy; C)       test_stress_energy[corota-
-                                                                       ted-*], test_corotated_*
-=====================================================================  ===========================
+* neo-Hookean lam/2 (ln J)^2 -> lam/2 (J - 1)^2, consistently in psi, P and dP/dF of the numpy
+  reference: F test_stress_energy[neohookean-numpy-*] for 4 of 5 F (not simple shear: J = 1,
+  where both terms and their derivatives vanish) and test_rigid_rotation[neohookean-numpy];
+  old: only C-vs-numpy comparisons and the projection check (no property test).
+* the same in the C kernel (psi and P of ``evaluate``): F test_stress_energy[neohookean-c-*]
+  (4 of 5), test_rigid_rotation[neohookean-c]; R test_p1_matches_dolfinx[neohookean] and
+  test_p2_..._quadrature_error[neohookean].
+* StVK S = 2 mu E + ... -> mu E + ... (stress only; numpy, and separately C): F
+  test_stress_energy[stvk-<backend>-*] (5 of 5), test_rigid_rotation[stvk-<backend>]; C also R
+  (P1 and P2). Consistently in psi = mu/2 E:E, S and dP/dF (numpy): the same F tests; old: only
+  linearisation-at-identity and C-vs-numpy.
+* co-rotated P = 2 mu (F - R) + ... -> mu (F - R) + ... (numpy; C): F
+  test_stress_energy[corotated-<backend>-*] (5 of 5), test_corotated_stress_is_derivative_of_
+  polar_energy, test_corotated_uniaxial_stretch_of_rotated_bar, test_rigid_rotation
+  [corotated-<backend>]; consistently in psi, P, dP/dF (numpy): the same F tests.
 """
 
 from __future__ import annotations
