@@ -15,9 +15,24 @@ For each integrator x discretisation, on the ranks the suite runs on (1 and 2):
   uninterrupted run (by more than 1e-5 of max |q|), while the restart from the unperturbed copy
   ends on it (a restart that ignored the checkpoint's state could not tell the two apart).
 
-From-zero mutant (made by hand, tests run, reverted): ``Simulation.run`` with ``restart`` taking
-the initial state and first = 1 after reading the checkpoint (so its messages and files are those
-of a restart): see the docstring of ``test_restart_resumes_from_the_checkpoint`` for the result.
+Result (1 rank and 2 ranks, every case): restarted == uninterrupted bit for bit (q, v,
+energies, probes) for be, si, alpha, midpoint, trapezoidal, ere, imex, explicit on P1 and P2, and
+all but imex (continuum only) on the cloth. Two things this needed or showed:
+
+* imex did not restart bit for bit before its slow modal acceleration was checkpointed (its
+  ``state``): 6e-9 of max |q|, 5e-8 of max |v| after four steps (P1 and P2 alike);
+* MUMPS on 2 ranks does not repeat: two uninterrupted 2-rank runs (the cloth's default solver
+  there; a P2 bar under ``-pc_factor_mat_solver_type mumps``) differ by 2.5e-16..3.4e-16 of
+  max |q|, so a restart cannot be bitwise; the cloth here factors by redundant LU, which repeats,
+  and the FEM runs use petsoft's default solvers, which repeat on 1 and 2 ranks.
+
+From-zero mutant (made by hand, tests run, reverted; 1 rank): ``Simulation.run`` with
+``restart`` reads the checkpoint (its "restarting from" line and the run's "restarted at step 4"
+claim are printed as usual) and then runs from the initial state at step 1 with a fresh ledger.
+All 23 cases here fail (at the steps-taken check); with that check removed, 21 fail at the
+perturbed-checkpoint check (the perturbation makes no difference: 0.0) and 2 at the bitwise one.
+The earlier test_restart.py::test_restart_is_bitwise_on_the_same_ranks (5 cases) passes under
+this mutant.
 """
 
 from __future__ import annotations

