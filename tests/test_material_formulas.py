@@ -35,7 +35,8 @@ in tests/test_materials.py and tests/test_kernels.py under the same mutant:
 * co-rotated P = 2 mu (F - R) + ... -> mu (F - R) + ... (numpy; C): F
   test_stress_energy[corotated-<backend>-*] (5 of 5), test_corotated_stress_is_derivative_of_
   polar_energy, test_corotated_uniaxial_stretch_of_rotated_bar, test_rigid_rotation
-  [corotated-<backend>]; consistently in psi, P, dP/dF (numpy): the same F tests.
+  [corotated-<backend>]; C also R test_corotated_rotated_bar_in_uniaxial_tension[1, 2];
+  consistently in psi, P, dP/dF (numpy): the same F tests.
 """
 
 from __future__ import annotations
