@@ -7,7 +7,7 @@ describes the problem): a bar 1 x 0.2 x 0.2 m clamped at x = 0 whose end x = 1 i
 textbook definitions, P = d psi / d F by ``ufl.diff``. These tests need only the stored file.
 
 petsoft solves the same problem on DOLFINx's mesh (P2: petsoft's own edge nodes, matched by
-coordinate) with Newton (MUMPS, 8 load steps) and its displacement at the free nodes (neither end
+coordinate) with Newton (8 load steps) and its displacement at the free nodes (neither end
 face) is compared with DOLFINx's, relative to their largest:
 
 * P1: every quadrature rule is exact (F is constant per tet): agreement to solver tolerance;
@@ -39,6 +39,7 @@ tests/test_material_formulas.py.
 
 from __future__ import annotations
 
+import gc
 from pathlib import Path
 
 import numpy as np
@@ -54,8 +55,10 @@ from petsoft.mesh.serial import Mesh, validate
 from petsoft.physics.model import build_model
 
 DATA = Path(__file__).parent / "data" / "hyperelastic_bar.npz"
-MUMPS = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps",
-         "snes_rtol": "1e-13", "snes_atol": "1e-9"}
+#: petsoft's default linear solver, tight. (With MUMPS, -pc_factor_mat_solver_type mumps, the
+#: co-rotated case below hung now and then on 2 ranks: rank 0 inside StaticSolver.destroy while
+#: rank 1 had left it; not understood, reported.)
+SOLVER = {"snes_rtol": "1e-13", "snes_atol": "1e-9", "ksp_rtol": "1e-12"}
 LOAD_STEPS = 8
 
 
@@ -114,12 +117,22 @@ def _use_rule(model, degree: int) -> None:
         group.dN, group.volume = np.ascontiguousarray(dN), np.ascontiguousarray(w)
 
 
+def _free():
+    """Free the dropped models' PETSc objects now, at the same point on every rank: left to
+    Python's cyclic collector they were freed on one rank only and the 2-rank run hung."""
+    gc.collect()
+    PETSc.COMM_WORLD.tompi4py().Barrier()
+
+
 def _petsoft(d, law, order, degree=None):
     mesh, model = _model(d, law, order)
     if degree is not None:
         _use_rule(model, degree)
-    u, result = solve(model, load_steps=LOAD_STEPS, options=MUMPS)
-    return mesh.points, u, result
+    u, result = solve(model, load_steps=LOAD_STEPS, options=SOLVER)
+    summary = {"newton_iterations": result.newton_iterations, "load_steps": result.load_steps}
+    del model, result
+    _free()
+    return mesh.points, u, summary
 
 
 def _reference(points, d, key_x, key_u):
@@ -148,8 +161,8 @@ def test_p1_matches_dolfinx(data, law):
     gap = _free_difference(points, ref, _reference(points, data, f"{other}_p1_x",
                                                    f"{other}_p1_u"), float(data["L"]))
     _print(f"\n{law} P1 vs DOLFINx: {diff:.2e} (the other law's DOLFINx solution differs by "
-           f"{gap:.2e}); {result.newton_iterations} Newton iterations")
-    assert result.load_steps == LOAD_STEPS
+           f"{gap:.2e}); {result['newton_iterations']} Newton iterations")
+    assert result["load_steps"] == LOAD_STEPS
     assert gap > 1e-2
     assert diff < 1e-8
 
@@ -213,8 +226,10 @@ def test_corotated_rotated_bar_in_uniaxial_tension(order):
             "output": {"directory": "/tmp/petsoft-hyperelastic-reference"},
         })
         model = build_model(exp)
-        u, res = solve(model, load_steps=4, options=MUMPS)
+        u, res = solve(model, load_steps=4, options=SOLVER)
         X = model.dmesh.mesh.points
+        del model, res
+        _free()
         exact = X @ G.T
         result[law] = _root(float(np.abs(u - exact).max() / np.abs(exact).max()))
     _print(f"\nco-rotated P{order}, rotated bar in uniaxial tension: max |u - u_exact| / max |u| "

@@ -37,6 +37,7 @@ this mutant.
 
 from __future__ import annotations
 
+import gc
 import re
 import shutil
 from pathlib import Path
@@ -130,6 +131,11 @@ def _run(exp, out: Path, restart=False):
         q, v = MPI.COMM_WORLD.bcast((gather(result.q), gather(result.v)))
     finally:
         sim.destroy()
+    # the model's PETSc objects freed now on every rank (left to the cyclic collector, they can
+    # be freed on one rank only, and a collective destroy then hangs the 2-rank run)
+    del model, sim
+    gc.collect()
+    MPI.COMM_WORLD.Barrier()
     return q, v, MPI.COMM_WORLD.bcast(lines)
 
 
