@@ -2,18 +2,19 @@
 
 For each integrator x discretisation, on the ranks the suite runs on (1 and 2):
 
-* bitwise: an uninterrupted run writes checkpoints at steps 6 and 12 of 18; the step-6 checkpoint
-  alone is copied into a fresh output directory and ``Simulation.run(restart=True)`` continues
+* bitwise: an uninterrupted run of 8 steps writes a checkpoint at step 4; that checkpoint alone
+  is copied into a fresh output directory and ``Simulation.run(restart=True)`` continues
   from it. Its final q and v, its energies.csv and its probe trajectory equal the uninterrupted
   run's bit for bit (the solvers are direct or deterministic on a fixed partition);
 * the restart resumes, it does not recompute: the monitor lines (``progress_every = 0``: one per
-  step) of the restarted run name exactly the steps 7..18, and the restarted run reports its
-  restart at step 6 (a restart that reran from t = 0 would print steps 1..18 and, since the runs
+  step) of the restarted run name exactly the steps 5..8, and the restarted run reports its
+  restart at step 4 (a restart that reran from t = 0 would print steps 1..8 and, since the runs
   are deterministic, still reach the same final state: the bitwise check alone cannot see it);
-* the checkpoint is what it resumes from: the step-6 checkpoint's q (and v) are perturbed
-  (+0.5 mm along z at every free node) and the restart from it must end away from the
-  uninterrupted run (by more than 1e-5 of max |q|), while the restart from the unperturbed copy
-  ends on it (a restart that ignored the checkpoint's state could not tell the two apart).
+* the checkpoint is what it resumes from: the step-4 checkpoint's q (and v) are perturbed
+  (+0.5 mm along z and -0.05 m/s at every node that moved) and the restart from it must end
+  away from the uninterrupted run (by more than 1e-5 of max |q|), while the restart from the
+  unperturbed copy ends on it (a restart that ignored the checkpoint's state could not tell the
+  two apart).
 
 Result (1 rank and 2 ranks, every case): restarted == uninterrupted bit for bit (q, v,
 energies, probes) for be, si, alpha, midpoint, trapezoidal, ere, imex, explicit on P1 and P2, and
