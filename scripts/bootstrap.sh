@@ -16,7 +16,7 @@ set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$ROOT/.venv"
 PACKAGES=(python3-petsc4py-real python3-slepc4py-real python3-mpi4py python3-h5py-mpi
-          python3-matplotlib python3-numpy python3-scipy python3-tomlkit python3-venv python3-dev python3-pip
+          python3-matplotlib python3-numpy python3-scipy python3-sympy python3-tomlkit python3-venv python3-dev python3-pip
           openmpi-bin libopenmpi-dev build-essential
           chromium)   # renders report.html headless in the test suite (tests/test_report_html.py)
 

@@ -426,6 +426,26 @@ class ModalImexIntegrator(StepperDefaults):
         self._last = (t0 + h, q1.copy(), v1.copy())
         return report
 
+    def state(self) -> dict:
+        """What a restart needs to continue bit for bit: the slow modal acceleration the next
+        step starts from (it was computed with the predicted end velocity, so recomputing it
+        from the checkpoint's (q, v) gives another run: measured 6e-9 of max |q| and 5e-8 of
+        max |v| four steps after a restart of tests/test_restart_integrators.py's bar)."""
+        if self._last is None or self._a is None:
+            return {}
+        return {"slow_acceleration": np.array(self._a, dtype=float)}
+
+    def restore(self, t, q, v, state: dict) -> None:
+        """Continue from a checkpoint's (t, q, v) and :meth:`state` (without it, the next step
+        recomputes the slow acceleration from (q, v))."""
+        if "slow_acceleration" not in state:
+            return
+        self._a = np.array(state["slow_acceleration"], dtype=float)
+        if self._last is not None:
+            for vec in self._last[1:]:
+                vec.destroy()
+        self._last = (t, q.copy(), v.copy())
+
     def destroy(self) -> None:
         self.fast.destroy()
         for vec in self.modes + self.weights + [self._f, self._tmp]:

@@ -287,7 +287,10 @@ class Simulation:
         branch = self.system.viscoelastic
         if branch is not None and branch.active:
             fields["z"] = branch.z       # the Maxwell branch's internal variable
-        gathered = {k: dm.gather_global(vec) for k, vec in
+        # nodal vectors are gathered into file numbering; small arrays (the same on every rank,
+        # e.g. modal coefficients) are written as they are
+        gathered = {k: dm.gather_global(vec) if isinstance(vec, PETSc.Vec) else np.asarray(vec)
+                    for k, vec in
                     {**fields, **{f"integrator:{k}": w for k, w in state.items()}}.items()}
         if dm.comm.rank == 0:
             text = (self.experiment.path.read_text() if self.experiment.path is not None
@@ -337,7 +340,8 @@ class Simulation:
         data = mpi.bcast(data)
         q = dm.from_file_field(data["fields"]["q"])
         v = dm.from_file_field(data["fields"]["v"])
-        state = {k: dm.from_file_field(a) for k, a in data["integrator_state"].items()}
+        state = {k: dm.from_file_field(a) if np.ndim(a) == 2 else np.asarray(a)
+                 for k, a in data["integrator_state"].items()}
         branch = self.system.viscoelastic
         if branch is not None:
             if "z" in data["fields"]:
