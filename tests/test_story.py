@@ -173,3 +173,15 @@ def test_the_console_says_where_the_time_went():
                          "fits 61 s)")
     rep.pop("timings")
     assert not any(line.startswith("time:") for line in Story(rep).conclusion("out"))
+
+
+def test_a_refinement_adopted_twice_is_missed_once():
+    """The realistic control adopted 10-node elements and halved the step twice: the model
+    missed its element order and its time step, each said once."""
+    rep = _report(added=[], cause="numerics", final_verdict="consistent")
+    rep["parameters"].pop("damping.mass")
+    rep["parameters_std"].pop("damping.mass")
+    rep["numerics"] = {"findings": ["..."], "adopted": ["P2", "step/2", "step/2"],
+                       "summary": []}
+    missed = next(line for line in Story(rep).conclusion() if line.startswith("missed:"))
+    assert missed == "missed: its discretisation (element order, time step)"

@@ -136,8 +136,9 @@ class Story:
         if self.adopted:
             from petsoft.diagnosis.numerics_findings import refinement_words
 
-            parts.append("its discretisation ("
-                         + ", ".join(refinement_words(a)[1] for a in self.adopted) + ")")
+            # each kind once: the step halved twice is one thing the model missed
+            kinds = dict.fromkeys(refinement_words(a)[1] for a in self.adopted)
+            parts.append("its discretisation (" + ", ".join(kinds) + ")")
         return "; ".join(parts)
 
     def headline(self) -> str:
