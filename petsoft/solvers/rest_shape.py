@@ -140,9 +140,11 @@ class RestShapeSolver:
             ksp.setType(PETSc.KSP.Type.PREONLY)   # the Jacobian is not symmetric: a direct solve
             pc.setType(PETSc.PC.Type.LU)
         else:
-            # In parallel, GMRES with block-Jacobi ILU: after a diverged trial (an inverted
-            # element, an infinite residual) both parallel direct solvers hung on 2 ranks here
-            # (PETSc 3.18: MUMPS in its destroy, SuperLU_dist in the next factorisation).
+            # In parallel, GMRES with block-Jacobi ILU. Both parallel direct solvers once hung
+            # on 2 ranks after a diverged trial; the cause was a reference to the SNES held on
+            # the failing rank only (see _collective), and with it fixed MUMPS and
+            # SuperLU_dist run that failure test on 2 ranks too (-rest_shape_pc_type lu
+            # -rest_shape_pc_factor_mat_solver_type mumps).
             ksp.setType(PETSc.KSP.Type.GMRES)
             ksp.setGMRESRestart(200)
             ksp.setTolerances(rtol=1e-12, atol=0.0, max_it=2000)
