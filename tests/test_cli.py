@@ -148,7 +148,10 @@ def test_bad_mesh_file_names_the_element(tmp_path):
                               '[mesh]\nfile = "bad.vtu"').format(model="linear")
     r = _run(["static", str(_write(tmp_path, text))], tmp_path)
     assert r.returncode == 2 and "Traceback" not in r.stderr
-    assert "bad.vtu" in r.stderr and "1" in r.stderr
+    # the degenerate one named by its index and nodes, and how many there are
+    assert "bad.vtu: tetrahedron 1 (0-based" in r.stderr, r.stderr
+    assert "nodes [1, 2, 3, 3]" in r.stderr and "is degenerate" in r.stderr
+    assert "1 of 2 tetrahedra are degenerate" in r.stderr
 
 
 @serial_only
