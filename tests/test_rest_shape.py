@@ -144,7 +144,6 @@ def test_rest_markers_follow_the_cells(tmp_path):
     assert np.allclose(read_mesh(path).points, rest.points)
 
 
-@pytest.mark.skipif(PETSc.COMM_WORLD.size > 1, reason="slow: run serially only")
 def test_splitting_recovers_E_with_noise(tmp_path):
     """0.5 % marker noise: E within 2 % with the splitting; far off without it."""
     demo = _demo()
