@@ -6,6 +6,8 @@ The public Python API (see :mod:`petsoft.api`)::
     with_parameters                       a copy of an experiment with changed parameters
     static, simulate, synth               solve, integrate, make a synthetic recording
     calibrate, diagnose                   fit parameters; find, model and verify missing physics
+    calibrate_modes                       fit material parameters to natural frequencies
+    rest_shape, calibrate_rest_shape      the rest shape of a captured equilibrium; fit with it
 
 The API is loaded on first use: ``import petsoft`` does not initialise PETSc, so a program (or
 the ``petsoft`` command) can still call ``petsc4py.init(sys.argv)`` with its PETSc options first.
@@ -24,7 +26,7 @@ from petsoft.version import __version__ as __version__  # noqa: E402
 
 #: The names :mod:`petsoft.api` exports, loaded lazily (PEP 562).
 _API = ("load_experiment", "with_parameters", "read_recording", "static", "simulate", "synth",
-        "calibrate", "calibrate_modes", "diagnose")
+        "calibrate", "calibrate_modes", "rest_shape", "calibrate_rest_shape", "diagnose")
 
 
 def __getattr__(name: str):

@@ -106,6 +106,7 @@ def test_E_and_nu_from_six_dolfinx_frequencies(beam):
     assert np.max(np.abs(fit.before / f - 1.0)) > 0.1          # the start was far off
 
 
+@pytest.mark.serial_only     # ~3 s; the exact case above runs on 2 ranks too
 def test_noisy_frequencies_give_E_and_nu_within_two_percent_with_their_std(beam):
     rng = np.random.default_rng(7)
     f = beam["frequencies"][:6]

@@ -144,6 +144,7 @@ def test_rest_markers_follow_the_cells(tmp_path):
     assert np.allclose(read_mesh(path).points, rest.points)
 
 
+@pytest.mark.serial_only   # 2 s serially, 44 s on 2 ranks (loaded machine): once is enough
 def test_splitting_recovers_E_with_noise(tmp_path):
     """0.5 % marker noise: E within 2 % with the splitting; far off without it."""
     demo = _demo()
