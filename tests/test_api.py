@@ -174,18 +174,20 @@ def test_diagnose_on_a_recording_of_its_own_model_adds_nothing(tmp_path_factory)
                                                                        res.final.std)
 
 
-@pytest.mark.serial_only      # ~15-30 s: once is enough
-def test_the_demos_diagnosis_part_names_the_hidden_effect_first(tmp_path):
-    """``petsoft demo``'s diagnosis part (petsoft.diagnosis.demo.run_diagnosis_demo) on half its
-    record and without the numerics check (the quick run): the hidden mass damping is the first
-    term named, and the held-out prediction falls from several times the noise to near it.
-    Without the numerics check the user's generalized-alpha (r = 0.9) has its own numerical
-    damping to explain, so a second term may follow (a viscoelastic branch at this commit)."""
+@pytest.mark.serial_only      # ~25 s under load: once is enough
+def test_the_demos_diagnosis_part_names_the_hidden_effect(tmp_path):
+    """``petsoft demo``'s diagnosis part (petsoft.diagnosis.demo.run_diagnosis_demo) as a quick
+    run: half its record, no numerics check, one addition. The hidden mass damping is named,
+    at its value within 15 % (measured: 3.75 of 4), and the held-out prediction falls from
+    several times the noise to near it (without the numerics check the user's
+    generalized-alpha keeps its own numerical damping: the verdict stays missing-physics)."""
     from petsoft.diagnosis.demo import HIDDEN, run_diagnosis_demo
 
-    res = run_diagnosis_demo(tmp_path / "d", say=lambda line: None, end=0.15, numerics=False)
+    res = run_diagnosis_demo(tmp_path / "d", say=lambda line: None, end=0.15, numerics=False,
+                             max_additions=1)
     assert res["hidden"] == HIDDEN["physics"] == "damping.mass"
-    assert res["named"][:1] == ["damping.mass"], res
+    assert res["named"] == ["damping.mass"], res
+    assert res["parameter"]["found"] == pytest.approx(HIDDEN["parameter"][1], rel=0.15), res
     val, noise = res["validation"], res["noise"]
     assert val["base_rms"] > 5.0 * noise and val["final_rms"] < 1.5 * noise, val
     assert (tmp_path / "d" / "diagnosis" / "report.json").is_file()

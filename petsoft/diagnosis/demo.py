@@ -53,12 +53,13 @@ def _experiment(extra: dict, youngs_modulus: float, integrator: dict, calibrate:
     return data
 
 
-def run_diagnosis_demo(out: Path, say=print, *, end: float = 0.3,
-                       numerics: bool = True) -> dict:
+def run_diagnosis_demo(out: Path, say=print, *, end: float = 0.3, numerics: bool = True,
+                       max_additions: int = 3) -> dict:
     """Synthesise a recording with a hidden effect and diagnose it (all ranks call).
 
-    ``end`` (s, the record's length) and ``numerics`` (diagnose's refinement checks) exist for
-    a quick run (the test suite's); ``petsoft demo`` uses the defaults.
+    ``end`` (s, the record's length), ``numerics`` (diagnose's refinement checks) and
+    ``max_additions`` exist for a quick run (the test suite's); ``petsoft demo`` uses the
+    defaults.
 
     Returns
     -------
@@ -91,7 +92,8 @@ def run_diagnosis_demo(out: Path, say=print, *, end: float = 0.3,
                                                             seed=3))
     comm.Barrier()
     res = run_diagnose(load_experiment(out / "user.toml"), out / "recording.h5",
-                       out=out / "diagnosis", say=say, numerics=numerics)
+                       out=out / "diagnosis", say=say, numerics=numerics,
+                       max_additions=max_additions)
     named = [a["physics"] for a in res.added]
     name, true = HIDDEN["parameter"]
     found = (float(res.final.values[res.final.names.index(name)])
