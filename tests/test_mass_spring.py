@@ -240,7 +240,6 @@ def test_integrators_converge_on_a_hanging_rope_at_their_order(tmp_path, name, o
     scheme's order as the step halves (measured: errors 3.9e-4 (be, si), 1.6e-6 (midpoint) to
     2.1e-7 (ere) m at h = 2 ms, of a motion of 7.8 mm); the discrete-gradient midpoint rule
     conserves the energy (the ledger's numerical column), BE only loses energy."""
-    tmp_path = _shared(tmp_path)
     reference = _rope_reference()
     errors = []
     for h in (0.002, 0.001):
