@@ -48,3 +48,23 @@ class InvertedElementError(PetsoftError):
 
 class SolverError(PetsoftError):
     """A PETSc solver (SNES, KSP, TAO, TS) diverged; the message says where and why."""
+
+
+def without_frames(err: BaseException) -> BaseException:
+    """``err`` (returned) with the tracebacks of it and of the exceptions chained to it dropped.
+
+    An error a solver keeps to report later (an inverted trial element) must not keep the
+    frames it was raised through: those of a PETSc callback hold the SNES or TS and its vectors,
+    and on the rank that raised it only. Their destruction then waits for a garbage collection
+    that comes at different moments on different ranks, while destroying a parallel direct
+    solver (MUMPS) is collective: 2 ranks hung (tests/test_static_robustness.py).
+    """
+    stack, seen = [err], set()
+    while stack:
+        e = stack.pop()
+        if e is None or id(e) in seen:
+            continue
+        seen.add(id(e))
+        e.__traceback__ = None
+        stack += [e.__context__, e.__cause__]
+    return err

@@ -376,7 +376,7 @@ def test_every_new_term_starts_at_the_base_model(case):
     assert by["contact.plane"].kind == "switch" and by["material.viscoelastic"].kind == "score-fd"
 
 
-@pytest.mark.serial_only
+@pytest.mark.serial_only      # 3.5 s serially, 24 s on 2 ranks (loaded machine): once is enough
 def test_candidates_are_scored_with_a_viscoelastic_branch_in_the_model(case):
     """A model that already has a viscoelastic branch (as after a round that added one) cannot
     use alpha's exact sensitivities: every column is then differenced, and the candidates still

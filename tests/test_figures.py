@@ -132,3 +132,35 @@ def test_every_figure_has_a_caption_that_says_what_to_see():
     placed = {stem for stems in FIGURE_SECTIONS.values() for stem in stems}
     assert placed <= set(CAPTIONS)
     assert "Red bars" in CAPTIONS["residual_markers"] and "0" in CAPTIONS["candidates"]
+
+
+def test_frequency_figure_draws_the_values_and_their_relative_errors(tmp_path):
+    """petsoft calibrate --modes' figure (petsoft.calibration.plots.plot_frequencies)."""
+    from petsoft.calibration.plots import plot_frequencies
+
+    measured = np.array([1.5, 4.0, 9.5])
+    before, after = 0.8 * measured, measured * (1 + np.array([1e-3, -2e-3, 0.0]))
+    drawn = plot_frequencies(tmp_path / "f.png", measured, before, after, std=0.01 * measured)
+    assert drawn["path"].read_bytes()[:4] == b"\x89PNG"
+    np.testing.assert_array_equal(drawn["modes"], [1, 2, 3])
+    np.testing.assert_allclose(drawn["measured"], measured)
+    np.testing.assert_allclose(drawn["before"], before)
+    np.testing.assert_allclose(drawn["after"], after)
+    np.testing.assert_allclose(drawn["relative"]["before"], -0.2)
+    np.testing.assert_allclose(drawn["relative"]["calibrated"], [1e-3, -2e-3, 0.0], atol=1e-15)
+
+
+def test_demo_deflection_figure_draws_the_side_view_coloured_by_displacement(tmp_path):
+    """The demo's figure (petsoft.cli.commands.plot_deflection): reference and deformed points
+    in the x-z plane, the deformed ones coloured by |u|."""
+    from petsoft.cli.commands import plot_deflection
+    from petsoft.mesh.serial import box_mesh
+
+    mesh = box_mesh([0.4, 0.04, 0.04], [4, 1, 1])
+    x = mesh.points[:, 0]
+    u = np.column_stack([-0.1 * x ** 2, 0.01 * x, -0.5 * x ** 2])     # a sag
+    drawn = plot_deflection(mesh, u, tmp_path / "d.png")
+    assert drawn["path"].read_bytes()[:4] == b"\x89PNG"
+    np.testing.assert_allclose(drawn["reference"], mesh.points[:, [0, 2]])
+    np.testing.assert_allclose(drawn["deformed"], (mesh.points + u)[:, [0, 2]])
+    np.testing.assert_allclose(drawn["colour"], np.linalg.norm(u, axis=1))

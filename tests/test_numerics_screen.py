@@ -102,14 +102,16 @@ def test_a_measured_mesh_error_below_the_noise_is_named_in_the_recommendation(ch
 
 def test_a_refinement_closer_to_the_data_by_more_than_the_noise_matters():
     """Also below a tenth of a large misfit's excess: its error is too large to be counted as
-    noise (the independent L-bracket with concealed damping and added mass: 10-node elements
-    changed the refit by 4.1x the noise at 9 % of the excess, and were not adopted)."""
-    sigma = 1e-4
-    assert refinement_matters(41000.0, 4.5e5, 4.1 * sigma, sigma)
-    assert not refinement_matters(2900.0, 4.5e5, 0.46 * sigma, sigma)   # counted, not adopted
-    assert refinement_matters(2e4, 1e5, 0.5 * sigma, sigma)             # a fifth of the excess
-    assert not refinement_matters(5.0, 10.0, 2.0 * sigma, sigma)        # chi2 barely moves
-    assert not refinement_matters(-100.0, 1e5, 5.0 * sigma, sigma)      # further from the data
+    noise. Made-up gains on either side of the rule's levels (a gain of 10 in chi2, a tenth of
+    the excess, a change of one noise); its false-alarm rate on draws is in
+    tests/test_decision_rules.py."""
+    sigma, excess = 1e-4, 1e5
+    assert refinement_matters(0.05 * excess, excess, 1.5 * sigma, sigma)    # moves > noise
+    assert not refinement_matters(0.05 * excess, excess, 0.5 * sigma, sigma)  # counted
+    assert refinement_matters(0.11 * excess, excess, 0.5 * sigma, sigma)    # > a tenth
+    assert not refinement_matters(9.0, 10.0, 2.0 * sigma, sigma)           # chi2 barely moves
+    assert refinement_matters(11.0, 10.0, 0.1 * sigma, sigma)
+    assert not refinement_matters(-100.0, excess, 5.0 * sigma, sigma)     # further from data
 
 
 @pytest.fixture(scope="module")
@@ -142,16 +144,19 @@ def test_a_small_refinement_is_screened_also_when_the_fit_is_far_from_the_data(d
 
 
 def test_a_small_refinement_closer_by_too_little_to_matter_is_not_refitted():
-    """The screen's rule (numbers of the independent L-bracket with damping and added mass at
-    chi2/dof 75: the halved step moved the simulation by 0.51x the noise and its refit lowered
-    chi2 by 2900 of an excess of 4.5e5; refitted for 45 s, it was called resolved)."""
-    sigma, excess = 1e-4, 4.5e5
+    """The screen's rule on made-up linearised refits either side of its levels: a refinement
+    moving the simulation by at most SCREEN_BELOW x the noise is not refitted when its
+    linearised refit is no closer to the data, or closer by so little that twice its gain and
+    change would not matter (refinement_matters: a tenth of the excess, one noise)."""
+    sigma, excess = 1e-4, 1e5
 
     def lin(moved, gain, change):
         return {"change_same_parameters": moved * sigma, "gain": gain, "change_rms": change * sigma}
 
-    assert screened(lin(0.51, 2900.0, 0.46), excess, sigma)         # closer, by too little
-    assert screened(lin(2.0, -300.0, 1.5), excess, sigma)           # no closer to the data
-    assert not screened(lin(0.51, 2.5e4, 0.46), excess, sigma)      # twice: over 10 %
-    assert not screened(lin(2.0, 500.0, 0.8), excess, sigma)        # twice its change: > noise
-    assert not screened(lin(3.5, -300.0, 1.5), excess, sigma)       # moves too much to screen
+    small = 0.9 * SCREEN_BELOW
+    assert screened(lin(small, 0.04 * excess, 0.4), excess, sigma)     # closer, by too little
+    assert screened(lin(small, -300.0, 1.5), excess, sigma)           # no closer to the data
+    assert screened(lin(small, 4.0, 2.0), excess, sigma)              # twice the gain < 10
+    assert not screened(lin(small, 0.06 * excess, 0.4), excess, sigma)  # twice: over a tenth
+    assert not screened(lin(small, 100.0, 0.6), excess, sigma)        # twice its change > noise
+    assert not screened(lin(1.1 * SCREEN_BELOW, -300.0, 1.5), excess, sigma)  # moves too much

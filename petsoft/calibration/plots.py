@@ -105,19 +105,29 @@ def plot_residuals(path: Path, times, data, before, after, names, sigma: float) 
     return {"path": Path(path), "per_marker_mm": per_marker_mm, "noise_mm": noise_mm}
 
 
-def plot_frequencies(path: Path, measured, before, after, std=None) -> Path:
+def plot_frequencies(path: Path, measured, before, after, std=None) -> dict:
     """Measured natural frequencies against the model's before and after a fit: the values,
-    and the relative error of each mode (the quantity the fit drives to the noise)."""
+    and the relative error of each mode (the quantity the fit drives to the noise).
+
+    Returns
+    -------
+    dict
+        What was drawn, read back from the figure: ``path``, ``modes`` (x), ``measured``,
+        ``before``, ``after`` (top panel, Hz) and ``relative`` ({"before", "calibrated"}: the
+        bottom panel's (model - measured) / measured).
+    """
     plt = _pyplot()
     k = np.arange(1, len(measured) + 1)
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
-    top.errorbar(k, measured, yerr=std, fmt="o", color="k", label="measured")
-    top.plot(k, before, "x", color="tab:red", label="model before")
-    top.plot(k, after, "+", ms=10, color="tab:blue", label="model calibrated")
+    bars = top.errorbar(k, measured, yerr=std, fmt="o", color="k", label="measured")
+    (b,) = top.plot(k, before, "x", color="tab:red", label="model before")
+    (a,) = top.plot(k, after, "+", ms=10, color="tab:blue", label="model calibrated")
     top.set_ylabel("frequency (Hz)")
     top.legend(fontsize=8)
+    relative = {}
     for values, color, label in ((before, "tab:red", "before"), (after, "tab:blue", "calibrated")):
-        bottom.plot(k, (np.asarray(values) - measured) / measured, "o-", color=color, label=label)
+        (relative[label],) = bottom.plot(k, (np.asarray(values) - measured) / measured, "o-",
+                                         color=color, label=label)
     if std is not None:
         bottom.fill_between(k, -np.asarray(std) / measured, np.asarray(std) / measured,
                             color="0.85", label="measurement std")
@@ -127,5 +137,9 @@ def plot_frequencies(path: Path, measured, before, after, std=None) -> Path:
     bottom.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+    drawn = {"path": Path(path), "modes": np.asarray(bars.lines[0].get_xdata()),
+             "measured": np.asarray(bars.lines[0].get_ydata()),
+             "before": np.asarray(b.get_ydata()), "after": np.asarray(a.get_ydata()),
+             "relative": {k: np.asarray(v.get_ydata()) for k, v in relative.items()}}
     plt.close(fig)
-    return Path(path)
+    return drawn

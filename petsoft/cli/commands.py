@@ -126,7 +126,8 @@ def run(args) -> int:
             outcome = solve_static(experiment, out, args.method, args.load_steps, False,
                                    command="demo")
             if PETSc.COMM_WORLD.rank == 0:
-                png = plot_deflection(outcome.mesh, outcome.displacement, out / "deflection.png")
+                png = plot_deflection(outcome.mesh, outcome.displacement,
+                                      out / "deflection.png")["path"]
                 _print(f"plot: {png}   (open displacement.xdmf in ParaView for the 3D field)")
         if args.part in ("all", "diagnose"):
             _print("\n== the whole loop: a recording with a hidden effect, diagnosed ==")
@@ -182,8 +183,15 @@ def solve_static(experiment, out: Path, method: str, load_steps: int, spd: bool,
                             command=command, say=_print)
 
 
-def plot_deflection(mesh, u: np.ndarray, path: Path) -> Path:
-    """Side view (x-z) of the reference and deformed body, coloured by displacement."""
+def plot_deflection(mesh, u: np.ndarray, path: Path) -> dict:
+    """Side view (x-z) of the reference and deformed body, coloured by displacement.
+
+    Returns
+    -------
+    dict
+        What was drawn, read back from the figure: ``path``, ``reference`` and ``deformed``
+        ((N, 2) x-z points) and ``colour`` (|u| of each deformed point).
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -191,7 +199,7 @@ def plot_deflection(mesh, u: np.ndarray, path: Path) -> Path:
 
     fig, ax = plt.subplots(figsize=(8, 3.5))
     p, q = mesh.points, mesh.points + u
-    ax.scatter(p[:, 0], p[:, 2], s=2, c="0.8", label="reference")
+    ref = ax.scatter(p[:, 0], p[:, 2], s=2, c="0.8", label="reference")
     sc = ax.scatter(q[:, 0], q[:, 2], s=3, c=np.linalg.norm(u, axis=1), cmap="viridis",
                     label="deformed")
     fig.colorbar(sc, ax=ax, label="|u| (m)")
@@ -202,8 +210,10 @@ def plot_deflection(mesh, u: np.ndarray, path: Path) -> Path:
     ax.set_title("petsoft demo: neo-Hookean cantilever, side view")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
+    drawn = {"path": Path(path), "reference": np.asarray(ref.get_offsets()),
+             "deformed": np.asarray(sc.get_offsets()), "colour": np.asarray(sc.get_array())}
     plt.close(fig)
-    return path
+    return drawn
 
 
 def run_simulation(experiment, out: Path, args) -> None:

@@ -36,7 +36,8 @@ HIDDEN = {"tables": {"damping": {"mass": 4.0}}, "physics": "damping.mass",
 E_TRUE = 2.0e7
 
 
-def _experiment(extra: dict, youngs_modulus: float, integrator: dict, calibrate: bool) -> dict:
+def _experiment(extra: dict, youngs_modulus: float, integrator: dict, calibrate: bool,
+                end: float = 0.3) -> dict:
     data = {
         "mesh": {"box": {"size": [0.3, 0.04, 0.04], "cells": [6, 1, 1]}},
         "material": {"model": "linear", "youngs_modulus": youngs_modulus,
@@ -44,7 +45,7 @@ def _experiment(extra: dict, youngs_modulus: float, integrator: dict, calibrate:
         "gravity": {"acceleration": [0.0, 0.0, -9.81]},
         "initial": {"velocity": ["0", "0", "2*x"]},
         "boundary": [{"kind": "fixed", "where": "x < 1e-9"}],
-        "time": {"end": 0.3, **integrator},
+        "time": {"end": end, **integrator},
         "output": {"directory": "out"},
     }
     data.update(extra)
@@ -53,8 +54,13 @@ def _experiment(extra: dict, youngs_modulus: float, integrator: dict, calibrate:
     return data
 
 
-def run_diagnosis_demo(out: Path, say=print) -> dict:
+def run_diagnosis_demo(out: Path, say=print, *, end: float = 0.3, numerics: bool = True,
+                       max_additions: int = 3) -> dict:
     """Synthesise a recording with a hidden effect and diagnose it (all ranks call).
+
+    ``end`` (s, the record's length), ``numerics`` (diagnose's refinement checks) and
+    ``max_additions`` exist for a quick run (the test suite's); ``petsoft demo`` uses the
+    defaults.
 
     Returns
     -------
@@ -75,9 +81,9 @@ def run_diagnosis_demo(out: Path, say=print) -> dict:
         # error and damping are a large part of the mismatch, the numerics check rightly flags
         # them, and the demo gets slow
         truth = _experiment(HIDDEN["tables"], E_TRUE,
-                            {"step": 0.001, "integrator": "midpoint"}, calibrate=False)
+                            {"step": 0.001, "integrator": "midpoint"}, calibrate=False, end=end)
         user = _experiment({}, 0.9 * E_TRUE, {"step": 0.002, "integrator": "alpha",
-                                              "alpha_radius": 0.9}, calibrate=True)
+                                              "alpha_radius": 0.9}, calibrate=True, end=end)
         (out / "truth.toml").write_text(dumps_toml(truth))
         (out / "user.toml").write_text(dumps_toml(user))
         say(f"demo: the truth has {HIDDEN['physics']} {HIDDEN['tables']}; the user's model "
@@ -88,7 +94,8 @@ def run_diagnosis_demo(out: Path, say=print) -> dict:
                                                             seed=3))
     comm.Barrier()
     res = run_diagnose(load_experiment(out / "user.toml"), out / "recording.h5",
-                       out=out / "diagnosis", say=say)
+                       out=out / "diagnosis", say=say, numerics=numerics,
+                       max_additions=max_additions)
     named = [a["physics"] for a in res.added]
     name, true = HIDDEN["parameter"]
     found = (float(res.final.values[res.final.names.index(name)])

@@ -32,7 +32,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.implicit import NoBranch, SolverReuse, StepReport, branch_of
 from petsoft.dynamics.interfaces import StepperDefaults, length_scale
-from petsoft.errors import InvertedElementError
+from petsoft.errors import InvertedElementError, without_frames
 from petsoft.physics.viscoelastic import MaxwellRule
 from petsoft.solvers.borrowed_chord import ChordBorrower
 from petsoft.solvers.convergence import on_any_rank, outcome, reason_name, stop_at_round_off
@@ -93,7 +93,8 @@ class AlphaTSIntegrator(StepperDefaults):
         try:
             s.internal_gradient(U, self._grad)
         except InvertedElementError as err:
-            self._bad = err
+            # without the frames it holds (petsoft.errors.without_frames)
+            self._bad = without_frames(err)
             F.set(np.inf)
             return
         s.M.mult(A, F)
@@ -301,7 +302,7 @@ class GeneralizedAlpha(ChordBorrower, SolverReuse):
         try:
             self._full_residual(x, F)
         except InvertedElementError as err:
-            self._bad = err
+            self._bad = without_frames(err)
             F.set(np.inf)
             return
         self.system.zero_prescribed(F)

@@ -43,7 +43,7 @@ from petsc4py import PETSc
 from petsoft.dynamics import matrix_free, nonlinear_gs
 from petsoft.dynamics.integrators import SCHEMES, scheme
 from petsoft.dynamics.interfaces import StepperDefaults, length_scale
-from petsoft.errors import InvertedElementError
+from petsoft.errors import InvertedElementError, without_frames
 from petsoft.solvers.borrowed_chord import ChordBorrower
 from petsoft.solvers.convergence import on_any_rank, outcome, stop_at_round_off
 from petsoft.solvers.linear import reuse_across_iterations
@@ -377,7 +377,8 @@ class ImplicitIntegrator(ChordBorrower, SolverReuse, StepperDefaults):
         try:
             terms = self._terms(q1, R)
         except InvertedElementError as err:
-            self._bad = err
+            # without the frames it holds (petsoft.errors.without_frames)
+            self._bad = without_frames(err)
             R.set(np.inf)
             return False
         terms["damping"].destroy()

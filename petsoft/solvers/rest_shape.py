@@ -29,7 +29,6 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from mpi4py import MPI
 from petsc4py import PETSc
 
 from petsoft.errors import MeshError, PetsoftError, SolverError
@@ -125,7 +124,7 @@ class RestShapeSolver:
         self.J.setOption(PETSc.Mat.Option.SYMMETRIC, False)
         self.F = dm.create_global_vec()
         self.scale = 1.0
-        self._failure = None
+        self._failure = None          # (is a MeshError, message) of a failed evaluation
         self._norms: list[float] = []
         comm = dm.comm
         self.snes = snes = PETSc.SNES().create(comm=comm)
@@ -141,9 +140,11 @@ class RestShapeSolver:
             ksp.setType(PETSc.KSP.Type.PREONLY)   # the Jacobian is not symmetric: a direct solve
             pc.setType(PETSc.PC.Type.LU)
         else:
-            # In parallel, GMRES with block-Jacobi ILU: after a diverged trial (an inverted
-            # element, an infinite residual) both parallel direct solvers hung on 2 ranks here
-            # (PETSc 3.18: MUMPS in its destroy, SuperLU_dist in the next factorisation).
+            # In parallel, GMRES with block-Jacobi ILU. Both parallel direct solvers once hung
+            # on 2 ranks after a diverged trial; the cause was a reference to the SNES held on
+            # the failing rank only (see _collective), and with it fixed MUMPS and
+            # SuperLU_dist run that failure test on 2 ranks too (-rest_shape_pc_type lu
+            # -rest_shape_pc_factor_mat_solver_type mumps).
             ksp.setType(PETSc.KSP.Type.GMRES)
             ksp.setGMRESRestart(200)
             ksp.setTolerances(rtol=1e-12, atol=0.0, max_it=2000)
@@ -200,14 +201,23 @@ class RestShapeSolver:
             yield grp, R, J
 
     def _collective(self, fn) -> bool:
-        """Run ``fn`` on every rank; False on all ranks when some rank hit a PetsoftError."""
-        ok = True
+        """Run ``fn`` on every rank; False on all ranks when some rank hit a PetsoftError, whose
+        kind and message (the lowest failing rank's) every rank then keeps in ``_failure``.
+
+        Only (is a MeshError, message) is kept, not the exception: its traceback's frames
+        (the SNES callback's, holding the SNES and its vectors) existed on the failing rank
+        only, so that destroying the solver there only dropped a reference while the other
+        rank destroyed the SNES for real; with a parallel direct solver (MUMPS, whose
+        destruction is collective) 2 ranks hung in ``destroy`` (tests/test_rest_shape.py)."""
+        failure = None
         try:
             fn()
         except PetsoftError as err:
-            self._failure = err
-            ok = False
-        return bool(self.dmesh.comm.tompi4py().allreduce(ok, op=MPI.LAND))
+            failure = (isinstance(err, MeshError), str(err))
+        failures = [f for f in self.dmesh.comm.tompi4py().allgather(failure) if f is not None]
+        if failures:
+            self._failure = failures[0]
+        return not failures
 
     def residual_local(self, X_local: np.ndarray) -> np.ndarray:
         """(nv, 3) local residual contributions (before summation over ranks)."""
@@ -239,7 +249,7 @@ class RestShapeSolver:
                 self.assembler.add(grp.name, np.ascontiguousarray(Je), 0)
 
         if not self._collective(work):
-            raise RestShapeError(f"rest shape: the Jacobian failed ({self._failure})")
+            raise RestShapeError(f"rest shape: the Jacobian failed ({self._failure[1]})")
         self.assembler.finish(P)
         self.model.dirichlet.eliminate(P)
 
@@ -320,11 +330,11 @@ class RestShapeSolver:
         return abs(self.scale) * self._gravity_norm
 
     def _reason_text(self, reason) -> str:
-        if isinstance(self._failure, MeshError):
+        if self._failure is not None and self._failure[0]:
             # shape_gradients' wording is about input meshes; here it is a Newton trial
             return "a trial rest shape had an inverted or degenerate element (volume <= 0)"
         if self._failure is not None:
-            return f"{self._failure}"
+            return self._failure[1]
         return f"SNES {reason_name(self.snes)}" if reason != -1 else "Jacobian failed"
 
     def _failure_message(self, result: RestShapeResult, reason) -> str:

@@ -17,7 +17,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.errors import InvertedElementError, SolverError
+from petsoft.errors import InvertedElementError, SolverError, without_frames
 from petsoft.fem.assembly import MatrixAssembler
 from petsoft.solvers.convergence import check_converged, reason_name
 from petsoft.solvers.linear import linear_defaults
@@ -129,7 +129,7 @@ class StaticSolver:
             self.model.elastic.add_gradient(u, self._g_local,
                                             self.assembler if assemble else None)
         except InvertedElementError as err:
-            self._bad_element = err
+            self._bad_element = without_frames(err)
             ok = False
         ok = bool(self.dmesh.comm.tompi4py().allreduce(ok, op=MPI.LAND))
         out.zeroEntries()
@@ -229,7 +229,9 @@ class StaticSolver:
                 lin = self._lift(x, scale * target_full)
                 its, lits, reason = self._solve_increment(x)
             except InvertedElementError as err:
-                its, lits, reason, self._bad_element = 0, 0, "inverted element", err
+                # kept without the frames it holds (petsoft.errors.without_frames)
+                its, lits, reason = 0, 0, "inverted element"
+                self._bad_element = without_frames(err)
                 lin = 0
             if isinstance(reason, str):
                 retries += 1
