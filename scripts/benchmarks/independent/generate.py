@@ -229,10 +229,10 @@ def velocity_fn(exprs):
 
 def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
                    h_fine: float | None = None, substeps: int = SUBSTEPS,
-                   end: float = END) -> dict:
+                   end: float = END, newton_tol: float = 1e-10) -> dict:
     """Simulate the truth of ``case`` and return marker displacements at the user's frames
     (``h_fine``, ``substeps``, ``end``: the fine mesh size, steps per frame and the span,
-    default the suite's)."""
+    default the suite's; ``newton_tol``: the largest accepted last Newton increment, m)."""
     # imported here: DOLFINx is in the system python only, and --list works without it
     import ufl
     from dolfinx import fem, geometry
@@ -402,7 +402,7 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
             size = dx_.norm(PETSc.NormType.INFINITY)
             # m; the noise is 1e-4 m. Or stalled at the round-off floor below 1e-7 m (the
             # graded bracket's 2 mm cells with stiffness damping: ~1e-9 m)
-            if size < 1e-10 or (size < 1e-7 and size > 0.5 * last):
+            if size < newton_tol or (size < 1e-7 and size > 0.5 * last):
                 break
             last = size
         else:
