@@ -30,10 +30,10 @@ numerics check, scoring, candidate fits, final verification and report. The phas
 report.json's ``"timings"`` when it has them (source ``report``); otherwise they are estimated
 from the ``[   12.3 s]`` stamps of the log (source ``log``): the time up to a line is given to
 the work that line reports (a ``score`` line to scoring, a ``try`` line to the fits, a
-``numerics:`` line to the numerics check -- the final check's lines too, so there ``final`` is
-only the writing of the report after them); lines that report no phase (progress beats) are
-given the phase of the next line that does. A case stopped by ``--timeout`` is tabulated with
-what its log got to.
+``numerics:`` line to the numerics check, the final check's findings -- ``numerics:`` and a
+sentence, or a residual change -- and the ``wrote`` line to the final verification and report);
+lines that report no phase (progress beats) are given the phase of the next line that does.
+A case stopped by ``--timeout`` is tabulated with what its log got to.
 
 Targets (issue 40; to be measured by the lead on a quiet machine, 2 ranks): median wall <= 3
 minutes at ~650-1000 tets and 500-1000 steps, none over 10 minutes; the 5,000-tet case <= 15
@@ -60,10 +60,14 @@ PHASES = ("base_fit", "numerics", "scoring", "fits", "final")
 TARGET_MEDIAN, TARGET_MAX, TARGET_LARGE, LARGE_TETS = 180.0, 600.0, 900.0, 3000
 
 _STAMP = re.compile(r"^\[\s*([0-9.]+) s\] ?(.*)$")
+#: the final numerics check's lines: its findings (sentences) and its residual changes; the
+#: checks during the diagnosis say "numerics: step/2 (...): the simulation changes ..." and
+#: "numerics: adopted ..."
+_FINAL_CHECK = re.compile(r"^numerics: ([A-Z]|\S+: residual change)")
 
 
-def case_names() -> list[str]:
-    return sorted(p.name for p in CASES_DIR.iterdir() if (p / "truth.json").exists())
+def case_names(cases_dir: Path = CASES_DIR) -> list[str]:
+    return sorted(p.name for p in cases_dir.iterdir() if (p / "truth.json").exists())
 
 
 def classify(text: str) -> str | None:
@@ -72,6 +76,8 @@ def classify(text: str) -> str | None:
     t = text.strip()
     if t.startswith(("petsoft diagnose:", "base fit")):
         return "base_fit"
+    if _FINAL_CHECK.match(t):
+        return "final"
     if t.startswith("numerics"):
         return "numerics"
     if t.startswith(("round ", "score ", "switch ")):
@@ -124,9 +130,10 @@ def phase_times(d: Path) -> tuple[dict | None, str | None]:
     return (got, "log") if got else (None, None)
 
 
-def make_row(name: str, d: Path, wall: float, status: str) -> dict:
-    row = independent.score_case(name, d, wall, status, cases_dir=CASES_DIR)
-    truth = json.loads((CASES_DIR / name / "truth.json").read_text())
+def make_row(name: str, d: Path, wall: float, status: str, cases_dir: Path = CASES_DIR
+             ) -> dict:
+    row = independent.score_case(name, d, wall, status, cases_dir=cases_dir)
+    truth = json.loads((cases_dir / name / "truth.json").read_text())
     phases, source = phase_times(d)
     row.update({"user_tets": truth.get("coarse_tets"), "phases": phases,
                 "phases_source": source})
@@ -137,13 +144,18 @@ def petsoft_of(python: str) -> dict:
     """Which petsoft ``python`` imports (run outside any checkout) and that checkout's commit."""
     try:
         path = subprocess.run([python, "-c", "import petsoft; print(petsoft.__file__)"],
-                              capture_output=True, text=True, cwd=str(CASES_DIR), timeout=120,
+                              capture_output=True, text=True, cwd=str(HERE), timeout=120,
                               check=True).stdout.strip()
     except (OSError, subprocess.SubprocessError) as exc:
         raise SystemExit(f"--python {python}: cannot import petsoft ({exc})") from exc
-    commit = subprocess.run(["git", "-C", str(Path(path).parent), "rev-parse", "HEAD"],
-                            capture_output=True, text=True).stdout.strip() or None
-    return {"python": python, "petsoft": path, "commit": commit}
+    git = ["git", "-C", str(Path(path).parent)]
+    commit = subprocess.run(git + ["rev-parse", "HEAD"], capture_output=True,
+                            text=True).stdout.strip() or None
+    # changes not committed in petsoft/ make the commit an approximation: say so
+    dirty = bool(subprocess.run(git + ["status", "--porcelain", "--", "."], capture_output=True,
+                                text=True).stdout.strip())
+    return {"python": python, "petsoft": path,
+            "commit": f"{commit} + uncommitted changes" if commit and dirty else commit}
 
 
 def _f(x, fmt: str) -> str:
@@ -189,6 +201,8 @@ def main() -> int:
     ap.add_argument("--cases", default=None, help="comma-separated subset (default: all)")
     ap.add_argument("--dir", default="out/bench_diagnose_realistic",
                     help="where each case's diagnose output and the table go")
+    ap.add_argument("--cases-dir", type=Path, default=CASES_DIR,
+                    help="the case folders (default: realistic/cases; e.g. independent/cases)")
     ap.add_argument("--python", default=sys.executable,
                     help="the python whose petsoft runs (default: this one)")
     ap.add_argument("--np", type=int, default=2, help="MPI ranks (default 2)")
@@ -199,7 +213,8 @@ def main() -> int:
     ap.add_argument("--collect", action="store_true",
                     help="run nothing: tabulate the case folders already in --dir")
     args = ap.parse_args()
-    known = case_names()
+    cases_dir = args.cases_dir.resolve()
+    known = case_names(cases_dir)
     names = args.cases.split(",") if args.cases else known
     bad = [n for n in names if n not in known]
     if bad:
@@ -219,18 +234,18 @@ def main() -> int:
         if args.collect:
             if (d / "row.json").exists():
                 old = json.loads((d / "row.json").read_text())
-                rows.append(make_row(name, d, old["wall_s"], old["status"]))
+                rows.append(make_row(name, d, old["wall_s"], old["status"], cases_dir))
             continue
         d.mkdir(parents=True, exist_ok=True)
         print(f"[{i}/{len(names)}] {name} ...", flush=True)
         cmd = ((["nice", "-n", str(args.nice)] if args.nice else [])
                + (["mpiexec", "-n", str(args.np)] if args.np > 1 else [])
                + [args.python, "-m", "petsoft.cli.main", "diagnose",
-                  str(CASES_DIR / name / "user.toml"), str(CASES_DIR / name / "recording.h5"),
+                  str(cases_dir / name / "user.toml"), str(cases_dir / name / "recording.h5"),
                   "--out", str(d)])
-        wall, status = independent.run_logged(cmd, d / "diagnose.log", CASES_DIR / name,
+        wall, status = independent.run_logged(cmd, d / "diagnose.log", cases_dir / name,
                                               args.timeout)
-        row = make_row(name, d, wall, status)
+        row = make_row(name, d, wall, status, cases_dir)
         (d / "row.json").write_text(json.dumps(row, indent=1) + "\n")
         rows.append(row)
         print(f"    {independent.verdict(row)}; added {row['added']}; {wall:.0f} s", flush=True)

@@ -44,7 +44,6 @@ sys.path.insert(0, str(HERE.parent / "independent"))
 import generate as indep  # noqa: E402  (the independent suite's generator, reused)
 
 CASES_DIR = HERE / "cases"
-MESH_DIR = HERE / "meshes"
 CACHE_DIR = HERE.parents[2] / "out" / "realistic_runs"
 
 END, MARKERS = 1.0, 24
@@ -139,9 +138,12 @@ def convergence(truth: np.ndarray, space: np.ndarray, time_: np.ndarray, r_space
 
 
 def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, end: float,
-               force: bool) -> None:
+               force: bool, check_end: float | None = None, cases_dir: Path = CASES_DIR
+               ) -> None:
     """Simulate the truth of ``group`` once for every case in ``members`` (their markers
-    together), check it by refinement, and write the cases."""
+    together), check it by refinement (over the first ``check_end`` s, default all), and
+    write the cases."""
+    check_end = min(check_end or end, end)
     picks = {}
     for name in members:
         points, tets = meshes[CASES[name]["mesh"]]
@@ -153,9 +155,11 @@ def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, 
                                end=end)}
     if check:
         runs["space"] = run_truth(gmsh, group, allm, "space", h_fine=H_REFINED,
-                                  substeps=SUBSTEPS, end=end)
+                                  substeps=SUBSTEPS, end=check_end)
         runs["time"] = run_truth(gmsh, group, allm, "time", h_fine=H_TRUTH,
-                                 substeps=2 * SUBSTEPS, end=end)
+                                 substeps=2 * SUBSTEPS, end=check_end)
+    # the frames the check covers (the truth's first ones when it is shortened)
+    checked = int(round(check_end / indep.STEP)) + 1
     found = np.logical_and.reduce([r["found"] for r in runs.values()])
     start = 0
     for name in members:
@@ -167,7 +171,9 @@ def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, 
         conv = None
         if check:
             # the time-refined run's frames are the truth's (both sample every 2 ms)
-            conv = convergence(disp["truth"], disp["space"], disp["time"], H_TRUTH / H_REFINED)
+            conv = convergence(disp["truth"][:checked], disp["space"], disp["time"],
+                               H_TRUTH / H_REFINED)
+            conv["span"] = check_end
             conv["space_refined"] = {"h": H_REFINED, "tets": runs["space"]["fine_tets"],
                                      "dofs": runs["space"]["dofs"],
                                      "seconds": runs["space"]["seconds"]}
@@ -196,7 +202,7 @@ def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, 
                  "convergence": conv, "truth_tolerance_over_noise": TOLERANCE}
         case = _case(name)
         truth = indep.write_case(
-            CASES_DIR / name, name, case, cand[keep], disp["truth"], seed,
+            cases_dir / name, name, case, cand[keep], disp["truth"], seed,
             indep.user_experiment(name, case, end=end, mesh_file=mesh_file),
             f"scripts/benchmarks/realistic/generate_realistic.py {name} (DOLFINx P2)", extra)
         say(f"{name}: written; {truth['coarse_tets']} user tets, {truth['fine_tets']} P2 tets "
@@ -212,6 +218,10 @@ def main() -> int:
                     help="skip the refinement check of the truth")
     ap.add_argument("--force", action="store_true",
                     help="write a case even if its truth error bound is above the tolerance")
+    ap.add_argument("--check-end", type=float, default=None,
+                    help="check the truth over its first CHECK_END s only (default: all)")
+    ap.add_argument("--out", type=Path, default=HERE,
+                    help="write cases/ and meshes/ here (default: beside this script)")
     ap.add_argument("--end", type=float, default=END,
                     help=f"span (s; default {END}); shorter only to estimate the cost")
     args = ap.parse_args()
@@ -231,7 +241,8 @@ def main() -> int:
     meshes = {}
     for m in sorted({CASES[n]["mesh"] for n in names}):
         spec = MESHES[m]
-        meshes[m] = indep.coarse_mesh(gmsh, spec["shape"], spec["h"], MESH_DIR / f"{m}.msh")
+        meshes[m] = indep.coarse_mesh(gmsh, spec["shape"], spec["h"],
+                                      args.out / "meshes" / f"{m}.msh")
         say(f"{m}: user mesh {len(meshes[m][1])} tets -> meshes/{m}.msh")
     groups: dict[str, list[str]] = {}
     for n in names:
@@ -239,7 +250,8 @@ def main() -> int:
     for group, members in groups.items():
         t0 = time.perf_counter()
         say(f"truth of {group} for {', '.join(members)}")
-        make_group(gmsh, group, members, meshes, args.check, args.end, args.force)
+        make_group(gmsh, group, members, meshes, args.check, args.end, args.force,
+                   args.check_end, args.out / "cases")
         say(f"{group}: {time.perf_counter() - t0:.0f} s")
     gmsh.finalize()
     return 0
