@@ -91,3 +91,17 @@ def test_phases_from_log(tmp_path):
     assert got == pytest.approx({"base_fit": 11.0, "numerics": 20.0 + 10.1, "scoring": 9.0 + 12.0,
                                  "fits": 33.0, "final": 3.9 + 1.0, "total": 100.0})
     assert sum(got[k] for k in ("base_fit", "numerics", "scoring", "fits", "final")) == 100.0
+
+
+def test_phase_times_prefer_the_reports_timings(tmp_path):
+    """report.json's ``timings`` are taken as they are; without them, the log's estimate."""
+    bench = _bench()
+    (tmp_path / "diagnose.log").write_text("[    2.0 s] petsoft diagnose: 501 frames\n"
+                                           "[    5.0 s] wrote out/\n")
+    (tmp_path / "report.json").write_text(json.dumps({"verdict": "consistent"}))
+    got, source = bench.phase_times(tmp_path)
+    assert source == "log" and got["base_fit"] == 2.0 and got["final"] == 3.0
+    timings = {"base_fit": 1.5, "numerics": 2.5, "scoring": 3.5, "fits": 4.5, "final": 5.5,
+               "total": 17.5}
+    (tmp_path / "report.json").write_text(json.dumps({"timings": timings}))
+    assert bench.phase_times(tmp_path) == (timings, "report")

@@ -179,16 +179,21 @@ def table_md(rows: list[dict], meta: dict) -> str:
             f"| {r['wall_s']:.0f} | "
             + " | ".join(_f(ph.get(k), ".0f") for k in PHASES)
             + f" | {r.get('phases_source') or '-'} |")
-    small = [r["wall_s"] for r in rows if (r.get("user_tets") or 0) < LARGE_TETS]
+    # a run that did not finish has no wall time to compare: counted apart
+    small = [r for r in rows if (r.get("user_tets") or 0) < LARGE_TETS]
+    done = [r["wall_s"] for r in small if r["status"] == "ok"]
     large = [r for r in rows if (r.get("user_tets") or 0) >= LARGE_TETS]
     lines.append("")
-    if small:
+    if done:
         lines.append(f"- user meshes < {LARGE_TETS} tets: median wall "
-                     f"{statistics.median(small):.0f} s (target <= {TARGET_MEDIAN:.0f}), max "
-                     f"{max(small):.0f} s (target <= {TARGET_MAX:.0f})")
+                     f"{statistics.median(done):.0f} s (target <= {TARGET_MEDIAN:.0f}), max "
+                     f"{max(done):.0f} s (target <= {TARGET_MAX:.0f}) of {len(done)} finished")
+    for r in small:
+        if r["status"] != "ok":
+            lines.append(f"- {r['case']}: {r['status']} after {r['wall_s']:.0f} s")
     for r in large:
-        lines.append(f"- {r['case']} ({r['user_tets']} tets): wall {r['wall_s']:.0f} s "
-                     f"(target <= {TARGET_LARGE:.0f})")
+        lines.append(f"- {r['case']} ({r['user_tets']} tets): {r['status']}, wall "
+                     f"{r['wall_s']:.0f} s (target <= {TARGET_LARGE:.0f})")
     named = [r for r in rows if r["found"] is not None]
     if named:
         lines.append(f"- concealed terms named with nothing else: "
