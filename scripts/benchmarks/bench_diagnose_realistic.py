@@ -23,7 +23,8 @@ with its log in ``<dir>/<case>/diagnose.log``. Run (one case after another)::
 The command runs in the case's folder, not the repository's, so ``-m petsoft.cli.main`` imports
 the petsoft installed for ``--python`` (its checkout's), not a ``petsoft/`` beside the working
 directory. The table (printed, and written to ``<dir>/table.md`` and ``<dir>/table.json`` with
-the python, petsoft's path and its commit) has per case: the user's mesh size, the concealed
+the python, petsoft's path and its commit) has per case: the user's mesh size, the recording's
+own error (the truth's discretisation error bound from truth.json, rms x noise), the concealed
 term(s) and the ones diagnose named (added), the verdict (first -> final), held-out rms / noise
 before -> after, the calibrated E's error, the wall time, and the time in each phase -- base fit,
 numerics check, scoring, candidate fits, final verification and report. The phases are read from
@@ -135,8 +136,11 @@ def make_row(name: str, d: Path, wall: float, status: str, cases_dir: Path = CAS
     row = independent.score_case(name, d, wall, status, cases_dir=cases_dir)
     truth = json.loads((cases_dir / name / "truth.json").read_text())
     phases, source = phase_times(d)
+    conv = truth.get("convergence") or {}
     row.update({"user_tets": truth.get("coarse_tets"), "phases": phases,
-                "phases_source": source})
+                "phases_source": source,
+                # the recording's own error (rms x noise; None: not measured)
+                "truth_error": conv.get("bound_rms_over_noise")})
     return row
 
 
@@ -165,14 +169,16 @@ def _f(x, fmt: str) -> str:
 def table_md(rows: list[dict], meta: dict) -> str:
     lines = [f"petsoft {meta.get('petsoft')} (commit {meta.get('commit')}), {meta.get('np')} "
              "ranks", "",
-             "| case | user tets | concealed | named (added) | verdict | held-out rms / noise "
-             "| E err | wall s | base fit | numerics | scoring | fits | final | phases from |",
-             "|" + "---|" * 14]
+             "| case | user tets | truth err / noise | concealed | named (added) | verdict "
+             "| held-out rms / noise | E err | wall s | base fit | numerics | scoring | fits "
+             "| final | phases from |",
+             "|" + "---|" * 15]
     for r in rows:
         ph = r.get("phases") or {}
         extra = f" (extra {'+'.join(r['extra'])})" if r.get("extra") else ""
         lines.append(
-            f"| {r['case']} | {_f(r.get('user_tets'), 'd')} | {r['concealed']} "
+            f"| {r['case']} | {_f(r.get('user_tets'), 'd')} | {_f(r.get('truth_error'), '.2f')}"
+            f" | {r['concealed']} "
             f"| {r['added'] or '-'}{extra} | {independent.verdict(r)} "
             f"| {_f(r['heldout_base_over_noise'], '.2f')} -> "
             f"{_f(r['heldout_over_noise'], '.2f')} | {_f(r['E_rel_err'], '+.1%')} "

@@ -116,18 +116,26 @@ def difference(a: np.ndarray, b: np.ndarray) -> dict:
             "max_over_noise": float(np.abs(d).max())}
 
 
-def convergence(truth: np.ndarray, space: np.ndarray, time_: np.ndarray, r_space: float
-                ) -> dict:
+def convergence(truth: np.ndarray, space: np.ndarray, time_: np.ndarray, r_space: float,
+                finer: bool = True) -> dict:
     """The truth's error at the markers from one refinement in space and one in time (module
-    docstring): the differences and the Richardson estimates, in units of the noise."""
-    c_space = 1.0 / (1.0 - r_space ** -3)      # P2 displacements: third order
-    c_time = 1.0 / (1.0 - 2.0 ** -2)           # generalized-alpha: second order, step halved
-    e_space = c_space * (truth - space)
-    e_time = c_time * (truth - time_)
+    docstring): the differences and the Richardson estimates, in units of the noise.
+    ``space``/``time_``: the runs one level finer (``finer``) or one level coarser (the truth
+    is then the finer run of each pair) in space / in time."""
+    rs, rt = r_space ** 3, 2.0 ** 2         # P2 displacements: third order; the step halved,
+    #                                         generalized-alpha: second order
+    if finer:       # D = e_truth - e_truth / r^p
+        e_space = (truth - space) / (1.0 - 1.0 / rs)
+        e_time = (truth - time_) / (1.0 - 1.0 / rt)
+    else:           # D = e_truth r^p - e_truth
+        e_space = (space - truth) / (rs - 1.0)
+        e_time = (time_ - truth) / (rt - 1.0)
     zero = np.zeros_like(truth)
+    side = "refined" if finer else "coarser"
     out = {
-        "space_refined_difference": difference(space, truth),
-        "time_refined_difference": difference(time_, truth),
+        "checked_from": side,
+        f"space_{side}_difference": difference(space, truth),
+        f"time_{side}_difference": difference(time_, truth),
         "space_error_estimate": difference(e_space, zero),
         "time_error_estimate": difference(e_time, zero),
         "combined_error_estimate": difference(e_space + e_time, zero),
@@ -138,8 +146,8 @@ def convergence(truth: np.ndarray, space: np.ndarray, time_: np.ndarray, r_space
 
 
 def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, end: float,
-               force: bool, check_end: float | None = None, cases_dir: Path = CASES_DIR
-               ) -> None:
+               force: bool, check_end: float | None = None, cases_dir: Path = CASES_DIR,
+               fine: bool = False) -> None:
     """Simulate the truth of ``group`` once for every case in ``members`` (their markers
     together), check it by refinement (over the first ``check_end`` s, default all), and
     write the cases."""
@@ -151,13 +159,21 @@ def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, 
         picks[name] = (seed, indep.pick_markers(_case(name)["shape"], points, tets, seed,
                                                 MARKERS))
     allm = np.concatenate([m for _, m in picks.values()])
-    runs = {"truth": run_truth(gmsh, group, allm, "truth", h_fine=H_TRUTH, substeps=SUBSTEPS,
-                               end=end)}
+    # the four levels; the cache's labels: truth (h, step), space (h refined), time (step
+    # halved), fine (both). A fine truth is checked by the space and time runs, each coarser
+    # than it in one of the two
+    levels = {"truth": (H_TRUTH, SUBSTEPS), "space": (H_REFINED, SUBSTEPS),
+              "time": (H_TRUTH, 2 * SUBSTEPS), "fine": (H_REFINED, 2 * SUBSTEPS)}
+    label = "fine" if fine else "truth"
+    checks = ({"space": "time", "time": "space"} if fine else {"space": "space", "time": "time"})
+    h, sub = levels[label]
+    runs = {"truth": run_truth(gmsh, group, allm, label, h_fine=h, substeps=sub, end=end)}
     if check:
-        runs["space"] = run_truth(gmsh, group, allm, "space", h_fine=H_REFINED,
-                                  substeps=SUBSTEPS, end=check_end)
-        runs["time"] = run_truth(gmsh, group, allm, "time", h_fine=H_TRUTH,
-                                 substeps=2 * SUBSTEPS, end=check_end)
+        # a fine truth: "space" is the run coarser in time, "time" the one coarser in space
+        for key, lab in checks.items():
+            h, sub = levels[lab]
+            runs[key] = run_truth(gmsh, group, allm, lab, h_fine=h, substeps=sub,
+                                  end=check_end)
     # the frames the check covers (the truth's first ones when it is shortened)
     checked = int(round(check_end / indep.STEP)) + 1
     found = np.logical_and.reduce([r["found"] for r in runs.values()])
@@ -172,14 +188,15 @@ def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, 
         if check:
             # the time-refined run's frames are the truth's (both sample every 2 ms)
             conv = convergence(disp["truth"][:checked], disp["space"], disp["time"],
-                               H_TRUTH / H_REFINED)
+                               H_TRUTH / H_REFINED, finer=not fine)
             conv["span"] = check_end
-            conv["space_refined"] = {"h": H_REFINED, "tets": runs["space"]["fine_tets"],
-                                     "dofs": runs["space"]["dofs"],
-                                     "seconds": runs["space"]["seconds"]}
-            conv["time_refined"] = {"step": runs["time"]["step"],
-                                    "seconds": runs["time"]["seconds"]}
+            for key in ("space", "time"):
+                r = runs[key]
+                conv[f"{key}_run"] = {"h": levels[checks[key]][0], "tets": r["fine_tets"],
+                                      "dofs": r["dofs"], "step": r["step"],
+                                      "seconds": r["seconds"]}
             ok = conv["bound_rms_over_noise"] < TOLERANCE
+            conv["converged"] = bool(ok)
             say(f"{name}: truth error (rms x noise): space {conv['space_error_estimate']}, "
                 f"time {conv['time_error_estimate']}, combined "
                 f"{conv['combined_error_estimate']}, bound {conv['bound_rms_over_noise']:.3f}"
@@ -187,12 +204,16 @@ def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, 
             if not ok and not force:
                 say(f"{name}: not written (truth error bound above {TOLERANCE} x noise)")
                 continue
+            if not ok:
+                say(f"{name}: written with its truth error above {TOLERANCE} x the noise "
+                    "(--force), truth.json says so")
         points, tets = meshes[CASES[name]["mesh"]]
         tr = runs["truth"]
         mesh_file = f"../../meshes/{CASES[name]['mesh']}.msh"
         extra = {"user_mesh": mesh_file, "coarse_tets": int(len(tets)),
                  "coarse_dofs_p1": int(3 * len(np.unique(tets))),
-                 "fine_h": H_TRUTH, "fine_tets": tr["fine_tets"], "fine_dofs": tr["dofs"],
+                 "fine_h": levels[label][0], "fine_tets": tr["fine_tets"],
+                 "fine_dofs": tr["dofs"],
                  "step": tr["step"], "steps": tr["steps"], "end": end,
                  "newton_iterations": tr["newton"], "refactorizations": tr["refactors"],
                  "truth_of": group, "seconds": tr["seconds"],
@@ -218,6 +239,9 @@ def main() -> int:
                     help="skip the refinement check of the truth")
     ap.add_argument("--force", action="store_true",
                     help="write a case even if its truth error bound is above the tolerance")
+    ap.add_argument("--fine", action="store_true",
+                    help="the truth on the refined mesh at the halved step, checked from the "
+                         "coarse side (by the runs refined in one of the two only)")
     ap.add_argument("--check-end", type=float, default=None,
                     help="check the truth over its first CHECK_END s only (default: all)")
     ap.add_argument("--out", type=Path, default=HERE,
@@ -251,7 +275,7 @@ def main() -> int:
         t0 = time.perf_counter()
         say(f"truth of {group} for {', '.join(members)}")
         make_group(gmsh, group, members, meshes, args.check, args.end, args.force,
-                   args.check_end, args.out / "cases")
+                   args.check_end, args.out / "cases", args.fine)
         say(f"{group}: {time.perf_counter() - t0:.0f} s")
     gmsh.finalize()
     return 0
