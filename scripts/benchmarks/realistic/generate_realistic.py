@@ -7,7 +7,7 @@ Run with the system python (DOLFINx 0.5 and gmsh are Debian packages there), one
 
 What made the committed cases (README.md): ``--no-check`` (all), then ``--fine --force
 --cases control``, ``--fine --force --cases damping,damping-5k --check-end 0.5`` and
-``--force --cases payload`` (its fine level was not run: README.md).
+``--force --cases payload`` / ``nonlinear`` (their fine levels were not run: README.md).
 
 The cases are like the independent suite's (``../independent/generate.py``, whose functions this
 module reuses: geometry, the DOLFINx truth, markers, noise, the recording and user.toml writers)
