@@ -182,16 +182,19 @@ def mesh_shape(gmsh, shape: str, h: float, graded: bool = False) -> None:
     gmsh.model.mesh.optimize("")
 
 
-def coarse_mesh(gmsh, shape: str) -> tuple[np.ndarray, np.ndarray]:
-    """Write the user's P1 mesh ``meshes/<shape>.msh``; return its nodes (N, 3) and tets."""
-    mesh_shape(gmsh, shape, SHAPES[shape]["h_coarse"])
-    MESH_DIR.mkdir(parents=True, exist_ok=True)
+def coarse_mesh(gmsh, shape: str, h: float | None = None, path: Path | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Write the user's P1 mesh (default ``meshes/<shape>.msh`` at the shape's coarse size);
+    return its nodes (N, 3) and tets."""
+    mesh_shape(gmsh, shape, h or SHAPES[shape]["h_coarse"])
+    path = Path(path) if path else MESH_DIR / f"{shape}.msh"
+    path.parent.mkdir(parents=True, exist_ok=True)
     gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
     gmsh.option.setNumber("Mesh.SaveAll", 0)
     # atomically: two generate.py processes given cases of one shape write the same file
-    tmp = MESH_DIR / f".{shape}.{os.getpid()}.msh"
+    tmp = path.parent / f".{path.stem}.{os.getpid()}.msh"
     gmsh.write(str(tmp))
-    os.replace(tmp, MESH_DIR / f"{shape}.msh")
+    os.replace(tmp, path)
     tags, coords, _ = gmsh.model.mesh.getNodes()
     order = np.argsort(tags)
     points = coords.reshape(-1, 3)[order]
@@ -225,9 +228,11 @@ def velocity_fn(exprs):
 # the truth: DOLFINx
 
 def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
-                   h_fine: float | None = None, substeps: int = SUBSTEPS) -> dict:
+                   h_fine: float | None = None, substeps: int = SUBSTEPS,
+                   end: float = END, newton_tol: float = 1e-10) -> dict:
     """Simulate the truth of ``case`` and return marker displacements at the user's frames
-    (``h_fine``, ``substeps``: the fine mesh size and steps per frame, default the suite's)."""
+    (``h_fine``, ``substeps``, ``end``: the fine mesh size, steps per frame and the span,
+    default the suite's; ``newton_tol``: the largest accepted last Newton increment, m)."""
     # imported here: DOLFINx is in the system python only, and --list works without it
     import ufl
     from dolfinx import fem, geometry
@@ -366,7 +371,7 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
     ksp = _lu(A)
     b = A.createVecRight()
     dx_ = A.createVecRight()
-    nsteps = int(round(END / h))
+    nsteps = int(round(end / h))
     frames = [np.zeros((len(markers), 3))]
     newton_total, refactors = 0, 0
     t0 = time.perf_counter()
@@ -397,7 +402,7 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
             size = dx_.norm(PETSc.NormType.INFINITY)
             # m; the noise is 1e-4 m. Or stalled at the round-off floor below 1e-7 m (the
             # graded bracket's 2 mm cells with stiffness damping: ~1e-9 m)
-            if size < 1e-10 or (size < 1e-7 and size > 0.5 * last):
+            if size < newton_tol or (size < 1e-7 and size > 0.5 * last):
                 break
             last = size
         else:
@@ -473,20 +478,22 @@ def dumps_toml(data: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def user_experiment(name: str, case: dict) -> dict:
-    """The user's model: the truth without the concealed terms, E started 30 % low."""
+def user_experiment(name: str, case: dict, *, end: float = END,
+                    mesh_file: str | None = None) -> dict:
+    """The user's model: the truth without the concealed terms, E started 30 % low (``end``:
+    the recording's span; ``mesh_file``: default ``../../meshes/<shape>.msh``)."""
     sh = SHAPES[case["shape"]]
     user = case.get("user", {})
     material = {"model": "neohookean", "youngs_modulus": E_START, "poisson_ratio": NU,
                 "density": RHO}
     material.update(user.get("material", {}))
     return {
-        "mesh": {"file": f"../../meshes/{case['shape']}.msh"},
+        "mesh": {"file": mesh_file or f"../../meshes/{case['shape']}.msh"},
         "material": material,
         "gravity": {"acceleration": user.get("gravity", {}).get("acceleration", GRAVITY)},
         "initial": {"velocity": case.get("velocity", sh["velocity"])},
         "boundary": [{"kind": "fixed", "where": sh["clamp"]}],
-        "time": {"end": END, "step": STEP, "integrator": "alpha", "alpha_radius": ALPHA_RADIUS},
+        "time": {"end": end, "step": STEP, "integrator": "alpha", "alpha_radius": ALPHA_RADIUS},
         "output": {"directory": "out"},
         "calibrate": {"material.youngs_modulus": [2.0e6, 2.0e8]},
     }
@@ -508,54 +515,67 @@ def write_recording(path: Path, reference, times, positions, names, noise: float
         f.create_group("noise").attrs["position_std"] = float(noise)
 
 
-def make_case(gmsh, name: str, meshes: dict, say) -> dict:
-    case = CASES[name]
-    shape = case["shape"]
-    points, tets = meshes[shape]
-    seed = 101 + sorted(CASES).index(name)
-    # markers: coarse-mesh surface nodes off the clamp (so they are inside the user's mesh),
-    # chosen like `petsoft synth` does; those the fine mesh does not hold (a curved face's
-    # chord) are replaced
+def pick_markers(shape: str, points: np.ndarray, tets: np.ndarray, seed: int,
+                 count: int) -> np.ndarray:
+    """Candidate markers (3 ``count`` of them, (K, 3)): coarse-mesh surface nodes off the clamp
+    (so they are inside the user's mesh), chosen like `petsoft synth` does; the caller keeps the
+    first ``count`` the fine mesh holds (a curved face's chord can leave a node outside)."""
     cand = surface_nodes(tets)
     cand = cand[~clamp_mask(shape, points[cand].T)]
     rng_pick = np.random.default_rng([seed, 1])
-    pick = np.sort(rng_pick.choice(cand, size=min(3 * MARKERS, len(cand)), replace=False))
-    markers = points[pick]
-    res = simulate_truth(gmsh, name, case, markers, say)
-    keep = np.flatnonzero(res["found"])[:MARKERS]
-    markers = markers[keep]
-    clean = markers[None] + res["displacements"][:, keep]
+    return points[np.sort(rng_pick.choice(cand, size=min(3 * count, len(cand)), replace=False))]
+
+
+def write_case(d: Path, name: str, case: dict, markers: np.ndarray, displacements: np.ndarray,
+               seed: int, user: dict, source: str, truth_extra: dict) -> dict:
+    """Add noise and dropouts to the clean marker ``displacements`` (frames, K, 3) at the user's
+    step as `petsoft synth` does, and write ``recording.h5``, ``user.toml`` (the dict ``user``)
+    and ``truth.json`` (the case's truth plus ``truth_extra``) under ``d``; return the truth."""
+    clean = markers[None] + displacements
     times = np.arange(len(clean)) * STEP
     rng = np.random.default_rng([seed, 2])
     noisy = clean + rng.normal(0.0, NOISE, clean.shape)
     dropped = rng.random(clean.shape[:2]) < DROPOUT
     noisy[dropped] = np.nan
-    d = CASES_DIR / name
     d.mkdir(parents=True, exist_ok=True)
     names = [f"m{i:02d}" for i in range(len(markers))]
-    write_recording(d / "recording.h5", markers, times, noisy, names, NOISE,
-                    f"scripts/benchmarks/independent/generate.py {name} (DOLFINx P2)")
+    write_recording(d / "recording.h5", markers, times, noisy, names, NOISE, source)
     (d / "user.toml").write_text(
         f"# {name}: the user's experiment (generate.py); the recording was made by DOLFINx\n"
-        + dumps_toml(user_experiment(name, case)))
+        + dumps_toml(user))
     truth = {
-        "case": name, "shape": shape, "concealed": case["physics"],
+        "case": name, "shape": case["shape"], "concealed": case["physics"],
         "truth": {"youngs_modulus": E_TRUE, "poisson_ratio": NU, "density": RHO,
                   "material": "neohookean", **case["truth"],
                   "gravity": GRAVITY},
         "simulator": "DOLFINx 0.5, P2 tetrahedra, Chung-Hulbert generalized-alpha "
                      f"(rho_inf {ALPHA_RADIUS}), Newton with MUMPS LU",
-        "fine_tets": res["fine_tets"], "fine_dofs": res["dofs"], "coarse_tets": int(len(tets)),
-        "step": res["step"], "user_step": STEP, "steps": res["steps"],
-        "newton_iterations": res["newton"], "refactorizations": res["refactors"],
+        **truth_extra,
+        "user_step": STEP,
         "noise": {"position_std": NOISE, "dropout": DROPOUT, "dropped_samples":
                   int(dropped.sum())},
         "seed": seed, "markers": len(markers), "frames": len(times),
-        "max_marker_displacement": float(np.abs(clean - markers).max()),
-        "seconds": res["seconds"],
+        "max_marker_displacement": float(np.abs(displacements).max()),
     }
     (d / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
     return truth
+
+
+def make_case(gmsh, name: str, meshes: dict, say) -> dict:
+    case = CASES[name]
+    shape = case["shape"]
+    points, tets = meshes[shape]
+    seed = 101 + sorted(CASES).index(name)
+    markers = pick_markers(shape, points, tets, seed, MARKERS)
+    res = simulate_truth(gmsh, name, case, markers, say)
+    keep = np.flatnonzero(res["found"])[:MARKERS]
+    extra = {"fine_tets": res["fine_tets"], "fine_dofs": res["dofs"],
+             "coarse_tets": int(len(tets)), "step": res["step"], "steps": res["steps"],
+             "newton_iterations": res["newton"], "refactorizations": res["refactors"],
+             "seconds": res["seconds"]}
+    return write_case(CASES_DIR / name, name, case, markers[keep], res["displacements"][:, keep],
+                      seed, user_experiment(name, case),
+                      f"scripts/benchmarks/independent/generate.py {name} (DOLFINx P2)", extra)
 
 
 def convergence(gmsh, name: str, meshes: dict) -> None:

@@ -22,6 +22,7 @@ import argparse
 import json
 import os
 import re
+import signal
 import subprocess
 import sys
 import time
@@ -109,8 +110,10 @@ def _final(row: dict) -> str | None:
     return row.get("final_verdict") or row["verdict"]
 
 
-def score_case(name: str, out: Path, wall: float, status: str) -> dict:
-    truth = json.loads((CASES_DIR / name / "truth.json").read_text())
+def score_case(name: str, out: Path, wall: float, status: str,
+               cases_dir: Path = CASES_DIR) -> dict:
+    """The table's row of case ``name`` diagnosed into ``out`` (its truth from ``cases_dir``)."""
+    truth = json.loads((cases_dir / name / "truth.json").read_text())
     concealed = truth["concealed"]
     row = {"case": name, "shape": truth["shape"], "concealed": "+".join(concealed) or "-",
            "status": status, "wall_s": round(wall, 1), "verdict": None, "added": None,
@@ -195,6 +198,42 @@ def table_md(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def run_logged(cmd: list[str], log_path: Path, cwd: Path, timeout: float | None
+               ) -> tuple[float, str]:
+    """Run ``cmd`` in ``cwd`` with its output to ``log_path`` (the command its first line);
+    return the wall time (s) and a status: ok, timeout, failed (exit n), stopped (signal n)."""
+    env = dict(os.environ, MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1",
+               OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1")
+    t0 = time.perf_counter()
+    status = "ok"
+    with open(log_path, "w") as log:
+        log.write(" ".join(cmd) + "\n")
+        log.flush()
+        # a session of its own: on a timeout the whole group is stopped (killing mpiexec
+        # alone would leave its ranks running)
+        proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
+                                cwd=str(cwd), start_new_session=True)
+        try:
+            code = proc.wait(timeout=timeout)
+            if code < 0:
+                status = f"stopped (signal {-code})"
+            elif code != 0:
+                status = f"failed (exit {code})"
+        except subprocess.TimeoutExpired:
+            status = "timeout"
+            for sig, grace in ((signal.SIGTERM, 15), (signal.SIGKILL, 15)):
+                try:
+                    os.killpg(proc.pid, sig)
+                    proc.wait(timeout=grace)
+                    break
+                except ProcessLookupError:
+                    break
+                except subprocess.TimeoutExpired:
+                    continue
+    return time.perf_counter() - t0, status
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", default=None, help="comma-separated subset (default: all)")
@@ -214,9 +253,6 @@ def main() -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
-    env = dict(os.environ, MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1",
-               OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
-               OMPI_MCA_rmaps_base_oversubscribe="1")
     for i, name in enumerate(names, 1):
         d = out / name
         if args.collect:
@@ -231,21 +267,7 @@ def main() -> int:
         cmd = ["nice"] + petsoft_command(args.np) + [
             "diagnose", str(CASES_DIR / name / "user.toml"),
             str(CASES_DIR / name / "recording.h5"), "--out", str(d.resolve())]
-        t0 = time.perf_counter()
-        status = "ok"
-        with open(d / "diagnose.log", "w") as log:
-            log.write(" ".join(cmd) + "\n")
-            log.flush()
-            try:
-                proc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
-                                      cwd=str(CASES_DIR / name), timeout=args.timeout)
-                if proc.returncode < 0:
-                    status = f"stopped (signal {-proc.returncode})"
-                elif proc.returncode != 0:
-                    status = f"failed (exit {proc.returncode})"
-            except subprocess.TimeoutExpired:
-                status = "timeout"
-        wall = time.perf_counter() - t0
+        wall, status = run_logged(cmd, d / "diagnose.log", CASES_DIR / name, args.timeout)
         row = score_case(name, d, wall, status)
         (d / "row.json").write_text(json.dumps(row, indent=1) + "\n")
         rows.append(row)
