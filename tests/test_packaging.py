@@ -21,7 +21,7 @@ PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
 #: From Debian's packages, deliberately not pip dependencies (pyproject.toml says why).
 FROM_DEBIAN = {"petsc4py", "slepc4py", "mpi4py", "h5py"}
 #: Import name -> distribution name, where they differ.
-DISTRIBUTION = {"tomli": "tomli"}
+DISTRIBUTION = {"tomli": "tomli", "mpl_toolkits": "matplotlib"}   # mplot3d ships with matplotlib
 
 
 def _third_party_imports() -> set[str]:
