@@ -160,6 +160,14 @@ def _seed(full: Path, out: Path, perturb: bool) -> None:
     MPI.COMM_WORLD.Barrier()
 
 
+def _close(a, b) -> bool:
+    """Equal to 1e-14 of the largest magnitude (round-off of a few operations, far below any
+    difference a restart from the wrong state or step makes: the perturbed checkpoint's 1e-5)."""
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and bool(np.max(np.abs(a - b), initial=0.0)
+                                       <= 1e-14 * max(np.max(np.abs(b), initial=0.0), 1e-300))
+
+
 def _steps(lines):
     return [int(m.group(1)) for line in lines if (m := re.match(r"step (\d+)/\d+ ", line))]
 
@@ -189,15 +197,23 @@ def test_restart_resumes_from_the_checkpoint(tmp_path_factory, kind, integrator)
     if rank0:
         assert _steps(lines_cut) == list(range(CUT + 1, STEPS + 1)), lines_cut
         assert any(f"restarted at step {CUT}" in line for line in lines_cut)
-    assert np.array_equal(q_cut, q_full)
-    assert np.array_equal(v_cut, v_full)
+    if integrator == "imex" and MPI.COMM_WORLD.size > 1:
+        # imex on several ranks does not repeat its own last bits from run to run: two
+        # uninterrupted 2-rank runs of the P2 bar ended 7e-18 to 1.7e-17 m apart (of 0.0245 m),
+        # in about 1 run of 9 (CI at 9696c16; not seen on P1); its modal split's eigen-solve is
+        # the likely source (not confirmed). Equal to that spread, not bit for bit.
+        same = _close
+    else:
+        same = np.array_equal
+    assert same(q_cut, q_full)
+    assert same(v_cut, v_full)
     if rank0:
         a = np.loadtxt(full / "energies.csv", delimiter=",", skiprows=1)
         b = np.loadtxt(cut / "energies.csv", delimiter=",", skiprows=1)
-        assert a.shape[0] == STEPS + 1 and np.array_equal(a, b)
+        assert a.shape[0] == STEPS + 1 and same(a, b)
         with h5py.File(full / "probes.h5") as f, h5py.File(cut / "probes.h5") as g:
             assert np.array_equal(f["frames/time"][()], g["frames/time"][()])
-            assert np.array_equal(f["frames/position"][()], g["frames/position"][()])
+            assert same(f["frames/position"][()], g["frames/position"][()])
 
     if kind == "cloth":
         # the sphere stopped the fall: with nothing else outside the free cloth (gravity, its
