@@ -3,7 +3,6 @@ figures, the residual field for ParaView, diagnosed.toml and summary.json."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from petsoft.diagnosis.context import Diagnosis, Fit
@@ -15,27 +14,11 @@ from petsoft.diagnosis.figures import (
     rms_per_marker,
 )
 from petsoft.diagnosis.html import write_report_html
+from petsoft.diagnosis.result import DiagnoseResult
 from petsoft.experiment.writer import write_experiment_update
 from petsoft.io.summary import write_summary
 from petsoft.mesh.topology import boundary_facets
 from petsoft.physics.model import load_mesh
-
-
-@dataclass
-class DiagnoseResult:
-    """What ``petsoft diagnose`` found (identical on every rank)."""
-
-    verdict: str
-    final_verdict: str
-    report: dict
-    base: Fit
-    final: Fit
-    added: list[dict] = field(default_factory=list)
-    rejected: list[dict] = field(default_factory=list)
-    scores: list[dict] = field(default_factory=list)
-    not_modelled: dict = field(default_factory=dict)
-    numerics: dict = field(default_factory=dict)
-    evidence: dict | None = None
 
 
 def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict, added,

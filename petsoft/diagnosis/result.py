@@ -5,19 +5,34 @@ short repr (the fields hold whole simulations and the report)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
-from petsoft.diagnosis.outputs import DiagnoseResult as DiagnoseFields
+from petsoft.diagnosis.context import Fit
 from petsoft.results import FitResult
 
 
-class DiagnoseResult(FitResult, DiagnoseFields):
+@dataclass(repr=False)
+class DiagnoseResult(FitResult):
     """What ``petsoft diagnose`` found (identical on every rank).
 
     ``verdict`` is about the model as given, ``final_verdict`` about the model as diagnosed;
     ``params``/``param_std`` are the final fit's values by name (the calibrated ones and those
     of the added physics); ``added`` the physics added, with values and std.
     """
+
+    verdict: str
+    final_verdict: str
+    report: dict
+    base: Fit
+    final: Fit
+    added: list[dict] = field(default_factory=list)
+    rejected: list[dict] = field(default_factory=list)
+    scores: list[dict] = field(default_factory=list)
+    not_modelled: dict = field(default_factory=dict)
+    numerics: dict = field(default_factory=dict)
+    evidence: dict | None = None
 
     @property
     def names(self) -> list[str]:
