@@ -117,3 +117,20 @@ class FitResult(Result):
     def param_std(self) -> dict[str, float]:
         """The standard deviation of each fitted value, by dotted name (NaN when unknown)."""
         return {n: float(s) for n, s in zip(self.names, self.std, strict=True)}
+
+
+class OptimizerFit(FitResult):
+    """A fit an optimizer made: ``reason`` (its stopping reason, TAO's names), ``iterations``,
+    ``evaluations`` (of :attr:`evaluation`, e.g. "simulations"); successful when it converged."""
+
+    #: what one evaluation of the objective was, for :attr:`message`
+    evaluation = "evaluations"
+
+    @property
+    def success(self) -> bool:
+        return self.reason.startswith("CONVERGED")
+
+    @property
+    def message(self) -> str:
+        return (f"{self.reason} after {self.iterations} iterations ({self.evaluations} "
+                f"{self.evaluation})")

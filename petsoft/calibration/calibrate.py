@@ -27,7 +27,7 @@ from petsoft.experiment.writer import write_experiment_update
 from petsoft.io.progress import IterationPace
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.io.summary import write_summary
-from petsoft.results import FitResult
+from petsoft.results import OptimizerFit
 
 GRADIENTS = ("adjoint", "sensitivity", "fd")
 
@@ -50,7 +50,7 @@ def canonical_method(method: str) -> str:
 
 
 @dataclass(repr=False)
-class CalibrationResult(FitResult):
+class CalibrationResult(OptimizerFit):
     """What a calibration found (identical on every rank).
 
     ``success`` when the optimizer stopped on a convergence test (``reason`` CONVERGED_...);
@@ -81,14 +81,11 @@ class CalibrationResult(FitResult):
     #: deviations (:func:`petsoft.calibration.check_mesh.check_mesh`)
     mesh_check: dict | None = None
 
-    @property
-    def success(self) -> bool:
-        return self.reason.startswith("CONVERGED")
+    evaluation = "simulations"
 
     @property
     def message(self) -> str:
-        return (f"{self.reason} after {self.iterations} iterations ({self.evaluations} "
-                f"simulations): rms {self.rms_before:.4g} -> {self.rms_after:.4g} m")
+        return f"{super().message}: rms {self.rms_before:.4g} -> {self.rms_after:.4g} m"
 
 
 def calibration_parameters(experiment) -> tuple[list[str], np.ndarray, list[tuple[float, float]]]:

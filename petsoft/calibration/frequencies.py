@@ -53,7 +53,7 @@ from petsoft.io.progress import IterationPace
 from petsoft.io.recording import HDF5_SIGNATURE, on_rank0_for_all, read_recording
 from petsoft.mesh.probes import embed
 from petsoft.physics.model import build_model
-from petsoft.results import FitResult
+from petsoft.results import OptimizerFit
 from petsoft.solvers.modes import compute_modes
 
 __all__ = ["FrequencyFit", "FrequencyModel", "PairingWarning", "calibrate_frequencies",
@@ -315,7 +315,7 @@ class FrequencyModel:
 
 
 @dataclass(repr=False)
-class FrequencyFit(FitResult):
+class FrequencyFit(OptimizerFit):
     """The result of :func:`calibrate_frequencies` (physical parameters): ``success`` when the
     optimizer stopped on a convergence test, ``params``/``param_std`` by name."""
 
@@ -344,14 +344,7 @@ class FrequencyFit(FitResult):
     #: the model fits the frequencies to their stated std
     residual_over_std: float | None = None
 
-    @property
-    def success(self) -> bool:
-        return self.reason.startswith("CONVERGED")
-
-    @property
-    def message(self) -> str:
-        return (f"{self.reason} after {self.iterations} iterations ({self.evaluations} "
-                "eigen-solves)")
+    evaluation = "eigen-solves"
 
     def summary(self) -> dict:
         """A JSON-able dict of the fit (summary.json)."""
