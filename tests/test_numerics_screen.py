@@ -160,3 +160,15 @@ def test_a_small_refinement_closer_by_too_little_to_matter_is_not_refitted():
     assert not screened(lin(small, 0.06 * excess, 0.4), excess, sigma)  # twice: over a tenth
     assert not screened(lin(small, 100.0, 0.6), excess, sigma)        # twice its change > noise
     assert not screened(lin(1.1 * SCREEN_BELOW, -300.0, 1.5), excess, sigma)  # moves too much
+
+
+def test_a_run_compared_on_the_identification_window_stops_at_its_cut(checked):
+    """Diagnosis.simulate_identification: the identification frames as a whole run gives them
+    (the same steps), the held-out frames NaN (a use of them cannot pass silently)."""
+    diag, fit, _, _ = checked
+    whole = diag.simulate(fit.experiment)
+    cut = diag.simulate_identification(fit.experiment)
+    assert cut.shape == whole.shape
+    np.testing.assert_array_equal(cut[diag.ident], whole[diag.ident])
+    assert diag.held.any() and np.isnan(cut[diag.held]).all()
+    MPI.COMM_WORLD.Barrier()

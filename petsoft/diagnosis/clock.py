@@ -23,8 +23,10 @@ class PhaseClock:
     to at most the total.
     """
 
-    def __init__(self):
-        self.start = time.perf_counter()
+    def __init__(self, start: float | None = None):
+        # ``start``: a ``time.perf_counter()`` value the run's log counts from (the total then
+        # agrees with the log's stamps)
+        self.start = time.perf_counter() if start is None else float(start)
         self.spent = dict.fromkeys(PHASES, 0.0)
         self._running: list[str] = []
         self._since = self.start

@@ -510,7 +510,16 @@ class Diagnosis:
 
     def simulate(self, experiment, h=None, comm=None, times=None) -> np.ndarray:
         """Marker positions of ``experiment`` at every frame of the record (or ``times``)."""
-        return self._run(experiment, h, comm, self.times if times is None else times)
+        names = list(experiment.calibrate)
+        p = np.array([get_parameter(experiment, n) for n in names])
+        fm = build_forward(experiment, names, self.recording,
+                           self.times if times is None else times,
+                           self.comm if comm is None else petsc_comm(comm), self.integrator,
+                           h=h)
+        try:
+            return fm.simulate(p)
+        finally:
+            fm.destroy()
 
     def simulate_identification(self, experiment, comm=None) -> np.ndarray:
         """Marker positions of ``experiment`` on the identification window only, in an array
@@ -518,21 +527,10 @@ class Diagnosis:
         ``ident``). For the runs only that window is compared on (the numerics check's
         refinements, the frequency matching): the run stops at the cut, 30 % of the record
         earlier by default; a use of a held-out frame gives NaN, not a silent value."""
-        sim = self._run(experiment, None, comm, self.times[self.ident])
+        sim = self.simulate(experiment, comm=comm, times=self.times[self.ident])
         out = np.full((len(self.times),) + sim.shape[1:], np.nan)
         out[self.ident] = sim
         return out
-
-    def _run(self, experiment, h, comm, times) -> np.ndarray:
-        names = list(experiment.calibrate)
-        p = np.array([get_parameter(experiment, n) for n in names])
-        fm = build_forward(experiment, names, self.recording, times,
-                           self.comm if comm is None else petsc_comm(comm), self.integrator,
-                           h=h)
-        try:
-            return fm.simulate(p)
-        finally:
-            fm.destroy()
 
     def score(self, fit: Fit, candidate, comm=None) -> dict:
         """Rank ``candidate`` at ``fit`` (identification window) by its score-test statistic;

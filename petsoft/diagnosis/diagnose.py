@@ -182,7 +182,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                       gradient=gradient, integrator=integrator, noise=noise, comm=comm,
                       say=say)
     diag.t0 = t0
-    clock = PhaseClock()
+    clock = PhaseClock(start=t0)     # its total is the log's clock
     diag.tell(f"petsoft diagnose: {len(diag.times)} frames, identification t <= {diag.cut:.4g} s "
               f"({int(diag.ident.sum())} frames), held out {int(diag.held.sum())}; noise "
               f"{diag.sigma:.3g} m ({diag.sigma_source})")
