@@ -14,8 +14,10 @@ Layout of ``checkpoint-<step>.h5``::
     /state/q, /state/v               (N, 3)  file numbering
     /state/z                         (N, 3)  the viscoelastic branch's internal variable
                                              (only when [viscoelastic] ratio > 0)
-    /integrator/<name>               (N, 3)  integrator state vectors (file numbering), or
-                                     (k,)    small arrays (imex: the slow modal acceleration)
+    /integrator/<name>               (N, 3)  integrator state vectors (file numbering; imex:
+                                             its slow modes), or
+                                     (k,)    small arrays (imex: the slow modal acceleration
+                                             and the modes' eigenvalues)
     /ledger/rows                     (S, 7)  energies so far; attrs dissipated, external_work,
                                              initial
     /probes/time, /probes/displacement       probe history
