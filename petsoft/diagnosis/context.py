@@ -76,6 +76,8 @@ class Fit:
     evaluations: int = 0
     #: why the fit was stopped before it converged (:class:`~petsoft.diagnosis.pace.CannotWin`)
     stopped: str = ""
+    #: how the fit was made when not by a calibration (:mod:`petsoft.diagnosis.chord_refit`)
+    by: str = ""
 
 
 def term_values(fit: Fit, names) -> tuple[dict, dict]:
@@ -300,7 +302,7 @@ class Diagnosis:
         if self.say is not None and self.rank0:
             self.say(f"[{time.perf_counter() - self.t0:7.1f} s] {line}")
 
-    def _group_says(self, comm, line: str) -> None:
+    def group_says(self, comm, line: str) -> None:
         """A progress line of work on a group of ranks (a candidate fit), said by the group's
         first rank and indented as a fit's lines (:meth:`tell` speaks for rank 0 only)."""
         if self.say is not None and petsc_comm(comm).tompi4py().rank == 0:
@@ -457,7 +459,7 @@ class Diagnosis:
             stop = CannotWin(*best, max_it=max_it)
             result = self.calibrate(ext, comm=sub, label=label, known=known, stop=stop)
             if result.stopped:
-                self._group_says(sub, f"{label}: {result.stopped}")
+                self.group_says(sub, f"{label}: {result.stopped}")
             else:
                 best = min(best, (result.chi2 / 2.0, item[1].physics))
             return result
@@ -488,7 +490,7 @@ class Diagnosis:
                    for v in values]
         gc.collect()                    # every rank, same point (see run_diagnose)
         best = int(np.argmin(misfits))
-        self._group_says(comm, f"{label}: {name} by decades {values[0]:.3g} .. "
+        self.group_says(comm, f"{label}: {name} by decades {values[0]:.3g} .. "
                                f"{values[-1]:.3g}: chi2 " + " ".join(f"{m:.4g}" for m in misfits)
                          + f"; the fit starts at {values[best]:.3g}")
         return with_parameters(ext, {name: values[best]}) if best else ext

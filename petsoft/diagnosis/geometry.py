@@ -36,6 +36,7 @@ from scipy.optimize import lsq_linear
 from petsoft.calibration.calibrate import build_forward
 from petsoft.calibration.groups import map_on_groups
 from petsoft.diagnosis.candidates import REGION, cells_in_sphere, sphere_condition
+from petsoft.diagnosis.chord_refit import refit_step
 from petsoft.diagnosis.context import (
     Diagnosis,
     Fit,
@@ -44,7 +45,7 @@ from petsoft.diagnosis.context import (
     petsc_comm,
     term_values,
 )
-from petsoft.diagnosis.numerics import model_sensitivities, refit_step
+from petsoft.diagnosis.numerics import model_sensitivities
 from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
 from petsoft.physics.model import load_mesh
 

@@ -26,6 +26,7 @@ from petsoft.calibration.refinement import (
     refinement,
     why_not,
 )
+from petsoft.diagnosis.chord_refit import chord_refit, refit_step
 from petsoft.diagnosis.context import Diagnosis, Fit, evidence_of, rms
 from petsoft.errors import PetsoftError
 from petsoft.io.progress import doing
@@ -201,15 +202,6 @@ def linearised_refit(diag: Diagnosis, fit: Fit, r, moved: np.ndarray,
             "remaining_estimate": change * remaining}
 
 
-def refit_step(cols: np.ndarray, residual: np.ndarray) -> np.ndarray:
-    """The linearised refit's parameter step: minus the least-squares coefficients of
-    ``residual`` (simulation - data, seen samples) in the span of ``cols`` (samples, parameters),
-    the columns scaled to unit norm first (parameters of very different sizes)."""
-    scale = np.linalg.norm(cols, axis=0)
-    scale[scale == 0.0] = 1.0
-    return -np.linalg.lstsq(cols / scale, residual, rcond=None)[0] / scale
-
-
 def model_sensitivities(diag: Diagnosis, fit: Fit) -> np.ndarray:
     """d(simulated markers)/d(parameters) of ``fit``'s model at its values on the
     identification window (one Jacobian run), kept for the measurements of the same fit."""
@@ -307,8 +299,12 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
         # refit (one Jacobian run, shared with a measurement of the same fit), whatever the
         # misfit: on the independent L-bracket with damping and added mass (chi2/dof 49 on the
         # adopted 10-node model) the halved step, 0.47x the noise, was refitted for 270 s
-        cols = (model_sensitivities(diag, fit) if any(small) and not diag.all_differenced(exp)
-                else None)
+        # They are also the Jacobian of a halved step's refit (:func:`chord_refit`: forward
+        # runs only, where a calibration makes a sensitivity run of twice the steps each
+        # iteration).
+        chord = any(r.kind == "step" for r in tried)
+        cols = (model_sensitivities(diag, fit)
+                if (any(small) or chord) and not diag.all_differenced(exp) else None)
         fits = map_on_groups(lambda item, sub, fit=fit, cols=cols:
                              _refit(diag, fit, item[0], sub, cols, item[1]),
                              [(what, res.value if res.ok else None)
@@ -375,6 +371,7 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
                 "change_same_parameters_over_noise": fixed / diag.sigma,
                 "how": r.describe(exp),
                 "parameters": dict(zip(refit.names, map(float, refit.values), strict=True)),
+                "refit": refit.by or "calibrated",
                 "error_estimate": diag.model_error.get(what, 0.0),
                 "remaining_estimate": change * remaining}
             if later:
@@ -579,6 +576,11 @@ def _refit(diag: Diagnosis, fit: Fit, what: str, comm, cols: np.ndarray | None,
             return None, moved, {**o, "screened": True, "matters": False,
                                  "deferred": fit.rms / diag.sigma}
     label = f"numerics {what}"
+    if cols is not None and refinement(what).kind == "step":
+        refit = chord_refit(diag, fit, experiment, cols, moved, comm=comm, label=label)
+        if refit is not None:
+            return refit, moved, None
+        diag.group_says(comm, f"{label}: the chord refit did not converge; calibrating")
     # the refinement's own frequency shift: the current fit's ratio to the data is the target
     target = diag.frequency_ratio(fit.sim) or 1.0
     start = diag.frequency_matched(experiment, moved, comm=comm, label=label, target=target)

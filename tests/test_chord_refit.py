@@ -1,0 +1,114 @@
+"""A halved step's refit by forward runs on the current model's sensitivities (issue 40, item 3).
+
+:func:`petsoft.diagnosis.chord_refit.chord_refit` replaces the calibration of the step/2
+refinement in the numerics check: Gauss-Newton whose Jacobian is the current model's
+sensitivities, one forward run (no sensitivity run) an iteration. Checked against the real
+calibration of the same refined model: the tapered cantilever (tests/_taper.py) recorded at
+1 ms by its own model, the user's model at 8 ms, where halving the step moves the simulation
+by many times the noise and E with it.
+"""
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+from _taper import CALIBRATE, taper, taper_diagnosis
+from mpi4py import MPI
+
+import petsoft.diagnosis.chord_refit as chord_refit_module
+from petsoft.diagnosis.chord_refit import broyden_update, chord_refit
+from petsoft.diagnosis.context import evidence_of
+from petsoft.diagnosis.numerics import model_sensitivities, refined, resolve_numerics
+
+NOISE = 2e-5
+
+
+@pytest.fixture(scope="module")
+def case(tmp_path_factory):
+    """The taper's fit at 8 ms, its sensitivities and its step/2 run at the fitted E."""
+    d = Path(MPI.COMM_WORLD.bcast(str(tmp_path_factory.mktemp("chord"))))
+    said = []
+    diag, exp = taper_diagnosis(d, taper(2.0e7, step=0.001),
+                                taper(1.8e7, step=0.008, calibrate=CALIBRATE), seed=3,
+                                noise=NOISE, say=said.append)
+    fit = diag.calibrate(exp)
+    half = refined(fit.experiment, "step/2")
+    moved = diag.simulate_identification(half)
+    return diag, fit, half, moved, model_sensitivities(diag, fit), said
+
+
+def test_the_chord_refit_finds_the_calibrations_minimum(case):
+    diag, fit, half, moved, cols, _ = case
+    seen = np.isfinite(diag.data[diag.ident])
+    change = np.sqrt(np.mean((moved[diag.ident][seen] - fit.sim[diag.ident][seen]) ** 2))
+    assert change > 5.0 * diag.sigma          # the case needs a refit: E moves
+    chord = chord_refit(diag, fit, half, cols, moved)
+    full = diag.calibrate(half)
+    assert chord is not None and chord.by.startswith("chord Gauss-Newton")
+    e_chord, e_full, e_fit = chord.values[0], full.values[0], fit.values[0]
+    # E moved by many of its standard deviations, and the chord found the calibration's E to a
+    # small fraction of that move and of E's standard deviation
+    assert abs(e_full - e_fit) > 10.0 * full.std[0]
+    assert abs(e_chord - e_full) < 0.2 * full.std[0]
+    assert abs(e_chord - e_full) < 0.01 * abs(e_full - e_fit)
+    # chi2 at the chord's point: above the minimum by at most 1 (the calibration stops within
+    # about FIT_DTOL x dof of it), far below the excess that decides a refinement
+    dof = diag.dof(1)
+    assert chord.chi2 == pytest.approx(full.chi2, abs=max(1.0, 1e-3 * dof))
+    assert chord.std[0] == pytest.approx(full.std[0], rel=0.2)
+    # the whole record simulated at the refit, like a calibration's fit
+    assert np.isfinite(chord.sim[diag.held]).any() and chord.heldout_rms is not None
+    assert chord.heldout_rms == pytest.approx(full.heldout_rms, rel=0.05)
+
+
+def test_a_chord_that_does_not_converge_in_its_runs_gives_up(case, monkeypatch):
+    """The caller calibrates instead (None) rather than reporting a point that is not a fit:
+    this refit needs more than two runs."""
+    diag, fit, half, moved, cols, _ = case
+    monkeypatch.setattr(chord_refit_module, "MAX_RUNS", 2)
+    assert chord_refit(diag, fit, half, cols, moved) is None
+
+
+def test_the_secant_update_is_what_converges(case, monkeypatch):
+    """Without Broyden's update (the current model's columns kept) the same refit creeps
+    (its steps shrink by about a third a run) and gives up within MAX_RUNS."""
+    diag, fit, half, moved, cols, _ = case
+    monkeypatch.setattr(chord_refit_module, "broyden_update", lambda c, step, change: c)
+    assert chord_refit(diag, fit, half, cols, moved) is None
+
+
+def test_broyden_update_is_the_secant():
+    rng = np.random.default_rng(0)
+    cols = rng.normal(size=(50, 2)) * [1.0, 1e-6]
+    step = np.array([0.3, -2e5])
+    change = rng.normal(size=50)
+    new = broyden_update(cols, step, change)
+    assert np.allclose(new @ step, change, rtol=1e-12, atol=1e-12)
+    # unchanged across the step (in unit-column variables)
+    scale = np.linalg.norm(cols, axis=0)
+    across = np.array([step[1] * scale[1], -step[0] * scale[0]]) / scale
+    assert np.allclose(new @ across, cols @ across, rtol=1e-12, atol=1e-12)
+    one = broyden_update(cols[:, :1], step[:1], change)
+    assert np.allclose(one[:, 0], change / step[0])
+
+
+def test_a_chord_that_leaves_the_bounds_gives_up(case):
+    diag, fit, half, moved, cols, _ = case
+    e = fit.values[0]
+    # the bounds end between the fit's E and the refit's (the step/2 refit lowers or raises E)
+    full_e = chord_refit(diag, fit, half, cols, moved).values[0]
+    lo, hi = (0.5 * e, 0.5 * (e + full_e)) if full_e > e else (0.5 * (e + full_e), 2.0 * e)
+    tight = dataclasses.replace(half, calibrate={"material.youngs_modulus": (lo, hi)})
+    assert chord_refit(diag, fit, tight, cols, moved) is None
+
+
+def test_the_numerics_check_refits_the_halved_step_by_the_chord(case):
+    diag, fit, _, _, _, said = case
+    _, _, rounds = resolve_numerics(diag, fit, evidence_of(diag, fit), max_rounds=1)
+    step = rounds[0]["options"]["step/2"]
+    assert step["refit"].startswith("chord Gauss-Newton")
+    assert step["matters"]
+    if MPI.COMM_WORLD.rank == 0:
+        assert any("numerics step/2: it" in line and "run(s)" in line for line in said), said
+    MPI.COMM_WORLD.Barrier()
