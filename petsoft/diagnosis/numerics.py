@@ -27,7 +27,7 @@ from petsoft.calibration.refinement import (
     why_not,
 )
 from petsoft.diagnosis.chord_refit import chord_refit, refit_step
-from petsoft.diagnosis.context import Diagnosis, Fit, evidence_of, rms
+from petsoft.diagnosis.context import Diagnosis, Fit, evidence_of, petsc_comm, rms
 from petsoft.errors import PetsoftError
 from petsoft.io.progress import doing
 
@@ -202,16 +202,21 @@ def linearised_refit(diag: Diagnosis, fit: Fit, r, moved: np.ndarray,
             "remaining_estimate": change * remaining}
 
 
-def model_sensitivities(diag: Diagnosis, fit: Fit) -> np.ndarray:
+def _sensitivities_key(fit: Fit) -> tuple:
+    exp = fit.experiment
+    return ("sensitivities", _mesh_key(exp), exp.time.step, tuple(map(float, fit.values)))
+
+
+def model_sensitivities(diag: Diagnosis, fit: Fit, comm=None) -> np.ndarray:
     """d(simulated markers)/d(parameters) of ``fit``'s model at its values on the
-    identification window (one Jacobian run), kept for the measurements of the same fit."""
+    identification window (one Jacobian run, on ``comm``: default the diagnosis'), kept for the
+    measurements of the same fit."""
     from petsoft.calibration.calibrate import build_forward
 
-    exp = fit.experiment
-    key = ("sensitivities", _mesh_key(exp), exp.time.step, tuple(map(float, fit.values)))
+    key = _sensitivities_key(fit)
     if key not in diag.measured_meshes:
-        fm = build_forward(exp, fit.names, diag.recording, diag.times[diag.ident], diag.comm,
-                           diag.integrator)
+        fm = build_forward(fit.experiment, fit.names, diag.recording, diag.times[diag.ident],
+                           diag.comm if comm is None else petsc_comm(comm), diag.integrator)
         try:
             with doing("numerics: the current model's sensitivities"):
                 diag.measured_meshes[key] = fm.jacobian(np.asarray(fit.values, dtype=float))[1]
@@ -290,21 +295,30 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
         options = [r.label for r in tried]
         # every refinement simulated at the current parameters first: what the user sees
         # first, and what decides whether a refit is needed at all
-        runs = map_on_groups(lambda what, sub, fit=fit: _simulate_refined(diag, fit, what, sub),
-                             options, diag.comm)
+        # The current model's sensitivities screen the small refinements by a linearised
+        # refit (one Jacobian run, shared with a measurement of the same fit), whatever the
+        # misfit: on the independent L-bracket with damping and added mass (chi2/dof 49 on the
+        # adopted 10-node model) the halved step, 0.47x the noise, was refitted for 270 s.
+        # They are also the first Jacobian of a halved step's refit (:func:`chord_refit`:
+        # forward runs only, where a calibration makes a sensitivity run of twice the steps
+        # each iteration), so where a step is halved they are needed whatever the runs show,
+        # and are computed beside them, on a group of ranks of their own.
+        exact = not diag.all_differenced(exp)
+        beside = (exact and any(r.kind == "step" for r in tried)
+                  and _sensitivities_key(fit) not in diag.measured_meshes)
+        runs = map_on_groups(
+            lambda what, sub, fit=fit: (model_sensitivities(diag, fit, sub) if what is None
+                                        else _simulate_refined(diag, fit, what, sub)),
+            options + ([None] if beside else []), diag.comm)
+        if beside:
+            done = runs.pop()
+            if done.ok:      # (every rank keeps them; a failure is met again below)
+                diag.measured_meshes[_sensitivities_key(fit)] = done.value
         seen = np.isfinite(diag.data[diag.ident])
         small = [res.ok and _change(diag, fit, res.value, seen) <= SCREEN_BELOW * diag.sigma
                  for res in runs]
-        # the current model's sensitivities, to screen the small refinements by a linearised
-        # refit (one Jacobian run, shared with a measurement of the same fit), whatever the
-        # misfit: on the independent L-bracket with damping and added mass (chi2/dof 49 on the
-        # adopted 10-node model) the halved step, 0.47x the noise, was refitted for 270 s
-        # They are also the Jacobian of a halved step's refit (:func:`chord_refit`: forward
-        # runs only, where a calibration makes a sensitivity run of twice the steps each
-        # iteration).
-        chord = any(r.kind == "step" for r in tried)
         cols = (model_sensitivities(diag, fit)
-                if (any(small) or chord) and not diag.all_differenced(exp) else None)
+                if exact and (any(small) or any(r.kind == "step" for r in tried)) else None)
         fits = map_on_groups(lambda item, sub, fit=fit, cols=cols:
                              _refit(diag, fit, item[0], sub, cols, item[1]),
                              [(what, res.value if res.ok else None)
