@@ -208,7 +208,10 @@ def test_a_draw_is_scored_and_its_figures_show_those_numbers(tmp_path):
                                [[b["centre"], b["rate"]] for b in mass])
     np.testing.assert_allclose(drawn["damping.mass"]["bars"], [b["ci"] for b in mass])
     assert drawn["damping.mass"]["bars"][0] == pytest.approx(m.wilson(0, 1))
-    assert set(drawn) == {"damping.mass", "gravity", "offvocab.hysteretic"}
+    assert set(drawn) == {"damping.mass", "gravity", "offvocab.hysteretic (noticed)"}
+    noticed = s["power"]["offvocab.hysteretic (noticed)"]
+    assert [(b["n"], b["k"]) for b in noticed] == [(1, 1)]          # its verdict: missing
+    assert "offvocab.hysteretic" not in s["per_term"]
     shown = rates.confusion_figure(tmp_path / "confusion.png", s["confusion"])
     rows, cols = rates.confusion_columns(s["confusion"])
     assert rows[0] == "none" and cols[0] == "none" and cols[-2:] == ["ambiguous", "no report"]

@@ -14,7 +14,9 @@ time and status; ``--reports`` defaults to ``<cases>``) and prints one table::
 - the confusion matrix concealed term x named term (with ``none``, ``ambiguous``, ``no
   report``), as a table and a heat map (``confusion.png``);
 - the power curve of each term: the rate it is named against its effect size in units of the
-  noise, in half-decade bins with intervals (``power.png``, log x axis);
+  noise, in half-decade bins with intervals (``power.png``, log x axis); for an off-vocabulary
+  effect the rate its mismatch is noticed (the verdict on the model as given is
+  missing-physics);
 - the off-vocabulary cases: what was named, whether the report said the fit stays short of the
   noise, held-out rms / noise before and after;
 - held-out rms / noise before and after, calibrated E error, wall time (median, max).
@@ -100,9 +102,8 @@ def summarize(records: list[dict], alpha: float = 0.01, big: float = 5.0) -> dic
                                                 len(strong))
     per_term = {}
     terms = sorted({t for r in records for t in r["truth"]["concealed"]})
-    for t in terms:
-        singles = [r for r in by_kind["single"] + by_kind["offvocab"]
-                   if r["truth"]["concealed"] == [t]]
+    for t in (t for t in terms if not m.is_offvocab(t)):
+        singles = [r for r in by_kind["single"] if r["truth"]["concealed"] == [t]]
         having = [r for r in records if t in r["truth"]["concealed"]]
         per_term[t] = {"exact_single": _rate(sum(r["class"]["exact"] for r in singles),
                                              len(singles)),
@@ -118,9 +119,18 @@ def summarize(records: list[dict], alpha: float = 0.01, big: float = 5.0) -> dic
     conf = m.confusion((r["truth"]["concealed"], r["report"]) for r in records)
     power = {}
     for t in terms:
-        pts = [(r["sizes"][t], t in r["class"]["named"]) for r in records if t in r["sizes"]]
+        if m.is_offvocab(t):
+            # no term can name it: its "detection" is the mismatch noticed (the verdict on
+            # the model as given is missing-physics)
+            pts = [(r["sizes"][t], r["report"] is not None
+                    and r["report"]["verdict"] == "missing-physics")
+                   for r in records if t in r["sizes"]]
+            key = f"{t} (noticed)"
+        else:
+            pts = [(r["sizes"][t], t in r["class"]["named"]) for r in records if t in r["sizes"]]
+            key = t
         if pts:
-            power[t] = pts
+            power[key] = pts
     curves = {}
     if power:
         edges = m.log_bins([s for pts in power.values() for s, _ in pts])
