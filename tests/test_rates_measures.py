@@ -242,3 +242,26 @@ def test_the_command_line_writes_the_table_and_refuses_a_malformed_report(tmp_pa
     (draw / "c0" / "report.json").write_text(json.dumps(bad))
     with pytest.raises(Exception, match="c0/report.json"):
         rates.main([str(draw), "--figures", str(out)])
+
+
+def test_draw_and_run_refuses_what_the_protocol_forbids(tmp_path):
+    """draw_and_run.sh stops before generating anything: a training draw given the current
+    commit's test seed, a folder already used, a count that is not one."""
+    import subprocess
+
+    script = m.__file__.replace("measures.py", "draw_and_run.sh")
+    seed = m.seed_from_commit(rates.resolve_commit("HEAD"))
+
+    def run(*args):
+        return subprocess.run(["bash", script, *map(str, args)], capture_output=True,
+                              text=True, timeout=120)
+
+    used = tmp_path / "used"
+    used.mkdir()
+    for args, said in [(("training", 4, seed, tmp_path / "new"), "this commit's test seed"),
+                       (("test", 4, used), "exists"),
+                       (("training", 4, seed + 1, used), "exists"),
+                       (("test", "x", tmp_path / "new"), "positive integer")]:
+        out = run(*args)
+        assert out.returncode == 2 and said in out.stderr, (args, out.stderr)
+    assert not (tmp_path / "new").exists()
