@@ -164,6 +164,30 @@ def summarize(records: list[dict], alpha: float = 0.01, big: float = 5.0) -> dic
                               "max": max(e_err) if e_err else None, "n": len(e_err)}}
 
 
+def targets(s: dict) -> list[tuple[str, str, bool | None]]:
+    """Issue 37's targets on a summary: (target, what the draw gave, met; None when the draw
+    has no case to judge it by)."""
+    fa, ex = s["false_add"], s["exact"]["single, >= 5x noise"]
+    off = [o for o in s["offvocab"] if o["violates"] is not None]
+    bad = [o["case"] for o in off if o["violates"]]
+    w = s["wall_s"]
+    c = s["counts"]
+    return [
+        ("N >= 40, >= 10 controls, >= 6 off-vocabulary",
+         f"N {s['n']}, {c['control']} controls, {c['offvocab']} off-vocabulary",
+         s["n"] >= 40 and c["control"] >= 10 and c["offvocab"] >= 6),
+        ("false adds on controls <= 10 %", _r(fa), fa["rate"] <= 0.10 if fa["n"] else None),
+        ("exact name >= 90 % for single effects >= 5x noise", _r(ex),
+         ex["rate"] >= 0.90 if ex["n"] else None),
+        ("no off-vocabulary case called consistent above 1.5x noise held-out",
+         f"{len(bad)} of {len(off)}" + (f" ({', '.join(bad)})" if bad else ""),
+         not bad if off else None),
+        ("median case <= 3 min, worst <= 10 min",
+         f"median {_f(w['median'], '.0f')} s, max {_f(w['max'], '.0f')} s",
+         w["median"] <= 180 and w["max"] <= 600 if w["n"] else None),
+    ]
+
+
 def _f(x, fmt=".2f") -> str:
     return "-" if x is None else format(x, fmt)
 
@@ -203,6 +227,9 @@ def table(s: dict, label: str = "") -> str:
     fa = s["false_add"]
     L.append(f"| false add on controls (alpha {fa['alpha']:g}"
              f"{', inside' if fa['alpha_inside_ci'] else ', OUTSIDE'} the interval) | {_r(fa)} |")
+    L += ["", "| issue 37 target | this draw | met |", "|---|---|---|"]
+    L += [f"| {t} | {v} | {'-' if ok is None else ('yes' if ok else 'NO')} |"
+          for t, v, ok in targets(s)]
     L += ["", "| term | exact name (single cases) | named when concealed (all cases) |",
           "|---|---|---|"]
     L += [f"| {t} | {_r(v['exact_single'])} | {_r(v['named'])} |"
