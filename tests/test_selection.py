@@ -86,7 +86,7 @@ def test_the_held_out_test_passes_a_term_at_the_rate_its_prediction_law_gives():
     a = big * SIGMA / np.sqrt(n_i)              # g = 1 on the identification window ...
     g_held = A * SIGMA / (a * np.sqrt(n_h))     # ... and g_held on the held-out one
     rho = g_held * np.sqrt(n_h) / np.sqrt(n_i)
-    draws = 2000
+    draws = 1000
     rng = np.random.default_rng(11)
     c = Candidate(physics="damping.mass", parameters=["damping.mass"], bounds=[(0.0, 1.0)],
                   region=None, reason="")
