@@ -149,6 +149,18 @@ def test_power_curve_bins_on_the_half_decade_grid():
         m.power_curve([200.0], [True], edges)
 
 
+def test_noticed_is_a_mismatch_blamed_on_physics_not_on_the_numerics():
+    assert m.noticed(report(["damping.mass"], verdict="missing-physics"))    # no cause: added
+    assert not m.noticed(report())
+    numerics = report(verdict="missing-physics", final_verdict="consistent")
+    numerics["cause"] = "numerics"                 # a refinement removed the mismatch
+    assert not m.noticed(numerics)
+    for cause in ("physics", "both", "unexplained"):
+        numerics["cause"] = cause
+        assert m.noticed(numerics)
+    assert not m.noticed(None)
+
+
 def test_offvocab_row_flags_a_consistent_verdict_above_one_and_a_half_noise():
     short = m.offvocab_row(report(["damping.stiffness"], verdict="missing-physics",
                                   final_verdict="missing-physics", held=(6.0, 2.5)))

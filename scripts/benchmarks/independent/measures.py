@@ -210,6 +210,19 @@ def heldout_over_noise(report: Mapping) -> tuple[float | None, float | None]:
                  for k in ("base_rms", "final_rms"))
 
 
+def noticed(report: Mapping | None) -> bool:
+    """Whether a report blames physics for a mismatch (what an off-vocabulary effect can get:
+    no term names it): its ``cause`` is ``physics``, ``both`` or ``unexplained``; a mismatch a
+    refinement of the numerics removed (``numerics``) is not. Reports without ``cause`` (before
+    issue 39): the final verdict is missing-physics or a term was added."""
+    if report is None:
+        return False
+    if "cause" in report:
+        return report["cause"] in ("physics", "both", "unexplained")
+    return (report.get("final_verdict") or report["verdict"]) == "missing-physics" or bool(
+        report["added"])
+
+
 def offvocab_row(report: Mapping | None) -> dict:
     """What a report said about an off-vocabulary effect: ``named``, ``short_of_noise`` (the
     final model's verdict is missing-physics, or the cause unexplained: the report says the fit

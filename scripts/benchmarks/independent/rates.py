@@ -15,8 +15,7 @@ time and status; ``--reports`` defaults to ``<cases>``) and prints one table::
   report``), as a table and a heat map (``confusion.png``);
 - the power curve of each term: the rate it is named against its effect size in units of the
   noise, in half-decade bins with intervals (``power.png``, log x axis); for an off-vocabulary
-  effect the rate its mismatch is noticed (the verdict on the model as given is
-  missing-physics);
+  effect the rate a mismatch is blamed on physics (:func:`measures.noticed`);
 - the off-vocabulary cases: what was named, whether the report said the fit stays short of the
   noise, held-out rms / noise before and after;
 - held-out rms / noise before and after, calibrated E error, wall time (median, max).
@@ -120,11 +119,8 @@ def summarize(records: list[dict], alpha: float = 0.01, big: float = 5.0) -> dic
     power = {}
     for t in terms:
         if m.is_offvocab(t):
-            # no term can name it: its "detection" is the mismatch noticed (the verdict on
-            # the model as given is missing-physics)
-            pts = [(r["sizes"][t], r["report"] is not None
-                    and r["report"]["verdict"] == "missing-physics")
-                   for r in records if t in r["sizes"]]
+            # no term can name it: its "detection" is a mismatch blamed on physics
+            pts = [(r["sizes"][t], m.noticed(r["report"])) for r in records if t in r["sizes"]]
             key = f"{t} (noticed)"
         else:
             pts = [(r["sizes"][t], t in r["class"]["named"]) for r in records if t in r["sizes"]]
@@ -254,7 +250,7 @@ def table(s: dict, label: str = "") -> str:
                      f"{'+'.join(o['named']) or '-'} | {o['short_of_noise']} | "
                      f"{_f(o['heldout_base'])} -> {_f(o['heldout_final'])} | {o['improved']} "
                      f"| {'YES' if o['violates'] else o['violates']} |")
-    L += ["", "| case | kind | concealed (effect / noise) | named | outcome | verdict "
+    L += ["", "| case | kind | concealed (effect / noise) | named | outcome | final verdict "
           "| held-out / noise | E err | wall s | status |", "|---" * 10 + "|"]
     for c in s["cases"]:
         conc = ", ".join(f"{t} ({c['sizes'][t]:.3g})" if t in c["sizes"] else t
