@@ -115,6 +115,7 @@ def test_classify_counts_a_tie_as_ambiguous_not_as_a_win():
     assert wrong["outcome"] == "wrong"
     assert wrong["found"] == ["gravity"] and wrong["extra"] == ["drag.linear"]
     assert m.classify(["gravity"], None)["outcome"] == "no report"
+    assert m.classify(["gravity", "mass.added"], report(["gravity"]))["outcome"] == "partial"
 
 
 def test_confusion_matrix_of_three_hand_made_reports():
@@ -147,6 +148,17 @@ def test_power_curve_bins_on_the_half_decade_grid():
         m.log_bins([1.0, 0.0])
     with pytest.raises(ValueError, match="outside the bins"):
         m.power_curve([200.0], [True], edges)
+
+
+def test_effect_sizes_per_term_or_one_number():
+    assert m.effect_sizes({"concealed": ["gravity"], "effect_over_noise": 3.0}) == {
+        "gravity": 3.0}
+    both = {"concealed": ["gravity", "mass.added"],
+            "effect_over_noise": {"gravity": 3.0, "mass.added": 0.2}}
+    assert m.effect_sizes(both) == {"gravity": 3.0, "mass.added": 0.2}
+    both["effect_over_noise"] = 4.0            # combined: no term's own size
+    assert m.effect_sizes(both) == {}
+    assert m.effect_sizes({"concealed": [], "effect_over_noise": {}}) == {}
 
 
 def test_noticed_is_a_mismatch_blamed_on_physics_not_on_the_numerics():
@@ -249,9 +261,12 @@ def test_the_command_line_writes_the_table_and_refuses_a_malformed_report(tmp_pa
     _case(draw, "c0", [], report())
     _case(draw, "s0", ["gravity"], report(["gravity"], verdict="missing-physics"),
           {"gravity": 40.0})
+    _case(draw, "d0", ["gravity", "mass.added"], report(["gravity"], verdict="missing-physics"),
+          7.5)
     assert rates.main([str(draw), "--figures", str(out), "--label", "unit"]) == 0
     printed = capsys.readouterr().out
-    assert "## unit: 2 cases" in printed
+    assert "## unit: 3 cases" in printed
+    assert "| d0 | double | gravity, mass.added (together 7.5) | gravity | partial |" in printed
     assert "| exact name, single | 1/1 = 100%" in printed
     saved = json.loads((out / "rates.json").read_text())
     assert saved["false_add"]["k"] == 0 and saved["power"]["gravity"][0]["k"] == 1

@@ -96,7 +96,8 @@ def classify(concealed: Iterable[str], report: Mapping | None) -> dict:
         ``{term: [terms it ties with]}``, empty when none), ``found`` (concealed terms named),
         ``extra`` (named terms not concealed), ``outcome``: ``no report``, ``ambiguous``,
         ``exact``, ``missed`` (nothing named while something was concealed), ``false add``
-        (something named on a control) or ``wrong`` (any other mismatch).
+        (something named on a control), ``partial`` (some of the concealed terms named and
+        nothing else) or ``wrong`` (any other mismatch).
     """
     concealed = set(concealed)
     if report is None:
@@ -113,6 +114,8 @@ def classify(concealed: Iterable[str], report: Mapping | None) -> dict:
         outcome = "false add"
     elif not got:
         outcome = "missed"
+    elif got < concealed:
+        outcome = "partial"
     else:
         outcome = "wrong"
     return {"named": sorted(got), "exact": exact, "ambiguous": tied,
@@ -190,16 +193,16 @@ def power_curve(sizes: Iterable[float], detected: Iterable[bool],
 
 def effect_sizes(truth: Mapping) -> dict[str, float]:
     """Each concealed term's effect size in units of the noise (truth.json
-    ``effect_over_noise``: a mapping term -> size, or one number for a single term)."""
+    ``effect_over_noise``: a mapping term -> size, or one number). One number for two or more
+    terms is their combined effect, no term's own: no term gets a size then (the case stays
+    out of the power curves)."""
     concealed = truth["concealed"]
     eff = truth.get("effect_over_noise")
     if not concealed or eff is None:
         return {}
     if isinstance(eff, Mapping):
         return {t: float(eff[t]) for t in concealed if t in eff}
-    if len(concealed) != 1:
-        raise ValueError(f"one effect size for {len(concealed)} concealed terms: {concealed}")
-    return {concealed[0]: float(eff)}
+    return {concealed[0]: float(eff)} if len(concealed) == 1 else {}
 
 
 def heldout_over_noise(report: Mapping) -> tuple[float | None, float | None]:

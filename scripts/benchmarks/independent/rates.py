@@ -142,6 +142,7 @@ def summarize(records: list[dict], alpha: float = 0.01, big: float = 5.0) -> dic
         e_true = r["truth"].get("truth", {}).get("youngs_modulus")
         cases.append({"case": r["name"], "kind": r["kind"],
                       "concealed": r["truth"]["concealed"], "sizes": r["sizes"],
+                      "effect_over_noise": r["truth"].get("effect_over_noise"),
                       "named": r["class"]["named"], "outcome": r["class"]["outcome"],
                       "ties": r["class"]["ambiguous"],
                       "verdict": (rep.get("final_verdict") or rep["verdict"]) if rep else None,
@@ -255,6 +256,8 @@ def table(s: dict, label: str = "") -> str:
     for c in s["cases"]:
         conc = ", ".join(f"{t} ({c['sizes'][t]:.3g})" if t in c["sizes"] else t
                          for t in c["concealed"]) or "-"
+        if isinstance(c["effect_over_noise"], (int, float)) and not c["sizes"]:
+            conc += f" (together {c['effect_over_noise']:.3g})"
         L.append(f"| {c['case']} | {c['kind']} | {conc} | {'+'.join(c['named']) or '-'} "
                  f"| {c['outcome']} | {c['verdict'] or '-'} | {_f(c['heldout_base'])} -> "
                  f"{_f(c['heldout_final'])} | {_f(c['E_rel_err'], '+.1%')} "
