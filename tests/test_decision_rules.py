@@ -392,3 +392,41 @@ def test_a_refinement_that_does_not_help_is_judged_to_matter_at_most_at_the_gain
         else:
             assert p <= stats.norm.sf(np.sqrt(10.0)) + 1e-12
             assert n <= stats.binom.ppf(0.999, draws, p), (s, n, p)
+
+
+# -- a round on a control: the false-add rate of choose over the whole vocabulary ------------------
+def test_a_round_on_pure_noise_adds_a_term_at_the_rate_its_two_tests_give():
+    """Data from the base model; the twelve vocabulary terms each add one column g_k, the g_k
+    orthonormal and orthogonal to the base columns on each window separately, with |g_h| /
+    |g_i| = rho (held-out over identification). Then Z2_k = g_i.n / (sigma |g_i|) and
+    Z1_k = g_h.n / (sigma |g_h|) are 24 independent standard normals, the likelihood ratio is
+    Z2^2 and the held-out rms improves iff Z1 sign(Z2) > |Z2| rho / 2. One candidate passes
+    both tests at q = 2 int_c^inf phi(z) Phi(-z rho / 2) dz (c^2 the chi2(1) critical value;
+    q -> alpha / 2 as rho -> 0), and the round adds a term at 1 - (1 - q)^12: the false-add
+    rate of one round on a control, which is what rates.py measures on the controls of a
+    draw. choose's rate is within the binomial interval of it."""
+    from petsoft.diagnosis.report import PHYSICS
+
+    alpha, rho, k = 0.01, 0.5, len(PHYSICS)
+    diag = diagnosis(alpha)
+    held = ~IDENT
+    rng = np.random.default_rng(12)
+    cols = np.zeros((k, N))
+    for window, scale in ((IDENT, 1.0), (held, rho)):
+        q_ = np.linalg.qr(np.column_stack([BASE[window],
+                                           rng.standard_normal((window.sum(), k))]))[0]
+        cols[:, window] = scale * q_[:, 2:].T
+    c = np.sqrt(stats.chi2.ppf(1.0 - alpha, 1))
+    q = 2.0 * integrate.quad(lambda z: stats.norm.pdf(z) * stats.norm.cdf(-z * rho / 2.0),
+                             c, np.inf)[0]
+    assert 0.0 < q < alpha / 2.0          # the held-out test at least halves the level
+    expected = 1.0 - (1.0 - q) ** k
+    draws = 1500
+    Y = null_data(rng, draws=draws)
+    bases = fits([], Y, diag, [])
+    per = [fits([g], Y, diag, [name]) for g, name in zip(cols, PHYSICS, strict=True)]
+    cands = [candidate(name) for name in PHYSICS]
+    added = sum(choose(diag, base, [(entry(f[i]), cand) for f, cand in
+                                    zip(per, cands, strict=True)]).accepted is not None
+                for i, base in enumerate(bases))
+    assert within(added, draws, expected), (added / draws, expected)

@@ -19,6 +19,7 @@ from petsoft.diagnosis.selection import (
     choose,
     fit_simplest_first,
     heldout_noise_level,
+    judge,
     worth_fitting,
 )
 
@@ -65,13 +66,56 @@ def test_noise_level_is_the_chi2_bound_on_the_held_out_samples():
     assert heldout_noise_level(empty) == 0.0
 
 
-def test_a_candidate_whose_held_out_rms_does_not_improve_is_rejected():
+@pytest.mark.serial_only          # numpy draws only: a second rank would repeat them
+def test_the_held_out_test_passes_a_term_at_the_rate_its_prediction_law_gives():
+    """judge's second test on draws: a one-parameter term g is fitted by least squares on the
+    identification window, where the effect a g is far above the noise (its likelihood ratio
+    ~400: the first test always passes), and predicts the held-out window with it. Z1, Z2
+    standard normals (the noise along g on the held-out and on the identification window), A =
+    a |g_h| / sigma and rho = |g_h| / |g_i|, the fitted prediction is (A + rho Z2) sigma along
+    g_h. When the held-out data hold the effect too, the held-out rms improves iff
+    Z1 > (rho Z2 - A) / 2: at the rate Phi(A / 2 / sqrt(1 + rho^2 / 4)); when they hold only
+    noise (the term fits the identification window but extrapolates wrongly), iff
+    Z1 > (A + rho Z2) / 2: at the rate Phi(-A / 2 / sqrt(1 + rho^2 / 4)). Rates within the
+    binomial interval of those, and a rejected term says why."""
     diag = context()
-    base = fit(2.4e5, 1.0e-4)
-    contenders = [contender("damping.mass", ["damping.mass"], 6400.0, 1.05e-4)]
-    choice = choose(diag, base, contenders)
-    assert choice.accepted is None
-    assert "held-out rms did not improve" in choice.rejected[0]["reason"]
+    seen = np.isfinite(diag.data)
+    ident, held = seen & diag.ident[:, None, None], seen & diag.held[:, None, None]
+    n_i, n_h = int(ident.sum()), int(held.sum())
+    big, A = 20.0, 2.0                          # a |g_i| / sigma and a |g_h| / sigma
+    a = big * SIGMA / np.sqrt(n_i)              # g = 1 on the identification window ...
+    g_held = A * SIGMA / (a * np.sqrt(n_h))     # ... and g_held on the held-out one
+    rho = g_held * np.sqrt(n_h) / np.sqrt(n_i)
+    draws = 1000
+    rng = np.random.default_rng(11)
+    c = Candidate(physics="damping.mass", parameters=["damping.mass"], bounds=[(0.0, 1.0)],
+                  region=None, reason="")
+    names = ["material.youngs_modulus", "damping.mass"]
+    rate = stats.norm.cdf(A / 2.0 / np.sqrt(1.0 + rho ** 2 / 4.0))
+    for continues, expected in ((True, rate), (False, 1.0 - rate)):
+        noise_i = SIGMA * rng.standard_normal((draws, n_i))
+        noise_h = SIGMA * rng.standard_normal((draws, n_h))
+        r_i = a + noise_i                                   # the base model's residual
+        r_h = (a * g_held if continues else 0.0) + noise_h
+        beta = r_i.mean(axis=1)                             # least squares along g = 1
+        chi2_base = np.sum(r_i ** 2, axis=1) / SIGMA ** 2
+        chi2_new = np.sum((r_i - beta[:, None]) ** 2, axis=1) / SIGMA ** 2
+        held_base = np.sqrt(np.mean(r_h ** 2, axis=1))
+        held_new = np.sqrt(np.mean((r_h - beta[:, None] * g_held) ** 2, axis=1))
+        assert np.all(chi2_base - chi2_new > 100.0)        # the likelihood ratio passes
+        added, reasons = 0, []
+        for i in range(draws):
+            s = {"physics": c.physics, "score": 1.0, "p_value": 0.0,
+                 "fit": fit(chi2_new[i], held_new[i], names)}
+            verdict = judge(diag, fit(chi2_base[i], held_base[i]), s, c)
+            added += verdict["added"]
+            assert verdict["added"] == (held_new[i] < held_base[i])
+            if not verdict["added"]:
+                reasons.append(verdict["reason"])
+        lo, hi = stats.binom.interval(0.999, draws, expected)
+        assert lo <= added <= hi, (continues, added / draws, expected)
+        assert reasons and all(r.startswith("held-out rms did not improve") for r in reasons)
+    assert 0.8 < rate < 0.9                      # the two cases are told apart, not always
 
 
 def test_terms_with_more_parameters_are_not_fitted_once_a_simpler_one_predicts_to_the_noise():

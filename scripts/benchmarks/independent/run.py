@@ -4,7 +4,7 @@ The cases (``cases/<name>/user.toml`` + ``recording.h5``, made by DOLFINx with g
 diagnosed one after another through the command line a user would type::
 
     .venv/bin/python scripts/benchmarks/independent/run.py [--cases control-finger,damping-mass]
-        [--out out/independent] [--np 2] [--timeout 3600]
+        [--out out/independent] [--np 2] [--timeout 3600] [--cases-dir DRAW]
 
 Each case runs ``petsoft diagnose cases/<name>/user.toml cases/<name>/recording.h5 --out
 <out>/<name>`` (under ``nice``; ``mpiexec -n NP`` when --np > 1), with its log in
@@ -12,8 +12,10 @@ Each case runs ``petsoft diagnose cases/<name>/user.toml cases/<name>/recording.
 of the truth in the first round, whether every concealed term was added and nothing else,
 held-out rms / noise, what the mesh/step check found, wall time) is printed and written to
 ``<out>/table.md`` and ``<out>/table.json``; ``--collect`` rebuilds it from the case folders
-already run (e.g. by two runs given halves of the cases). ``truth.json`` is read only here, to
-score the diagnosis, never by petsoft.
+already run (e.g. by two runs given halves of the cases). ``--cases-dir DRAW`` runs the cases of
+a random draw (``generate.py --random N --seed S --out DRAW``) instead of the suite's cases/;
+rates.py then scores the draw as rates (draw_and_run.sh does both). ``truth.json`` is read only
+here, to score the diagnosis, never by petsoft.
 """
 
 from __future__ import annotations
@@ -33,8 +35,8 @@ CASES_DIR = HERE / "cases"
 ROOT = HERE.parents[2]
 
 
-def case_names() -> list[str]:
-    return sorted(p.name for p in CASES_DIR.iterdir() if (p / "truth.json").exists())
+def case_names(cases_dir: Path = CASES_DIR) -> list[str]:
+    return sorted(p.name for p in cases_dir.iterdir() if (p / "truth.json").exists())
 
 
 def petsoft_command(np_: int) -> list[str]:
@@ -73,7 +75,7 @@ def mesh_check(numerics: dict, noise: float) -> str:
     return "; ".join(parts) or json.dumps(numerics)[:120]
 
 
-def partial_log(log: Path, noise: float) -> dict:
+def partial_log(log: Path, noise: float | None) -> dict:
     """What a diagnose stopped before its report got to: the base fit and the numerics check
     (from its progress lines)."""
     got: dict = {}
@@ -87,7 +89,7 @@ def partial_log(log: Path, noise: float) -> dict:
         m = re.search(r"base fit: .*chi2/dof ([0-9.eE+-]+), held-out rms ([0-9.eE+-]+) m", line)
         if m:
             got["chi2_base"] = float(m.group(1))
-            got["heldout_base_over_noise"] = float(m.group(2)) / noise
+            got["heldout_base_over_noise"] = float(m.group(2)) / noise if noise else None
         m = re.search(r"material\.youngs_modulus=([0-9.eE+-]+);", line)
         if m and "base fit" in line:
             got["E_base"] = float(m.group(1))
@@ -115,14 +117,17 @@ def score_case(name: str, out: Path, wall: float, status: str,
     """The table's row of case ``name`` diagnosed into ``out`` (its truth from ``cases_dir``)."""
     truth = json.loads((cases_dir / name / "truth.json").read_text())
     concealed = truth["concealed"]
-    row = {"case": name, "shape": truth["shape"], "concealed": "+".join(concealed) or "-",
+    # a random draw's truth names the shape's family (generate.py --random)
+    row = {"case": name, "shape": truth.get("shape", truth.get("family", "-")),
+           "concealed": "+".join(concealed) or "-",
            "status": status, "wall_s": round(wall, 1), "verdict": None, "added": None,
            "rank": None, "found": None, "extra": None, "heldout_over_noise": None,
            "heldout_base_over_noise": None, "chi2_final": None, "E_rel_err": None,
            "mesh_check": None, "ranking": None}
     rep_path, sum_path = out / "report.json", out / "summary.json"
     if not rep_path.exists():
-        row.update(partial_log(out / "diagnose.log", truth["noise"]["position_std"]))
+        row.update(partial_log(out / "diagnose.log",
+                               (truth.get("noise") or {}).get("position_std")))
         return row
     rep = json.loads(rep_path.read_text())
     summ = json.loads(sum_path.read_text()) if sum_path.exists() else {}
@@ -241,10 +246,14 @@ def main() -> int:
     ap.add_argument("--np", type=int, default=1, help="MPI ranks per diagnose (default 1)")
     ap.add_argument("--timeout", type=float, default=None,
                     help="seconds after which a case's diagnose is stopped (reported 'timeout')")
+    ap.add_argument("--cases-dir", type=Path, default=CASES_DIR,
+                    help="folder of the case folders (default: the suite's cases/; a random "
+                         "draw's folder from generate.py --random)")
     ap.add_argument("--collect", action="store_true",
                     help="run nothing: tabulate the case folders already in --out")
     args = ap.parse_args()
-    known = case_names()
+    cases_dir = args.cases_dir.resolve()
+    known = case_names(cases_dir)
     names = args.cases.split(",") if args.cases else known
     bad = [n for n in names if n not in known]
     if bad:
@@ -258,17 +267,17 @@ def main() -> int:
         if args.collect:
             if (d / "row.json").exists():
                 old = json.loads((d / "row.json").read_text())
-                rows.append(score_case(name, d, old["wall_s"], old["status"]))
+                rows.append(score_case(name, d, old["wall_s"], old["status"], cases_dir))
             continue
         d.mkdir(parents=True, exist_ok=True)
-        truth = json.loads((CASES_DIR / name / "truth.json").read_text())
-        print(f"[{i}/{len(names)}] {name}: {truth['shape']}, concealed "
+        truth = json.loads((cases_dir / name / "truth.json").read_text())
+        print(f"[{i}/{len(names)}] {name}: {truth.get('shape', truth.get('family'))}, concealed "
               f"{'+'.join(truth['concealed']) or 'nothing'} ...", flush=True)
         cmd = ["nice"] + petsoft_command(args.np) + [
-            "diagnose", str(CASES_DIR / name / "user.toml"),
-            str(CASES_DIR / name / "recording.h5"), "--out", str(d.resolve())]
-        wall, status = run_logged(cmd, d / "diagnose.log", CASES_DIR / name, args.timeout)
-        row = score_case(name, d, wall, status)
+            "diagnose", str(cases_dir / name / "user.toml"),
+            str(cases_dir / name / "recording.h5"), "--out", str(d.resolve())]
+        wall, status = run_logged(cmd, d / "diagnose.log", cases_dir / name, args.timeout)
+        row = score_case(name, d, wall, status, cases_dir)
         (d / "row.json").write_text(json.dumps(row, indent=1) + "\n")
         rows.append(row)
         print(f"    {row['verdict'] or status}; added {row['added']}; truth rank {row['rank']}; "
