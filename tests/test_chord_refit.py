@@ -43,7 +43,7 @@ def test_the_chord_refit_finds_the_calibrations_minimum(case):
     seen = np.isfinite(diag.data[diag.ident])
     change = np.sqrt(np.mean((moved[diag.ident][seen] - fit.sim[diag.ident][seen]) ** 2))
     assert change > 5.0 * diag.sigma          # the case needs a refit: E moves
-    chord = chord_refit(diag, fit, half, cols, moved)
+    chord = chord_refit(diag, half, cols, moved)
     full = diag.calibrate(half)
     assert chord is not None and chord.by.startswith("chord Gauss-Newton")
     e_chord, e_full, e_fit = chord.values[0], full.values[0], fit.values[0]
@@ -67,7 +67,7 @@ def test_a_chord_that_does_not_converge_in_its_runs_gives_up(case, monkeypatch):
     this refit needs more than two runs."""
     diag, fit, half, moved, cols, _ = case
     monkeypatch.setattr(chord_refit_module, "MAX_RUNS", 2)
-    assert chord_refit(diag, fit, half, cols, moved) is None
+    assert chord_refit(diag, half, cols, moved) is None
 
 
 def test_the_secant_update_is_what_converges(case, monkeypatch):
@@ -75,7 +75,7 @@ def test_the_secant_update_is_what_converges(case, monkeypatch):
     (its steps shrink by about a third a run) and gives up within MAX_RUNS."""
     diag, fit, half, moved, cols, _ = case
     monkeypatch.setattr(chord_refit_module, "broyden_update", lambda c, step, change: c)
-    assert chord_refit(diag, fit, half, cols, moved) is None
+    assert chord_refit(diag, half, cols, moved) is None
 
 
 def test_broyden_update_is_the_secant():
@@ -97,10 +97,10 @@ def test_a_chord_that_leaves_the_bounds_gives_up(case):
     diag, fit, half, moved, cols, _ = case
     e = fit.values[0]
     # the bounds end between the fit's E and the refit's (the step/2 refit lowers or raises E)
-    full_e = chord_refit(diag, fit, half, cols, moved).values[0]
+    full_e = chord_refit(diag, half, cols, moved).values[0]
     lo, hi = (0.5 * e, 0.5 * (e + full_e)) if full_e > e else (0.5 * (e + full_e), 2.0 * e)
     tight = dataclasses.replace(half, calibrate={"material.youngs_modulus": (lo, hi)})
-    assert chord_refit(diag, fit, tight, cols, moved) is None
+    assert chord_refit(diag, tight, cols, moved) is None
 
 
 def test_the_numerics_check_refits_the_halved_step_by_the_chord(case):

@@ -79,11 +79,12 @@ def parameter_std(cols: np.ndarray, residual: np.ndarray, sigma: float) -> np.nd
     return np.asarray(uncertainty(cols / sigma, residual / sigma, noise_std=1.0).std)
 
 
-def chord_refit(diag: Diagnosis, fit: Fit, experiment, cols: np.ndarray, moved: np.ndarray,
+def chord_refit(diag: Diagnosis, experiment, cols: np.ndarray, moved: np.ndarray,
                 comm=None, label: str = "chord refit") -> Fit | None:
-    """Calibrate ``experiment`` (a refinement of ``fit``'s model at ``fit``'s parameters, whose
-    identification-window simulation is ``moved``) by Gauss-Newton on ``cols``, ``fit``'s
-    model's sensitivities on the identification window (frames, markers, 3, parameters).
+    """Calibrate ``experiment`` (a refinement of a fitted model, from its own parameter values,
+    at which its identification-window simulation is ``moved``) by Gauss-Newton on ``cols``,
+    the fitted model's sensitivities to the same parameters on the identification window
+    (frames, markers, 3, parameters).
 
     Returns the refitted :class:`~petsoft.diagnosis.context.Fit` (its ``by`` says how it was
     made), or None when the chord iteration does not converge (see the module docstring).
@@ -93,11 +94,11 @@ def chord_refit(diag: Diagnosis, fit: Fit, experiment, cols: np.ndarray, moved: 
     data = diag.data[ident]
     seen = np.isfinite(data)
     c = cols[seen]
-    names, _, bounds = calibration_parameters(experiment)
-    if list(names) != list(fit.names):
+    names, p, bounds = calibration_parameters(experiment)
+    if c.shape[-1] != len(names):
         return None
     lo, hi = np.array(bounds, dtype=float).T
-    p = np.asarray(fit.values, dtype=float).copy()
+    p = np.asarray(p, dtype=float)
     r = (moved[ident] - data)[seen]
     f = float(np.sum((r / diag.sigma) ** 2))
     comm = diag.comm if comm is None else petsc_comm(comm)

@@ -591,7 +591,7 @@ def _refit(diag: Diagnosis, fit: Fit, what: str, comm, cols: np.ndarray | None,
                                  "deferred": fit.rms / diag.sigma}
     label = f"numerics {what}"
     if cols is not None and refinement(what).kind == "step":
-        refit = chord_refit(diag, fit, experiment, cols, moved, comm=comm, label=label)
+        refit = chord_refit(diag, experiment, cols, moved, comm=comm, label=label)
         if refit is not None:
             return refit, moved, None
         diag.group_says(comm, f"{label}: the chord refit did not converge; calibrating")
