@@ -26,6 +26,12 @@ stationary at its minimum), far below the 10 % of the excess that decides whethe
 matters. It gives up (None; the caller then calibrates as before) when a step leaves the
 bounds, when the line search cannot lower chi2, when the columns become dependent, or after
 :data:`MAX_RUNS` runs.
+
+Only the halved step is refitted this way. Raising the element order moves E by tens of per cent
+and, at a large misfit, the iteration converges only linearly, as Gauss-Newton itself does
+there: the test taper's 4-node -> 10-node refit (0.3 s, chi2 2.8e6) from its frequency-matched
+start had not converged after 6 runs (steps shrinking by about half a run), where the
+calibration took 4 sensitivity runs.
 """
 
 from __future__ import annotations
