@@ -120,3 +120,22 @@ def test_phase_times_prefer_the_reports_timings(tmp_path):
                "total": 17.5}
     (tmp_path / "report.json").write_text(json.dumps({"timings": timings}))
     assert bench.phase_times(tmp_path) == (timings, "report")
+
+
+def test_work_counts_from_log_view(tmp_path):
+    """Factorisations (LU and Cholesky), linear solves and residuals counted from PETSc's
+    -log_view table (lines as PETSc 3.18 writes them: name, count max over ranks, ratio, ...);
+    no file (a run stopped by the timeout) gives None."""
+    bench = _bench()
+    assert bench.work_counts(tmp_path / "log_view.txt") is None
+    (tmp_path / "log_view.txt").write_text(
+        "Event                Count      Time (sec)     Flop\n"
+        "                   Max Ratio  Max     Ratio   Max  Ratio\n"
+        "SNESSolve              4 1.0 1.4531e+00 1.0 5.10e+09 1.0 0.0e+00 0.0e+00 0.0e+00 32\n"
+        "SNESFunctionEval      57 1.0 1.0e-01 1.0 0.00e+00 0.0 0.0e+00 0.0e+00 0.0e+00  2\n"
+        "MatLUFactorNum        49 1.0 9.2565e-01 1.0 2.88e+07 1.0 0.0e+00 0.0e+00 0.0e+00 21\n"
+        "MatCholFctrNum        12 1.0 9.2565e-01 1.0 2.88e+07 1.0 0.0e+00 0.0e+00 0.0e+00 21\n"
+        "KSPSolve              49 1.0 1.0581e-01 1.0 5.06e+09 1.0 0.0e+00 0.0e+00 0.0e+00  2\n"
+        "Memory usage is given in bytes:\n")
+    assert bench.work_counts(tmp_path / "log_view.txt") == {
+        "factorisations": 61, "linear solves": 49, "residuals": 57}

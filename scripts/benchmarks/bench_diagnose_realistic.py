@@ -140,8 +140,28 @@ def make_row(name: str, d: Path, wall: float, status: str, cases_dir: Path = CAS
     row.update({"user_tets": truth.get("coarse_tets"), "phases": phases,
                 "phases_source": source,
                 # the recording's own error (rms x noise; None: not measured)
-                "truth_error": conv.get("bound_rms_over_noise")})
+                "truth_error": conv.get("bound_rms_over_noise"),
+                "work": work_counts(d / "log_view.txt")})
     return row
+
+
+#: PETSc events counted from ``-log_view`` (``--log-view``): the work a run did, whatever the
+#: machine's load (the count is the largest over the ranks).
+WORK_EVENTS = {"factorisations": ("MatLUFactorNum", "MatCholFctrNum"),
+               "linear solves": ("KSPSolve",), "residuals": ("SNESFunctionEval",)}
+
+
+def work_counts(log_view: Path) -> dict | None:
+    """Counts of :data:`WORK_EVENTS` in a PETSc ``-log_view`` text file (None if absent: a run
+    stopped by the timeout writes none)."""
+    if not log_view.exists():
+        return None
+    counts: dict[str, int] = {}
+    for line in log_view.read_text(errors="replace").splitlines():
+        fields = line.split()
+        if len(fields) > 1 and fields[1].isdigit():
+            counts[fields[0]] = counts.get(fields[0], 0) + int(fields[1])
+    return {k: sum(counts.get(e, 0) for e in events) for k, events in WORK_EVENTS.items()}
 
 
 def petsoft_of(python: str) -> dict:
@@ -171,8 +191,8 @@ def table_md(rows: list[dict], meta: dict) -> str:
              "ranks", "",
              "| case | user tets | truth err / noise | concealed | named (added) | verdict "
              "| held-out rms / noise | E err | wall s | base fit | numerics | scoring | fits "
-             "| final | phases from |",
-             "|" + "---|" * 15]
+             "| final | phases from | factorisations / linear solves / residuals |",
+             "|" + "---|" * 16]
     for r in rows:
         ph = r.get("phases") or {}
         extra = f" (extra {'+'.join(r['extra'])})" if r.get("extra") else ""
@@ -184,7 +204,9 @@ def table_md(rows: list[dict], meta: dict) -> str:
             f"{_f(r['heldout_over_noise'], '.2f')} | {_f(r['E_rel_err'], '+.1%')} "
             f"| {r['wall_s']:.0f} | "
             + " | ".join(_f(ph.get(k), ".0f") for k in PHASES)
-            + f" | {r.get('phases_source') or '-'} |")
+            + f" | {r.get('phases_source') or '-'} | "
+            + (" / ".join(str(v) for v in r["work"].values()) if r.get("work") else "-")
+            + " |")
     # a run that did not finish has no wall time to compare: counted apart
     small = [r for r in rows if (r.get("user_tets") or 0) < LARGE_TETS]
     done = [r["wall_s"] for r in small if r["status"] == "ok"]
@@ -221,6 +243,9 @@ def main() -> int:
                     help="run diagnose under nice -n NICE (default 0: not)")
     ap.add_argument("--timeout", type=float, default=None,
                     help="seconds after which a case's diagnose is stopped (tabulated 'timeout')")
+    ap.add_argument("--log-view", action="store_true",
+                    help="PETSc -log_view into each case folder; the table counts "
+                         "factorisations, linear solves and residuals (work, not time)")
     ap.add_argument("--collect", action="store_true",
                     help="run nothing: tabulate the case folders already in --dir")
     args = ap.parse_args()
@@ -253,7 +278,9 @@ def main() -> int:
                + (["mpiexec", "-n", str(args.np)] if args.np > 1 else [])
                + [args.python, "-m", "petsoft.cli.main", "diagnose",
                   str(cases_dir / name / "user.toml"), str(cases_dir / name / "recording.h5"),
-                  "--out", str(d)])
+                  "--out", str(d)]
+               + (["-log_view", f":{d / 'log_view.txt'}"] if args.log_view else []))
+        (d / "log_view.txt").unlink(missing_ok=True)
         wall, status = independent.run_logged(cmd, d / "diagnose.log", cases_dir / name,
                                               args.timeout)
         row = make_row(name, d, wall, status, cases_dir)
