@@ -97,7 +97,8 @@ from petsoft.experiment import get_parameter
 from petsoft.io.progress import beat
 from petsoft.physics.model import build_model
 from petsoft.solvers.convergence import check_converged
-from petsoft.solvers.linear import is_direct, symmetric_factorisation
+from petsoft.solvers.lagged_factors import LaggedFactors
+from petsoft.solvers.linear import is_direct, solver_chosen, symmetric_factorisation
 from petsoft.solvers.options import scoped_defaults
 from petsoft.solvers.static import StaticSolver
 
@@ -484,8 +485,13 @@ class ForwardModel:
         return out
 
     #: whether :meth:`simulate` keeps the chord's factors across steps (False: every step
-    #: factors its own, as ``petsoft simulate`` and the sensitivity runs do)
+    #: factors its own, as ``petsoft simulate`` does)
     keeps_factors = True
+    #: whether :meth:`jacobian`'s tangent solves keep a factorisation across steps (GMRES on
+    #: the exact step Jacobian, preconditioned by an earlier step's factors,
+    #: :class:`~petsoft.solvers.lagged_factors.LaggedFactors`) where their solver is the
+    #: default direct one; False: every step factors its own Jacobian
+    lags_factors = True
 
     @_collects_garbage
     def simulate(self, p) -> np.ndarray:
@@ -513,19 +519,29 @@ class ForwardModel:
                 if x is not None:
                     x.destroy()
 
-    def _solver(self):
+    def _solver(self, lag: bool = False):
+        """The KSP of the sensitivity/adjoint solves on ``self.J``; with ``lag``, where it is
+        the default direct solve (not chosen by options or the experiment's ``[petsc]``), a
+        :class:`~petsoft.solvers.lagged_factors.LaggedFactors` on it (its ``.ksp``)."""
         ksp = PETSc.KSP().create(comm=self.comm)
         ksp.setOptionsPrefix(GRAD_PREFIX)
         # inside the scope: the experiment's [petsc] choice of solver replaces the default whole
         with scoped_defaults(**self._grad_defaults):
             self.system.linear_defaults(ksp)
             ksp.setFromOptions()
+            chosen = solver_chosen(ksp)
         symmetric_factorisation(ksp, self.J)
         ksp.setOperators(self.J)
+        if lag and is_direct(ksp) and not chosen:
+            return LaggedFactors(ksp)
         return ksp
 
     def _solve(self, ksp, rhs, out) -> None:
-        ksp.solve(rhs, out)
+        if isinstance(ksp, LaggedFactors):
+            ksp.solve(rhs, out)
+            ksp = ksp.ksp
+        else:
+            ksp.solve(rhs, out)
         if ksp.getConvergedReason() < 0:
             check_converged(ksp, f"{self.experiment.source}: a sensitivity/adjoint linear solve",
                             hint=f"try -{GRAD_PREFIX}pc_type lu")
@@ -719,7 +735,11 @@ class ForwardModel:
                     "a": [s.create_vec() for _ in range(P)] if self.has_a else None}
         for x in tangents["q"] + tangents["v"]:
             x.zeroEntries()
-        ksp = self._solver()
+        # the tangent solves: on factors kept across steps (LaggedFactors) unless
+        # lags_factors is off or the solver is not the default direct one
+        solver = self._solver(lag=self.lags_factors)
+        lagged = solver if isinstance(solver, LaggedFactors) else None
+        ksp = solver.ksp if lagged is not None else solver
         # backward Euler with a viscoelastic branch: z is one more state (dz0 = dq0: z0 = q0)
 
         visco = [j for j, n in enumerate(self.names) if n in VISCOELASTIC]
@@ -776,6 +796,8 @@ class ForwardModel:
                 started.append(True)
             deriv, data = self._step_setup(n, st0, st1)
             ksp.setOperators(self.J)
+            if lagged is not None:
+                lagged.operator_changed()
             Rp = [None] * P
             for j, r in zip(others, deriv.vectors([self.names[j] for j in others]),
                             strict=True):
@@ -787,7 +809,8 @@ class ForwardModel:
             for j in range(P):
                 dq0, dv0 = tangents["q"][j], tangents["v"][j]
                 if self.scheme.carries_acceleration:
-                    self._alpha_tangent(data, Rp[j], dq0, dv0, tangents["a"][j], ksp, rhs, tmp,
+                    self._alpha_tangent(data, Rp[j], dq0, dv0, tangents["a"][j], solver, rhs,
+                                        tmp,
                                         branch, tangents["z"][j] if branch is not None
                                         else None, st1[0], self.names[j])
                     continue
@@ -812,7 +835,7 @@ class ForwardModel:
                     rhs.axpy(branch.jacobian_coefficient(), tmp)
                 s.zero_prescribed(rhs)
                 dq1 = tmp
-                self._solve(ksp, rhs, dq1)
+                self._solve(solver, rhs, dq1)
                 if branch is not None:
                     branch.tangent_update(tangents["z"][j], dq1, st1[0], self.names[j])
                 if self.accel:
@@ -831,17 +854,20 @@ class ForwardModel:
             observe_tangents(n + 1)
             if lend:
                 # the next step's Newton chord iterates on these factors (borrowed_chord)
-                self.integrator.borrow_chord(ksp)
+                self.integrator.borrow_chord(lagged.factors if lagged is not None else ksp)
 
         # (not to si: its one Newton step is the method, not a solve to convergence)
         lend = (hasattr(self.integrator, "borrow_chord") and not self.scheme.one_newton_step
-                and is_direct(ksp))
+                and (lagged is not None or is_direct(ksp)))
         try:
             states, sim = self._run(p, store=False, on_step=on_step)
         finally:
             if lend:
                 self.integrator.borrow_chord(None)
         self._free(states)
+        if lagged is not None:
+            self.stats["tangent_solves"] = lagged.stats()
+            lagged.destroy()
         ksp.destroy()
         for x in tangents["q"] + tangents["v"] + (tangents["a"] or []) + (tangents["z"] or []):
             x.destroy()
