@@ -14,9 +14,16 @@ stepping exactly (to the solver tolerances), in two ways:
 
 Both solve with the step's Jacobian, reassembled at the state the step's equation is linearised
 at (BE: q1; SI: the predictor q0 + h v0, the very matrix of the SI step; alpha: q_f); it is
-symmetric, so the adjoint solves with the same operator. A fresh CG + GAMG solve per step
-(prefix ``fm_grad_``, rtol 1e-12) is used rather than the integrator's KSP: Newton assembles its
-last Jacobian at the previous iterate, and the derivative needs it at the converged state.
+symmetric, so the adjoint solves with the same operator. A solver of their own (prefix
+``fm_grad_``; the system's default: a direct solve for small systems, else CG + GAMG at rtol
+1e-12) is used rather than the integrator's KSP: Newton assembles its last Jacobian at the
+previous iterate, and the derivative needs it at the converged state. Where that solver is the
+default direct one, the forward sensitivities do not factor every step's Jacobian: they solve
+with it by GMRES preconditioned with the factors of an earlier step's, renewed when a solve
+needs more than a few iterations (:mod:`petsoft.solvers.lagged_factors`, to a relative error
+of ~1e-11 a solve; :attr:`ForwardModel.lags_factors` = False factors every step), and lend
+those factors to the next step's Newton chord (:mod:`petsoft.solvers.borrowed_chord`).
+``stats["tangent_solves"]`` counts their factorisations and GMRES iterations.
 
 Per step with h, Jacobian J and parameter derivative R_p = d r/d p of the step equation
 (:meth:`DynamicSystem.parameter_derivatives`):

@@ -7,6 +7,11 @@ factor the step Jacobian once more, at its predictor: the same matrix one step l
 needs only an approximation of the Jacobian (its residual is exact and it converges to the
 same tolerance), so the next step can iterate on the sensitivities' factors instead, saving an
 assembly and a factorisation a step -- two of a sensitivity step's costliest parts.
+The sensitivity run keeps its factorisation across steps too
+(:mod:`petsoft.solvers.lagged_factors`: GMRES on each step's exact Jacobian, preconditioned with
+an earlier step's factors, refactored when a tangent solve needs more than a few iterations);
+the chord then iterates on those kept factors (a ``preonly`` KSP on the same PC), older than
+the previous step's, and takes a few more iterations.
 
 A forward run that is not differentiated (:meth:`petsoft.calibration.forward.ForwardModel.simulate`)
 can lend itself its own factors the same way (:meth:`ChordBorrower.keep_factors`): each step's
