@@ -10,6 +10,7 @@
    (``lags_factors = False``) to 1e-8, both equal central differences of ``simulate`` to 1e-5,
    and the kept path factored fewer times than there are steps with GMRES iterating on stale
    factors (more iterations than solves).
+3. A tangent solver chosen by options (a direct or an iterative one) stays as chosen.
 
 (The Taylor tests of tests/test_sensitivity.py run the kept path, the default; the counts of a
 run's factorisations are in tests/test_borrowed_chord.py.)
@@ -27,6 +28,7 @@ from petsoft.calibration.observation import MarkerObserver
 from petsoft.experiment import experiment_from_dict
 from petsoft.solvers.lagged_factors import LaggedFactors
 from petsoft.solvers.linear import is_direct, linear_defaults
+from petsoft.solvers.options import clear_options
 
 N = 120
 
@@ -173,4 +175,28 @@ def test_sensitivities_on_kept_factors_equal_every_step_ones(method, order):
     for lag in (False, True):
         err = np.abs(jac[lag] - fd).max(axis=(0, 1, 2)) / scale
         assert np.all(err < 1e-5), (lag, err)
+    fm.destroy()
+
+
+@pytest.mark.parametrize("options", [{"fm_grad_ksp_type": "preonly", "fm_grad_pc_type": "lu"},
+                                     {"fm_grad_pc_type": "jacobi"}], ids=["lu", "jacobi"])
+def test_a_solver_chosen_by_options_is_left_as_it_is(options):
+    """A tangent solver named by options (direct or iterative) is not turned into GMRES on kept
+    factors: the run reports no kept-factor solves, and its sensitivities equal the default
+    path's to the solvers' tolerances."""
+    fm = ForwardModel(_bar("be", 1), NAMES, lambda s: MarkerObserver(s, MARKERS),
+                      np.arange(1, 6) * H)
+    _, default = fm.jacobian(fm.p0)
+    assert "tangent_solves" in fm.stats
+    fm.stats.clear()
+    db = PETSc.Options()
+    for key, value in options.items():
+        db.setValue(key, value)
+    try:
+        _, chosen = fm.jacobian(fm.p0)
+    finally:
+        clear_options(list(options))
+    assert "tangent_solves" not in fm.stats
+    rel = np.abs(chosen - default).max() / np.abs(default).max()
+    assert rel <= 1e-8, rel
     fm.destroy()

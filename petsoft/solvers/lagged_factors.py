@@ -25,12 +25,15 @@ from __future__ import annotations
 from petsc4py import PETSc
 
 #: A solve that needs more GMRES iterations than this has the next matrix factored afresh.
-#: Each iteration costs one forward and back substitution with the factors and one product
-#: with the matrix; a 10-node factorisation costs far more than a few of those (on the 4641-dof
-#: P2 plate of /work/prof its factorisation was most of a 90 ms step, a whole forward step with
-#: its ~7 chord substitutions 18 ms). At the tolerance below 6 iterations mean a contraction of
-#: about 10^(-11/6) ~ 0.015 an iteration; the next step's chord iterates on the same factors,
-#: and factors that contract worse than that slow the chord too.
+#: Each iteration costs a forward and back substitution with the factors and a product with the
+#: matrix, far less than a factorisation: on the 10-node plate of petsoft/solvers/README.md
+#: (3672 dofs, PETSc's LU on 2 ranks) PETSc counted 1.6e8 flops a factorisation against 1.9e6 a
+#: substitution (substitutions run at memory speed, so the time ratio is smaller). But the next
+#: step's chord iterates on the same factors, and each of its iterations costs a residual
+#: evaluation too: on that plate (350 steps) 6 made 124 factorisations with 4.5 iterations a
+#: solve and 8.3 chord iterations a step (7.2 on the previous step's exact factors), 8 made 60
+#: with 6.2 and 10.0, 10 made 34 with 7.6 and 12.3 and four chords that failed. 6 stays clear
+#: of that; whether 8 is faster is for a timing on a quiet machine.
 REFACTOR_ITERATIONS = 6
 #: Relative tolerance of the preconditioned residual: the sensitivities' relative error from
 #: the lag. A least-squares fit's Gauss-Newton step needs far less; 1e-11 keeps the lagged
