@@ -817,8 +817,7 @@ class ForwardModel:
                 dq0, dv0 = tangents["q"][j], tangents["v"][j]
                 if self.scheme.carries_acceleration:
                     self._alpha_tangent(data, Rp[j], dq0, dv0, tangents["a"][j], solver, rhs,
-                                        tmp,
-                                        branch, tangents["z"][j] if branch is not None
+                                        tmp, branch, tangents["z"][j] if branch is not None
                                         else None, st1[0], self.names[j])
                     continue
                 # rhs = -R_p + M (dq0/h^2 + dv0/h) + D dq0/h (- T_w (dq0 + h dv0) for SI)
