@@ -13,7 +13,8 @@ at its end), instead of assembling and factoring its own at the predictor:
 3. with the tangent solves on factors kept across steps (``ForwardModel.lags_factors``, the
    default; petsoft.solvers.lagged_factors) the chord borrows the kept factors: far fewer
    factorisations than steps, few GMRES iterations a tangent solve, the same trajectory to the
-   Newton tolerance and the same sensitivities to 1e-8.
+   Newton tolerance and the same sensitivities to 1e-8; a chord that fails on the kept factors
+   has them renewed at once (else the next steps' chords fail on them too).
 """
 
 from __future__ import annotations
@@ -119,6 +120,7 @@ def test_factors_the_chord_cannot_use_leave_the_step_to_the_own_solver(stepper):
         assert report.converged, report.reason
         if lend:    # the borrowed chord was tried, and failed
             assert integ._chord.snes.getConvergedReason() < 0
+        assert integ.borrowed_failed == lend
         ends.append(q2.getArray().copy())
         for obj in (ksp, wrong, q1, v1, q2, v2):
             obj.destroy()
@@ -184,4 +186,31 @@ def test_a_sensitivity_run_keeps_its_factors_across_steps(method):
     assert np.abs(sim[True] - sim[False]).max() <= 1e-12 * np.abs(sim[False]).max()
     rel = np.abs(dsim[True] - dsim[False]).max() / np.abs(dsim[False]).max()
     assert rel <= 1e-8, rel
+    fm.destroy()
+
+
+def test_a_chord_failing_on_kept_factors_renews_them(monkeypatch):
+    """With the refactoring threshold out of reach (``REFACTOR_ITERATIONS = MAX_IT``) the kept
+    factors age until a borrowed chord fails on them (backward Euler on this bar: chord
+    iterations 5 -> 25 over 36 steps, then a failure); that step renews them, so the failure
+    does not repeat at every later step (it did, 4 times in a row, before the renewal): one
+    factorisation at the start and one per failed chord. The answer is unchanged."""
+    import petsoft.solvers.lagged_factors as lf
+
+    steps = 40
+    fm = ForwardModel(_bar(), NAMES, lambda s: MarkerObserver(s, MARKERS),
+                      np.arange(1, steps + 1) * H, integrator="be")
+    p = fm.p0.copy()
+    fm.lags_factors = False
+    sim0, dsim0 = fm.jacobian(p)
+    fm.lags_factors = True
+    monkeypatch.setattr(lf, "REFACTOR_ITERATIONS", lf.MAX_IT)
+    sim, dsim = fm.jacobian(p)
+    stats = fm.stats["tangent_solves"]
+    if PETSc.COMM_WORLD.getRank() == 0:
+        print(f"factors kept until a chord fails: {stats}")
+    assert stats["failed_chords"] >= 1, stats
+    assert stats["factorisations"] == 1 + stats["failed_chords"], stats
+    assert np.abs(sim - sim0).max() <= 1e-12 * np.abs(sim0).max()
+    assert np.abs(dsim - dsim0).max() <= 1e-8 * np.abs(dsim0).max()
     fm.destroy()

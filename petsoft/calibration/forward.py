@@ -796,6 +796,7 @@ class ForwardModel:
             observe_tangents(0)
 
         started = []
+        failed_chords = [0]
 
         def on_step(n, st0, st1):
             if not started:
@@ -804,6 +805,11 @@ class ForwardModel:
             deriv, data = self._step_setup(n, st0, st1)
             ksp.setOperators(self.J)
             if lagged is not None:
+                if getattr(self.integrator, "borrowed_failed", False):
+                    # the step's chord failed on the kept factors (its own solver solved it):
+                    # renewed here, or the next steps' chords would fail on them too
+                    lagged.renew()
+                    failed_chords[0] += 1
                 lagged.operator_changed()
             Rp = [None] * P
             for j, r in zip(others, deriv.vectors([self.names[j] for j in others]),
@@ -872,7 +878,7 @@ class ForwardModel:
                 self.integrator.borrow_chord(None)
         self._free(states)
         if lagged is not None:
-            self.stats["tangent_solves"] = lagged.stats()
+            self.stats["tangent_solves"] = {**lagged.stats(), "failed_chords": failed_chords[0]}
             lagged.destroy()
         ksp.destroy()
         for x in tangents["q"] + tangents["v"] + (tangents["a"] or []) + (tangents["z"] or []):

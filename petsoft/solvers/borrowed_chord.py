@@ -124,6 +124,9 @@ class ChordBorrower:
     _keep_factors = False
     #: (the stepper's SNES, chord iterations of the step that factored) while factors are kept
     _kept: tuple[PETSc.SNES, int] | None = None
+    #: whether the last step's chord on lent or kept factors failed (the step was then solved
+    #: by the stepper's own solver): the factors are too far from the step's Jacobian
+    borrowed_failed = False
 
     def new_run(self) -> None:
         super().new_run()
@@ -161,6 +164,7 @@ class ChordBorrower:
         (or when that fails) by the stepper's own solver; returns the SNES that solved."""
         borrowed, self._borrowed = self._borrowed, None
         kept, self._kept = self._kept, None
+        self.borrowed_failed = False
         # the factors kept are the stepper's own solver's, while that SNES is kept across steps
         # (a replaced SNES took them with it)
         own = kept is not None and kept[0] is self.snes
@@ -177,6 +181,7 @@ class ChordBorrower:
                     if own and self._chord.snes.getIterationNumber() <= kept[1] + LAG_SLACK:
                         self._kept = kept
                     return self._chord.snes
+                self.borrowed_failed = True
                 guess.copy(q1)
             finally:
                 guess.destroy()

@@ -8,7 +8,8 @@ cost. J_n moves little from one 2 ms step to the next (it is mostly stiffness an
 J_m: the Krylov method corrects for the difference, and converges in a few iterations while
 J_m^-1 J_n is near the identity. The factors are renewed only when a solve needs more than
 :data:`REFACTOR_ITERATIONS` iterations (then at the next matrix, that solve has converged) or
-fails (then at once, and the solve is repeated on fresh factors).
+fails (then at once, and the solve is repeated on fresh factors), or when the caller asks
+(:meth:`LaggedFactors.renew`).
 
 Accuracy: GMRES is left-preconditioned, so the norm it reduces is that of the preconditioned
 residual J_m^-1 (b - J_n x) = (J_m^-1 J_n)(x* - x); with J_m^-1 J_n near the identity its
@@ -77,6 +78,11 @@ class LaggedFactors:
         (or nothing was factored yet)."""
         if self._stale:
             self._factor()
+
+    def renew(self) -> None:
+        """Factor at the next :meth:`operator_changed` (e.g. the Newton chord sharing the
+        factors failed on them)."""
+        self._stale = True
 
     def _factor(self) -> None:
         pc = self.ksp.getPC()
