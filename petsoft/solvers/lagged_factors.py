@@ -122,6 +122,7 @@ class LaggedFactors:
         return self._lender
 
     def stats(self) -> dict:
+        """The counts (class docstring) as a dict."""
         return {"factorisations": self.factorisations, "solves": self.solves,
                 "iterations": self.iterations, "max_iterations": self.max_iterations}
 
