@@ -10,6 +10,11 @@ at its end), instead of assembling and factoring its own at the predictor:
    its run equals ``simulate``'s bit for bit;
 2. lent factors the chord cannot converge on (those of a matrix 1000x too small) leave the step
    to the stepper's own solver: the step ends where a step that borrowed nothing ends.
+3. with the tangent solves on factors kept across steps (``ForwardModel.lags_factors``, the
+   default; petsoft.solvers.lagged_factors) the chord borrows the kept factors: far fewer
+   factorisations than steps, few GMRES iterations a tangent solve, the same trajectory to the
+   Newton tolerance and the same sensitivities to 1e-8; a chord that fails on the kept factors
+   has them renewed at once (else the next steps' chords fail on them too).
 """
 
 from __future__ import annotations
@@ -56,6 +61,7 @@ def test_one_factorisation_a_step_and_the_same_answer(method):
     PETSc.Log.begin()
     fm = ForwardModel(_bar(), NAMES, lambda s: MarkerObserver(s, MARKERS),
                       np.arange(1, STEPS + 1) * H, integrator=method)
+    fm.lags_factors = False     # every step factors for its tangent solves (kept: below)
     p = fm.p0.copy()
     sim0 = fm.simulate(p)
     before = _factorisations()
@@ -114,6 +120,7 @@ def test_factors_the_chord_cannot_use_leave_the_step_to_the_own_solver(stepper):
         assert report.converged, report.reason
         if lend:    # the borrowed chord was tried, and failed
             assert integ._chord.snes.getConvergedReason() < 0
+        assert integ.borrowed_failed == lend
         ends.append(q2.getArray().copy())
         for obj in (ksp, wrong, q1, v1, q2, v2):
             obj.destroy()
@@ -136,6 +143,7 @@ def test_a_forward_run_keeps_its_factors_across_steps(method):
     PETSc.Log.begin()
     fm = ForwardModel(_bar(), NAMES, lambda s: MarkerObserver(s, MARKERS),
                       np.arange(1, steps + 1) * H, integrator=method)
+    fm.lags_factors = False
     p = fm.p0.copy()
     every_step, _ = fm.jacobian(p)
     before = _factorisations()
@@ -145,4 +153,64 @@ def test_a_forward_run_keeps_its_factors_across_steps(method):
     assert 1 <= count <= steps // 3, count
     assert np.abs(sim - every_step).max() <= 1e-12 * np.abs(every_step).max()
     assert np.array_equal(fm.simulate(p), sim)
+    fm.destroy()
+
+
+@pytest.mark.parametrize("method", ["be", "alpha"])
+def test_a_sensitivity_run_keeps_its_factors_across_steps(method):
+    """``ForwardModel.jacobian`` with its tangent solves on kept factors (the default) against
+    the same run factoring every step: at most half the factorisations (on this bar ~1 in 4
+    steps), GMRES averaging no more iterations a solve than the refactoring threshold, the
+    trajectory to the Newton tolerance and the sensitivities to 1e-8."""
+    from petsoft.solvers.lagged_factors import REFACTOR_ITERATIONS
+
+    steps = 40
+    PETSc.Log.begin()
+    fm = ForwardModel(_bar(), NAMES, lambda s: MarkerObserver(s, MARKERS),
+                      np.arange(1, steps + 1) * H, integrator=method)
+    p = fm.p0.copy()
+    count, sim, dsim = {}, {}, {}
+    for lag in (False, True):
+        fm.lags_factors = lag
+        before = _factorisations()
+        sim[lag], dsim[lag] = fm.jacobian(p)
+        count[lag] = _factorisations() - before
+    stats = fm.stats["tangent_solves"]
+    if PETSc.COMM_WORLD.getRank() == 0:
+        print(f"{method}: factorisations in a {steps}-step sensitivity run {count[False]} -> "
+              f"{count[True]}; tangent solves {stats}")
+    assert count[False] >= steps            # one a step for the tangent solves
+    assert 1 <= count[True] <= count[False] // 2, count
+    assert stats["solves"] == steps * len(NAMES)
+    assert stats["iterations"] <= REFACTOR_ITERATIONS * stats["solves"], stats
+    assert np.abs(sim[True] - sim[False]).max() <= 1e-12 * np.abs(sim[False]).max()
+    rel = np.abs(dsim[True] - dsim[False]).max() / np.abs(dsim[False]).max()
+    assert rel <= 1e-8, rel
+    fm.destroy()
+
+
+def test_a_chord_failing_on_kept_factors_renews_them(monkeypatch):
+    """With the refactoring threshold out of reach (``REFACTOR_ITERATIONS = MAX_IT``) the kept
+    factors age until a borrowed chord fails on them (backward Euler on this bar: chord
+    iterations 5 -> 25 over 36 steps, then a failure); that step renews them, so the failure
+    does not repeat at every later step (it did, 4 times in a row, before the renewal): one
+    factorisation at the start and one per failed chord. The answer is unchanged."""
+    import petsoft.solvers.lagged_factors as lf
+
+    steps = 40
+    fm = ForwardModel(_bar(), NAMES, lambda s: MarkerObserver(s, MARKERS),
+                      np.arange(1, steps + 1) * H, integrator="be")
+    p = fm.p0.copy()
+    fm.lags_factors = False
+    sim0, dsim0 = fm.jacobian(p)
+    fm.lags_factors = True
+    monkeypatch.setattr(lf, "REFACTOR_ITERATIONS", lf.MAX_IT)
+    sim, dsim = fm.jacobian(p)
+    stats = fm.stats["tangent_solves"]
+    if PETSc.COMM_WORLD.getRank() == 0:
+        print(f"factors kept until a chord fails: {stats}")
+    assert stats["failed_chords"] >= 1, stats
+    assert stats["factorisations"] == 1 + stats["failed_chords"], stats
+    assert np.abs(sim - sim0).max() <= 1e-12 * np.abs(sim0).max()
+    assert np.abs(dsim - dsim0).max() <= 1e-8 * np.abs(dsim0).max()
     fm.destroy()

@@ -14,9 +14,16 @@ stepping exactly (to the solver tolerances), in two ways:
 
 Both solve with the step's Jacobian, reassembled at the state the step's equation is linearised
 at (BE: q1; SI: the predictor q0 + h v0, the very matrix of the SI step; alpha: q_f); it is
-symmetric, so the adjoint solves with the same operator. A fresh CG + GAMG solve per step
-(prefix ``fm_grad_``, rtol 1e-12) is used rather than the integrator's KSP: Newton assembles its
-last Jacobian at the previous iterate, and the derivative needs it at the converged state.
+symmetric, so the adjoint solves with the same operator. A solver of their own (prefix
+``fm_grad_``; the system's default: a direct solve for small systems, else CG + GAMG at rtol
+1e-12) is used rather than the integrator's KSP: Newton assembles its last Jacobian at the
+previous iterate, and the derivative needs it at the converged state. Where that solver is the
+default direct one, the forward sensitivities do not factor every step's Jacobian: they solve
+with it by GMRES preconditioned with the factors of an earlier step's, renewed when a solve
+needs more than a few iterations (:mod:`petsoft.solvers.lagged_factors`, to a relative error
+of ~1e-11 a solve; :attr:`ForwardModel.lags_factors` = False factors every step), and lend
+those factors to the next step's Newton chord (:mod:`petsoft.solvers.borrowed_chord`).
+``stats["tangent_solves"]`` counts their factorisations and GMRES iterations.
 
 Per step with h, Jacobian J and parameter derivative R_p = d r/d p of the step equation
 (:meth:`DynamicSystem.parameter_derivatives`):
@@ -97,7 +104,8 @@ from petsoft.experiment import get_parameter
 from petsoft.io.progress import beat
 from petsoft.physics.model import build_model
 from petsoft.solvers.convergence import check_converged
-from petsoft.solvers.linear import is_direct, symmetric_factorisation
+from petsoft.solvers.lagged_factors import LaggedFactors
+from petsoft.solvers.linear import is_direct, solver_chosen, symmetric_factorisation
 from petsoft.solvers.options import scoped_defaults
 from petsoft.solvers.static import StaticSolver
 
@@ -484,8 +492,13 @@ class ForwardModel:
         return out
 
     #: whether :meth:`simulate` keeps the chord's factors across steps (False: every step
-    #: factors its own, as ``petsoft simulate`` and the sensitivity runs do)
+    #: factors its own, as ``petsoft simulate`` does)
     keeps_factors = True
+    #: whether :meth:`jacobian`'s tangent solves keep a factorisation across steps (GMRES on
+    #: the exact step Jacobian, preconditioned by an earlier step's factors,
+    #: :class:`~petsoft.solvers.lagged_factors.LaggedFactors`) where their solver is the
+    #: default direct one; False: every step factors its own Jacobian
+    lags_factors = True
 
     @_collects_garbage
     def simulate(self, p) -> np.ndarray:
@@ -513,19 +526,29 @@ class ForwardModel:
                 if x is not None:
                     x.destroy()
 
-    def _solver(self):
+    def _solver(self, lag: bool = False):
+        """The KSP of the sensitivity/adjoint solves on ``self.J``; with ``lag``, where it is
+        the default direct solve (not chosen by options or the experiment's ``[petsc]``), a
+        :class:`~petsoft.solvers.lagged_factors.LaggedFactors` on it (its ``.ksp``)."""
         ksp = PETSc.KSP().create(comm=self.comm)
         ksp.setOptionsPrefix(GRAD_PREFIX)
         # inside the scope: the experiment's [petsc] choice of solver replaces the default whole
         with scoped_defaults(**self._grad_defaults):
             self.system.linear_defaults(ksp)
             ksp.setFromOptions()
+            chosen = solver_chosen(ksp)
         symmetric_factorisation(ksp, self.J)
         ksp.setOperators(self.J)
+        if lag and is_direct(ksp) and not chosen:
+            return LaggedFactors(ksp)
         return ksp
 
     def _solve(self, ksp, rhs, out) -> None:
-        ksp.solve(rhs, out)
+        if isinstance(ksp, LaggedFactors):
+            ksp.solve(rhs, out)
+            ksp = ksp.ksp
+        else:
+            ksp.solve(rhs, out)
         if ksp.getConvergedReason() < 0:
             check_converged(ksp, f"{self.experiment.source}: a sensitivity/adjoint linear solve",
                             hint=f"try -{GRAD_PREFIX}pc_type lu")
@@ -719,7 +742,11 @@ class ForwardModel:
                     "a": [s.create_vec() for _ in range(P)] if self.has_a else None}
         for x in tangents["q"] + tangents["v"]:
             x.zeroEntries()
-        ksp = self._solver()
+        # the tangent solves: on factors kept across steps (LaggedFactors) unless
+        # lags_factors is off or the solver is not the default direct one
+        solver = self._solver(lag=self.lags_factors)
+        lagged = solver if isinstance(solver, LaggedFactors) else None
+        ksp = solver.ksp if lagged is not None else solver
         # backward Euler with a viscoelastic branch: z is one more state (dz0 = dq0: z0 = q0)
 
         visco = [j for j, n in enumerate(self.names) if n in VISCOELASTIC]
@@ -769,6 +796,7 @@ class ForwardModel:
             observe_tangents(0)
 
         started = []
+        failed_chords = [0]
 
         def on_step(n, st0, st1):
             if not started:
@@ -776,6 +804,13 @@ class ForwardModel:
                 started.append(True)
             deriv, data = self._step_setup(n, st0, st1)
             ksp.setOperators(self.J)
+            if lagged is not None:
+                if getattr(self.integrator, "borrowed_failed", False):
+                    # the step's chord failed on the kept factors (its own solver solved it):
+                    # renewed here, or the next steps' chords would fail on them too
+                    lagged.renew()
+                    failed_chords[0] += 1
+                lagged.operator_changed()
             Rp = [None] * P
             for j, r in zip(others, deriv.vectors([self.names[j] for j in others]),
                             strict=True):
@@ -787,8 +822,8 @@ class ForwardModel:
             for j in range(P):
                 dq0, dv0 = tangents["q"][j], tangents["v"][j]
                 if self.scheme.carries_acceleration:
-                    self._alpha_tangent(data, Rp[j], dq0, dv0, tangents["a"][j], ksp, rhs, tmp,
-                                        branch, tangents["z"][j] if branch is not None
+                    self._alpha_tangent(data, Rp[j], dq0, dv0, tangents["a"][j], solver, rhs,
+                                        tmp, branch, tangents["z"][j] if branch is not None
                                         else None, st1[0], self.names[j])
                     continue
                 # rhs = -R_p + M (dq0/h^2 + dv0/h) + D dq0/h (- T_w (dq0 + h dv0) for SI)
@@ -812,7 +847,7 @@ class ForwardModel:
                     rhs.axpy(branch.jacobian_coefficient(), tmp)
                 s.zero_prescribed(rhs)
                 dq1 = tmp
-                self._solve(ksp, rhs, dq1)
+                self._solve(solver, rhs, dq1)
                 if branch is not None:
                     branch.tangent_update(tangents["z"][j], dq1, st1[0], self.names[j])
                 if self.accel:
@@ -831,17 +866,20 @@ class ForwardModel:
             observe_tangents(n + 1)
             if lend:
                 # the next step's Newton chord iterates on these factors (borrowed_chord)
-                self.integrator.borrow_chord(ksp)
+                self.integrator.borrow_chord(lagged.factors if lagged is not None else ksp)
 
         # (not to si: its one Newton step is the method, not a solve to convergence)
         lend = (hasattr(self.integrator, "borrow_chord") and not self.scheme.one_newton_step
-                and is_direct(ksp))
+                and (lagged is not None or is_direct(ksp)))
         try:
             states, sim = self._run(p, store=False, on_step=on_step)
         finally:
             if lend:
                 self.integrator.borrow_chord(None)
         self._free(states)
+        if lagged is not None:
+            self.stats["tangent_solves"] = {**lagged.stats(), "failed_chords": failed_chords[0]}
+            lagged.destroy()
         ksp.destroy()
         for x in tangents["q"] + tangents["v"] + (tangents["a"] or []) + (tangents["z"] or []):
             x.destroy()

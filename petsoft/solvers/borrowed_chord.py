@@ -7,6 +7,11 @@ factor the step Jacobian once more, at its predictor: the same matrix one step l
 needs only an approximation of the Jacobian (its residual is exact and it converges to the
 same tolerance), so the next step can iterate on the sensitivities' factors instead, saving an
 assembly and a factorisation a step -- two of a sensitivity step's costliest parts.
+The sensitivity run keeps its factorisation across steps too
+(:mod:`petsoft.solvers.lagged_factors`: GMRES on each step's exact Jacobian, preconditioned with
+an earlier step's factors, refactored when a tangent solve needs more than a few iterations);
+the chord then iterates on those kept factors (a ``preonly`` KSP on the same PC), older than
+the previous step's, and takes a few more iterations.
 
 A forward run that is not differentiated (:meth:`petsoft.calibration.forward.ForwardModel.simulate`)
 can lend itself its own factors the same way (:meth:`ChordBorrower.keep_factors`): each step's
@@ -119,6 +124,9 @@ class ChordBorrower:
     _keep_factors = False
     #: (the stepper's SNES, chord iterations of the step that factored) while factors are kept
     _kept: tuple[PETSc.SNES, int] | None = None
+    #: whether the last step's chord on lent or kept factors failed (the step was then solved
+    #: by the stepper's own solver): the factors are too far from the step's Jacobian
+    borrowed_failed = False
 
     def new_run(self) -> None:
         super().new_run()
@@ -156,6 +164,7 @@ class ChordBorrower:
         (or when that fails) by the stepper's own solver; returns the SNES that solved."""
         borrowed, self._borrowed = self._borrowed, None
         kept, self._kept = self._kept, None
+        self.borrowed_failed = False
         # the factors kept are the stepper's own solver's, while that SNES is kept across steps
         # (a replaced SNES took them with it)
         own = kept is not None and kept[0] is self.snes
@@ -172,6 +181,7 @@ class ChordBorrower:
                     if own and self._chord.snes.getIterationNumber() <= kept[1] + LAG_SLACK:
                         self._kept = kept
                     return self._chord.snes
+                self.borrowed_failed = True
                 guess.copy(q1)
             finally:
                 guess.destroy()
