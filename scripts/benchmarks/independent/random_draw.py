@@ -153,6 +153,8 @@ def _cross_size(geom: dict) -> float:
 def effect(rng: np.random.Generator, term: str, geom: dict, material: dict) -> tuple[dict, dict]:
     """The truth settings of one concealed ``term`` (generate.py's truth keys) and the record
     of its drawn magnitude."""
+    if term == "gravity":           # left out of the user's model; 9.81 m/s^2 along -z
+        return {}, {"term": term, "magnitude": 9.81, "range": None}
     lo, hi = MAGNITUDE[term]
     m = loguniform(rng, lo, hi)
     E, rho = material["youngs_modulus"], material["density"]
@@ -195,13 +197,11 @@ def effect(rng: np.random.Generator, term: str, geom: dict, material: dict) -> t
         t = {"viscoelastic": {"ratio": m, "relaxation_time": tau1},
              "viscoelastic2": {"ratio": loguniform(rng, lo, hi),
                                "relaxation_time": tau1 * rng.uniform(8.0, 30.0)}}
-    elif term in ("gravity", "material.nonlinear"):
-        t = {}                              # the user's model leaves out / linearises it
-        if term == "gravity":
-            m = 9.81
+    elif term == "material.nonlinear":
+        t = {}                              # the user's model linearises the law
     else:
         raise ValueError(f"unknown term {term!r}")
-    return t, {"term": term, "magnitude": m, "range": [lo, hi] if term != "gravity" else None}
+    return t, {"term": term, "magnitude": m, "range": [lo, hi]}
 
 
 def _merge(a: dict, b: dict) -> dict:
