@@ -4,6 +4,11 @@ Run with the system python (DOLFINx 0.5 and gmsh are Debian packages there, not 
 
     nice /usr/bin/python3 scripts/benchmarks/independent/generate.py [--cases a,b] [--list]
 
+or, for a random draw of cases (random_cases.py, issue 37)::
+
+    nice /usr/bin/python3 scripts/benchmarks/independent/generate.py --random N --seed S \
+        --out DIR [--size small|realistic]
+
 For every case this writes, under ``cases/<name>/``:
 
 * ``recording.h5``: marker trajectories in petsoft's recording format (formats.md section 2),
