@@ -234,8 +234,8 @@ def velocity_fn(exprs):
 
 def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
                    h_fine: float | None = None, substeps: int = SUBSTEPS,
-                   end: float = END, newton_tol: float = 1e-10, body: dict | None = None
-                   ) -> dict:
+                   end: float = END, newton_tol: float = 1e-10, body: dict | None = None,
+                   degree: int = 2) -> dict:
     """Simulate the truth of ``case`` and return marker displacements at the user's frames
     (``h_fine``, ``substeps``, ``end``: the fine mesh size, steps per frame and the span,
     default the suite's; ``newton_tol``: the largest accepted last Newton increment, m).
@@ -248,7 +248,8 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
     ``gravity``, optionally ``base`` (the clamp moved by ``amplitude`` sin(``omega`` t)^3 along
     ``direction``). ``case["truth"]`` may also hold ``regions`` (a list of spheres ``center``,
     ``radius`` or slabs ``center``, ``normal``, ``thickness`` with their own ``youngs_modulus``
-    and/or ``density``) and ``viscoelastic2``, a second standard-linear-solid branch."""
+    and/or ``density``) and ``viscoelastic2``, a second standard-linear-solid branch.
+    ``degree``: the elements' (2, the suite's; quadrature degree 2 x degree)."""
     # imported here: DOLFINx is in the system python only, and --list works without it
     import ufl
     from dolfinx import fem, geometry
@@ -277,7 +278,7 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
     msh, _, _ = gmshio.model_to_mesh(gmsh.model, MPI.COMM_SELF, 0, gdim=3)
     gmsh.model.remove()
     ncells = msh.topology.index_map(3).size_local
-    V = fem.VectorFunctionSpace(msh, ("CG", 2))
+    V = fem.VectorFunctionSpace(msh, ("CG", degree))
     Q = fem.FunctionSpace(msh, ("DG", 0))
     Ef, rhof = fem.Function(Q), fem.Function(Q)
     Ef.x.array[:] = E0
@@ -317,7 +318,7 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
     tags = dmesh.meshtags(msh, fdim, np.sort(facets), np.full(len(facets), 1, dtype=np.int32))
     # degree 4: exact for the mass and the linear terms of P2, and the usual choice for the
     # neo-Hookean stress (UFL's estimate for ln J is a far higher degree, ~50x slower)
-    md = {"quadrature_degree": 4}
+    md = {"quadrature_degree": 2 * degree}
     dx = ufl.Measure("dx", domain=msh, metadata=md)
     ds = ufl.Measure("ds", domain=msh, subdomain_data=tags, metadata=md)
     compliance = truth.get("compliance")
