@@ -229,8 +229,8 @@ def make_case(gmsh, case: dict, out: Path, refine: int = 1) -> dict:
         seconds += sum(r["seconds"] for r in runs.values())
         found = np.logical_and.reduce([r["found"] for r in runs.values()])
         keep = np.flatnonzero(found)[:case["markers"]]
-        disp = {k: r["displacements"][:, keep] / noise for k, r in runs.items()}
-        conv = truth_error(disp)
+        disp = {k: r["displacements"][:, keep] for k, r in runs.items()}      # m
+        conv = truth_error({k: v / noise for k, v in disp.items()})
         for key in ("space", "space2", "time"):
             r = runs[key]
             conv[f"{key}_run"] = {"h": r["h"], "tets": r["fine_tets"], "dofs": r["dofs"],
