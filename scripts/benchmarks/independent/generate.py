@@ -4,6 +4,11 @@ Run with the system python (DOLFINx 0.5 and gmsh are Debian packages there, not 
 
     nice /usr/bin/python3 scripts/benchmarks/independent/generate.py [--cases a,b] [--list]
 
+or, for a random draw of cases (random_cases.py, issue 37)::
+
+    nice /usr/bin/python3 scripts/benchmarks/independent/generate.py --random N --seed S \
+        --out DIR [--size small|realistic]
+
 For every case this writes, under ``cases/<name>/``:
 
 * ``recording.h5``: marker trajectories in petsoft's recording format (formats.md section 2),
@@ -229,10 +234,22 @@ def velocity_fn(exprs):
 
 def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
                    h_fine: float | None = None, substeps: int = SUBSTEPS,
-                   end: float = END, newton_tol: float = 1e-10) -> dict:
+                   end: float = END, newton_tol: float = 1e-10, body: dict | None = None,
+                   degree: int = 2) -> dict:
     """Simulate the truth of ``case`` and return marker displacements at the user's frames
     (``h_fine``, ``substeps``, ``end``: the fine mesh size, steps per frame and the span,
-    default the suite's; ``newton_tol``: the largest accepted last Newton increment, m)."""
+    default the suite's; ``newton_tol``: the largest accepted last Newton increment, m).
+
+    ``body`` (the random cases, random_cases.py; default: the suite's shape ``case["shape"]``
+    and constants): ``mesh(gmsh, h)`` meshes the solid in a new gmsh model, ``h_fine`` its
+    default size, ``clamp(x)`` the clamped points of x (3, N), ``velocity`` / ``displacement``
+    the initial fields (expressions of x, y, z; displacement optional), ``material``
+    (``youngs_modulus``, ``poisson_ratio``, ``density``, ``law`` neohookean | linear) and
+    ``gravity``, optionally ``base`` (the clamp moved by ``amplitude`` sin(``omega`` t)^3 along
+    ``direction``). ``case["truth"]`` may also hold ``regions`` (a list of spheres ``center``,
+    ``radius`` or slabs ``center``, ``normal``, ``thickness`` with their own ``youngs_modulus``
+    and/or ``density``) and ``viscoelastic2``, a second standard-linear-solid branch.
+    ``degree``: the elements' (2, the suite's; quadrature degree 2 x degree)."""
     # imported here: DOLFINx is in the system python only, and --list works without it
     import ufl
     from dolfinx import fem, geometry
@@ -243,17 +260,44 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
     from petsc4py import PETSc
 
     shape = case["shape"]
-    sh = SHAPES[shape]
     truth = case["truth"]
-    mesh_shape(gmsh, shape, h_fine or sh["h_fine"], graded=True)
+    if body is None:
+        sh = SHAPES[shape]
+        mesh_shape(gmsh, shape, h_fine or sh["h_fine"], graded=True)
+        velocity = case.get("velocity", sh["velocity"])
+        E0, nu, rho0, gravity, law = E_TRUE, NU, RHO, GRAVITY, "neohookean"
+
+        def clamp(x):
+            return clamp_mask(shape, x)
+    else:
+        body["mesh"](gmsh, h_fine or body["h_fine"])
+        velocity, clamp = body["velocity"], body["clamp"]
+        mat = body["material"]
+        E0, nu, rho0 = mat["youngs_modulus"], mat["poisson_ratio"], mat["density"]
+        gravity, law = body["gravity"], mat.get("law", "neohookean")
     msh, _, _ = gmshio.model_to_mesh(gmsh.model, MPI.COMM_SELF, 0, gdim=3)
     gmsh.model.remove()
     ncells = msh.topology.index_map(3).size_local
-    V = fem.VectorFunctionSpace(msh, ("CG", 2))
+    V = fem.VectorFunctionSpace(msh, ("CG", degree))
     Q = fem.FunctionSpace(msh, ("DG", 0))
     Ef, rhof = fem.Function(Q), fem.Function(Q)
-    Ef.x.array[:] = E_TRUE
-    rhof.x.array[:] = RHO
+    Ef.x.array[:] = E0
+    rhof.x.array[:] = rho0
+    # regions (random cases): a cell belongs when its centroid (DG0's dof) is inside
+    centroids = Q.tabulate_dof_coordinates()
+    for reg in truth.get("regions", []):
+        rel = centroids - np.asarray(reg["center"])
+        if reg["kind"] == "sphere":
+            inside = np.sum(rel ** 2, axis=1) < reg["radius"] ** 2
+        elif reg["kind"] == "slab":
+            inside = np.abs(rel @ np.asarray(reg["normal"])) < reg["thickness"] / 2
+        else:
+            raise ValueError(f"{name}: region kind {reg['kind']!r}")
+        if not inside.any():
+            raise RuntimeError(f"{name}: region {reg} holds no cell of the truth's mesh")
+        for key, fld in (("youngs_modulus", Ef), ("density", rhof)):
+            if key in reg:
+                fld.x.array[inside] = reg[key]
     sphere = truth.get("sphere")
     if sphere:
         c, r = np.array(sphere["where"]["center"]), sphere["where"]["radius"]
@@ -262,19 +306,19 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
             return np.sum((x.T - c) ** 2, axis=1) < r * r
 
         if "youngs_modulus" in sphere:
-            Ef.interpolate(lambda x: np.where(inside(x), sphere["youngs_modulus"], E_TRUE))
+            Ef.interpolate(lambda x: np.where(inside(x), sphere["youngs_modulus"], E0))
         if "density" in sphere:
-            rhof.interpolate(lambda x: np.where(inside(x), sphere["density"], RHO))
-    mu = Ef / (2 * (1 + NU))
-    lam = Ef * NU / ((1 + NU) * (1 - 2 * NU))
+            rhof.interpolate(lambda x: np.where(inside(x), sphere["density"], rho0))
+    mu = Ef / (2 * (1 + nu))
+    lam = Ef * nu / ((1 + nu) * (1 - 2 * nu))
 
     # clamp facets (Dirichlet, or the Winkler foundation of a compliant support)
     fdim = 2
-    facets = dmesh.locate_entities_boundary(msh, fdim, lambda x: clamp_mask(shape, x))
+    facets = dmesh.locate_entities_boundary(msh, fdim, clamp)
     tags = dmesh.meshtags(msh, fdim, np.sort(facets), np.full(len(facets), 1, dtype=np.int32))
     # degree 4: exact for the mass and the linear terms of P2, and the usual choice for the
     # neo-Hookean stress (UFL's estimate for ln J is a far higher degree, ~50x slower)
-    md = {"quadrature_degree": 4}
+    md = {"quadrature_degree": 2 * degree}
     dx = ufl.Measure("dx", domain=msh, metadata=md)
     ds = ufl.Measure("ds", domain=msh, subdomain_data=tags, metadata=md)
     compliance = truth.get("compliance")
@@ -282,13 +326,30 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
     if not compliance:
         dofs = fem.locate_dofs_topological(V, fdim, facets)
         bcs = [fem.dirichletbc(np.zeros(3, dtype=PETSc.ScalarType), dofs, V)]
+    base = body.get("base") if body is not None else None
+    if base:
+        # a base motion (random cases): the clamp translates by amplitude sin(omega t)^3
+        # along direction, zero with its first two derivatives at t = 0 (so the initial rest
+        # and the consistent initial acceleration hold there too)
+        if compliance:
+            raise ValueError(f"{name}: a base motion needs the rigid clamp")
+        ubc = fem.Function(V)
+        bcs = [fem.dirichletbc(ubc, dofs)]
+        shift = np.asarray(base["direction"], dtype=float) * base["amplitude"]
+
+        def move(t):
+            ubc.x.array[:] = np.tile(shift * np.sin(base["omega"] * t) ** 3,
+                                     len(ubc.x.array) // 3)
 
     # the truth always has gravity (the "gravity" case leaves it out of the user's model)
-    g = fem.Constant(msh, PETSc.ScalarType(GRAVITY))
+    g = fem.Constant(msh, PETSc.ScalarType(gravity))
     damping = truth.get("damping", {})
     drag = truth.get("drag", {})
     fric = truth.get("friction", {})
     visco = truth.get("viscoelastic", {})
+    # standard-linear-solid branches (g, tau): the vocabulary's one, a second (random cases)
+    branches = [(b["ratio"], b["relaxation_time"]) for b in
+                (visco, truth.get("viscoelastic2", {})) if b.get("ratio")]
     n = ufl.FacetNormal(msh)
     I3 = ufl.Identity(3)
 
@@ -304,9 +365,11 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
         psi = mu / 2 * (ufl.tr(F.T * F) - 3) - mu * ufl.ln(J) + lam / 2 * ufl.ln(J) ** 2
         return ufl.diff(psi, F)
 
-    def forces(uu, vv, ww, zz, test):
+    def forces(uu, vv, ww, zzs, test):
         """Every force but inertia, as the residual's weak form (internal minus external)."""
-        f = ufl.inner(piola(uu), ufl.grad(test)) * dx - rhof * ufl.dot(g, test) * dx
+        # the linear law (the random cases' effect-free run of material.nonlinear): small strain
+        stress = sigma0(uu) if law == "linear" else piola(uu)
+        f = ufl.inner(stress, ufl.grad(test)) * dx - rhof * ufl.dot(g, test) * dx
         if damping.get("mass"):
             f += damping["mass"] * rhof * ufl.dot(vv, test) * dx
         if damping.get("stiffness"):
@@ -321,8 +384,8 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
         if fric.get("dry"):
             f += (fric["dry"] * rhof / ufl.sqrt(ufl.dot(vv, vv) + fric["speed"] ** 2)
                   * ufl.dot(vv, test) * dx)
-        if visco.get("ratio"):
-            f += visco["ratio"] * ufl.inner(sigma0(ww - zz), eps(test)) * dx
+        for (ratio, _), zz in zip(branches, zzs, strict=True):
+            f += ratio * ufl.inner(sigma0(ww - zz), eps(test)) * dx
         return f
 
     # Chung-Hulbert generalized-alpha
@@ -330,14 +393,21 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
     am, af = (2 * rinf - 1) / (rinf + 1), rinf / (rinf + 1)
     gamma, beta = 0.5 - am + af, 0.25 * (1 - am + af) ** 2
     h = STEP / substeps
-    u, u0, v0, a0, z0 = (fem.Function(V) for _ in range(5))
-    v0.interpolate(velocity_fn(case.get("velocity", sh["velocity"])))
+    u, u0, v0, a0 = (fem.Function(V) for _ in range(4))
+    z0s = [fem.Function(V) for _ in branches]
+    v0.interpolate(velocity_fn(velocity))
+    if body is not None and body.get("displacement"):
+        # a release from a deflected shape; the branches start relaxed there (petsoft's
+        # viscoelastic.py: z(0) = q(0), the body has rested at q(0) for long)
+        u0.interpolate(velocity_fn(body["displacement"]))
+        for z0 in z0s:
+            z0.x.array[:] = u0.x.array
     w = ufl.TestFunction(V)
     du = ufl.TrialFunction(V)
 
     # consistent initial acceleration: M a0 = -forces(u0, v0)
     a_form = fem.form(rhof * ufl.dot(du, w) * dx)
-    L_form = fem.form(-forces(u0, v0, u0, z0, w))
+    L_form = fem.form(-forces(u0, v0, u0, z0s, w))
     A0 = assemble_matrix(a_form, bcs=bcs)
     A0.assemble()
     b0 = assemble_vector(L_form)
@@ -350,11 +420,13 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
 
     a1 = (u - u0 - h * v0) / (beta * h * h) - (1 - 2 * beta) / (2 * beta) * a0
     v1 = v0 + h * ((1 - gamma) * a0 + gamma * a1)
-    r = h / visco["relaxation_time"] if visco.get("ratio") else 0.0
-    z1 = ((1 - r / 2) * z0 + (r / 2) * (u0 + u)) / (1 + r / 2)
+    rs = [h / tau for _, tau in branches]
+    z1s = [((1 - r / 2) * z0 + (r / 2) * (u0 + u)) / (1 + r / 2)
+           for r, z0 in zip(rs, z0s, strict=True)]
     am_ = (1 - am) * a1 + am * a0
-    uf, vf, zf = ((1 - af) * x1 + af * x0 for x1, x0 in ((u, u0), (v1, v0), (z1, z0)))
-    R = rhof * ufl.dot(am_, w) * dx + forces(uf, vf, uf, zf, w)
+    uf, vf = ((1 - af) * x1 + af * x0 for x1, x0 in ((u, u0), (v1, v0)))
+    zfs = [(1 - af) * z1 + af * z0 for z1, z0 in zip(z1s, z0s, strict=True)]
+    R = rhof * ufl.dot(am_, w) * dx + forces(uf, vf, uf, zfs, w)
     R_form = fem.form(R)
     J_form = fem.form(ufl.derivative(R, u, du))
 
@@ -377,11 +449,13 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
     t0 = time.perf_counter()
     u.x.array[:] = u0.x.array
     for step in range(1, nsteps + 1):
+        if base:
+            move(step * h)
         # predictor: constant velocity (with the acceleration term, the graded bracket's 2 mm
         # cells under stiffness damping got a0 ~ 1e4 m/s^2 from the initial velocity field
         # and the predictor inverted them: NaN); only Newton's start, not the solution
         u.x.array[:] = u0.x.array + h * v0.x.array
-        last = np.inf
+        last, halvings = np.inf, 0
         for it in range(40):
             with b.localForm() as bl:
                 bl.set(0.0)
@@ -389,6 +463,20 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
             apply_lifting(b, [J_form], bcs=[bcs], x0=[u.vector], scale=-1.0)
             b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
             set_bc(b, bcs, u.vector, -1.0)
+            if not np.isfinite(b.norm()):
+                # an inverted cell (ln J < 0): a random case's release threw the graded L's
+                # small corner cells over in the predictor at 1 ms steps. Restart from the
+                # last state, or go back half the last increment (never met by the suite's
+                # cases, whose results this leaves unchanged)
+                halvings += 1
+                if halvings > 8:
+                    raise RuntimeError(f"{name}: inverted cells at step {step}")
+                if it == 0:
+                    u.x.array[:] = u0.x.array
+                else:
+                    dx_.scale(0.5)
+                    u.x.array[:] += dx_.array
+                continue
             if it in (6, 15, 30):
                 # slow: a fresh tangent (modified Newton keeps the factor while it contracts)
                 A.zeroEntries()
@@ -411,8 +499,9 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
         a_new = ((u.x.array - u0.x.array - h * v0.x.array) / (beta * h * h)
                  - (1 - 2 * beta) / (2 * beta) * a0.x.array)
         v0.x.array[:] = v0.x.array + h * ((1 - gamma) * a0.x.array + gamma * a_new)
-        z0.x.array[:] = ((1 - r / 2) * z0.x.array + (r / 2) * (u0.x.array + u.x.array)) / (
-            1 + r / 2)
+        for r, z0 in zip(rs, z0s, strict=True):
+            z0.x.array[:] = ((1 - r / 2) * z0.x.array
+                             + (r / 2) * (u0.x.array + u.x.array)) / (1 + r / 2)
         a0.x.array[:] = a_new
         u0.x.array[:] = u.x.array
         if step % substeps == 0:
@@ -615,7 +704,27 @@ def main() -> int:
     ap.add_argument("--convergence", metavar="CASE",
                     help="write nothing: the truth of CASE against the step doubled and a "
                          "coarser mesh (its discretisation error over the noise)")
+    ap.add_argument("--random", type=int, metavar="N",
+                    help="draw N random cases instead (random_cases.py; with --seed, --out)")
+    ap.add_argument("--seed", type=int, help="the random draw's seed")
+    ap.add_argument("--out", type=Path, help="the random draw's folder")
+    ap.add_argument("--size", choices=("small", "realistic"), default="small",
+                    help="the random cases' user meshes and record lengths (default small)")
+    ap.add_argument("--only", help="random: only these case indices (comma-separated)")
+    ap.add_argument("--refine", type=int, default=1,
+                    help="random: refine a truth failing its error check up to this many "
+                         "times before discarding the case (default 1)")
+    ap.add_argument("--draw-only", action="store_true",
+                    help="random: write draw.json (the drawn parameters), simulate nothing")
     args = ap.parse_args()
+    if args.random is not None:
+        if args.seed is None or args.out is None:
+            ap.error("--random needs --seed and --out")
+        import random_cases
+
+        only = [int(i) for i in args.only.split(",")] if args.only else None
+        return random_cases.main(args.random, args.seed, args.out, args.size, only,
+                                 args.draw_only, args.refine)
     if args.list:
         for k, c in CASES.items():
             print(f"{k:<20} {c['shape']:<8} {'+'.join(c['physics']) or '-'}")

@@ -1,0 +1,65 @@
+"""The random cases' truth-error estimate (scripts/benchmarks/independent/random_cases.py,
+``truth_error``) on synthetic runs whose discretisation error is known: u_h = u + c h^p e.
+Pure numpy (random_cases imports gmsh and DOLFINx only inside the functions that run them)."""
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+HERE = Path(__file__).resolve().parents[1] / "scripts/benchmarks/independent"
+
+
+@pytest.fixture(scope="module")
+def rc():
+    sys.path.insert(0, str(HERE))
+    try:
+        spec = importlib.util.spec_from_file_location("random_cases", HERE / "random_cases.py")
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        yield mod
+    finally:
+        sys.path.remove(str(HERE))
+
+
+def runs(p_space: float, c_space: float, c_time: float, h: float = 1.0, dt: float = 1.0):
+    """Synthetic runs: the exact field plus c h^p e (space) and c dt^2 f (time)."""
+    rng = np.random.default_rng(3)
+    u, e, f = (rng.normal(size=(40, 6, 3)) for _ in range(3))
+
+    def run(hh, tt):
+        return u + c_space * hh ** p_space * e + c_time * tt ** 2 * f
+
+    d = {"truth": run(h, dt), "space": run(1.4 * h, dt), "space2": run(1.96 * h, dt),
+         "time": run(h, 2 * dt)}
+    err = {"space": c_space * h ** p_space * e, "time": c_time * dt ** 2 * f}
+    return d, err
+
+
+@pytest.mark.parametrize("p", [0.7, 1.0, 2.0, 3.0])
+def test_a_power_law_error_is_recovered(rc, p):
+    d, err = runs(p, 0.2, 0.05)
+    out = rc.truth_error(d)
+    assert out["space_observed_order"] == pytest.approx(p, rel=1e-9)
+    assert out["space_error_estimate"] == pytest.approx(rc.rms(err["space"]), rel=1e-9)
+    assert out["time_error_estimate"] == pytest.approx(rc.rms(err["time"]), rel=1e-9)
+    assert out["bound_rms_over_noise"] == pytest.approx(
+        rc.rms(err["space"]) + rc.rms(err["time"]), rel=1e-9)
+
+
+def test_an_order_above_p2s_is_not_trusted(rc):
+    # observed 4.5 (a lucky cancellation): the estimate uses 3, so it over-, never under-states
+    d, err = runs(4.5, 0.2, 0.0)
+    out = rc.truth_error(d)
+    assert out["space_observed_order"] == pytest.approx(4.5)
+    assert out["space_order_used"] == 3.0
+    assert out["space_error_estimate"] > 1.5 * rc.rms(err["space"])
+
+
+def test_no_convergence_seen_is_no_estimate(rc):
+    d, _ = runs(2.0, 0.2, 0.0)
+    d["space2"] = d["truth"] + 0.5 * (d["space"] - d["truth"])    # D2 < D1
+    out = rc.truth_error(d)
+    assert out["space_error_estimate"] is None and out["bound_rms_over_noise"] is None
