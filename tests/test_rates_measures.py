@@ -299,3 +299,15 @@ def test_draw_and_run_refuses_what_the_protocol_forbids(tmp_path):
         out = run(*args)
         assert out.returncode == 2 and said in out.stderr, (args, out.stderr)
     assert not (tmp_path / "new").exists()
+
+
+def test_the_random_generators_truth_format_is_read():
+    """random_cases.py writes the combined effect as ``effect_size_over_noise: {"rms", "max"}``
+    and names its off-vocabulary effects without the prefix: both are understood."""
+    assert m.is_offvocab("inclusion.slab") and m.is_offvocab("offvocab.x")
+    assert not m.is_offvocab("damping.mass")
+    one = {"concealed": ["damping.mass"], "effect_size_over_noise": {"rms": 3.5, "max": 9.0}}
+    assert m.effect_sizes(one) == {"damping.mass": 3.5}
+    two = {"concealed": ["damping.mass", "gravity"],
+           "effect_size_over_noise": {"rms": 3.5, "max": 9.0}}
+    assert m.effect_sizes(two) == {}

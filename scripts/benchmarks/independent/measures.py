@@ -23,6 +23,7 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
+from petsoft.diagnosis.report import PHYSICS
 from petsoft.diagnosis.story import ties
 
 #: truth.json's prefix of an effect outside the vocabulary
@@ -70,7 +71,9 @@ def seed_from_commit(sha: str) -> int:
 
 
 def is_offvocab(term: str) -> bool:
-    return term.startswith(OFFVOCAB)
+    """An effect no term of diagnose's vocabulary names: prefixed :data:`OFFVOCAB`, or any name
+    outside the vocabulary (random_draw.py's ``inclusion.slab``, ``viscoelastic.two_branch``)."""
+    return term.startswith(OFFVOCAB) or term not in PHYSICS
 
 
 def named(report: Mapping) -> list[str]:
@@ -198,6 +201,10 @@ def effect_sizes(truth: Mapping) -> dict[str, float]:
     out of the power curves)."""
     concealed = truth["concealed"]
     eff = truth.get("effect_over_noise")
+    if eff is None and isinstance(truth.get("effect_size_over_noise"), Mapping):
+        # random_cases.py's: the rms over markers, frames and components of (truth - the
+        # effect-free run) / noise, of all the concealed terms together
+        eff = truth["effect_size_over_noise"].get("rms")
     if not concealed or eff is None:
         return {}
     if isinstance(eff, Mapping):
