@@ -64,7 +64,12 @@ from petsoft.diagnosis.context import (  # noqa: F401
     scored_together,
 )
 from petsoft.diagnosis.geometry import refit_added_sphere
-from petsoft.diagnosis.numerics import NumericsChecks, numerics_check, numerics_due  # noqa: F401
+from petsoft.diagnosis.numerics import (  # noqa: F401
+    NumericsChecks,
+    final_estimates,
+    numerics_check,
+    numerics_due,
+)
 from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings, refinement_words
 from petsoft.diagnosis.outputs import build_diagnosis_report, write_outputs
 from petsoft.diagnosis.reconsider import Added, reconsider
@@ -321,7 +326,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         seen_r.setdefault(r["physics"], r)
     rejected = list(seen_r.values())
     clock.switch("final")
-    num = numerics_check(diag, current) if numerics else {}
+    num = (numerics_check(diag, current, final_estimates(diag, checks.refinements, current))
+           if numerics else {})
     if checks.refinements:
         num["refinements"] = checks.refinements
     if diag.model_error:

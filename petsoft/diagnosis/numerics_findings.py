@@ -173,7 +173,8 @@ def numerics_summary(num: dict, rounds: list[dict], final) -> tuple[list[str], l
             covered[label] = label == "mesh x2" and "P2" in r["options"]
     for label, v in num.items():
         if isinstance(v, dict) and "change" in v:
-            last[label] = ({"x": v["change_over_noise"], "how": v["how"], "adopting": False},
+            last[label] = ({"x": v["change_over_noise"], "how": v["how"], "adopting": False,
+                            "estimated": bool(v.get("estimated"))},
                            last.get(label, ({}, False))[1])
     out = []
     unchecked: dict[str, str] = {}
@@ -195,9 +196,12 @@ def numerics_summary(num: dict, rounds: list[dict], final) -> tuple[list[str], l
                        f"simulation by {x} and brought it closer to the data; adopted: "
                        f"{_adopted_setting(label, final)}.")
         elif label in adopted:
-            again = (f"; refining once more ({m['how']}) changes the simulation by {x}"
-                     + (", so it still limits what the diagnosis can tell apart"
-                        if m["x"] >= 1.0 else ""))
+            again = (f"; refining once more ({m['how']}) would change the simulation by an "
+                     f"estimated {x} (Richardson, from the last refinement; not simulated)"
+                     if m.get("estimated") else
+                     f"; refining once more ({m['how']}) changes the simulation by {x}")
+            again += (", so it still limits what the diagnosis can tell apart"
+                      if m["x"] >= 1.0 else "")
             out.append(f"{name}: part of the mismatch; adopted: "
                        f"{_adopted_setting(label, final)}{again}.")
         elif m["x"] < 1.0 and largest.get(label, 0.0) < 1.0:
@@ -281,6 +285,12 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
             action, noun = refinement_words(label)
             limits = ("" if v["resolved"] else f": more than the noise, so the {noun} still "
                       "limits what this diagnosis can tell apart")
+            if v.get("estimated"):
+                findings.append(f"On the final model, the simulation would change by an "
+                                f"estimated {_x(v['change_over_noise'])}x the noise when "
+                                f"{action} ({v['how']}; Richardson, from the last refinement's "
+                                f"change: not simulated, being far below the noise){limits}.")
+                continue
             findings.append(f"On the final model, the simulation changes by "
                             f"{_x(v['change_over_noise'])}x the noise when {action} "
                             f"({v['how']}){limits}.")

@@ -1,0 +1,71 @@
+"""The final numerics check quotes Richardson's estimate for a halved step the last round adopted
+(issue 40, item 3: "the step/2 test only where the time step can matter").
+
+:func:`petsoft.diagnosis.numerics.final_estimates` decides; :func:`numerics_check` then writes an
+``estimated`` entry instead of simulating, and the report's sentences say it was estimated.
+"""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from petsoft.diagnosis.numerics import ESTIMATE_FINAL_BELOW, final_estimates
+
+SIGMA = 1e-4
+
+
+def _rounds(label="step/2", same=0.36, refitted=0.23, share=1.0 / 3.0, params=None):
+    """A last numerics round that adopted ``label``: its change at the same parameters and
+    refitted (in noise units) and Richardson's share (remaining_estimate / change_rms)."""
+    option = {"change_same_parameters": same * SIGMA, "change_rms": refitted * SIGMA,
+              "remaining_estimate": refitted * SIGMA * share,
+              "parameters": params if params is not None
+              else {"material.youngs_modulus": 2.0e7}}
+    return [{"options": {"P2": {}}, "adopted": "P2"},
+            {"options": {label: option}, "adopted": label}]
+
+
+def _fit(e=2.0e7):
+    return SimpleNamespace(names=["material.youngs_modulus"], values=np.array([e]))
+
+
+DIAG = SimpleNamespace(sigma=SIGMA)
+
+
+def test_a_step_adopted_last_on_the_final_model_is_estimated():
+    # the change at the same parameters times Richardson's share: 0.36 / 3
+    assert final_estimates(DIAG, _rounds(), _fit()) == {"step/2": pytest.approx(0.12)}
+
+
+def test_what_is_not_estimated():
+    # near the noise: simulated
+    big = 4.0 * ESTIMATE_FINAL_BELOW       # times 1/3: above the threshold
+    assert final_estimates(DIAG, _rounds(same=big), _fit()) == {}
+    # the final model is not the adopting refit (a term added or refitted since)
+    assert final_estimates(DIAG, _rounds(), _fit(2.1e7)) == {}
+    # the last round adopted a mesh, not a step; or nothing; or there was no round
+    assert final_estimates(DIAG, _rounds(label="mesh x2"), _fit()) == {}
+    assert final_estimates(DIAG, [{"options": {}}], _fit()) == {}
+    assert final_estimates(DIAG, [], _fit()) == {}
+
+
+def test_the_report_says_the_final_change_was_estimated():
+    from petsoft.diagnosis.numerics_findings import numerics_summary
+
+    rounds = _rounds()
+    rounds[-1]["options"]["step/2"].update(
+        {"how": "step 0.001 s -> 0.0005 s", "change_over_noise": 0.23, "matters": True})
+    rounds[0]["options"]["P2"].update({"how": "4-node -> 10-node", "change_over_noise": 27.0,
+                                       "matters": True})
+    num = {"step/2": {"rms": None, "change": 0.12 * SIGMA, "change_over_noise": 0.12,
+                      "how": "step 0.0005 s -> 0.00025 s", "resolved": True,
+                      "estimated": True}}
+    final = SimpleNamespace(experiment=SimpleNamespace(
+        time=SimpleNamespace(step=0.0005), mesh=SimpleNamespace(order=2)))
+    summary, adopted, _ = numerics_summary(num, rounds, final)
+    (step,) = [s for s in summary if s.startswith("Time step")]
+    assert "would change the simulation by an estimated 0.12x" in step and "not simulated" in step
+    num["step/2"]["estimated"] = False
+    (step,) = [s for s in numerics_summary(num, rounds, final)[0] if s.startswith("Time step")]
+    assert "changes the simulation by 0.12x" in step and "estimated" not in step
