@@ -3,11 +3,14 @@
 Run with the system python (DOLFINx 0.5 and gmsh are Debian packages there), one process::
 
     nice -n 10 /usr/bin/python3 scripts/benchmarks/realistic/generate_realistic.py \
-        [--cases control,damping] [--fine] [--force] [--check-end 0.5] [--no-check] [--list]
+        [--cases control,damping] [--fine | --finest] [--force] [--check-end 0.5] [--no-check]
+        [--only-run LEVEL] [--list]
 
 What made the committed cases (README.md): ``--no-check`` (all), then ``--fine --force
---cases control``, ``--fine --force --cases damping,damping-5k --check-end 0.5`` and
-``--force --cases payload`` / ``nonlinear`` (their fine levels were not run: README.md).
+--cases control``, ``--fine --force --cases damping,damping-5k --check-end 0.5``, ``--fine
+--force --cases payload`` (its ball a conforming part of the truth's geometry) and ``--fine
+--force --cases nonlinear``, their check runs made first in parallel processes by
+``--only-run time`` / ``--only-run space``.
 
 The cases are like the independent suite's (``../independent/generate.py``, whose functions this
 module reuses: geometry, the DOLFINx truth, markers, noise, the recording and user.toml writers)
@@ -15,17 +18,18 @@ but sized like a real experiment: a user mesh of 711 P1 tets (and one of 5,007),
 2 ms (501 frames), 24 markers, noise 0.1 mm, ~10 % of the samples dropped.
 
 The truth is P2 on a gmsh mesh of h = :data:`H_TRUTH` at a quarter of the user's step (the base
-level) or, with ``--fine``, on h = :data:`H_REFINED` at an eighth (the fine level). It is checked
-by one refinement in space and one in time, at the recorded markers, noise-free: the base level
-by the runs refined in space (h = H_REFINED) and in time (the step halved), the fine level by the
-runs each coarser than it in one of the two (those same runs). The differences, in units of the
+level) or, with ``--fine``, on h = :data:`H_REFINED` at an eighth (the fine level), or, with
+``--finest``, on h = :data:`H_FINEST` at an eighth. It is checked by one refinement in space and
+one in time, at the recorded markers, noise-free: the base level by the runs refined in space (h
+= H_REFINED) and in time (the step halved), the fine and finest levels by the runs each coarser
+than it in one of the two (:data:`CHECKS`). The differences, in units of the
 noise, and the truth's error estimated from them are written to ``truth.json`` under
 ``"convergence"`` (with ``"converged"``: the bound below :data:`TOLERANCE` x the noise, rms). A
 case whose truth fails the check is written only with ``--force``.
 
 The error from one refinement (Richardson): with a difference D between two runs of ratio r in a
 quantity of order p (p = 2 in time for generalized-alpha, r = 2; p = 3 in space for P2
-displacements, r = H_TRUTH / H_REFINED), the coarser run's error is D / (1 - r^-p) and the
+displacements, r the ratio of the two mesh sizes), the coarser run's error is D / (1 - r^-p) and the
 finer's D / (r^p - 1); the space and time estimates are added as signed fields (they partly
 cancel: the spatial error stiffens, the temporal one lengthens the period) and, as a bound that
 does not rely on that cancellation, their rms values are summed. The pass test is on the bound.
