@@ -8,9 +8,9 @@ Run with the system python (DOLFINx 0.5 and gmsh are Debian packages there), one
 
 What made the committed cases (README.md): ``--no-check`` (all), then ``--fine --force
 --cases control``, ``--fine --force --cases damping,damping-5k --check-end 0.5``, ``--fine
---force --cases payload`` (its ball a conforming part of the truth's geometry) and ``--fine
---force --cases nonlinear``, their check runs made first in parallel processes by
-``--only-run time`` / ``--only-run space``.
+--force --cases payload`` (its ball a conforming part of the truth's geometry) and ``--finest
+--force --cases nonlinear``, their check runs made first in parallel processes by ``--only-run``
+(``time``, ``space``; ``fine``, ``finest-space``).
 
 The cases are like the independent suite's (``../independent/generate.py``, whose functions this
 module reuses: geometry, the DOLFINx truth, markers, noise, the recording and user.toml writers)
