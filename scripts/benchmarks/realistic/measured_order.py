@@ -6,37 +6,42 @@ by ``generate_realistic.py``) on h = 11, 8 and 5.8 mm at one step (0.25 ms: the 
 of the noise (rms): D1 = |u11 - u8|, D2 = |u8 - u5.8|, the order p from D1 / D2 = r^p (r =
 11/8 = 8/5.8, the nominal ratio), the cosine of the two difference fields (near 1: one error
 shape, an order; far from 1: mesh-to-mesh scatter) and, if cached, D2 at 0.5 ms (``space``,
-``finest-space``). Markers and frames as the generator takes them::
+``finest-space``). Markers and frames as the generator takes them. ``--span S``: the runs on
+5.8 mm cover the first S s only (``generate_realistic.py --only-run finest --check-end S``); all
+runs are compared over those frames::
 
-    /usr/bin/python3 scripts/benchmarks/realistic/measured_order.py nonlinear [payload ...]
+    /usr/bin/python3 scripts/benchmarks/realistic/measured_order.py [--span 0.5] nonlinear ...
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 
 import numpy as np
 from generate_realistic import CACHE_DIR, H_FINEST, H_REFINED, H_TRUTH, MARKERS, indep
 
 
-def main(cases: list[str]) -> int:
+def main(cases: list[str], span: float = 1.0) -> int:
     r = H_TRUTH / H_REFINED
     assert abs(H_REFINED / H_FINEST - r) < 0.01     # the nominal ratio of both pairs
     for case in cases:
-        labels = ["time", "fine", "finest", "space", "finest-space"]
-        runs = {k: np.load(CACHE_DIR / f"{case}-{k}-1.npz", allow_pickle=True)
-                for k in labels if (CACHE_DIR / f"{case}-{k}-1.npz").exists()}
+        files = {k: CACHE_DIR / f"{case}-{k}-{span if k.startswith('finest') else 1:g}.npz"
+                 for k in ("time", "fine", "finest", "space", "finest-space")}
+        runs = {k: np.load(f, allow_pickle=True) for k, f in files.items() if f.exists()}
         missing = {"time", "fine", "finest"} - set(runs)
         if missing:
             print(f"{case}: runs {sorted(missing)} not cached (generate_realistic.py --only-run)")
             continue
         found = np.logical_and.reduce([z["found"] for z in runs.values()])
         keep = np.flatnonzero(found)[:MARKERS]
-        u = {k: z["displacements"][:, keep] / indep.NOISE for k, z in runs.items()}
-        frames = len(u["fine"])
+        frames = min(len(z["displacements"]) for z in runs.values())
+        u = {k: z["displacements"][:frames, keep] / indep.NOISE for k, z in runs.items()}
         last = frames - int(round(0.2 / indep.STEP)) - 1
-        for name, sl in (("all", slice(None)), ("first 0.2 s", slice(0, 101)),
-                         ("last 0.2 s", slice(last, None))):
+        windows = {"all": slice(None), "first 0.2 s": slice(0, 101),
+                   "last 0.2 s": slice(last, None)}
+        if frames > 251:        # comparable with a run over 0.5 s
+            windows["first 0.5 s"] = slice(0, 251)
+        for name, sl in windows.items():
             d1 = u["time"][sl] - u["fine"][sl]
             d2 = u["fine"][sl] - u["finest"][sl]
             rms1, rms2 = np.sqrt(np.mean(d1 ** 2)), np.sqrt(np.mean(d2 ** 2))
@@ -45,10 +50,16 @@ def main(cases: list[str]) -> int:
             if "space" in u and "finest-space" in u:
                 extra = (f", D2 at 0.5 ms "
                          f"{np.sqrt(np.mean((u['space'][sl] - u['finest-space'][sl]) ** 2)):.3f}")
-            print(f"{case} ({name}): D1 {rms1:.3f}, D2 {rms2:.3f}, D1/D2 {rms1 / rms2:.2f} -> "
-                  f"p {np.log(rms1 / rms2) / np.log(r):.2f}, cosine {cos:.3f}{extra}")
+            print(f"{case} ({name} of {(frames - 1) * indep.STEP:g} s): D1 {rms1:.3f}, "
+                  f"D2 {rms2:.3f}, D1/D2 {rms1 / rms2:.2f} -> p "
+                  f"{np.log(rms1 / rms2) / np.log(r):.2f}, cosine {cos:.3f}{extra}")
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:] or ["nonlinear"]))
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("cases", nargs="+")
+    ap.add_argument("--span", type=float, default=1.0,
+                    help="the 5.8 mm runs' span (s; their cache files' suffix)")
+    args = ap.parse_args()
+    raise SystemExit(main(args.cases, args.span))
