@@ -3,11 +3,14 @@
 Run with the system python (DOLFINx 0.5 and gmsh are Debian packages there), one process::
 
     nice -n 10 /usr/bin/python3 scripts/benchmarks/realistic/generate_realistic.py \
-        [--cases control,damping] [--fine] [--force] [--check-end 0.5] [--no-check] [--list]
+        [--cases control,damping] [--fine | --finest] [--force] [--check-end 0.5] [--no-check]
+        [--only-run LEVEL] [--list]
 
 What made the committed cases (README.md): ``--no-check`` (all), then ``--fine --force
---cases control``, ``--fine --force --cases damping,damping-5k --check-end 0.5`` and
-``--force --cases payload`` / ``nonlinear`` (their fine levels were not run: README.md).
+--cases control``, ``--fine --force --cases damping,damping-5k --check-end 0.5``, ``--fine
+--force --cases payload`` (its ball a conforming part of the truth's geometry) and ``--finest
+--force --cases nonlinear``, their check runs made first in parallel processes by ``--only-run``
+(``time``, ``space``; ``fine``, ``finest-space``).
 
 The cases are like the independent suite's (``../independent/generate.py``, whose functions this
 module reuses: geometry, the DOLFINx truth, markers, noise, the recording and user.toml writers)
@@ -15,17 +18,18 @@ but sized like a real experiment: a user mesh of 711 P1 tets (and one of 5,007),
 2 ms (501 frames), 24 markers, noise 0.1 mm, ~10 % of the samples dropped.
 
 The truth is P2 on a gmsh mesh of h = :data:`H_TRUTH` at a quarter of the user's step (the base
-level) or, with ``--fine``, on h = :data:`H_REFINED` at an eighth (the fine level). It is checked
-by one refinement in space and one in time, at the recorded markers, noise-free: the base level
-by the runs refined in space (h = H_REFINED) and in time (the step halved), the fine level by the
-runs each coarser than it in one of the two (those same runs). The differences, in units of the
+level) or, with ``--fine``, on h = :data:`H_REFINED` at an eighth (the fine level), or, with
+``--finest``, on h = :data:`H_FINEST` at an eighth. It is checked by one refinement in space and
+one in time, at the recorded markers, noise-free: the base level by the runs refined in space (h
+= H_REFINED) and in time (the step halved), the fine and finest levels by the runs each coarser
+than it in one of the two (:data:`CHECKS`). The differences, in units of the
 noise, and the truth's error estimated from them are written to ``truth.json`` under
 ``"convergence"`` (with ``"converged"``: the bound below :data:`TOLERANCE` x the noise, rms). A
 case whose truth fails the check is written only with ``--force``.
 
 The error from one refinement (Richardson): with a difference D between two runs of ratio r in a
 quantity of order p (p = 2 in time for generalized-alpha, r = 2; p = 3 in space for P2
-displacements, r = H_TRUTH / H_REFINED), the coarser run's error is D / (1 - r^-p) and the
+displacements, r the ratio of the two mesh sizes), the coarser run's error is D / (1 - r^-p) and the
 finer's D / (r^p - 1); the space and time estimates are added as signed fields (they partly
 cancel: the spatial error stiffens, the temporal one lengthens the period) and, as a bound that
 does not rely on that cancellation, their rms values are summed. The pass test is on the bound.
@@ -54,9 +58,19 @@ CASES_DIR = HERE / "cases"
 CACHE_DIR = HERE.parents[2] / "out" / "realistic_runs"
 
 END, MARKERS = 1.0, 24
-#: the truth's (P2) and the refined check's mesh sizes, steps per user frame (2 ms)
-H_TRUTH, H_REFINED = 0.011, 0.008
+#: the truth's (P2) and the refined check's mesh sizes, steps per user frame (2 ms); H_FINEST:
+#: one refinement beyond H_REFINED, same ratio (``--finest``)
+H_TRUTH, H_REFINED, H_FINEST = 0.011, 0.008, 0.0058
 SUBSTEPS = 4
+#: the truth levels (cache labels) -> mesh size, steps per frame. A level's truth is checked by
+#: one refinement in space and one in time: the base level ("truth") by the runs finer in one of
+#: the two, "fine" and "finest" by the runs coarser in one of the two (CHECKS)
+LEVELS = {"truth": (H_TRUTH, SUBSTEPS), "space": (H_REFINED, SUBSTEPS),
+          "time": (H_TRUTH, 2 * SUBSTEPS), "fine": (H_REFINED, 2 * SUBSTEPS),
+          "finest-space": (H_FINEST, SUBSTEPS), "finest": (H_FINEST, 2 * SUBSTEPS)}
+#: level -> (the run differing from it in space only, the one differing in time only)
+CHECKS = {"truth": ("space", "time"), "fine": ("time", "space"),
+          "finest": ("fine", "finest-space")}
 #: Newton's last increment (m): 1e-5 of the noise, so that even a systematic error of this size
 #: every step (2000 steps) stays at 0.02 x the noise (the independent suite: 1e-10)
 NEWTON_TOL = 1e-9
@@ -77,7 +91,10 @@ CASES: dict[str, dict] = {
     "control": dict(mesh="taper", physics=[], truth={}),
     "damping": dict(mesh="taper", physics=["damping.mass"], truth={"damping": {"mass": 2.0}}),
     "payload": dict(mesh="taper", physics=["mass.added"],
-                    truth={"sphere": {"where": PAYLOAD, "density": 4 * indep.RHO}}),
+                    # conforming: the ball is a part of the truth's geometry, the same on
+                    # every mesh (a staircase of cells moved with the mesh: README.md)
+                    truth={"sphere": {"where": PAYLOAD, "density": 4 * indep.RHO,
+                                      "conforming": True}}),
     "nonlinear": dict(mesh="taper", physics=["material.nonlinear"], truth={},
                       velocity=["0", "0", "24*x*x"], user={"material": {"model": "linear"}}),
     "damping-5k": dict(mesh="taper-5k", physics=["damping.mass"],
@@ -154,10 +171,12 @@ def convergence(truth: np.ndarray, space: np.ndarray, time_: np.ndarray, r_space
 
 def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, end: float,
                force: bool, check_end: float | None = None, cases_dir: Path = CASES_DIR,
-               fine: bool = False) -> None:
-    """Simulate the truth of ``group`` once for every case in ``members`` (their markers
-    together), check it by refinement (over the first ``check_end`` s, default all), and
-    write the cases."""
+               level: str = "truth", only_run: str | None = None) -> None:
+    """Simulate the truth of ``group`` at ``level`` (:data:`LEVELS`) once for every case in
+    ``members`` (their markers together), check it by refinement (over the first ``check_end``
+    s, default all), and write the cases. ``only_run``: simulate that level (a label of
+    :data:`LEVELS`, over ``check_end``) into the cache and stop (so that the runs of one check
+    can go in separate processes)."""
     check_end = min(check_end or end, end)
     picks = {}
     for name in members:
@@ -166,17 +185,20 @@ def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, 
         picks[name] = (seed, indep.pick_markers(_case(name)["shape"], points, tets, seed,
                                                 MARKERS))
     allm = np.concatenate([m for _, m in picks.values()])
-    # the four levels; the cache's labels: truth (h, step), space (h refined), time (step
-    # halved), fine (both). A fine truth is checked by the space and time runs, each coarser
-    # than it in one of the two
-    levels = {"truth": (H_TRUTH, SUBSTEPS), "space": (H_REFINED, SUBSTEPS),
-              "time": (H_TRUTH, 2 * SUBSTEPS), "fine": (H_REFINED, 2 * SUBSTEPS)}
-    label = "fine" if fine else "truth"
-    checks = ({"space": "time", "time": "space"} if fine else {"space": "space", "time": "time"})
+    if only_run:
+        h, sub = LEVELS[only_run]
+        run_truth(gmsh, group, allm, only_run, h_fine=h, substeps=sub,
+                  end=min(check_end or end, end))
+        return
+    levels, label = LEVELS, level
+    # the runs checking the truth: "space" differs from it in the mesh only, "time" in the step
+    checks = dict(zip(("space", "time"), CHECKS[label], strict=True))
     h, sub = levels[label]
+    finer = label == "truth"        # the base level is checked by finer runs, the others by
+    #                                 coarser ones
+    r_space = (levels[checks["space"]][0] / h) ** (-1 if finer else 1)
     runs = {"truth": run_truth(gmsh, group, allm, label, h_fine=h, substeps=sub, end=end)}
     if check:
-        # a fine truth: "space" is the run coarser in time, "time" the one coarser in space
         for key, lab in checks.items():
             h, sub = levels[lab]
             runs[key] = run_truth(gmsh, group, allm, lab, h_fine=h, substeps=sub,
@@ -195,7 +217,7 @@ def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, 
         if check:
             # the time-refined run's frames are the truth's (both sample every 2 ms)
             conv = convergence(disp["truth"][:checked], disp["space"], disp["time"],
-                               H_TRUTH / H_REFINED, finer=not fine)
+                               r_space, finer=finer)
             conv["span"] = check_end
             for key in ("space", "time"):
                 r = runs[key]
@@ -249,6 +271,13 @@ def main() -> int:
     ap.add_argument("--fine", action="store_true",
                     help="the truth on the refined mesh at the halved step, checked from the "
                          "coarse side (by the runs refined in one of the two only)")
+    ap.add_argument("--finest", action="store_true",
+                    help="the truth one refinement in space beyond --fine (h = H_FINEST, the "
+                         "same step), checked from the coarse side: by the --fine run and "
+                         "the run on H_FINEST at twice the step")
+    ap.add_argument("--only-run", choices=sorted(LEVELS), default=None,
+                    help="simulate this level into the cache (out/realistic_runs) and stop: "
+                         "run a check's levels in parallel processes, then generate")
     ap.add_argument("--check-end", type=float, default=None,
                     help="check the truth over its first CHECK_END s only (default: all)")
     ap.add_argument("--out", type=Path, default=HERE,
@@ -282,7 +311,9 @@ def main() -> int:
         t0 = time.perf_counter()
         say(f"truth of {group} for {', '.join(members)}")
         make_group(gmsh, group, members, meshes, args.check, args.end, args.force,
-                   args.check_end, args.out / "cases", args.fine)
+                   args.check_end, args.out / "cases",
+                   "finest" if args.finest else "fine" if args.fine else "truth",
+                   args.only_run)
         say(f"{group}: {time.perf_counter() - t0:.0f} s")
     gmsh.finalize()
     return 0

@@ -1,0 +1,97 @@
+"""The order of the truth's spatial error, measured from three meshes (README.md).
+
+Reads the cached clean marker runs of a case (``out/realistic_runs/<case>-<level>-1.npz``, made
+by ``generate_realistic.py``) on h = 11, 8 and 5.8 mm at one step (0.25 ms: the levels ``time``,
+``fine``, ``finest``) and prints, over the whole record and its first and last 0.2 s, in units
+of the noise (rms): D1 = |u11 - u8|, D2 = |u8 - u5.8|, the order p from D1 / D2 = r^p (r =
+11/8 = 8/5.8, the nominal ratio), the cosine of the two difference fields (near 1: one error
+shape, an order; far from 1: mesh-to-mesh scatter) and, if cached, D2 at 0.5 ms (``space``,
+``finest-space``). Markers and frames as the generator takes them. ``--span S``: the runs on
+5.8 mm cover the first S s only (``generate_realistic.py --only-run finest --check-end S``); all
+runs are compared over those frames. ``--write``: record the order (whole span) in the case's
+``truth.json`` -> ``convergence`` -> ``measured_order``, with the truth's space error
+re-estimated at that order from the check's own space difference (``D / (r^p - 1)``, the truth
+being the finer run of the pair) and the bound with the time estimate; ``converged`` then also
+requires that bound below the tolerance::
+
+    /usr/bin/python3 scripts/benchmarks/realistic/measured_order.py [--span 0.5] [--write] case ...
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+from generate_realistic import CACHE_DIR, CASES_DIR, H_FINEST, H_REFINED, H_TRUTH, MARKERS, indep
+
+
+def record(case: str, p: float, span: float, cosine: float) -> None:
+    """Write the measured order ``p`` into ``cases/<case>/truth.json`` (module docstring)."""
+    path = CASES_DIR / case / "truth.json"
+    truth = json.loads(path.read_text())
+    conv = truth["convergence"]
+    if conv["checked_from"] != "coarser":
+        raise ValueError(f"{case}: its truth is checked from the {conv['checked_from']} side; "
+                         "only a truth checked by coarser runs is re-estimated here")
+    h_coarse, h = conv["space_run"]["h"], truth["fine_h"]
+    space = conv["space_coarser_difference"]["rms_over_noise"] / ((h_coarse / h) ** p - 1.0)
+    bound = space + conv["time_error_estimate"]["rms_over_noise"]
+    tol = truth["truth_tolerance_over_noise"]
+    conv["measured_order"] = {
+        "p": p, "from": "h 11, 8, 5.8 mm at 0.25 ms (measured_order.py)", "span": span,
+        "cosine": cosine, "space_error_estimate_rms": space, "bound_rms_over_noise": bound}
+    conv["converged"] = bool(conv["bound_rms_over_noise"] < tol and bound < tol)
+    path.write_text(json.dumps(truth, indent=1) + "\n")
+    print(f"{case}: at p {p:.2f} the truth's space error is {space:.3f}, bound {bound:.3f} x the "
+          f"noise -> converged {conv['converged']} (truth.json written)")
+
+
+def main(cases: list[str], span: float = 1.0, write: bool = False) -> int:
+    r = H_TRUTH / H_REFINED
+    assert abs(H_REFINED / H_FINEST - r) < 0.01     # the nominal ratio of both pairs
+    for case in cases:
+        files = {k: CACHE_DIR / f"{case}-{k}-{span if k.startswith('finest') else 1:g}.npz"
+                 for k in ("time", "fine", "finest", "space", "finest-space")}
+        runs = {k: np.load(f, allow_pickle=True) for k, f in files.items() if f.exists()}
+        missing = {"time", "fine", "finest"} - set(runs)
+        if missing:
+            print(f"{case}: runs {sorted(missing)} not cached (generate_realistic.py --only-run)")
+            continue
+        found = np.logical_and.reduce([z["found"] for z in runs.values()])
+        keep = np.flatnonzero(found)[:MARKERS]
+        frames = min(len(z["displacements"]) for z in runs.values())
+        u = {k: z["displacements"][:frames, keep] / indep.NOISE for k, z in runs.items()}
+        last = frames - int(round(0.2 / indep.STEP)) - 1
+        windows = {"all": slice(None), "first 0.2 s": slice(0, 101),
+                   "last 0.2 s": slice(last, None)}
+        if frames > 251:        # comparable with a run over 0.5 s
+            windows["first 0.5 s"] = slice(0, 251)
+        for name, sl in windows.items():
+            d1 = u["time"][sl] - u["fine"][sl]
+            d2 = u["fine"][sl] - u["finest"][sl]
+            rms1, rms2 = np.sqrt(np.mean(d1 ** 2)), np.sqrt(np.mean(d2 ** 2))
+            cos = np.sum(d1 * d2) / np.sqrt(np.sum(d1 ** 2) * np.sum(d2 ** 2))
+            extra = ""
+            if "space" in u and "finest-space" in u:
+                extra = (f", D2 at 0.5 ms "
+                         f"{np.sqrt(np.mean((u['space'][sl] - u['finest-space'][sl]) ** 2)):.3f}")
+            print(f"{case} ({name} of {(frames - 1) * indep.STEP:g} s): D1 {rms1:.3f}, "
+                  f"D2 {rms2:.3f}, D1/D2 {rms1 / rms2:.2f} -> p "
+                  f"{np.log(rms1 / rms2) / np.log(r):.2f}, cosine {cos:.3f}{extra}")
+            if name == "all":
+                whole = (float(np.log(rms1 / rms2) / np.log(r)), float(cos))
+        if write:
+            record(case, whole[0], (frames - 1) * indep.STEP, whole[1])
+    return 0
+
+
+if __name__ == "__main__":
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("cases", nargs="+")
+    ap.add_argument("--span", type=float, default=1.0,
+                    help="the 5.8 mm runs' span (s; their cache files' suffix)")
+    ap.add_argument("--write", action="store_true",
+                    help="record the order and the bound at it in the cases' truth.json")
+    args = ap.parse_args()
+    raise SystemExit(main(args.cases, args.span, args.write))
