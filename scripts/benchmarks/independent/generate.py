@@ -179,6 +179,41 @@ def build_geometry(gmsh, shape: str, ball: dict | None = None) -> None:
 REENTRANT = {"bracket": ((0.04, 0.0, 0.16), (0.04, 0.04, 0.16))}
 
 
+def grade_towards(gmsh, curves: list[int], h: float) -> None:
+    """Element size h / 4 at ``curves`` (a re-entrant edge, where the stress is singular),
+    growing to h over 4 h: a threshold on the distance to them, as the background field."""
+    field = gmsh.model.mesh.field
+    dist = field.add("Distance")
+    field.setNumbers(dist, "CurvesList", curves)
+    field.setNumber(dist, "NumPointsPerCurve", 50)
+    thr = field.add("Threshold")
+    field.setNumber(thr, "InField", dist)
+    field.setNumber(thr, "SizeMin", h / 4)
+    field.setNumber(thr, "SizeMax", h)
+    field.setNumber(thr, "DistMin", h / 4)
+    field.setNumber(thr, "DistMax", 4 * h)
+    field.setAsBackgroundMesh(thr)
+
+
+def generate_tets(gmsh) -> None:
+    """Tetrahedra of the current model (Delaunay), optimised."""
+    gmsh.option.setNumber("Mesh.Algorithm3D", 1)
+    gmsh.model.mesh.generate(3)
+    gmsh.model.mesh.optimize("")
+
+
+def cached_run(path: Path, markers: np.ndarray, say) -> dict | None:
+    """A truth run cached in ``path`` (npz: markers, displacements, found, meta) if it was made
+    at ``markers``, else None."""
+    if not path.exists():
+        return None
+    z = np.load(path, allow_pickle=True)
+    if z["markers"].shape != markers.shape or not np.allclose(z["markers"], markers):
+        return None
+    say(f"  cached {path.name}")
+    return json.loads(str(z["meta"])) | {"displacements": z["displacements"], "found": z["found"]}
+
+
 def mesh_shape(gmsh, shape: str, h: float, graded: bool = False, ball: dict | None = None
                ) -> None:
     """Mesh ``shape`` with element size ``h``; ``graded``: down to h / 4 at a re-entrant edge
@@ -197,22 +232,21 @@ def mesh_shape(gmsh, shape: str, h: float, graded: bool = False, ball: dict | No
                                                     y1 + eps, z1 + eps, dim=1)
         if not edges:
             raise RuntimeError(f"{shape}: no edge found at the re-entrant corner")
-        field = gmsh.model.mesh.field
-        dist = field.add("Distance")
-        field.setNumbers(dist, "CurvesList", [e[1] for e in edges])
-        field.setNumber(dist, "NumPointsPerCurve", 50)
-        thr = field.add("Threshold")
-        field.setNumber(thr, "InField", dist)
-        field.setNumber(thr, "SizeMin", h / 4)
-        field.setNumber(thr, "SizeMax", h)
-        field.setNumber(thr, "DistMin", h / 4)
-        field.setNumber(thr, "DistMax", 4 * h)
-        field.setAsBackgroundMesh(thr)
-    gmsh.option.setNumber("Mesh.Algorithm3D", 1)
-    gmsh.model.mesh.generate(3)
-    gmsh.model.mesh.optimize("")
+        grade_towards(gmsh, [e[1] for e in edges], h)
+    generate_tets(gmsh)
     if ball:
         gmsh.model.mesh.setOrder(2)     # the edges' midpoints placed on the ball's surface
+
+
+def write_msh(gmsh, path: Path) -> None:
+    """The current model's mesh to ``path`` (gmsh 4.1), atomically: two generate.py processes
+    given cases of one shape write the same file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
+    gmsh.option.setNumber("Mesh.SaveAll", 0)
+    tmp = path.parent / f".{path.stem}.{os.getpid()}.msh"
+    gmsh.write(str(tmp))
+    os.replace(tmp, path)
 
 
 def coarse_mesh(gmsh, shape: str, h: float | None = None, path: Path | None = None
@@ -220,14 +254,7 @@ def coarse_mesh(gmsh, shape: str, h: float | None = None, path: Path | None = No
     """Write the user's P1 mesh (default ``meshes/<shape>.msh`` at the shape's coarse size);
     return its nodes (N, 3) and tets."""
     mesh_shape(gmsh, shape, h or SHAPES[shape]["h_coarse"])
-    path = Path(path) if path else MESH_DIR / f"{shape}.msh"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
-    gmsh.option.setNumber("Mesh.SaveAll", 0)
-    # atomically: two generate.py processes given cases of one shape write the same file
-    tmp = path.parent / f".{path.stem}.{os.getpid()}.msh"
-    gmsh.write(str(tmp))
-    os.replace(tmp, path)
+    write_msh(gmsh, Path(path) if path else MESH_DIR / f"{shape}.msh")
     tags, coords, _ = gmsh.model.mesh.getNodes()
     order = np.argsort(tags)
     points = coords.reshape(-1, 3)[order]

@@ -156,12 +156,8 @@ def run(gmsh, case: dict, markers: np.ndarray, label: str, cache: Path, *,
         effect_free: bool = False, h: float | None = None, substeps: int = SUBSTEPS) -> dict:
     """One DOLFINx run of ``case`` at ``markers`` (cached under ``cache`` by label)."""
     path = cache / f"{case['name']}-{label}.npz"
-    if path.exists():
-        z = np.load(path, allow_pickle=True)
-        if z["markers"].shape == markers.shape and np.allclose(z["markers"], markers):
-            say(f"  {label}: cached {path.name}")
-            return json.loads(str(z["meta"])) | {"displacements": z["displacements"],
-                                                 "found": z["found"]}
+    if (cached := indep.cached_run(path, markers, say)) is not None:
+        return cached
     truth = {} if effect_free else case["truth"]
     res = indep.simulate_truth(gmsh, case["name"], {"shape": case["family"], "truth": truth},
                                markers, say, h_fine=h, substeps=substeps, end=case["end"],

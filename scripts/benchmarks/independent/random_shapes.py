@@ -7,10 +7,13 @@ L-shapes): :func:`clamp_expression` is petsoft's ``where`` and :func:`clamp_mask
 from __future__ import annotations
 
 import math
-import os
+import sys
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import generate as indep  # noqa: E402
 
 
 def build(gmsh, family: str, g: dict) -> None:
@@ -86,20 +89,8 @@ def mesh(gmsh, family: str, g: dict, h: float, graded: bool = False) -> None:
     gmsh.option.setNumber("Mesh.CharacteristicLengthMin", h / 4 if graded else h)
     gmsh.option.setNumber("Mesh.CharacteristicLengthMax", h)
     if graded and family == "bracket":
-        field = gmsh.model.mesh.field
-        dist = field.add("Distance")
-        field.setNumbers(dist, "CurvesList", reentrant_edges(gmsh, g))
-        field.setNumber(dist, "NumPointsPerCurve", 50)
-        thr = field.add("Threshold")
-        field.setNumber(thr, "InField", dist)
-        field.setNumber(thr, "SizeMin", h / 4)
-        field.setNumber(thr, "SizeMax", h)
-        field.setNumber(thr, "DistMin", h / 4)
-        field.setNumber(thr, "DistMax", 4 * h)
-        field.setAsBackgroundMesh(thr)
-    gmsh.option.setNumber("Mesh.Algorithm3D", 1)
-    gmsh.model.mesh.generate(3)
-    gmsh.model.mesh.optimize("")
+        indep.grade_towards(gmsh, reentrant_edges(gmsh, g), h)
+    indep.generate_tets(gmsh)
 
 
 def truth_h(g: dict) -> float:
@@ -144,12 +135,7 @@ def user_mesh(gmsh, family: str, g: dict, target: int, path: Path, lo: int, hi: 
         # a thickness's half: 446 -> 788 tets between h 17.1 and 15.9 mm on an L)
         if best is None or rank(n) < rank(len(best[1])):
             best = (points, tets, h)
-            path.parent.mkdir(parents=True, exist_ok=True)
-            gmsh.option.setNumber("Mesh.MshFileVersion", 4.1)
-            gmsh.option.setNumber("Mesh.SaveAll", 0)
-            tmp = path.parent / f".{path.stem}.{os.getpid()}.msh"
-            gmsh.write(str(tmp))
-            os.replace(tmp, path)
+            indep.write_msh(gmsh, path)
         gmsh.model.remove()
         if lo <= n <= hi and abs(n - target) <= 0.15 * target:
             break

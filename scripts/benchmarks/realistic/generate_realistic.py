@@ -116,12 +116,8 @@ def run_truth(gmsh, group: str, markers: np.ndarray, label: str, **kw) -> dict:
     CACHE_DIR.mkdir(parents=True, exist_ok=True)
     end = kw.get("end", END)
     path = CACHE_DIR / f"{group}-{label}-{end:g}.npz"
-    if path.exists():
-        z = np.load(path, allow_pickle=True)
-        if z["markers"].shape == markers.shape and np.allclose(z["markers"], markers):
-            say(f"  {label}: cached {path.name}")
-            return json.loads(str(z["meta"])) | {"displacements": z["displacements"],
-                                                 "found": z["found"]}
+    if (cached := indep.cached_run(path, markers, say)) is not None:
+        return cached
     say(f"  {label}: {kw}")
     res = indep.simulate_truth(gmsh, group, _case(group), markers, say, newton_tol=NEWTON_TOL,
                                **kw)
