@@ -346,7 +346,8 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
         # each iteration), so where a step is halved they are needed whatever the runs show,
         # and are computed beside them, on a group of ranks of their own.
         exact = not diag.all_differenced(exp)
-        beside = (exact and any(r.kind == "step" for r in tried)
+        halves_step = any(r.kind == "step" for r in tried)
+        beside = (exact and halves_step
                   and _sensitivities_key(fit) not in diag.measured_meshes)
         runs = map_on_groups(
             lambda what, sub, fit=fit: (model_sensitivities(diag, fit, sub) if what is None
@@ -360,7 +361,7 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
         small = [res.ok and _change(diag, fit, res.value, seen) <= SCREEN_BELOW * diag.sigma
                  for res in runs]
         cols = (model_sensitivities(diag, fit)
-                if exact and (any(small) or any(r.kind == "step" for r in tried)) else None)
+                if exact and (any(small) or halves_step) else None)
         fits = map_on_groups(lambda item, sub, fit=fit, cols=cols:
                              _refit(diag, fit, item[0], sub, cols, item[1]),
                              [(what, res.value if res.ok else None)

@@ -67,10 +67,6 @@ _STAMP = re.compile(r"^\[\s*([0-9.]+) s\] ?(.*)$")
 _FINAL_CHECK = re.compile(r"^numerics: ([A-Z]|\S+: residual change)")
 
 
-def case_names(cases_dir: Path = CASES_DIR) -> list[str]:
-    return sorted(p.name for p in cases_dir.iterdir() if (p / "truth.json").exists())
-
-
 def classify(text: str) -> str | None:
     """The phase a log line (without its time stamp) reports, None when it reports none (a
     progress beat), ``"same"`` for a verdict (the work before it: a fit's evidence)."""
@@ -250,11 +246,8 @@ def main() -> int:
                     help="run nothing: tabulate the case folders already in --dir")
     args = ap.parse_args()
     cases_dir = args.cases_dir.resolve()
-    known = case_names(cases_dir)
-    names = args.cases.split(",") if args.cases else known
-    bad = [n for n in names if n not in known]
-    if bad:
-        print(f"unknown case(s) {bad}; valid: {', '.join(known)}")
+    names = independent.chosen_cases(args.cases, cases_dir)
+    if names is None:
         return 2
     out = Path(args.dir).resolve()
     out.mkdir(parents=True, exist_ok=True)

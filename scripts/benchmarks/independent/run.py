@@ -39,6 +39,18 @@ def case_names(cases_dir: Path = CASES_DIR) -> list[str]:
     return sorted(p.name for p in cases_dir.iterdir() if (p / "truth.json").exists())
 
 
+def chosen_cases(cases: str | None, cases_dir: Path) -> list[str] | None:
+    """The ``--cases`` subset (comma-separated; None: all) of the case folders in ``cases_dir``,
+    or None after printing which names are unknown and the valid ones."""
+    known = case_names(cases_dir)
+    names = cases.split(",") if cases else known
+    bad = [n for n in names if n not in known]
+    if bad:
+        print(f"unknown case(s) {bad}; valid: {', '.join(known)}")
+        return None
+    return names
+
+
 def petsoft_command(np_: int) -> list[str]:
     # the console script beside this python (the .venv's), as a user types it
     exe = [str(Path(sys.executable).parent / "petsoft")]
@@ -253,11 +265,8 @@ def main() -> int:
                     help="run nothing: tabulate the case folders already in --out")
     args = ap.parse_args()
     cases_dir = args.cases_dir.resolve()
-    known = case_names(cases_dir)
-    names = args.cases.split(",") if args.cases else known
-    bad = [n for n in names if n not in known]
-    if bad:
-        print(f"unknown case(s) {bad}; valid: {', '.join(known)}")
+    names = chosen_cases(args.cases, cases_dir)
+    if names is None:
         return 2
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
