@@ -92,3 +92,16 @@ def test_a_dynamic_run_uses_the_experiment_options_and_leaves_none_behind(tmp_pa
     direct = simulate_experiment(experiment_from_dict({**data, "petsc": {}}),
                                  out=tmp_path / "default")
     assert direct.linear_iterations < krylov.linear_iterations
+
+
+def test_every_prefix_is_documented():
+    """The README's table of prefixes names every prefix petsoft's solvers use."""
+    from pathlib import Path
+
+    from petsoft.solvers.options import PREFIXES
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    table = readme[readme.index("| prefix | solver |"):]
+    table = table[:table.index("\n\n")]
+    missing = [p for p in PREFIXES if p and f"`{p}`" not in table]
+    assert not missing, f"prefixes missing from README.md's table: {missing}"
