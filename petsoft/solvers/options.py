@@ -163,8 +163,8 @@ def unused_options(comm=None) -> list[str]:
     PETSc's ``-options_left`` logic (``PetscOptionsLeftGet``, which petsc4py does not wrap, so
     called through the library petsc4py loaded): a misspelled option (``-ksp_tyep cg``) or one
     for a solver the run never made is otherwise silently ignored. Options petsoft set itself
-    (:func:`set_default_option`) are left out; the experiment's ``[petsc]`` table is removed
-    from the database when its run ends, so only the command line's options remain to report.
+    (:func:`set_default_option`) are left out; every solver removes the ``[petsc]`` options
+    it pushed (:class:`SolverOptions`), so only the command line's options remain to report.
     An option counts as unused when no rank used it.
 
     Returns
