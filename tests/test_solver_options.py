@@ -109,6 +109,13 @@ def test_integrators_take_the_table_and_the_command_line(kind, system, command_l
         _clean(*TABLE)
     finally:
         integrator.destroy()
+    # a half-chosen solver keeps the iterative default for the other half (linear_defaults
+    # sees the table)
+    integrator = build(SolverOptions("", {"ksp_type": "gmres"}))
+    try:
+        assert _types(integrator.ksp) == ("gmres", "gamg")
+    finally:
+        integrator.destroy()
     command_line(pc_type="sor")
     integrator = build(SolverOptions("", TABLE))
     try:
@@ -131,6 +138,11 @@ def test_static_solver_and_its_lifting_solve(command_line):
     finally:
         solver.destroy()
     _clean(*table)
+    solver = StaticSolver(model, options=SolverOptions("", {"pc_type": "jacobi"}))
+    try:
+        assert _types(solver.ksp) == ("cg", "jacobi")      # the iterative default's CG
+    finally:
+        solver.destroy()
     command_line(lift_pc_type="jacobi")
     solver = StaticSolver(model, options=SolverOptions("", table))
     try:

@@ -563,7 +563,7 @@ class ForwardModel:
             self.system.linear_defaults(ksp)
             ksp.setFromOptions()
             chosen = solver_chosen(ksp)
-        symmetric_factorisation(ksp, self.J)
+            symmetric_factorisation(ksp, self.J)
         ksp.setOperators(self.J)
         if lag and is_direct(ksp) and not chosen:
             return LaggedFactors(ksp)

@@ -84,11 +84,12 @@ class AlphaTSIntegrator(StepperDefaults):
         snes.setTolerances(rtol=1e-10, atol=1e-12, stol=1e-12, max_it=25)
         stop_at_round_off(snes, self.J, self.length)
         ksp = snes.getKSP()
-        s.linear_defaults(ksp)
-        if self.moving:
-            ksp.setType(PETSc.KSP.Type.GMRES)
+        # the defaults ask whether the options name a solver: they are pushed already
         with self.options.pushed(ts_alpha_radius=repr(self.radius),
                                  snes_linesearch_type="basic"):
+            s.linear_defaults(ksp)
+            if self.moving:
+                ksp.setType(PETSc.KSP.Type.GMRES)
             ts.setFromOptions()
         self.ksp = ksp
         self._last = None
