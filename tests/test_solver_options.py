@@ -256,3 +256,53 @@ def test_optimizer_takes_cal_keys_only(command_line):
     user = minimize(problem, z0, method="lbfgs",
                     solver_options=SolverOptions("cal_", {"cal_tao_type": "bncg"}))
     assert user.tao_type == "bqnls"
+
+
+def test_ere_mass_solve_takes_its_own_keys_only(system, command_line):
+    """ERE's consistent-mass KSP (prefix ere_mass_) takes ``ere_mass_ksp_type``, not the
+    table's unprefixed ``ksp_type`` (which is simulate's own solver's)."""
+    from petsoft.dynamics.ere import EREIntegrator
+
+    table = {"ksp_type": "bcgs", "ere_mass_ksp_type": "gmres"}
+    ere = EREIntegrator(system, mass="consistent", options=SolverOptions("ere_", table))
+    try:
+        assert _types(ere.ksp) == ("gmres", "jacobi")
+    finally:
+        ere.destroy()
+    _clean(*table)
+    command_line(ere_mass_pc_type="none")
+    ere = EREIntegrator(system, mass="consistent", options=SolverOptions("ere_", table))
+    try:
+        assert _types(ere.ksp) == ("gmres", "none")
+    finally:
+        ere.destroy()
+
+
+def test_imex_fast_step(system):
+    from petsoft.dynamics.imex import ModalImexIntegrator
+
+    imex = ModalImexIntegrator(system, slow_modes=2, options=SolverOptions("", TABLE))
+    try:
+        assert _types(imex.fast.ksp) == ("gmres", "jacobi")
+    finally:
+        imex.destroy()
+    _clean(*TABLE)
+
+
+def test_rest_shape_solver(command_line):
+    from petsoft.solvers.rest_shape import RestShapeSolver
+
+    model = build_model(experiment_from_dict(BAR))
+    table = {"ksp_type": "cg", "rest_shape_ksp_type": "bcgs", "rest_shape_pc_type": "jacobi"}
+    solver = RestShapeSolver(model, options=SolverOptions("rest_shape_", table))
+    try:
+        assert _types(solver.snes.getKSP()) == ("bcgs", "jacobi")
+    finally:
+        solver.destroy()
+    _clean(*table)
+    command_line(rest_shape_ksp_type="gmres")
+    solver = RestShapeSolver(model, options=SolverOptions("rest_shape_", table))
+    try:
+        assert _types(solver.snes.getKSP()) == ("gmres", "jacobi")
+    finally:
+        solver.destroy()
