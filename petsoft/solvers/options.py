@@ -4,8 +4,11 @@ Precedence, lowest first: defaults in code, the experiment's ``[petsc]`` table, 
 Every object that owns a KSP, SNES, TS, TAO, EPS or MFN has an options prefix of its own
 (:data:`PREFIXES`) and a :class:`SolverOptions`: it pushes the ``[petsc]`` table under its
 prefix into PETSc's options database, where the command line did not set the same option, calls
-``setFromOptions()``, and removes what it pushed (as DOLFINx's ``LinearProblem`` and
-``NonlinearProblem`` do). The command line reaches a solver through its prefix
+``setFromOptions()``, and removes what it pushed (DOLFINx's ``LinearProblem`` pushes its
+``petsc_options`` under its own prefix before ``setFromOptions()`` the same way, but over the
+command line). It pushes them again around its solves, because PETSc reads some options only
+when a solve sets the preconditioner up (``mat_mumps_icntl_*``, ``mg_levels_*``) or ends
+(``ksp_converged_reason``). The command line reaches a solver through its prefix
 (``-fm_ksp_type``). Nothing an experiment asks for stays in the database after its solver is set
 up and has solved, so one experiment's choices never reach the next run of a process, and two
 solvers with different prefixes never see each other's options.
