@@ -306,3 +306,20 @@ def test_rest_shape_solver(command_line):
         assert _types(solver.snes.getKSP()) == ("gmres", "jacobi")
     finally:
         solver.destroy()
+
+
+def test_options_read_at_the_solve_reach_it(system, capfd):
+    """``ksp_converged_reason`` is read when a solve ends (and ``mat_mumps_icntl_*``,
+    ``mg_levels_*`` when it sets the preconditioner up), after ``setFromOptions()``: the table
+    is pushed around the step too."""
+    integrator = ImplicitIntegrator(system, "be",
+                                    options=SolverOptions("", {"ksp_converged_reason": ""}))
+    try:
+        capfd.readouterr()
+        _step(integrator, system)
+        out = capfd.readouterr().out
+    finally:
+        integrator.destroy()
+    if system.comm.rank == 0:
+        assert "solve converged due to" in out
+    _clean("ksp_converged_reason")
