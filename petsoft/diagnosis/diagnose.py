@@ -83,6 +83,7 @@ from petsoft.diagnosis.selection import (
     worth_fitting,
 )
 from petsoft.diagnosis.story import skipped_numerics
+from petsoft.dynamics.factory import system_class
 from petsoft.io.progress import heartbeat
 from petsoft.solvers.options import experiment_options
 
@@ -229,8 +230,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             if ev["verdict"] == "consistent":
                 break
         clock.switch("scoring")
-        maps = (diag.sensitivity_regions(current) if not current.experiment.is_mass_spring
-                else dict(NO_REGIONS))
+        maps = (diag.sensitivity_regions(current)
+                if system_class(current.experiment).volume_cells else dict(NO_REGIONS))
         plane = escape_plane(diag.data[diag.ident], current.sim[diag.ident], diag.sigma)
         cands, not_modelled = build_candidates(
             current.experiment, evidence_region=ev["region"], stiffness_region=maps["stiffness"],
