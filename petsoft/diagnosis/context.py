@@ -51,6 +51,15 @@ FIT_DTOL = 1e-2
 #: moved by at most 5e-5 of the recording's noise: a chi2 change of ~1e-3 on ~5,000 samples,
 #: where a term is added for 6.6.
 NEWTON_RTOL = 1e-6
+#: a round's shared scoring run is used when its simulation is within this many noise
+#: standard deviations (rms) of the current model's: its candidates' terms then start off.
+#: Not tighter: at NEWTON_RTOL a run with sensitivities and a plain forward run of the same
+#: model take different chord paths (the tangent's fresh factors) and differ by ~1.4e-5 of the
+#: noise (the realistic damping case's 10-node model, 0.2 s); at 1e-6 every shared run of a
+#: round whose current fit came from a forward-only refit was thrown away, and its ten
+#: candidates scored one by one (45 s spent, 90 s more). A term that does not start off moves
+#: the simulation by far more than 1e-3 of the noise where it matters to a score.
+SHARED_RUN_TOLERANCE = 1e-3
 
 
 class DiagnoseError(PetsoftError):
@@ -468,10 +477,10 @@ class Diagnosis:
     def known_start(self, ext, current: Fit) -> tuple | None:
         """(simulation, columns) of the round's shared scoring run when they are ``ext``'s at
         its start: that run scored ``current`` with every value-only candidate switched on at
-        its start value (the same simulation, checked to 1e-6 of the noise) and exact
-        sensitivities to all their parameters -- what a candidate fit's first evaluation would
-        compute again (a sensitivity run a fit). None when ``ext`` has a parameter that run
-        had not, or at another value."""
+        its start value (the same simulation, checked to :data:`SHARED_RUN_TOLERANCE` of the
+        noise) and exact sensitivities to all their parameters -- what a candidate fit's first
+        evaluation would compute again (a sensitivity run a fit). None when ``ext`` has a
+        parameter that run had not, or at another value."""
         if self._scored is None or self._scored[0] is not current:
             return None
         _, sim, values, cols = self._scored
@@ -537,26 +546,86 @@ class Diagnosis:
         those that only switch settings on at a value that leaves the model as it is (no
         regions, colliders or support compliance: :func:`scored_together`). Their columns are
         those their own runs would give, since at their start values the terms are off; checked:
-        the combined model's simulation must equal ``fit``'s to 1e-6 of the noise, else None
-        (score them one by one). Also None when the columns would be differences."""
+        the combined model's simulation must equal ``fit``'s to :data:`SHARED_RUN_TOLERANCE` of
+        the noise, else None (score them one by one, and say why). Also None when the columns
+        would be differences."""
+        entries, scored, why = self._shared_run(fit, candidates, comm)
+        return self._keep_shared(entries, scored, why)
+
+    def _keep_shared(self, entries, scored, why) -> list[dict] | None:
+        """Keep a shared scoring run's columns for the round (:attr:`_scored`), or say why
+        there are none."""
+        if why:
+            self.tell(f"  {why}: scoring one by one")
+        self._scored = scored
+        return entries
+
+    def _shared_run(self, fit: Fit, candidates: list, comm=None) -> tuple:
+        """:meth:`score_together`'s run, without touching this object: ``(entries, scored,
+        why)``, ``scored`` the value of :attr:`_scored`, ``why`` None or why the entries are
+        None (run on a group of ranks by :meth:`regions_and_shared_scores`)."""
         comm = self.comm if comm is None else petsc_comm(comm)
         ext = fit.experiment
         for c in candidates:
             ext = c.extend(ext)
         if self.all_differenced(ext):
-            return None
+            return None, None, None
         try:
             with doing(f"score {', '.join(c.physics for c in candidates)} (one run)"):
                 sim, cols = self._columns(ext, candidates[0], comm)
-        except PetsoftError:
-            return None             # (collective: every rank raised it) one by one, then
+        except PetsoftError as exc:     # (collective: every rank of the group raised it)
+            return None, None, f"the shared scoring run failed ({exc})"
         seen = np.isfinite(self.data[self.ident])
         moved = float(np.sqrt(np.mean((sim[seen] - fit.sim[self.ident][seen]) ** 2)))
-        if moved > 1e-6 * self.sigma:
-            return None
-        self._scored = (fit, sim, {n: get_parameter(ext, n) for n in ext.calibrate}, cols)
-        return [self._score_entry(fit, c, ext, sim, cols, c.tested_parameters)
-                for c in candidates]
+        if moved > SHARED_RUN_TOLERANCE * self.sigma:
+            return None, None, (f"the shared scoring run's simulation is {moved / self.sigma:.3g}x"
+                                " the noise from the current model's (its terms should start "
+                                "off)")
+        scored = (fit, sim, {n: get_parameter(ext, n) for n in ext.calibrate}, cols)
+        return ([self._score_entry(fit, c, ext, sim, cols, c.tested_parameters)
+                 for c in candidates], scored, None)
+
+    def regions_and_shared_scores(self, fit: Fit, together: list, regions: bool = True
+                                  ) -> tuple[dict, list[dict] | None]:
+        """The adjoint's sensitivity regions (:meth:`sensitivity_regions`) and the shared
+        scoring run of ``together`` (:meth:`score_together`), concurrently on two groups of
+        ranks: neither needs the other (the shared candidates have no regions), and a model
+        of a few thousand dofs is solved redundantly on every rank of a group, so two ranks
+        on one run buy little (on the realistic damping case the two took 67 s and 45 s one
+        after the other on two ranks).
+
+        Returns
+        -------
+        (dict, list or None)
+            The regions (:data:`NO_REGIONS` when ``regions`` is False) and the shared entries
+            (None: score one by one; fewer than two candidates are not shared).
+        """
+        jobs = (["regions"] if regions else []) + (["shared"] if len(together) > 1 else [])
+
+        def job(kind, sub):
+            if kind == "regions":
+                return self._regions(fit, sub)
+            entries, scored, why = self._shared_run(fit, together, sub)
+            # the fit itself stays behind: :attr:`_scored` is recognised by identity
+            return entries, None if scored is None else scored[1:], why
+
+        done = dict(zip(jobs, map_on_groups(job, jobs, self.comm), strict=True))
+        maps = dict(NO_REGIONS)
+        if "regions" in done:
+            res = done["regions"]
+            if not res.ok:
+                raise DiagnoseError(f"the sensitivity maps failed: {res.error}")
+            maps, centroids = res.value
+            if centroids is not None:
+                self.centroids = centroids
+        entries = None
+        if "shared" in done:
+            res = done["shared"]
+            entries, scored, why = (res.value if res.ok else
+                                    (None, None, f"the shared scoring run failed ({res.error})"))
+            entries = self._keep_shared(entries, None if scored is None else (fit, *scored),
+                                        why)
+        return maps, entries
 
     def _score_entry(self, fit: Fit, candidate, ext, sim, cols: dict, tested: list) -> dict:
         """The score entry of ``candidate`` from the simulation and columns of ``ext``."""
@@ -650,6 +719,14 @@ class Diagnosis:
             ``{"stiffness": sphere where |d misfit/d E_cell| is largest, "density": sphere
             where d misfit/d rho_cell is most negative}``, each None when it cannot be made.
         """
+        maps, centroids = self._regions(fit, self.comm)
+        if centroids is not None:
+            self.centroids = centroids
+        return maps
+
+    def _regions(self, fit: Fit, comm) -> tuple[dict, np.ndarray | None]:
+        """:meth:`sensitivity_regions` on ``comm`` without touching this object: (the regions,
+        the whole mesh's cell centroids or None)."""
         from petsoft.diagnosis.candidates import sensitivity_region
 
         names = fit.names
@@ -657,7 +734,7 @@ class Diagnosis:
         seen = np.isfinite(data)
         sigma = self.sigma
         fm = build_forward(fit.experiment, names, self.recording, self.times[self.ident],
-                           self.comm, self.integrator)
+                           petsc_comm(comm), self.integrator)
 
         def dphi(sim):
             diff = np.where(seen, sim - np.where(seen, data, 0.0), 0.0) / sigma
@@ -667,13 +744,12 @@ class Diagnosis:
             _, _, maps = fm.cell_gradient(fit.values, dphi)
             centroids, volumes = cell_geometry(fm.system.dmesh.mesh)
         except ExperimentError:
-            return dict(NO_REGIONS)
+            return dict(NO_REGIONS), None
         finally:
             fm.destroy()
-        self.centroids = centroids
-        return {"stiffness": sensitivity_region(centroids, maps["youngs_modulus"], volumes),
-                "density": sensitivity_region(centroids, maps["density"], volumes,
-                                              inward=True)}
+        return ({"stiffness": sensitivity_region(centroids, maps["youngs_modulus"], volumes),
+                 "density": sensitivity_region(centroids, maps["density"], volumes,
+                                               inward=True)}, centroids)
 
 
 #: What :meth:`Diagnosis.sensitivity_regions` returns when no map can be made.

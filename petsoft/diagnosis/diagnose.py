@@ -182,8 +182,6 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                   spelled_out, t0: float) -> DiagnoseResult:
     """The diagnosis of :func:`run_diagnose` (call that: it handles the garbage collector and
     the heartbeat); its log's times count from ``t0``."""
-    from petsoft.diagnosis.candidates import build_candidates
-
     diag = Diagnosis(experiment, recording, fraction=fraction, alpha=alpha, method=method,
                       gradient=gradient, integrator=integrator, noise=noise, comm=comm,
                       say=say)
@@ -230,22 +228,24 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             if ev["verdict"] == "consistent":
                 break
         clock.switch("scoring")
-        maps = (diag.sensitivity_regions(current)
-                if system_class(current.experiment).volume_cells else dict(NO_REGIONS))
         plane = escape_plane(diag.data[diag.ident], current.sim[diag.ident], diag.sigma)
-        cands, not_modelled = build_candidates(
-            current.experiment, evidence_region=ev["region"], stiffness_region=maps["stiffness"],
-            density_region=maps["density"],
-            centroids=diag.centroids, scales=diag.scales, plane=plane)
+
+        # the shared run's candidates need no sensitivity region: it runs beside the adjoint
+        together = _shareable(diag, current, _round_candidates(diag, current, ev, plane,
+                                                              NO_REGIONS)[0])
+        diag.tell(f"round {rnd}: the misfit's sensitivity maps"
+                  + (f" beside one scoring run of {', '.join(c.physics for c in together)}"
+                     if len(together) > 1 else ""))
+        maps, shared = diag.regions_and_shared_scores(
+            current, together, regions=system_class(current.experiment).volume_cells)
+        cands, not_modelled = _round_candidates(diag, current, ev, plane, maps)
         diag.tell(f"round {rnd}: ranking {len(cands)} candidates "
                   f"({', '.join(c.physics for c in cands)})")
-        at = [i for i, c in enumerate(cands)
-              if scored_together(c, diag.exact_columns(c, current.experiment))]
-        shared = (diag.score_together(current, [cands[i] for i in at]) if len(at) > 1
-                  else None)
         gc.collect()
-        ranked = ({i: TaskResult(i, 0, entry) for i, entry in zip(at, shared, strict=True)}
-                  if shared is not None else {})
+        entry_of = ({c.physics: e for c, e in zip(together, shared, strict=True)}
+                    if shared is not None else {})
+        ranked = {i: TaskResult(i, 0, entry_of[c.physics]) for i, c in enumerate(cands)
+                  if c.physics in entry_of and _shareable(diag, current, [c])}
         alone = [i for i in range(len(cands)) if i not in ranked]
         ranked.update(zip(alone, map_on_groups(
             lambda c, sub, cur=current: diag.score(cur, c, comm=sub),
@@ -381,3 +381,21 @@ def _reconsidered(diag, current, history, rejected, added, ev):
         ev = evidence_of(diag, current)
         diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
     return current, added, ev
+
+
+def _round_candidates(diag, current, ev: dict, plane, maps: dict) -> tuple[list, dict]:
+    """A round's candidates for ``current`` (:func:`build_candidates`) with the sensitivity
+    regions ``maps`` (:data:`NO_REGIONS`: the non-spatial ones and the evidence's)."""
+    from petsoft.diagnosis.candidates import build_candidates
+
+    return build_candidates(
+        current.experiment, evidence_region=ev["region"], stiffness_region=maps["stiffness"],
+        density_region=maps["density"], centroids=diag.centroids, scales=diag.scales,
+        plane=plane)
+
+
+def _shareable(diag, current, candidates: list) -> list:
+    """Those of ``candidates`` that one scoring run can score together
+    (:func:`scored_together`)."""
+    return [c for c in candidates
+            if scored_together(c, diag.exact_columns(c, current.experiment))]
