@@ -36,7 +36,7 @@ from petsoft.experiment import load_experiment as _load_experiment
 from petsoft.experiment import with_parameters as _with_parameters
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.results import Result
-from petsoft.solvers.options import experiment_options
+from petsoft.solvers.options import SolverOptions
 from petsoft.solvers.run_static import StaticOutcome, solve_experiment
 
 __all__ = ["load_experiment", "with_parameters", "read_recording", "static", "simulate",
@@ -296,9 +296,9 @@ def modes(experiment: Experiment, n: int = 6, *, say=_quiet) -> Modes:
         raise ValueError(f"modes: n must be >= 1, not {n}")
     comm = PETSc.COMM_WORLD
     mpi = comm.tompi4py()
-    with experiment_options(experiment.petsc):
-        model = build_model(experiment, comm)
-        result = compute_modes(model, int(n), monitor=say if comm.rank == 0 else None)
+    model = build_model(experiment, comm)
+    result = compute_modes(model, int(n), monitor=say if comm.rank == 0 else None,
+                           options=SolverOptions("", experiment.petsc))
     try:
         # gather is collective; rank 0 receives (N, 3) per mode and shares the stack
         shapes = [model.dmesh.gather_global(x) for x in result.modes]
@@ -398,13 +398,12 @@ def calibrate(experiment: Experiment, recording: Recording | str | Path, *,
     CalibrationResult
         ``names``, ``values``, ``std``, rms before/after, iterations, the fit history.
     """
-    with experiment_options(experiment.petsc):
-        return run_calibration(experiment, recording, method=method, gradient=gradient,
-                               integrator=integrator, starts=starts, seed=seed,
-                               regularization=regularization, noise=noise,
-                               out=None if out is None else Path(out), say=say,
-                               spelled_out=spelled_out, check_mesh=check_mesh,
-                               misfit=misfit)
+    return run_calibration(experiment, recording, method=method, gradient=gradient,
+                           integrator=integrator, starts=starts, seed=seed,
+                           regularization=regularization, noise=noise,
+                           out=None if out is None else Path(out), say=say,
+                           spelled_out=spelled_out, check_mesh=check_mesh,
+                           misfit=misfit)
 
 
 def calibrate_modes(experiment: Experiment, frequencies, *, out: str | Path | None = None,
@@ -440,8 +439,7 @@ def calibrate_modes(experiment: Experiment, frequencies, *, out: str | Path | No
 
     if not isinstance(frequencies, MeasuredFrequencies):
         frequencies = read_measured_modes(frequencies)
-    with experiment_options(experiment.petsc):
-        fit = calibrate_frequencies(experiment, frequencies, say=say)
+    fit = calibrate_frequencies(experiment, frequencies, say=say)
     if out is not None and PETSc.COMM_WORLD.rank == 0:
         write_frequency_outputs(out, experiment, fit, spelled_out=spelled_out)
     return fit
@@ -452,8 +450,7 @@ def rest_shape(experiment: Experiment, *, out: str | Path | None = None, load_st
     """The rest mesh whose static equilibrium is the experiment's (captured) mesh
     (``petsoft rest-shape``): returns a :class:`~petsoft.calibration.rest_shape.RestShape`
     (``.mesh``, ``.points``); ``out`` also writes it (``.vtu``, ``.msh``)."""
-    with experiment_options(experiment.petsc):
-        rest = compute_rest_shape(experiment, load_steps=load_steps, say=say)
+    rest = compute_rest_shape(experiment, load_steps=load_steps, say=say)
     if out is not None and PETSc.COMM_WORLD.rank == 0:
         write_rest_mesh(out, rest)
     return rest
@@ -464,8 +461,7 @@ def calibrate_rest_shape(experiment: Experiment, recording: Recording | str | Pa
     """Calibrate when the mesh is a captured equilibrium (``petsoft calibrate --rest-shape``):
     the X/u splitting of :func:`petsoft.calibration.rest_shape.calibrate_rest_shape`; returns
     its ``SplittingResult`` (``values``, ``rest``, ``rms_after``, ``rounds``)."""
-    with experiment_options(experiment.petsc):
-        return _calibrate_rest_shape(experiment, recording, noise=noise, mode=mode, say=say)
+    return _calibrate_rest_shape(experiment, recording, noise=noise, mode=mode, say=say)
 
 
 def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
@@ -513,9 +509,8 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
     DiagnoseResult
         ``verdict``, ``added``, ``rejected``, the base and final fits, and the report.
     """
-    with experiment_options(experiment.petsc):
-        return run_diagnose(experiment, recording, out=None if out is None else Path(out),
-                            fraction=fraction, alpha=alpha, max_additions=max_additions,
-                            max_tries=max_tries, method=method, gradient=gradient,
-                            integrator=integrator, noise=noise, numerics=numerics, say=say,
-                            spelled_out=spelled_out)
+    return run_diagnose(experiment, recording, out=None if out is None else Path(out),
+                        fraction=fraction, alpha=alpha, max_additions=max_additions,
+                        max_tries=max_tries, method=method, gradient=gradient,
+                        integrator=integrator, noise=noise, numerics=numerics, say=say,
+                        spelled_out=spelled_out)

@@ -1,5 +1,5 @@
-"""An experiment's [petsc] options reach its solvers, stay only while it runs, and lose to the
-command line (petsoft.solvers.options.experiment_options)."""
+"""An experiment's [petsc] options reach its solvers, stay only while they are set up and solve,
+and lose to the command line (petsoft.solvers.options.SolverOptions)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.run_simulation import simulate_experiment
 from petsoft.experiment import experiment_from_dict
-from petsoft.solvers.options import experiment_options
+from petsoft.solvers.options import SolverOptions
 from petsoft.solvers.run_static import solve_experiment
 
 BAR = {
@@ -45,15 +45,34 @@ def test_the_command_line_wins_and_stays():
         opts.delValue("ksp_type")
 
 
-def test_nested_blocks_remove_only_what_they_inserted():
+def test_nested_pushes_remove_only_what_they_inserted():
     opts = PETSc.Options()
-    with experiment_options({"ksp_type": "cg"}) as outer:
-        with experiment_options({"ksp_type": "gmres", "pc_type": "sor"}) as inner:
+    outer_options = SolverOptions("", {"ksp_type": "cg"}, defaults={"ksp_rtol": "1e-3"})
+    with outer_options.pushed():
+        assert opts.getString("ksp_rtol") == "1e-3"
+        inner_options = SolverOptions("", {"ksp_type": "gmres", "pc_type": "sor"})
+        with inner_options.pushed(ksp_rtol="1e-5"):
             assert opts.getString("ksp_type") == "cg"          # the outer block's stays
-            assert inner == ["pc_type"]
+            assert opts.getString("pc_type") == "sor"
+            assert opts.getString("ksp_rtol") == "1e-5"        # an inner default replaces it
         assert opts.hasName("ksp_type") and not opts.hasName("pc_type")
-        assert outer == ["ksp_type"]
-    assert not opts.hasName("ksp_type")
+        assert opts.getString("ksp_rtol") == "1e-3"            # ... and gives it back
+    for key in ("ksp_type", "pc_type", "ksp_rtol"):
+        assert not opts.hasName(key)
+
+
+def test_prefixed_keys_and_copies():
+    """A key written with the prefix is pushed as it is and wins over a copied one; keys of
+    other prefixes are not pushed; the root prefix takes every key."""
+    table = {"ksp_type": "gmres", "fm_ksp_type": "bcgs", "pc_type": "sor", "cal_tao_max_it": "3",
+             "snes_rtol": "1e-9", "ts_alpha_radius": "0.3"}
+    fm = SolverOptions("fm_", table, ("ksp_", "pc_", "snes_"))
+    assert fm.values == {"fm_ksp_type": "bcgs", "fm_pc_type": "sor", "fm_snes_rtol": "1e-9"}
+    grad = SolverOptions("fm_grad_", table, ("ksp_", "pc_"))
+    assert grad.values == {"fm_grad_ksp_type": "gmres", "fm_grad_pc_type": "sor"}
+    assert SolverOptions("cal_", table).values == {"cal_tao_max_it": "3"}
+    assert SolverOptions("", table).values == table
+    assert SolverOptions("", table).under("cal_").values == {"cal_tao_max_it": "3"}
 
 
 def test_a_dynamic_run_uses_the_experiment_options_and_leaves_none_behind(tmp_path):
@@ -73,3 +92,16 @@ def test_a_dynamic_run_uses_the_experiment_options_and_leaves_none_behind(tmp_pa
     direct = simulate_experiment(experiment_from_dict({**data, "petsc": {}}),
                                  out=tmp_path / "default")
     assert direct.linear_iterations < krylov.linear_iterations
+
+
+def test_every_prefix_is_documented():
+    """The README's table of prefixes names every prefix petsoft's solvers use."""
+    from pathlib import Path
+
+    from petsoft.solvers.options import PREFIXES
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    table = readme[readme.index("| prefix | solver |"):]
+    table = table[:table.index("\n\n")]
+    missing = [p for p in PREFIXES if p and f"`{p}`" not in table]
+    assert not missing, f"prefixes missing from README.md's table: {missing}"

@@ -19,7 +19,6 @@ from petsoft.dynamics.checkpoint import checkpoint_files
 from petsoft.dynamics.simulate import Simulation
 from petsoft.experiment import experiment_from_dict
 from petsoft.physics.model import build_model
-from petsoft.solvers.options import experiment_options
 
 serial_only = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns processes")
 
@@ -60,8 +59,7 @@ def _shared_dir(tmp_path_factory, name):
 def _run(exp, out, restart=False):
     model = build_model(exp)
     sim = Simulation(model, exp, out=out)
-    with experiment_options(exp.petsc):        # as petsoft simulate applies [petsc]
-        result = sim.run(restart=restart)
+    result = sim.run(restart=restart)      # its solvers push the experiment's [petsc]
     q = MPI.COMM_WORLD.bcast(model.dmesh.gather_global(result.q))
     sim.destroy()
     return q

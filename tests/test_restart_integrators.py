@@ -57,7 +57,6 @@ from petsoft.dynamics.mass_spring import cloth_mesh
 from petsoft.dynamics.simulate import Simulation
 from petsoft.experiment import experiment_from_dict
 from petsoft.mesh.springs import write_spring_mesh
-from petsoft.solvers.options import experiment_options
 
 STEPS, CUT, EVERY = 8, 4, 4
 INTEGRATORS = ("be", "si", "alpha", "midpoint", "trapezoidal", "ere", "imex", "explicit")
@@ -129,8 +128,7 @@ def _run(exp, out: Path, restart=False):
     model = build_model(exp)
     sim = Simulation(model, exp, out=out, monitor=lines.append, progress_every=0.0)
     try:
-        with experiment_options(exp.petsc):
-            result = sim.run(restart=restart)
+        result = sim.run(restart=restart)
         gather = model.dmesh.gather_global
         q, v = MPI.COMM_WORLD.bcast((gather(result.q), gather(result.v)))
     finally:

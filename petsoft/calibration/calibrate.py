@@ -26,6 +26,7 @@ from petsoft.io.progress import IterationPace
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.io.summary import write_summary
 from petsoft.results import OptimizerFit
+from petsoft.solvers.options import SolverOptions
 
 GRADIENTS = ("adjoint", "sensitivity", "fd")
 
@@ -358,6 +359,8 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
     upper = np.array([b[1] for b in bounds])
     scaling = ParameterScaling(names, start, lower, upper)
     zlo, zhi = scaling.bounds()
+    # the optimizer's options (prefix cal_) from the experiment's [petsc] table
+    optimizer_options = SolverOptions("cal_", experiment.petsc)
     tell(f"petsoft calibrate: {len(names)} parameter(s) {', '.join(names)}; "
          f"{len(times)} frames x {recording.num_markers} markers "
          f"({int(np.isfinite(data).all(axis=2).sum())} seen samples); method {method}, "
@@ -385,7 +388,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
             raise ExperimentError("misfit = \"spectral\" with random starts: choose one")
         wide = make_problem(comm, transform)
         opt = minimize(wide, z0, method=method, bounds=(zlo, zhi), scaling=scaling,
-                       monitor=monitor_for(0))
+                       monitor=monitor_for(0), solver_options=optimizer_options)
         wide.forward.destroy()
         tell("spectral misfit: minimum at " + ", ".join(
             f"{n}={v:.6g}" for n, v in zip(names, scaling.to_physical(opt.z), strict=True))
@@ -395,7 +398,8 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
     if starts > 0:
         zs = random_starts(zlo, zhi, starts, seed=seed, include=z0)
         ms = multistart(make_problem, zs, comm=mpi, method=method, bounds=(zlo, zhi),
-                        scaling=scaling, monitor_factory=lambda i, sub: monitor_for(i))
+                        scaling=scaling, monitor_factory=lambda i, sub: monitor_for(i),
+                        solver_options=optimizer_options)
         for s in ms.starts:
             all_starts.append({"index": s.index, "group": s.group,
                                "start": scaling.to_physical(s.start).tolist(),
@@ -412,7 +416,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
                                                           axis=-1))
     if starts == 0:
         opt = minimize(problem, z0, method=method, bounds=(zlo, zhi), scaling=scaling,
-                       monitor=monitor_for(0), stop=stop)
+                       monitor=monitor_for(0), stop=stop, solver_options=optimizer_options)
     # the user's start, not a polish start; with one start from it, the optimizer's first
     # evaluation (remembered by the problem, as is its last Jacobian at the optimum)
     before = problem.simulate(scaling.to_scaled(start))

@@ -84,6 +84,8 @@ from __future__ import annotations
 import functools
 import math
 import re
+from contextlib import contextmanager
+from contextvars import ContextVar
 
 import numpy as np
 from mpi4py import MPI
@@ -104,7 +106,7 @@ from petsoft.io.progress import beat
 from petsoft.solvers.convergence import check_converged
 from petsoft.solvers.lagged_factors import LaggedFactors
 from petsoft.solvers.linear import is_direct, solver_chosen, symmetric_factorisation
-from petsoft.solvers.options import scoped_defaults
+from petsoft.solvers.options import FORWARD_KEYS, GRADIENT_KEYS, SolverOptions
 from petsoft.solvers.static import StaticSolver
 
 #: The schemes with gradients (the registry says which).
@@ -112,7 +114,33 @@ INTEGRATORS = with_gradients()
 PREFIX = "fm_"
 GRAD_PREFIX = "fm_grad_"
 #: Newton of the forward run: gradients are only as accurate as the solves (user options win).
-FORWARD_OPTIONS = {PREFIX + "snes_rtol": "1e-12"}
+FORWARD_OPTIONS = {"snes_rtol": "1e-12"}
+#: Newton of a static initial state, solved tightly: its derivative holds at the exact solution
+STATIC_OPTIONS = {"snes_rtol": "1e-13"}
+#: a caller's defaults of the forward runs' options (:func:`forward_defaults`)
+_CALLER_DEFAULTS: ContextVar[dict[str, str] | None] = ContextVar("forward_defaults",
+                                                                default=None)
+
+
+@contextmanager
+def forward_defaults(**defaults: str):
+    """Defaults (names without the ``fm_`` prefix) of the forward models built inside the
+    block, over :data:`FORWARD_OPTIONS` and under the experiment's ``[petsc]`` table and the
+    command line: diagnose's Newton tolerance for every forward run it makes
+    (``forward_defaults(snes_rtol="1e-06")``). Nothing enters PETSc's options database here."""
+    token = _CALLER_DEFAULTS.set({**(_CALLER_DEFAULTS.get() or {}),
+                                  **{k: str(v) for k, v in defaults.items()}})
+    try:
+        yield
+    finally:
+        _CALLER_DEFAULTS.reset(token)
+
+
+def forward_options(table=None) -> SolverOptions:
+    """The options of a forward run's solvers (prefix ``fm_``) from an experiment's ``[petsc]``
+    table: see :class:`ForwardModel`'s ``solver_options``."""
+    return SolverOptions(PREFIX, table, FORWARD_KEYS,
+                         defaults={**FORWARD_OPTIONS, **(_CALLER_DEFAULTS.get() or {})})
 #: Bytes of stored states the adjoint may hold per rank before it checkpoints (binomial).
 ADJOINT_MEMORY = 1 << 30
 #: Relative size of the SI third-derivative difference: eps |w|_inf = this x mean cell size.
@@ -160,10 +188,12 @@ class ForwardModel:
     h : float, optional
         Step (default ``[time] step``).
     solver_options : dict, optional
-        Linear/nonlinear solver defaults without prefix (e.g. an experiment's ``[petsc]``
-        ``ksp_type``/``pc_type``), applied under the forward run's prefix ``fm_`` and the gradient
-        solves' ``fm_grad_`` only while this model runs (never left in the options database);
-        options given with those prefixes win.
+        An experiment's ``[petsc]`` table. Its ``ksp_``, ``pc_``, ``mat_`` and ``snes_`` keys
+        without prefix (``ksp_type``) reach the forward run's solvers under the prefix ``fm_``,
+        its ``ksp_``, ``pc_`` and ``mat_`` keys the gradient solves' under ``fm_grad_``; keys
+        written with one of those prefixes (or ``fm_static_``) reach that solver only and win
+        over the copied ones; the command line wins over both. Each solver pushes them while it
+        is set up and solves (:class:`~petsoft.solvers.options.SolverOptions`).
     recording : Recording or path, optional
         The recording whose ``/inputs`` drive ``series`` supports (a model driven by a measured
         input is fitted to the recording that holds that input).
@@ -208,12 +238,10 @@ class ForwardModel:
         self.has_a = self.scheme.carries_acceleration or self.accel
         self.static = exp.initial.from_ == "static"
         self.h = float(h if h is not None else exp.time.step)
-        opts = {k.lstrip("-"): str(v) for k, v in (solver_options or {}).items()}
-        self._forward_defaults = {**{PREFIX + k: v for k, v in opts.items()
-                                     if k.startswith(("ksp_", "pc_", "mat_", "snes_"))},
-                                  **FORWARD_OPTIONS}
-        self._grad_defaults = {GRAD_PREFIX + k: v for k, v in opts.items()
-                               if k.startswith(("ksp_", "pc_", "mat_"))}
+        self.options = forward_options(solver_options)
+        self.grad_options = SolverOptions(GRAD_PREFIX, solver_options, GRADIENT_KEYS)
+        self.static_options = SolverOptions(PREFIX + "static_", solver_options,
+                                            defaults=STATIC_OPTIONS)
         if system is None:
             # a mass-spring system offers the same parameter interface (names, in-place
             # set_parameters, residual_parameter_derivatives): the generic derivative path
@@ -263,10 +291,10 @@ class ForwardModel:
                     self.uses.setdefault(int(i), []).append((k, float(w)))
         if self.scheme.carries_acceleration:
             self.integrator = GeneralizedAlpha(s, exp.time.alpha_radius if exp.time else 0.5,
-                                               prefix=PREFIX)
+                                               options=self.options)
             self.am, self.af, self.gamma, self.nbeta = alpha_parameters(self.integrator.radius)
         else:
-            self.integrator = ImplicitIntegrator(s, self.method, prefix=PREFIX)
+            self.integrator = ImplicitIntegrator(s, self.method, options=self.options)
         self.J = s.create_matrix()
         modes = s.near_nullspace()
         if modes is not None:
@@ -322,8 +350,7 @@ class ForwardModel:
 
         # the static equilibrium under the current parameters, solved tightly: its derivative
         # K(q0) dq0/dp = -d r_static/dp holds at the exact solution
-        with scoped_defaults(**{PREFIX + "static_snes_rtol": "1e-13"}):
-            solver = StaticSolver(self.model, prefix=PREFIX + "static_")
+        solver = StaticSolver(self.model, options=self.static_options)
         try:
             q0 = solver.solve().displacement.copy()
         finally:
@@ -369,22 +396,21 @@ class ForwardModel:
         obs = {}
         self._observe(0, a if self.accel else q, obs)
         q1, v1 = q.duplicate(), v.duplicate()
-        with scoped_defaults(**self._forward_defaults):
-            for n in range(self.nsteps):
-                a1 = self._step(n, q, v, q1, v1, p)
-                if on_step is not None:
-                    on_step(n, states[-1], (q1, v1, a1))
-                if store:
-                    states.append((q1.copy(), v1.copy(), a1))
-                else:
-                    if kept is None or states[-1] is not kept.get(n):
-                        self._free_state(states[-1])
-                    states[-1] = (q1.copy(), v1.copy(), a1)
-                    if kept is not None and n + 1 in keep:
-                        kept[n + 1] = states[-1]
-                q1.copy(q)
-                v1.copy(v)
-                self._observe(n + 1, states[-1][2] if self.accel else q, obs)
+        for n in range(self.nsteps):
+            a1 = self._step(n, q, v, q1, v1, p)
+            if on_step is not None:
+                on_step(n, states[-1], (q1, v1, a1))
+            if store:
+                states.append((q1.copy(), v1.copy(), a1))
+            else:
+                if kept is None or states[-1] is not kept.get(n):
+                    self._free_state(states[-1])
+                states[-1] = (q1.copy(), v1.copy(), a1)
+                if kept is not None and n + 1 in keep:
+                    kept[n + 1] = states[-1]
+            q1.copy(q)
+            v1.copy(v)
+            self._observe(n + 1, states[-1][2] if self.accel else q, obs)
         for x in (q, v, q1, v1, a):
             if x is not None:
                 x.destroy()
@@ -428,13 +454,12 @@ class ForwardModel:
             self.integrator._forget()
             self.integrator.restore(n0 * self.h, q, v, {"acceleration": a0})
         a1 = None
-        with scoped_defaults(**self._forward_defaults):
-            for n in range(n0, n1):
-                if a1 is not None:
-                    a1.destroy()
-                a1 = self._step(n, q, v, q1, v1, p)
-                q1.copy(q)
-                v1.copy(v)
+        for n in range(n0, n1):
+            if a1 is not None:
+                a1.destroy()
+            a1 = self._step(n, q, v, q1, v1, p)
+            q1.copy(q)
+            v1.copy(v)
         q1.destroy()
         v1.destroy()
         return q, v, a1
@@ -524,26 +549,25 @@ class ForwardModel:
         :class:`~petsoft.solvers.lagged_factors.LaggedFactors` on it (its ``.ksp``)."""
         ksp = PETSc.KSP().create(comm=self.comm)
         ksp.setOptionsPrefix(GRAD_PREFIX)
-        # inside the scope: the experiment's [petsc] choice of solver replaces the default whole
-        with scoped_defaults(**self._grad_defaults):
+        # with the options pushed: the experiment's [petsc] choice of solver replaces the
+        # default whole
+        with self.grad_options.pushed():
             self.system.linear_defaults(ksp)
             ksp.setFromOptions()
             chosen = solver_chosen(ksp)
-        symmetric_factorisation(ksp, self.J)
+            symmetric_factorisation(ksp, self.J)
         ksp.setOperators(self.J)
         if lag and is_direct(ksp) and not chosen:
             return LaggedFactors(ksp)
         return ksp
 
     def _solve(self, ksp, rhs, out) -> None:
-        if isinstance(ksp, LaggedFactors):
+        # (with the options pushed: PETSc reads some when the solve sets the factors up)
+        with self.grad_options.pushed():
             ksp.solve(rhs, out)
-            ksp = ksp.ksp
-        else:
-            ksp.solve(rhs, out)
-        if ksp.getConvergedReason() < 0:
-            check_converged(ksp, f"{self.experiment.source}: a sensitivity/adjoint linear solve",
-                            hint=f"try -{GRAD_PREFIX}pc_type lu")
+        check_converged(ksp.ksp if isinstance(ksp, LaggedFactors) else ksp,
+                        f"{self.experiment.source}: a sensitivity/adjoint linear solve",
+                        hint=f"try -{GRAD_PREFIX}pc_type lu")
 
     def _predictor(self, n, q0, v0):
         qp = q0.copy()
@@ -802,7 +826,8 @@ class ForwardModel:
                     # renewed here, or the next steps' chords would fail on them too
                     lagged.renew()
                     failed_chords[0] += 1
-                lagged.operator_changed()
+                with self.grad_options.pushed():
+                    lagged.operator_changed()
             Rp = [None] * P
             for j, r in zip(others, deriv.vectors([self.names[j] for j in others]),
                             strict=True):

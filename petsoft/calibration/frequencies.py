@@ -56,6 +56,7 @@ from petsoft.mesh.probes import embed
 from petsoft.physics.model import build_model
 from petsoft.results import OptimizerFit
 from petsoft.solvers.modes import compute_modes
+from petsoft.solvers.options import SolverOptions
 
 __all__ = ["FrequencyFit", "FrequencyModel", "PairingWarning", "calibrate_frequencies",
            "mac_matrix", "read_measured_modes", "write_frequency_outputs"]
@@ -174,6 +175,8 @@ class FrequencyModel:
                  model_modes: int | None = None):
         self.comm = comm if comm is not None else PETSc.COMM_WORLD
         self.names, self.count = list(names), int(count)
+        # the eigensolver's options (no prefix, as `petsoft modes`) from the [petsc] table
+        self.options = SolverOptions("", experiment.petsc)
         body = system_class(experiment)
         if not body.continuum_material:
             raise ExperimentError(f"{experiment.source}: calibration from frequencies needs a "
@@ -230,11 +233,11 @@ class FrequencyModel:
 
     def _modes(self):
         model = self.system.model
-        res = compute_modes(model, self.model_modes)
+        res = compute_modes(model, self.model_modes, options=self.options)
         if res.rigid_modes:
             rigid = res.rigid_modes
             res.destroy()
-            res = compute_modes(model, self.model_modes + rigid)
+            res = compute_modes(model, self.model_modes + rigid, options=self.options)
         return res
 
     def _enough_modes(self, res):
@@ -459,7 +462,8 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
 
     result = minimize(problem, np.zeros(len(names)), method="gauss-newton",
                       bounds=scaling.bounds(), monitor=monitor, scaling=scaling,
-                      options={"gatol": 1e-12, "grtol": 1e-12})
+                      options={"gatol": 1e-12, "grtol": 1e-12},
+                      solver_options=SolverOptions("cal_", experiment.petsc))
     z = np.asarray(result.z)
     values = scaling.to_physical(z)
     after, J = model.evaluate(values, jacobian=True)

@@ -87,7 +87,8 @@ def random_starts(lower, upper, count: int, seed: int = 0, include=None) -> np.n
 
 def multistart(make_problem: Callable, starts: Sequence, comm=None, method: str = "lbfgs",
                bounds=None, options: dict | None = None, scaling=None, groups: int | None = None,
-               prefix: str = "cal_", monitor_factory: Callable | None = None) -> MultistartResult:
+               prefix: str = "cal_", monitor_factory: Callable | None = None,
+               solver_options=None) -> MultistartResult:
     """Minimize from every start on groups of ranks; the best result and all results everywhere.
 
     Parameters
@@ -98,7 +99,7 @@ def multistart(make_problem: Callable, starts: Sequence, comm=None, method: str 
         Start points in z; start i runs on group ``i % groups``.
     comm : mpi4py.MPI.Comm, optional
         Communicator of all the ranks (default ``COMM_WORLD``); call collectively.
-    method, bounds, options, scaling, prefix
+    method, bounds, options, scaling, prefix, solver_options
         Passed to :func:`petsoft.calibration.optimize.minimize`.
     groups : int, optional
         Number of groups (default: one per rank; at most the number of ranks). Ranks
@@ -127,7 +128,8 @@ def multistart(make_problem: Callable, starts: Sequence, comm=None, method: str 
         # records it and the other starts go on.
         mon = monitor_factory(i, sub) if monitor_factory is not None else None
         return minimize(problem, starts[i], method=method, bounds=bounds, options=options,
-                        monitor=mon, scaling=scaling, prefix=prefix)
+                        monitor=mon, scaling=scaling, prefix=prefix,
+                        solver_options=solver_options)
 
     try:
         tasks = map_on_groups(run, list(range(len(starts))), comm, groups=ngroups,

@@ -75,8 +75,8 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.errors import InvertedElementError, SolverError
-from petsoft.solvers.convergence import reason_name
-from petsoft.solvers.options import scoped_defaults
+from petsoft.solvers.convergence import outcome
+from petsoft.solvers.options import SolverOptions, own_options, scoped_defaults
 
 METHODS = ("gd", "newton", "lbfgs", "gauss-newton", "brgn", "nelder-mead")
 #: Levenberg-Marquardt's default iteration limit (option ``<prefix>tao_max_it``)
@@ -437,7 +437,8 @@ def _option(prefix: str, name: str, default, kind=float):
 def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | None = None,
              monitor: Callable[[IterationRecord], None] | None = None, scaling=None,
              prefix: str = "cal_",
-             stop: Callable[[IterationRecord], bool] | None = None) -> OptimizeResult:
+             stop: Callable[[IterationRecord], bool] | None = None,
+             solver_options: SolverOptions | None = None) -> OptimizeResult:
     """Minimize the problem's objective over z from ``z0`` with the chosen method.
 
     Parameters
@@ -467,6 +468,9 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
         Called on every rank after every iteration (after ``monitor``); True ends the
         minimization there with reason ``STOPPED_BY_CALLER`` (not converged) at that iterate.
         It must decide the same on every rank (the records are identical on all of them).
+    solver_options : SolverOptions, optional
+        The options (an experiment's ``[petsc]`` table) pushed under ``prefix`` while the
+        optimizer runs.
 
     Returns
     -------
@@ -514,33 +518,35 @@ def minimize(problem, z0, method: str = "lbfgs", bounds=None, options: dict | No
             f"the objective is not finite at the start z = {np.array2string(z0)}"
             + (f" (p = {np.array2string(to_p(z0))})" if scaling is not None else "")
             + ": the forward model failed there; start elsewhere or tighten the bounds")
-    if method in ("gd", "gauss-newton"):
-        res = _own_method(method, ev, z0, lo, hi, o, prefix, record, scaling, history)
-    elif method == "nelder-mead":
-        # TAO nm's simplex can collapse in a narrow curved valley and report convergence at a
-        # non-stationary point (seen on the shifted oscillation: f = 0.386 instead of 0.192 from
-        # a unit simplex). Restarting from the result with a fresh, smaller simplex resolves it;
-        # restart while the objective still improves.
-        res = _tao_minimize(ev, z0, lo, hi, o, prefix, method, record,
-                            (options or {}).get("gatol"))
-        its = res.iterations
-        for _ in range(0 if res.reason == STOPPED else int(o["nm_restarts"])):
-            again = _tao_minimize(ev, res.z, lo, hi, o, prefix, method, record,
-                                  (options or {}).get("gatol"), o["nm_restart_lambda"])
-            its += again.iterations
-            if again.reason == STOPPED:
-                res = again
-                break
-            improved = again.f < res.f - 1e-12 * (1.0 + abs(res.f))
-            if again.f <= res.f:
-                res = again
-            if not improved:
-                break
-        res.iterations = its
-        res.evaluations = ev.count
-    else:
-        res = _tao_minimize(ev, z0, lo, hi, o, prefix, method, record,
-                            (options or {}).get("gatol"))
+    # the optimizer's options (-cal_tao_max_it ...) pushed while it reads them and runs
+    with own_options(prefix, solver_options).pushed():
+        if method in ("gd", "gauss-newton"):
+            res = _own_method(method, ev, z0, lo, hi, o, prefix, record, scaling, history)
+        elif method == "nelder-mead":
+            # TAO nm's simplex can collapse in a narrow curved valley and report convergence at a
+            # non-stationary point (seen on the shifted oscillation: f = 0.386 instead of 0.192 from
+            # a unit simplex). Restarting from the result with a fresh, smaller simplex resolves it;
+            # restart while the objective still improves.
+            res = _tao_minimize(ev, z0, lo, hi, o, prefix, method, record,
+                                (options or {}).get("gatol"))
+            its = res.iterations
+            for _ in range(0 if res.reason == STOPPED else int(o["nm_restarts"])):
+                again = _tao_minimize(ev, res.z, lo, hi, o, prefix, method, record,
+                                      (options or {}).get("gatol"), o["nm_restart_lambda"])
+                its += again.iterations
+                if again.reason == STOPPED:
+                    res = again
+                    break
+                improved = again.f < res.f - 1e-12 * (1.0 + abs(res.f))
+                if again.f <= res.f:
+                    res = again
+                if not improved:
+                    break
+            res.iterations = its
+            res.evaluations = ev.count
+        else:
+            res = _tao_minimize(ev, z0, lo, hi, o, prefix, method, record,
+                                (options or {}).get("gatol"))
     res.history = history
     res.failures = ev.failures
     res.p = to_p(res.z)
@@ -924,8 +930,8 @@ def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
         tao.setFromOptions()  # last: the command line wins
     try:
         tao.solve()
-        reason_code = int(tao.getConvergedReason())
-        reason = STOPPED if stopped else reason_name(tao, reason_code)
+        done = outcome(tao)
+        reason = STOPPED if stopped else done.reason
         its = int(tao.getIterationNumber())
         tao_type = tao.getType()
         z = np.clip(x.getArray(readonly=True).copy(), lo, hi)
@@ -937,7 +943,7 @@ def _tao_minimize(ev: _Evaluator, z0, lo, hi, o, prefix, method, record,
         gnorm = projected_gradient_norm(z, g, lo, hi)
     else:
         f, gnorm = ev.value(z), float("nan")
-    return OptimizeResult(method, z, z, f, gnorm, its, ev.count, reason, reason_code > 0,
+    return OptimizeResult(method, z, z, f, gnorm, its, ev.count, reason, done.converged,
                           hessian=hessian_kind, tao_type=tao_type)
 
 

@@ -36,6 +36,7 @@ from petsoft.experiment import with_parameters
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.physics.model import build_model, load_mesh, on_root
 from petsoft.results import FitResult, Result
+from petsoft.solvers.options import SolverOptions
 from petsoft.solvers.rest_shape import RestShapeError, RestShapeSolver
 
 
@@ -99,7 +100,8 @@ def compute_rest_shape(experiment, comm=None, *, captured=None, initial=None,
         captured = comm.tompi4py().bcast(captured, root=0)
     model = build_model(experiment, comm, mesh=captured)
     solver = RestShapeSolver(model, load_steps=load_steps,
-                             monitor=say if comm.rank == 0 else None)
+                             monitor=say if comm.rank == 0 else None,
+                             options=SolverOptions("rest_shape_", experiment.petsc))
     guess = None if initial is None else np.asarray(initial)[model.dmesh.vertex_ids]
     error = None
     try:

@@ -32,7 +32,6 @@ from petsoft.mesh.refine import refine_mesh
 from petsoft.mesh.serial import Mesh
 from petsoft.mesh.topology import exterior_faces
 from petsoft.physics.model import build_model, load_mesh
-from petsoft.solvers.options import experiment_options
 
 
 class SynthError(PetsoftError):
@@ -186,15 +185,14 @@ def synth(experiment, options: SynthOptions, *, say=None) -> SynthResult:
                              "halves its size; use a power of two (2, 4, 8)")
         mesh = refine_mesh(mesh0, levels)
     sim_exp = experiment_from_dict(data, source=exp.source, base_dir=exp.base_dir, path=exp.path)
-    with experiment_options(sim_exp.petsc):
-        model = build_model(sim_exp, comm, mesh=mesh)
-        tell(f"petsoft synth: {len(markers)} markers; simulating on "
-             f"{len(model.dmesh.mesh.tets)} tets (refine {K}, original {len(mesh0.tets)}) with "
-             f"step {step:g} s")
-        sim = Simulation(model, sim_exp, monitor=tell)
-        result = sim.run()
-        integrator = sim.name
-        sim.destroy()
+    model = build_model(sim_exp, comm, mesh=mesh)
+    tell(f"petsoft synth: {len(markers)} markers; simulating on "
+         f"{len(model.dmesh.mesh.tets)} tets (refine {K}, original {len(mesh0.tets)}) with "
+         f"step {step:g} s")
+    sim = Simulation(model, sim_exp, monitor=tell)
+    result = sim.run()
+    integrator = sim.name
+    sim.destroy()
     summary = {}
     if rank0:
         t_sim = np.array(result.probe_times)

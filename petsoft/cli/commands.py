@@ -35,7 +35,7 @@ from petsoft.io.summary import write_summary
 from petsoft.io.xdmf import XdmfWriter
 from petsoft.physics.model import build_model
 from petsoft.solvers.modes import compute_modes
-from petsoft.solvers.options import experiment_options
+from petsoft.solvers.options import SolverOptions
 from petsoft.solvers.run_static import solve_experiment
 
 # The embedded default of `petsoft demo`: a soft neo-Hookean cantilever (silicone-like) clamped
@@ -96,7 +96,7 @@ def run(args) -> int:
         observations = Observations(read_recording_on_all_ranks(args.recording), noise=args.noise)
         if getattr(args, "rest_shape", False):
             return run_rest_shape_calibration(experiment, observations, out, args)
-        with experiment_options(experiment.petsc), heartbeat(_pulse):
+        with heartbeat(_pulse):
             run_calibration(experiment, observations, method=args.method,
                             gradient=args.gradient, integrator=args.integrator,
                             starts=args.multistart, seed=args.seed,
@@ -108,12 +108,11 @@ def run(args) -> int:
         experiment = load_experiment(args.experiment)
         out = Path(args.out) if args.out else experiment.output.directory
         recording = read_recording_on_all_ranks(args.recording)
-        with experiment_options(experiment.petsc):
-            result = run_diagnose(experiment, recording, out=out, fraction=args.fraction,
-                                  alpha=args.alpha, max_additions=args.max_additions,
-                                  method=args.method, integrator=args.integrator,
-                                  noise=args.noise, numerics=not args.no_numerics, say=_print,
-                                  spelled_out=args.spelled_out)
+        result = run_diagnose(experiment, recording, out=out, fraction=args.fraction,
+                              alpha=args.alpha, max_additions=args.max_additions,
+                              method=args.method, integrator=args.integrator,
+                              noise=args.noise, numerics=not args.no_numerics, say=_print,
+                              spelled_out=args.spelled_out)
         # the console ends with the conclusion, in the report's words and numbers
         _print("")
         for line in Story(result.report).conclusion(out):
@@ -140,8 +139,7 @@ def run_frequency_calibration(experiment, path: str, out: Path, args) -> int:
     """``petsoft calibrate --modes FILE``: material parameters from natural frequencies (a
     measured-frequencies file, or a recording whose frequencies are estimated)."""
     measured = read_measured_modes(path)
-    with experiment_options(experiment.petsc):
-        fit = calibrate_frequencies(experiment, measured, say=_print)
+    fit = calibrate_frequencies(experiment, measured, say=_print)
     if PETSc.COMM_WORLD.rank == 0:
         write_frequency_outputs(out, experiment, fit, spelled_out=args.spelled_out)
         _print(f"wrote {out}/ (calibrated.toml, summary.json, frequencies.png)")
@@ -151,8 +149,7 @@ def run_frequency_calibration(experiment, path: str, out: Path, args) -> int:
 def run_rest_shape(args) -> int:
     """``petsoft rest-shape``: write the rest mesh of the experiment's captured mesh."""
     experiment = load_experiment(args.experiment)
-    with experiment_options(experiment.petsc):
-        rest = compute_rest_shape(experiment, load_steps=args.load_steps, say=_print)
+    rest = compute_rest_shape(experiment, load_steps=args.load_steps, say=_print)
     if PETSc.COMM_WORLD.rank == 0:
         path = write_rest_mesh(args.out, rest)
         shift = float(np.abs(rest.captured.points - rest.points).max())
@@ -167,8 +164,7 @@ def run_rest_shape_calibration(experiment, observations, out: Path, args) -> int
         raise ExperimentError("--rest-shape fits by Levenberg-Marquardt on the reduced problem: "
                            "it takes no --method, --multistart or --regularization")
     t0 = time.perf_counter()
-    with experiment_options(experiment.petsc):
-        result = calibrate_rest_shape(experiment, observations, say=_print)
+    result = calibrate_rest_shape(experiment, observations, say=_print)
     write_splitting_outputs(out, experiment, result, time.perf_counter() - t0, PETSc.COMM_WORLD,
                             spelled_out=args.spelled_out)
     _print(f"rms {result.rms_before:.4e} m -> {result.rms_after:.4e} m; wrote {out}/ "
@@ -241,8 +237,8 @@ def run_modes(args) -> int:
     _print(f"petsoft modes: {len(mesh.tets)} tets, {len(mesh.points)} nodes, "
            f"{3 * len(mesh.points)} dofs ({model.dirichlet.count} constrained) on {comm.size} "
            f"rank(s); {args.num_modes} mode(s)")
-    with experiment_options(experiment.petsc):
-        result = compute_modes(model, args.num_modes, monitor=_print)
+    result = compute_modes(model, args.num_modes, monitor=_print,
+                           options=SolverOptions("", experiment.petsc))
     writer = XdmfWriter(out / "modes.xdmf", mesh.points, mesh.cells) if comm.rank == 0 else None
     for k, x in enumerate(result.modes):
         shape = model.dmesh.gather_global(x)       # collective; None off rank 0
@@ -295,9 +291,9 @@ def run_damping(args) -> int:
         model = build_model(experiment, comm)
         _print(f"{experiment.source}: {args.modes} lowest modes at step "
                f"{experiment.time.step:g} s, {args.steps} steps per run")
-        with experiment_options(experiment.petsc):
-            fem = damping.fem_mode_damping(model, experiment.time.step, schemes, args.modes,
-                                           args.steps, args.amplitude, monitor=_print)
+        fem = damping.fem_mode_damping(model, experiment.time.step, schemes, args.modes,
+                                       args.steps, args.amplitude, monitor=_print,
+                                       petsc=experiment.petsc)
     damping.report(out, schemes, fem, rows, comm, t0, printer=_print,
                    source=experiment.source if experiment else None)
     return 0

@@ -45,6 +45,7 @@ import time
 from pathlib import Path
 
 from petsoft.calibration.calibrate import canonical_method
+from petsoft.calibration.forward import forward_defaults
 from petsoft.calibration.groups import TaskResult, map_on_groups
 from petsoft.diagnosis.clock import PhaseClock
 
@@ -85,7 +86,6 @@ from petsoft.diagnosis.selection import (
 from petsoft.diagnosis.story import skipped_numerics
 from petsoft.dynamics.factory import system_class
 from petsoft.io.progress import heartbeat
-from petsoft.solvers.options import experiment_options
 
 
 def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: float = 0.7,
@@ -162,10 +162,10 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
 
     try:
         # every forward run of the diagnosis (context.NEWTON_RTOL): one place, the whole run,
-        # as a caller's option (the forward model's own default, 1e-12 for gradients as exact
-        # as the solves, gives way to it; the user's -fm_snes_rtol wins over both)
-        with heartbeat(pulse, interval=10.0), \
-                experiment_options({"fm_snes_rtol": repr(NEWTON_RTOL)}):
+        # as a caller's default (the forward model's own, 1e-12 for gradients as exact as the
+        # solves, gives way to it; the experiment's [petsc] fm_snes_rtol and the user's
+        # -fm_snes_rtol win over both)
+        with heartbeat(pulse, interval=10.0), forward_defaults(snes_rtol=repr(NEWTON_RTOL)):
             return _run_diagnose(experiment, recording, out=out, fraction=fraction, alpha=alpha,
                                  max_additions=max_additions, max_tries=max_tries,
                                  method=method, gradient=gradient, integrator=integrator,

@@ -37,7 +37,7 @@ from petsoft.physics.viscoelastic import MaxwellRule
 from petsoft.solvers.borrowed_chord import ChordBorrower
 from petsoft.solvers.convergence import on_any_rank, outcome, reason_name, stop_at_round_off
 from petsoft.solvers.linear import reuse_across_iterations
-from petsoft.solvers.options import scoped_defaults
+from petsoft.solvers.options import SolverOptions, own_options, scoped_defaults, with_options
 
 
 class AlphaTSIntegrator(StepperDefaults):
@@ -50,9 +50,13 @@ class AlphaTSIntegrator(StepperDefaults):
         Spectral radius at infinity, 0 <= r <= 1 (1: no numerical damping; 0: strongest).
     prefix : str
         Options prefix of the TS (its SNES and KSP inherit it).
+    options : SolverOptions, optional
+        The options (an experiment's ``[petsc]`` table) pushed under ``prefix`` while the
+        TS is set up and steps.
     """
 
-    def __init__(self, system, radius: float = 0.5, prefix: str = ""):
+    def __init__(self, system, radius: float = 0.5, prefix: str = "",
+                 options: SolverOptions | None = None):
         self.system, self.radius = system, float(radius)
         self.length = length_scale(system)   # the round-off floor of Newton's residual
         s = system
@@ -66,6 +70,8 @@ class AlphaTSIntegrator(StepperDefaults):
         self._damp = s.create_vec()
         self._load = s.create_vec()
         self._bad = None
+        self.options = own_options(prefix, options)
+        prefix = self.options.prefix
         ts = self.ts = PETSc.TS().create(comm=s.comm)
         ts.setOptionsPrefix(prefix)
         ts.setType(PETSc.TS.Type.ALPHA2)
@@ -78,11 +84,12 @@ class AlphaTSIntegrator(StepperDefaults):
         snes.setTolerances(rtol=1e-10, atol=1e-12, stol=1e-12, max_it=25)
         stop_at_round_off(snes, self.J, self.length)
         ksp = snes.getKSP()
-        s.linear_defaults(ksp)
-        if self.moving:
-            ksp.setType(PETSc.KSP.Type.GMRES)
-        with scoped_defaults(**{prefix + "ts_alpha_radius": repr(self.radius),
-                                prefix + "snes_linesearch_type": "basic"}):
+        # the defaults ask whether the options name a solver: they are pushed already
+        with self.options.pushed(ts_alpha_radius=repr(self.radius),
+                                 snes_linesearch_type="basic"):
+            s.linear_defaults(ksp)
+            if self.moving:
+                ksp.setType(PETSc.KSP.Type.GMRES)
             ts.setFromOptions()
         self.ksp = ksp
         self._last = None
@@ -137,6 +144,7 @@ class AlphaTSIntegrator(StepperDefaults):
         dv.destroy()
         return same
 
+    @with_options
     def step(self, t0, q0, v0, h, q1, v1) -> StepReport:
         s, ts = self.system, self.ts
         if not self._continues(t0, q0, v0):
@@ -206,9 +214,12 @@ class GeneralizedAlpha(ChordBorrower, SolverReuse):
 
     a_m = a0 + alpha_m (a1 - a0), q_f = q0 + alpha_f (q1 - q0), v_f = v0 + alpha_f (v1 - v0),
     whose Jacobian is alpha_m/(beta h^2) M + alpha_f K(q_f) + alpha_f gamma/(beta h) D.
+
+    ``prefix`` and ``options`` as for :class:`AlphaTSIntegrator` (a SNES instead of a TS).
     """
 
-    def __init__(self, system, radius: float = 0.5, prefix: str = ""):
+    def __init__(self, system, radius: float = 0.5, prefix: str = "",
+                 options: SolverOptions | None = None):
         self.system, self.radius = system, float(radius)
         self.length = length_scale(system)   # the round-off floor of Newton's residual
         self.am, self.af, self.gamma, self.beta = alpha_parameters(radius)
@@ -222,11 +233,13 @@ class GeneralizedAlpha(ChordBorrower, SolverReuse):
         self._last = None
         self._bad = None
         self._branch = NoBranch()
-        self.prefix = prefix
+        self.options = own_options(prefix, options)
+        self.prefix = self.options.prefix
         self.snes = None
         self._new_solver()
         self.new_run()
 
+    @with_options
     def _new_solver(self) -> None:
         """A fresh SNES (with KSP and PC): see :meth:`step` for why one per step."""
         if self.snes is not None:
@@ -362,6 +375,7 @@ class GeneralizedAlpha(ChordBorrower, SolverReuse):
         bad, self._bad = self._bad is not None, None
         return on_any_rank(self.system.comm, bad)
 
+    @with_options
     def step(self, t0, q0, v0, h, q1, v1) -> StepReport:
         s = self.system
         self._branch = branch_of(s)

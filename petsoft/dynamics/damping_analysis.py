@@ -59,6 +59,7 @@ from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError
 from petsoft.io.summary import write_summary
 from petsoft.solvers.modes import compute_modes
+from petsoft.solvers.options import SolverOptions
 
 DEFAULT_RADII = (0.0, 0.25, 0.5, 0.75, 1.0)
 TABLE_TAU_OMEGA = (0.1, 1.0, 10.0)
@@ -104,17 +105,19 @@ class Scheme:
         """Dimension of the one-step map on one oscillator: (q, v), or (q, v, a) for alpha."""
         return 3 if self.name == "alpha" else 2
 
-    def integrator(self, system):
-        """The petsoft integrator object of this scheme on ``system`` (the caller destroys it)."""
+    def integrator(self, system, petsc=None):
+        """The petsoft integrator object of this scheme on ``system`` (the caller destroys it);
+        ``petsc``: an experiment's ``[petsc]`` table, for its solvers."""
         from petsoft.dynamics.alpha import GeneralizedAlpha
         from petsoft.dynamics.explicit import ExplicitIntegrator
         from petsoft.dynamics.implicit import ImplicitIntegrator
 
         if self.name == "alpha":
-            return GeneralizedAlpha(system, self.radius)
+            return GeneralizedAlpha(system, self.radius, options=SolverOptions("", petsc))
         if self.explicit:
-            return ExplicitIntegrator(system, self.name)
-        return ImplicitIntegrator(system, self.name)
+            return ExplicitIntegrator(system, self.name,
+                                      options=SolverOptions("stability_", petsc))
+        return ImplicitIntegrator(system, self.name, options=SolverOptions("", petsc))
 
 
 def default_schemes(radii=DEFAULT_RADII) -> list[Scheme]:
@@ -421,7 +424,7 @@ class FemModesResult:
 
 
 def fem_mode_damping(model, step: float, schemes, nmodes: int = 6, nsteps: int = 16,
-                     amplitude: float = 1e-3, monitor=None) -> FemModesResult:
+                     amplitude: float = 1e-3, monitor=None, petsc=None) -> FemModesResult:
     """Artificial damping of each scheme on each of the ``nmodes`` lowest modes of a body.
 
     Parameters
@@ -439,12 +442,14 @@ def fem_mode_damping(model, step: float, schemes, nmodes: int = 6, nsteps: int =
         Initial displacement q0 = c x_k with max |q0| = amplitude x the bounding-box diagonal.
     monitor : callable or None
         Receives progress lines.
+    petsc : mapping of str to str, optional
+        The experiment's ``[petsc]`` table, for the eigensolver and the integrators' solvers.
 
     Returns
     -------
     FemModesResult
     """
-    modes = compute_modes(model, nmodes)
+    modes = compute_modes(model, nmodes, options=SolverOptions("", petsc))
     elastic = np.flatnonzero(modes.eigenvalues > 0.0)
     omega = np.sqrt(modes.eigenvalues[elastic])
     shapes = [modes.modes[k] for k in elastic]
@@ -466,7 +471,7 @@ def fem_mode_damping(model, step: float, schemes, nmodes: int = 6, nsteps: int =
                                                    analytic_rho(scheme, result.tau_omega), np.nan)
         measured = result.rho_measured[scheme.key] = np.full(len(shapes), np.nan)
         if scheme.explicit:
-            probe = scheme.integrator(system)
+            probe = scheme.integrator(system, petsc)
             q.zeroEntries()
             try:
                 result.explicit_limit = probe.check_step(q, step)
@@ -485,7 +490,7 @@ def fem_mode_damping(model, step: float, schemes, nmodes: int = 6, nsteps: int =
                 continue
         for k, (x, mx, w) in enumerate(zip(shapes, Mx, omega, strict=True)):
             # a fresh integrator per run: no state (Verlet's acceleration, alpha's) carries over
-            integrator = scheme.integrator(system)
+            integrator = scheme.integrator(system, petsc)
             x.copy(q)
             q.scale(amplitude * size / x.norm(PETSc.NormType.INFINITY))
             v.zeroEntries()

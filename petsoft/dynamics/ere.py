@@ -78,6 +78,7 @@ from petsoft.dynamics.implicit import StepReport
 from petsoft.dynamics.interfaces import StepperDefaults
 from petsoft.errors import InvertedElementError
 from petsoft.solvers.convergence import outcome
+from petsoft.solvers.options import SolverOptions, own_options, with_options
 
 MASSES = ("lumped", "consistent")
 NCV = 10
@@ -109,14 +110,20 @@ class EREIntegrator(StepperDefaults):
         (second order). False freezes them at t0 (the plain ERE formula: first order in them).
     prefix : str
         Options prefix of the MFN (``-ere_mfn_ncv``, ``-ere_mfn_max_it``, ...).
+    options : SolverOptions, optional
+        The options (an experiment's ``[petsc]`` table) pushed under ``prefix`` (the mass
+        solve's among them) while the solvers are set up and step.
     """
 
     def __init__(self, system, *, mass: str = "lumped", krylov_tol: float = 1e-10,
-                 time_derivative: bool = True, prefix: str = "ere_"):
+                 time_derivative: bool = True, prefix: str = "ere_",
+                 options: SolverOptions | None = None):
         SLEPc = slepc("the ERE integrator (SLEPc's matrix functions)")
         if mass not in MASSES:
             raise ValueError(f"ERE mass must be one of {MASSES}, not {mass!r}")
         self.system, self.mass = system, mass
+        self.options = own_options(prefix, options)
+        prefix = self.options.prefix
         s = system
         self.comm = s.comm
         self._mpi = s.comm.tompi4py()
@@ -151,7 +158,8 @@ class EREIntegrator(StepperDefaults):
             self.ksp.getPC().setType(PETSc.PC.Type.JACOBI)
             # inside a Krylov product the solve must be far tighter than the MFN tolerance
             self.ksp.setTolerances(rtol=1e-13, atol=1e-50, max_it=1000)
-            self.ksp.setFromOptions()
+            with self.options.pushed():
+                self.ksp.setFromOptions()
         # combined layout: [q part, v part] per rank, the augmentation entry on rank 0 only
         self.aug = self.nonautonomous and self.comm.rank == 0
         local = 2 * self.n + int(self.aug)
@@ -175,7 +183,8 @@ class EREIntegrator(StepperDefaults):
         # more, shorter cycles only at steps far above the explicit limit (measured on the bar)
         mfn.setDimensions(min(NCV, size))
         mfn.setOperator(self.A)
-        mfn.setFromOptions()
+        with self.options.pushed():
+            mfn.setFromOptions()
         self.h = None
         self._c = None                  # augmentation column (v part), None when autonomous
         self._mass_failure = None       # a failed consistent-mass solve (inside MFN's products)
@@ -277,6 +286,7 @@ class EREIntegrator(StepperDefaults):
         return out
 
     # -- stepping -----------------------------------------------------------------------------
+    @with_options
     def step(self, t0: float, q0: PETSc.Vec, v0: PETSc.Vec, h: float,
              q1: PETSc.Vec, v1: PETSc.Vec) -> StepReport:
         """Advance (q0, v0) at t0 by h into (q1, v1); returns the step's report."""

@@ -18,12 +18,14 @@ from petsc4py import PETSc
 from petsoft.dependencies import slepc
 from petsoft.dynamics.implicit import StepReport
 from petsoft.errors import ExperimentError
+from petsoft.solvers.options import SolverOptions, own_options
 
 SCHEMES = ("euler", "verlet")
 
 
-def largest_frequency(system, q: PETSc.Vec) -> float:
-    """omega_max (rad/s): sqrt of the largest eigenvalue of K(q) x = omega^2 M_lumped x."""
+def largest_frequency(system, q: PETSc.Vec, options: SolverOptions | None = None) -> float:
+    """omega_max (rad/s): sqrt of the largest eigenvalue of K(q) x = omega^2 M_lumped x
+    (EPS prefix ``stability_``; ``options`` pushed under it while it solves)."""
     SLEPc = slepc("the explicit integrator (its stable step from the largest eigenvalue)")
     K = system.create_matrix()
     system.assemble_combination(q, 0.0, 1.0, 0.0, K, eliminate=False)
@@ -40,9 +42,11 @@ def largest_frequency(system, q: PETSc.Vec) -> float:
     eps.setWhichEigenpairs(SLEPc.EPS.Which.LARGEST_REAL)
     eps.setDimensions(1)
     eps.setTolerances(1e-6, 500)
-    eps.setOptionsPrefix("stability_")
-    eps.setFromOptions()
-    eps.solve()
+    options = own_options("stability_", options)
+    eps.setOptionsPrefix(options.prefix)
+    with options.pushed():
+        eps.setFromOptions()
+        eps.solve()
     if eps.getConverged() < 1:
         raise RuntimeError("the stability estimate (largest eigenvalue) did not converge")
     lam = eps.getEigenvalue(0).real
@@ -52,12 +56,16 @@ def largest_frequency(system, q: PETSc.Vec) -> float:
 
 
 class ExplicitIntegrator:
-    """Symplectic Euler or velocity Verlet with the lumped mass (no linear solves)."""
+    """Symplectic Euler or velocity Verlet with the lumped mass (no linear solves).
 
-    def __init__(self, system, scheme: str = "verlet"):
+    ``options``: those of the stability estimate's eigensolver (prefix ``stability_``).
+    """
+
+    def __init__(self, system, scheme: str = "verlet", options: SolverOptions | None = None):
         if scheme not in SCHEMES:
             raise ValueError(f"explicit scheme must be one of {SCHEMES}")
         self.system, self.scheme = system, scheme
+        self.options = own_options("stability_", options)
         system.lumped_kinetic = True   # the energy it conserves uses the mass it integrates with
         self.inv_mass = system.lumped.copy()
         self.inv_mass.reciprocal()
@@ -69,7 +77,7 @@ class ExplicitIntegrator:
 
     def check_step(self, q0: PETSc.Vec, h: float, source: str = "time.step") -> float:
         """Estimate the stability limit at q0 and refuse h above it; returns the limit."""
-        self.omega_max = largest_frequency(self.system, q0)
+        self.omega_max = largest_frequency(self.system, q0, self.options)
         limit = 2.0 / self.omega_max if self.omega_max > 0 else np.inf
         terms = self.system.velocity_terms
         rate = self.system.comm.tompi4py().allreduce(

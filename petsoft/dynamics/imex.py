@@ -79,6 +79,7 @@ from petsoft.dynamics.integrators import scheme
 from petsoft.dynamics.interfaces import StepperDefaults
 from petsoft.errors import ExperimentError
 from petsoft.solvers.modes import compute_modes
+from petsoft.solvers.options import SolverOptions
 
 FAST_METHODS = ("be", "si", "midpoint", "alpha")
 SPLITTINGS = ("strang", "lie")
@@ -265,15 +266,19 @@ class ModalImexIntegrator(StepperDefaults):
         The implicit method of the complement.
     prefix : str
         Options prefix of the fast step's SNES.
+    options : SolverOptions, optional
+        The fast step's options (an experiment's ``[petsc]`` table under ``prefix``); the slow
+        modes' eigensolver (prefix ``imex_``) takes those of its keys that begin with ``imex_``.
     """
 
-    def __init__(self, system, slow_modes: int = 6, fast: str = "be", prefix: str = ""):
+    def __init__(self, system, slow_modes: int = 6, fast: str = "be", prefix: str = "",
+                 options: SolverOptions | None = None):
         if scheme(fast).force_at != "end" or scheme(fast).carries_acceleration:
             raise ValueError(f"the fast method of modal IMEX is 'be' or 'si', not {fast!r}")
         if int(slow_modes) < 1:
             raise ValueError("slow_modes must be >= 1")
         self.system, self.count, self.fast_name = system, int(slow_modes), fast
-        self.fast = ImplicitIntegrator(system, fast, prefix=prefix)
+        self.fast = ImplicitIntegrator(system, fast, prefix=prefix, options=options)
         self.modes = []        # Phi, M-orthonormal
         self.weights = []      # M Phi with supports zeroed: eta = weights . q
         self.omega2 = None
@@ -297,7 +302,8 @@ class ModalImexIntegrator(StepperDefaults):
         s = self.system
         if s.model is not None:            # a model-backed system: SLEPc on its matrices
 
-            res = compute_modes(s.model, self.count, prefix="imex_")
+            res = compute_modes(s.model, self.count, prefix="imex_",
+                                options=self.fast.options.under("imex_"))
             values = np.asarray(res.eigenvalues, float)
             for x in res.modes:
                 y = s.create_vec()

@@ -47,7 +47,7 @@ from petsoft.errors import InvertedElementError, without_frames
 from petsoft.solvers.borrowed_chord import ChordBorrower
 from petsoft.solvers.convergence import on_any_rank, outcome, stop_at_round_off
 from petsoft.solvers.linear import reuse_across_iterations
-from petsoft.solvers.options import scoped_defaults
+from petsoft.solvers.options import SolverOptions, own_options, scoped_defaults, with_options
 
 METHODS = ("be", "si", "midpoint", "trapezoidal")
 # The discrete-gradient correction is applied when its defect exceeds this many ulps of the
@@ -223,9 +223,13 @@ class ImplicitIntegrator(ChordBorrower, SolverReuse, StepperDefaults):
         whose step is a minimisation).
     prefix : str
         Options prefix of the SNES/TAO.
+    options : SolverOptions, optional
+        The options (an experiment's ``[petsc]`` table) pushed under ``prefix`` while the
+        solver is set up and steps.
     """
 
-    def __init__(self, system, method: str = "be", solver: str = "snes", prefix: str = ""):
+    def __init__(self, system, method: str = "be", solver: str = "snes", prefix: str = "",
+                 options: SolverOptions | None = None):
         if method not in METHODS:
             raise ValueError(f"unknown implicit method {method!r}")
         self.scheme = scheme(method)
@@ -244,13 +248,15 @@ class ImplicitIntegrator(ChordBorrower, SolverReuse, StepperDefaults):
         self.t0 = 0.0
         self._dg_c = 0.0
         self._branch = NoBranch()
-        self.prefix = prefix
+        self.options = own_options(prefix, options)
+        self.prefix = self.options.prefix
         self.snes = self.tao = None
         self.operator = self.shell = None   # the matrix-free Jacobian, when the options ask
         self.ngs = None                     # the per-node update of SNES ngs
         self._new_solver()
         self.new_run()
 
+    @with_options
     def _new_solver(self) -> None:
         """A fresh SNES or TAO (with KSP and PC): see :meth:`step` for why one per step."""
         for obj in (self.snes, self.tao):
@@ -475,6 +481,7 @@ class ImplicitIntegrator(ChordBorrower, SolverReuse, StepperDefaults):
         bad, self._bad = self._bad is not None, None
         return on_any_rank(self.system.comm, bad)
 
+    @with_options
     def step(self, t0: float, q0: PETSc.Vec, v0: PETSc.Vec, h: float,
              q1: PETSc.Vec, v1: PETSc.Vec) -> StepReport:
         """Advance (q0, v0) at t0 by h into (q1, v1); returns the step's report."""

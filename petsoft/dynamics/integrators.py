@@ -11,22 +11,26 @@ this registry (a Maxwell branch's rule), so importing them here would be a cycle
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 from petsoft.errors import ExperimentError
 from petsoft.physics.viscoelastic import MaxwellRule
+from petsoft.solvers.options import SolverOptions
 
 
 @dataclass(frozen=True)
 class IntegratorOptions:
-    """The run options some schemes take (the ``petsoft simulate`` flags)."""
+    """The run options some schemes take (the ``petsoft simulate`` flags), and the
+    experiment's ``[petsc]`` table, which each builder hands its integrator's solvers under
+    their prefixes."""
 
     solver: str = "snes"
     explicit_scheme: str = "verlet"
     alpha_radius: float = 0.5
     alpha_backend: str = "petsoft"
     imex_slow_modes: int = 6
+    petsc: Mapping[str, str] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -87,34 +91,38 @@ def _implicit(name: str):
     def build(system, options: IntegratorOptions):
         from petsoft.dynamics.implicit import ImplicitIntegrator
 
-        return ImplicitIntegrator(system, name, solver=options.solver)
+        return ImplicitIntegrator(system, name, solver=options.solver,
+                                  options=SolverOptions("", options.petsc))
     return build
 
 
 def _alpha(system, options: IntegratorOptions):
     from petsoft.dynamics.alpha import AlphaTSIntegrator, GeneralizedAlpha
 
+    own = SolverOptions("", options.petsc)
     if options.alpha_backend == "ts":
-        return AlphaTSIntegrator(system, options.alpha_radius)
-    return GeneralizedAlpha(system, options.alpha_radius)
+        return AlphaTSIntegrator(system, options.alpha_radius, options=own)
+    return GeneralizedAlpha(system, options.alpha_radius, options=own)
 
 
 def _explicit(system, options: IntegratorOptions):
     from petsoft.dynamics.explicit import ExplicitIntegrator
 
-    return ExplicitIntegrator(system, options.explicit_scheme)
+    return ExplicitIntegrator(system, options.explicit_scheme,
+                              options=SolverOptions("stability_", options.petsc))
 
 
 def _ere(system, options: IntegratorOptions):
     from petsoft.dynamics.ere import EREIntegrator
 
-    return EREIntegrator(system)
+    return EREIntegrator(system, options=SolverOptions("ere_", options.petsc))
 
 
 def _imex(system, options: IntegratorOptions):
     from petsoft.dynamics.imex import ModalImexIntegrator
 
-    return ModalImexIntegrator(system, slow_modes=options.imex_slow_modes, fast="be")
+    return ModalImexIntegrator(system, slow_modes=options.imex_slow_modes, fast="be",
+                               options=SolverOptions("", options.petsc))
 
 
 #: Every scheme, by its name in the experiment file.

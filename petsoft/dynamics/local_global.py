@@ -68,7 +68,7 @@ from petsc4py import PETSc
 from petsoft.dynamics.implicit import ImplicitIntegrator, StepReport
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.solvers.convergence import check_converged
-from petsoft.solvers.options import scoped_defaults
+from petsoft.solvers.options import SolverOptions, own_options, scoped_defaults, with_options
 
 #: |R| below this many ulps of |rhs| is round-off: the step is converged (a tolerance below
 #: that level would otherwise fail after max_it iterations and halve the step)
@@ -140,6 +140,9 @@ class LocalGlobalSolver:
         Accept the iterate reached after ``max_it`` iterations as the step (Liu et al.'s fixed
         iteration count: fast, approximate; the report says ``ACCEPTED_AT_MAX_IT`` and the
         residual left); option ``-<prefix>accept``. Default: such a step fails.
+    options : SolverOptions, optional
+        The options (an experiment's ``[petsc]`` table) pushed under ``prefix`` while the
+        solver reads them, sets its KSPs up and solves.
 
     Notes
     -----
@@ -153,7 +156,7 @@ class LocalGlobalSolver:
                  node_index=None, damping_mass: float = 0.0, colliders=(), comm=None,
                  layout: PETSc.Vec | None = None, prefix: str = "lg_", rtol: float = 1e-8,
                  atol: float = 1e-10, max_it: int = 500, anderson: int = 5,
-                 accept: bool = False):
+                 accept: bool = False, options: SolverOptions | None = None):
         self.comm = comm if comm is not None else PETSc.COMM_WORLD
         edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
         masses = np.asarray(masses, dtype=float).ravel()
@@ -211,7 +214,8 @@ class LocalGlobalSolver:
         self.rest, self.k = rest, k
         self.alpha = float(damping_mass)
         self.colliders = tuple(colliders)
-        self.prefix = prefix
+        self.options = own_options(prefix, options)
+        self.prefix = prefix = self.options.prefix
 
         # ownership: contiguous blocks of nodes
         if layout is not None:
@@ -261,11 +265,12 @@ class LocalGlobalSolver:
         self._cvecs = [self._component_vec() for _ in range(3)]
         self.rtol, self.atol, self.max_it = rtol, atol, max_it
         opts = PETSc.Options(prefix)
-        self.rtol = opts.getReal("rtol", rtol)
-        self.atol = opts.getReal("atol", atol)
-        self.max_it = opts.getInt("max_it", max_it)
-        self.anderson = opts.getInt("anderson", anderson)
-        self.accept = opts.getBool("accept", accept)
+        with self.options.pushed():
+            self.rtol = opts.getReal("rtol", rtol)
+            self.atol = opts.getReal("atol", atol)
+            self.max_it = opts.getInt("max_it", max_it)
+            self.anderson = opts.getInt("anderson", anderson)
+            self.accept = opts.getBool("accept", accept)
         self.factorizations = 0
 
     # -- vectors ----------------------------------------------------------------------------
@@ -413,6 +418,7 @@ class LocalGlobalSolver:
             energy += 0.5 * c.stiffness * float(np.sum((x - p)[active[i]] ** 2))
         return weight, pull, energy, active
 
+    @with_options
     def solve(self, q0: PETSc.Vec, v0: PETSc.Vec, h: float, force: PETSc.Vec, q1: PETSc.Vec,
               prescribed: PETSc.Vec | None = None, guess: PETSc.Vec | None = None
               ) -> LocalGlobalReport:
@@ -695,16 +701,20 @@ class LocalGlobalIntegrator(ImplicitIntegrator):
     system : petsoft.dynamics.mass_spring.MassSpringSystem
     prefix : str
         Options prefix of the solver (``-lg_ksp_type``, ``-lg_rtol``, ``-lg_anderson``...).
+    options : SolverOptions, optional
+        The options (an experiment's ``[petsc]`` table) under ``prefix``.
     """
 
-    def __init__(self, system, prefix: str = "lg_", **solver_args):
+    def __init__(self, system, prefix: str = "lg_", options: SolverOptions | None = None,
+                 **solver_args):
         check_supported(system)
-        super().__init__(system, "be", solver="snes", prefix=prefix)
+        options = own_options(prefix, options)
+        super().__init__(system, "be", solver="snes", prefix=prefix, options=options)
         self.lg = LocalGlobalSolver(
             system.edges, system.rest_lengths, system.stiffness, system.masses,
             system.points, fixed=system.fixed, damping_mass=system.alpha,
             colliders=system.colliders, comm=system.comm, layout=self.q0,
-            prefix=prefix, **solver_args)
+            prefix=prefix, options=options, **solver_args)
         self._prescribed = system.create_vec()
         self.last = None
 

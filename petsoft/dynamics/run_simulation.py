@@ -17,7 +17,6 @@ from petsc4py import PETSc
 from petsoft.dynamics.factory import build_model
 from petsoft.dynamics.simulate import Simulation
 from petsoft.results import Result
-from petsoft.solvers.options import experiment_options
 
 
 @dataclass(frozen=True, repr=False)
@@ -108,28 +107,27 @@ def simulate_experiment(experiment, *, out: Path | None = None, integrator: str 
         if say is not None and comm.rank == 0:
             say(line)
 
-    with experiment_options(experiment.petsc):
-        model = build_model(experiment, comm, recording)
-        sim = Simulation(model, experiment, integrator=integrator, solver=solver, out=out,
-                         monitor=tell, explicit_scheme=explicit_scheme,
-                         alpha_backend=alpha_backend, spd=spd)
-        try:
-            result = sim.run(restart=restart)
-            gather = model.dmesh.gather_global   # DistributedMesh or a mass-spring NodeLayout
-            mpi = comm.tompi4py()
-            q = mpi.bcast(gather(result.q), root=0)
-            v = mpi.bcast(gather(result.v), root=0)
-            run = SimulationRun(
-                time=float(result.time), steps=int(result.steps), retries=int(result.retries),
-                newton_iterations=int(result.newton_iterations),
-                linear_iterations=int(result.linear_iterations), wall_time=float(result.wall_time),
-                displacement=np.asarray(q).reshape(-1, 3), velocity=np.asarray(v).reshape(-1, 3),
-                energies=np.asarray(mpi.bcast(result.energies, root=0)),
-                probe_times=np.asarray(mpi.bcast(result.probe_times, root=0)),
-                probe_displacements=np.asarray(mpi.bcast(result.probe_displacements, root=0)),
-                integrator=sim.name, end=float(experiment.time.end))
-        finally:
-            sim.destroy()
+    model = build_model(experiment, comm, recording)
+    sim = Simulation(model, experiment, integrator=integrator, solver=solver, out=out,
+                     monitor=tell, explicit_scheme=explicit_scheme,
+                     alpha_backend=alpha_backend, spd=spd)
+    try:
+        result = sim.run(restart=restart)
+        gather = model.dmesh.gather_global   # DistributedMesh or a mass-spring NodeLayout
+        mpi = comm.tompi4py()
+        q = mpi.bcast(gather(result.q), root=0)
+        v = mpi.bcast(gather(result.v), root=0)
+        run = SimulationRun(
+            time=float(result.time), steps=int(result.steps), retries=int(result.retries),
+            newton_iterations=int(result.newton_iterations),
+            linear_iterations=int(result.linear_iterations), wall_time=float(result.wall_time),
+            displacement=np.asarray(q).reshape(-1, 3), velocity=np.asarray(v).reshape(-1, 3),
+            energies=np.asarray(mpi.bcast(result.energies, root=0)),
+            probe_times=np.asarray(mpi.bcast(result.probe_times, root=0)),
+            probe_displacements=np.asarray(mpi.bcast(result.probe_displacements, root=0)),
+            integrator=sim.name, end=float(experiment.time.end))
+    finally:
+        sim.destroy()
     tell(f"t = {run.time:g} s after {run.steps} steps ({run.retries} retried), "
          f"{run.newton_iterations} Newton / {run.linear_iterations} linear iterations, "
          f"{run.wall_time:.3g} s; wrote {out}/")

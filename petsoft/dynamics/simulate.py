@@ -8,6 +8,7 @@ trajectories as a recording (``probes.h5``), a progress line and ``summary.json`
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -24,6 +25,7 @@ from petsoft.io.recording import write_recording
 from petsoft.io.summary import write_summary
 from petsoft.io.xdmf import XdmfWriter
 from petsoft.mesh.probes import interpolate
+from petsoft.solvers.options import SolverOptions
 
 MAX_HALVINGS = 6
 #: trajectory frames are written in batches at most this many seconds apart (and before every
@@ -51,8 +53,9 @@ class SimulationResult:
 
 def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: str = "verlet",
                     alpha_radius: float = 0.5, alpha_backend: str = "petsoft",
-                    imex_slow_modes: int = 6):
-    """The integrator object for a name of ``[time] integrator``."""
+                    imex_slow_modes: int = 6, petsc: Mapping[str, str] | None = None):
+    """The integrator object for a name of ``[time] integrator``; ``petsc``: the
+    experiment's ``[petsc]`` table, for its solvers (each under its prefix)."""
     entry = scheme(name)
     branch = system.viscoelastic
     check_viscoelastic(branch, name)
@@ -72,10 +75,10 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
                                   "[drag] and [friction] need --solver snes (or tao)")
         from petsoft.dynamics.local_global import LocalGlobalIntegrator
 
-        return LocalGlobalIntegrator(system)
+        return LocalGlobalIntegrator(system, options=SolverOptions("lg_", petsc))
     return entry.build(system, IntegratorOptions(
         solver=solver, explicit_scheme=explicit_scheme, alpha_radius=alpha_radius,
-        alpha_backend=alpha_backend, imex_slow_modes=imex_slow_modes))
+        alpha_backend=alpha_backend, imex_slow_modes=imex_slow_modes, petsc=dict(petsc or {})))
 
 
 class Simulation:
@@ -118,7 +121,7 @@ class Simulation:
         self.system = system_for(model, experiment, spd=spd)
         self.integrator = make_integrator(self.system, self.name, solver, explicit_scheme,
                                           experiment.time.alpha_radius, alpha_backend,
-                                          experiment.time.imex_slow_modes)
+                                          experiment.time.imex_slow_modes, experiment.petsc)
         self.out = Path(out) if out is not None else None
         self.monitor = monitor
         self.progress_every = progress_every

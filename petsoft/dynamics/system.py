@@ -58,6 +58,7 @@ from petsoft.physics.model import load_mesh
 from petsoft.physics.viscoelastic import MaxwellBranch
 from petsoft.solvers.convergence import on_any_rank
 from petsoft.solvers.linear import linear_defaults
+from petsoft.solvers.options import SolverOptions
 from petsoft.solvers.static import StaticSolver
 
 #: The assembler's element set of single nodes: the velocity terms' 3x3 diagonal blocks.
@@ -489,11 +490,13 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
     def initial_state(self, monitor=None):
         """(q0, v0) from the model's ``[initial]``: its expressions, or the static equilibrium
         under gravity and the tractions at t = 0 (``from = "static"``, solved with the
-        ``static_`` options; progress lines to ``monitor``)."""
-        init = self.model.experiment.initial
+        experiment's ``[petsc]`` options without prefix, as ``petsoft static``; progress lines
+        to ``monitor``)."""
+        exp = self.model.experiment
+        init = exp.initial
         q0 = None
         if init.from_ == "static":
-            solver = StaticSolver(self.model, monitor=monitor)
+            solver = StaticSolver(self.model, monitor=monitor, options=SolverOptions("", exp.petsc))
             q0 = solver.solve().displacement.copy()
             solver.destroy()
         return initial_from_expressions(self, init, q0)

@@ -28,9 +28,9 @@ from collections.abc import Callable
 
 from petsc4py import PETSc
 
-from petsoft.solvers.convergence import stop_at_round_off
+from petsoft.solvers.convergence import outcome, stop_at_round_off
 from petsoft.solvers.linear import solve_newton
-from petsoft.solvers.options import scoped_defaults
+from petsoft.solvers.options import SolverOptions, own_options
 
 
 class _ApplyBorrowed:
@@ -64,10 +64,13 @@ class BorrowedChord:
     linesearch : str
         The stepper's default line search (backtracking where a saturating force needs it;
         the options still choose).
+    options : SolverOptions, optional
+        The stepper's options (its prefix), pushed while this SNES is set up.
     """
 
     def __init__(self, like: PETSc.SNES, residual: Callable, F: PETSc.Vec, J: PETSc.Mat,
-                 length: float, linesearch: str = "basic"):
+                 length: float, linesearch: str = "basic",
+                 options: SolverOptions | None = None):
         self._context = _ApplyBorrowed()
         self.snes = snes = PETSc.SNES().create(comm=like.getComm())
         prefix = like.getOptionsPrefix() or ""
@@ -75,7 +78,7 @@ class BorrowedChord:
         snes.setFunction(residual, F)
         snes.setJacobian(self._unchanged, J, J)
         stop_at_round_off(snes, J, length)
-        with scoped_defaults(**{prefix + "snes_linesearch_type": linesearch}):
+        with own_options(prefix, options).pushed(snes_linesearch_type=linesearch):
             snes.setFromOptions()
         snes.getKSP().setType(PETSc.KSP.Type.PREONLY)
 
@@ -98,7 +101,7 @@ class BorrowedChord:
             # user never destroyed) crashed the interpreter at exit
             pc.setType(PETSc.PC.Type.NONE)
             self._context.ksp = None
-        return self.snes.getConvergedReason() > 0
+        return outcome(self.snes).converged
 
     def destroy(self) -> None:
         self.snes.destroy()
@@ -113,7 +116,8 @@ class ChordBorrower:
     """Mixin of the SNES steppers whose Newton runs to convergence (backward Euler,
     generalized-alpha): :meth:`borrow_chord`, and :meth:`_newton` to solve a step with what was
     lent. The stepper has ``snes``, ``_lagged`` (its own solver is the direct chord of
-    :func:`~petsoft.solvers.linear.factor_once_per_step`), ``_residual_cb``, ``R``, ``J``,
+    :func:`~petsoft.solvers.linear.factor_once_per_step`), ``options``, ``_residual_cb``,
+    ``R``, ``J``,
     ``length``, ``_linesearch`` and ``_forget_rejected()``, and calls :meth:`_destroy_chord`
     when destroyed."""
 
@@ -173,7 +177,7 @@ class ChordBorrower:
         if borrowed is not None and self._lagged:
             if self._chord is None:
                 self._chord = BorrowedChord(self.snes, self._residual_cb, self.R, self.J,
-                                            self.length, self._linesearch)
+                                            self.length, self._linesearch, self.options)
             guess = q1.copy()
             try:
                 converged = self._chord.solve(borrowed, q1, self.snes)
@@ -187,7 +191,7 @@ class ChordBorrower:
                 guess.destroy()
         solve_newton(self.snes, q1, self._lagged, self._forget_rejected)
         if (self._keep_factors and self._lagged and not self.system.jacobian_is_constant
-                and self.snes.getConvergedReason() > 0):
+                and outcome(self.snes).converged):
             # (the SNES refactors only when it assembles again, at a step that factors afresh)
             self._kept = (self.snes, self.snes.getIterationNumber())
         return self.snes

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 from petsc4py import PETSc
 
+from petsoft.solvers.convergence import outcome
+
 #: A solve that needs more GMRES iterations than this has the next matrix factored afresh.
 #: Each iteration costs a forward and back substitution with the factors and a product with the
 #: matrix, far less than a factorisation: on the 10-node plate of petsoft/solvers/README.md
@@ -96,11 +98,11 @@ class LaggedFactors:
 
     def solve(self, rhs: PETSc.Vec, out: PETSc.Vec) -> None:
         """out = A^-1 rhs to :data:`RTOL`; a solve that fails is repeated on fresh factors (the
-        caller checks ``ksp.getConvergedReason()`` of the result)."""
+        caller checks the result's :func:`~petsoft.solvers.convergence.outcome`)."""
         ksp = self.ksp
         ksp.solve(rhs, out)
         its = ksp.getIterationNumber()
-        if ksp.getConvergedReason() < 0:
+        if not outcome(ksp).converged:
             self._factor()
             ksp.solve(rhs, out)
             its += ksp.getIterationNumber()

@@ -7,6 +7,8 @@ from contextlib import contextmanager
 
 from petsc4py import PETSc
 
+from petsoft.solvers.convergence import outcome
+
 #: Systems up to this many dofs are solved directly by default (on one rank): a forward run or
 #: a calibration makes thousands of solves, and since the steps factor once (the chord method,
 #: :func:`factor_once_per_step`) and forward runs keep their factors across steps, one
@@ -291,7 +293,7 @@ def solve_newton(snes: PETSc.SNES, x: PETSc.Vec, lagged: bool,
     try:
         snes.solve(None, x)
         bad = rejected() if rejected is not None else False
-        if snes.getConvergedReason() > 0 and not bad:
+        if outcome(snes).converged and not bad:
             return
         guess.copy(x)
         refactor_every_iteration(snes)

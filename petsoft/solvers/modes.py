@@ -42,6 +42,7 @@ from petsoft.fem.assembly import CHUNK, MatrixAssembler
 from petsoft.io.progress import duration
 from petsoft.physics.loads import consistent_mass_matrices
 from petsoft.solvers.convergence import reason_name
+from petsoft.solvers.options import SolverOptions, own_options
 
 if TYPE_CHECKING:
     from slepc4py import SLEPc
@@ -275,7 +276,7 @@ def _progress(eps: SLEPc.EPS, wanted: int, say, rank0: bool) -> None:
 
 
 def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "",
-                  monitor=None) -> ModesResult:
+                  monitor=None, options: SolverOptions | None = None) -> ModesResult:
     """The ``nmodes`` eigenpairs of K x = omega^2 M x nearest ``target`` (all ranks call).
 
     Parameters
@@ -295,6 +296,9 @@ def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "",
     monitor : callable(str), optional
         Progress lines (rank 0): the factorization, then at most one line per
         :data:`PROGRESS_SECONDS` with the converged count and the time left at that pace.
+    options : SolverOptions, optional
+        The options (an experiment's ``[petsc]`` table) pushed under ``prefix`` while the EPS
+        is set up and solves.
 
     Returns
     -------
@@ -311,6 +315,13 @@ def compute_modes(model, nmodes: int, *, target: float = 0.0, prefix: str = "",
     SolverError
         When fewer than the requested eigenpairs converge, or the factorization fails.
     """
+    options = own_options(prefix, options)
+    with options.pushed():
+        return _compute_modes(model, nmodes, target, options.prefix, monitor)
+
+
+def _compute_modes(model, nmodes: int, target: float, prefix: str, monitor) -> ModesResult:
+    """compute_modes with its options pushed."""
     dmesh, bc = model.dmesh, model.dirichlet
     nfree = 3 * dmesh.nglobal_vertices - bc.count
     if not 1 <= int(nmodes) <= nfree:

@@ -36,8 +36,14 @@ from petsoft.fem.assembly import MatrixAssembler
 from petsoft.fem.kernels import elastic as kernels
 from petsoft.fem.kernels.scatter import scatter_add_vector
 from petsoft.fem.kernels.tet import shape_gradients
-from petsoft.solvers.convergence import reason_name
-from petsoft.solvers.options import scoped_defaults, user_has
+from petsoft.solvers.convergence import outcome
+from petsoft.solvers.options import (
+    SolverOptions,
+    own_options,
+    scoped_defaults,
+    user_has,
+    with_options,
+)
 
 
 class RestShapeError(SolverError):
@@ -108,10 +114,16 @@ class RestShapeSolver:
     prefix : str
         Options prefix (default ``rest_shape_``): ``-rest_shape_snes_monitor``, ...
     monitor : callable(str), optional
+    options : SolverOptions, optional
+        The options (an experiment's ``[petsc]`` table) pushed under ``prefix`` while the SNES
+        is set up and solves.
     """
 
-    def __init__(self, model, load_steps: int = 1, prefix: str = "rest_shape_", monitor=None):
+    def __init__(self, model, load_steps: int = 1, prefix: str = "rest_shape_", monitor=None,
+                 options: SolverOptions | None = None):
         self.model, self.monitor = model, monitor
+        self.options = own_options(prefix, options)
+        prefix = self.options.prefix
         self.load_steps = max(1, int(load_steps))
         exp = model.experiment
         self._refuse_unsupported(exp)
@@ -153,10 +165,11 @@ class RestShapeSolver:
         # non-symmetric problem, and backtracking on it crawled (40 steps of ~1 % on a cantilever
         # sagging a third of its length; basic: 6 iterations). A failed solve is retried with a
         # smaller gravity increment instead.
-        defaults = {} if user_has(prefix + "snes_linesearch_type") else {
-            prefix + "snes_linesearch_type": "basic"}
-        with scoped_defaults(**defaults):
-            snes.setFromOptions()
+        with self.options.pushed():
+            defaults = {} if user_has(prefix + "snes_linesearch_type") else {
+                prefix + "snes_linesearch_type": "basic"}
+            with scoped_defaults(**defaults):
+                snes.setFromOptions()
         bc = model.dirichlet
         self._bc_values = bc.values(t=0.0)
         if np.any(self._bc_values != 0.0):
@@ -254,6 +267,7 @@ class RestShapeSolver:
         self.model.dirichlet.eliminate(P)
 
     # -- driver --------------------------------------------------------------------------------
+    @with_options
     def solve(self, X0: np.ndarray | None = None) -> RestShapeResult:
         """Solve for the rest shape at full gravity; ``X0`` (local (nv, 3)) is the initial guess
         (default: the captured shape). Raises :class:`RestShapeError` with the residual history
@@ -273,26 +287,28 @@ class RestShapeSolver:
             self._norms, self._failure = [], None
             # absolute tolerance: round-off level of this increment's load
             self.snes.setTolerances(atol=1e-11 * self._force_scale())
+            jacobian_failed = False
             try:
                 self.snes.solve(None, X)
-                reason = self.snes.getConvergedReason()
+                converged = outcome(self.snes).converged
             except RestShapeError:
-                reason = -1
+                converged = False
+                jacobian_failed = True
             its = self.snes.getIterationNumber()
-            if reason <= 0 and self._stalled_converged(X):
-                reason = 1
+            if not converged and self._stalled_converged(X):
+                converged = True
             norms = list(self._norms)
             result.history.append((self.scale, norms))
-            if reason <= 0:
+            if not converged:
                 retries += 1
                 backup.copy(X)
                 if retries > 6:
                     X.destroy()
                     backup.destroy()
-                    raise RestShapeError(self._failure_message(result, reason))
+                    raise RestShapeError(self._failure_message(result, jacobian_failed))
                 increment *= 0.5
                 self._say(f"rest shape: gravity factor {self.scale:.4g}: "
-                          f"{self._reason_text(reason)}; retrying with increment "
+                          f"{self._reason_text(jacobian_failed)}; retrying with increment "
                           f"{increment:.4g}")
                 continue
             backup.destroy()
@@ -329,15 +345,15 @@ class RestShapeSolver:
             f.destroy()
         return abs(self.scale) * self._gravity_norm
 
-    def _reason_text(self, reason) -> str:
+    def _reason_text(self, jacobian_failed: bool) -> str:
         if self._failure is not None and self._failure[0]:
             # shape_gradients' wording is about input meshes; here it is a Newton trial
             return "a trial rest shape had an inverted or degenerate element (volume <= 0)"
         if self._failure is not None:
             return self._failure[1]
-        return f"SNES {reason_name(self.snes)}" if reason != -1 else "Jacobian failed"
+        return "Jacobian failed" if jacobian_failed else f"SNES {outcome(self.snes).reason}"
 
-    def _failure_message(self, result: RestShapeResult, reason) -> str:
+    def _failure_message(self, result: RestShapeResult, jacobian_failed: bool) -> str:
         lines = []
         for factor, norms in result.history[-4:]:
             seq = ", ".join(f"{v:.3e}" for v in norms[:12])
@@ -345,7 +361,7 @@ class RestShapeSolver:
             lines.append(f"  gravity factor {factor:.4g}: |R| = {seq}{more}")
         reached = self._done
         return ("no rest shape found: Newton on the inverse static equations f_int(x; X) = "
-                f"f_gravity(X) did not converge ({self._reason_text(reason)}); the last "
+                f"f_gravity(X) did not converge ({self._reason_text(jacobian_failed)}); the last "
                 "attempts' residual histories:\n" + "\n".join(lines) + "\n"
                 f"Either the captured shape cannot be an equilibrium of this material under "
                 f"this load (the load exceeds what the material carries: the rest shape would "

@@ -19,7 +19,7 @@ from petsoft.io.summary import write_summary
 from petsoft.io.xdmf import write_xdmf
 from petsoft.mesh.probes import embed, interpolate
 from petsoft.physics.model import build_model
-from petsoft.solvers.options import experiment_options
+from petsoft.solvers.options import SolverOptions
 from petsoft.solvers.static import StaticSolver
 
 
@@ -76,29 +76,29 @@ def solve_experiment(experiment, *, out: Path | None = None, method: str = "snes
         if say is not None and comm.rank == 0:
             say(line)
 
-    with experiment_options(experiment.petsc):
-        model = build_model(experiment, comm, project_spd=spd)
-        mesh = model.dmesh.mesh
-        probe_cells, probe_weights = (
-            embed(mesh, experiment.output.probes, source=f"{experiment.source}: output.probes")
-            if experiment.output.probes else (None, None))
-        tell(f"petsoft {command}: {len(mesh.tets)} tets, {len(mesh.points)} nodes, "
-             f"{3 * len(mesh.points)} dofs on {comm.size} rank(s); {method.upper()}, "
-             f"{load_steps} load step(s)")
-        solver = StaticSolver(model, method=method, load_steps=load_steps, monitor=tell)
-        try:
-            result = solver.solve()
-            u = comm.tompi4py().bcast(model.dmesh.gather_global(result.displacement), root=0)
-            probes = (interpolate(u, mesh.cells, probe_cells, probe_weights)
-                      if probe_cells is not None else np.zeros((0, 3)))
-            outcome = StaticOutcome(
-                mesh=mesh, displacement=u, probes=np.asarray(probes),
-                load_steps=result.load_steps,
-                newton_iterations=result.newton_iterations,
-                linear_iterations=result.linear_iterations, retries=result.retries,
-                ksp_type=solver.ksp.getType(), pc_type=solver.ksp.getPC().getType())
-        finally:
-            solver.destroy()
+    model = build_model(experiment, comm, project_spd=spd)
+    mesh = model.dmesh.mesh
+    probe_cells, probe_weights = (
+        embed(mesh, experiment.output.probes, source=f"{experiment.source}: output.probes")
+        if experiment.output.probes else (None, None))
+    tell(f"petsoft {command}: {len(mesh.tets)} tets, {len(mesh.points)} nodes, "
+         f"{3 * len(mesh.points)} dofs on {comm.size} rank(s); {method.upper()}, "
+         f"{load_steps} load step(s)")
+    solver = StaticSolver(model, method=method, load_steps=load_steps, monitor=tell,
+                          options=SolverOptions("", experiment.petsc))
+    try:
+        result = solver.solve()
+        u = comm.tompi4py().bcast(model.dmesh.gather_global(result.displacement), root=0)
+        probes = (interpolate(u, mesh.cells, probe_cells, probe_weights)
+                  if probe_cells is not None else np.zeros((0, 3)))
+        outcome = StaticOutcome(
+            mesh=mesh, displacement=u, probes=np.asarray(probes),
+            load_steps=result.load_steps,
+            newton_iterations=result.newton_iterations,
+            linear_iterations=result.linear_iterations, retries=result.retries,
+            ksp_type=solver.ksp.getType(), pc_type=solver.ksp.getPC().getType())
+    finally:
+        solver.destroy()
     if out is not None and comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
         write_xdmf(out / "displacement.xdmf", mesh.points, mesh.cells,

@@ -19,9 +19,15 @@ from petsc4py import PETSc
 
 from petsoft.errors import InvertedElementError, SolverError, without_frames
 from petsoft.fem.assembly import MatrixAssembler
-from petsoft.solvers.convergence import check_converged, reason_name
+from petsoft.solvers.convergence import check_converged, outcome
 from petsoft.solvers.linear import linear_defaults
-from petsoft.solvers.options import scoped_defaults, user_has
+from petsoft.solvers.options import (
+    SolverOptions,
+    own_options,
+    scoped_defaults,
+    user_has,
+    with_options,
+)
 
 STALL_RTOL = 1e-8  # a stalled solve whose gradient fell this much is converged (round-off)
 
@@ -50,19 +56,23 @@ class StaticSolver:
     load_steps : int
         Number of equal load increments (>= 1).
     prefix : str
-        Options prefix of the solver objects.
+        Options prefix of the solver objects (the lifting solve's: ``<prefix>lift_``).
+    options : SolverOptions, optional
+        The options (an experiment's ``[petsc]`` table) pushed under ``prefix``, the lifting
+        solve's among them, while the solvers are set up and solve.
     monitor : callable(str) or None
         Receives one progress line per load step (rank 0 prints it).
     """
 
     def __init__(self, model, method: str = "snes", load_steps: int = 1, prefix: str = "",
-                 monitor=None):
+                 monitor=None, options: SolverOptions | None = None):
         if method not in ("snes", "tao"):
             raise ValueError(f"method must be 'snes' or 'tao', not {method!r}")
         self.model, self.method, self.load_steps = model, method, max(1, int(load_steps))
         self.monitor = monitor
         dm = model.dmesh
         self.dmesh = dm
+        self.options = own_options(prefix, options)
         self.assembler = MatrixAssembler(dm, model.elastic.connectivities())
         self.J = self.assembler.create_matrix()
         self.J.setNearNullSpace(dm.rigid_body_modes())
@@ -71,6 +81,12 @@ class StaticSolver:
         self._g_local = np.zeros(3 * dm.nvertices)
         self.scale = 1.0
         self._bad_element = None
+        self._create_solvers()
+
+    @with_options
+    def _create_solvers(self) -> None:
+        """The SNES or TAO and the lifting KSP, set up with the options pushed."""
+        dm, model, method, prefix = self.dmesh, self.model, self.method, self.options.prefix
         comm = dm.comm
         if method == "snes":
             self.snes = snes = PETSc.SNES().create(comm=comm)
@@ -210,6 +226,7 @@ class StaticSolver:
         self._collective_hessian(x)
         self.assembler.finish(self.J)
 
+    @with_options
     def solve(self, x: PETSc.Vec | None = None) -> StaticResult:
         """Solve for the equilibrium at full load; returns the displacement and statistics."""
         t0 = time.perf_counter()
@@ -272,27 +289,24 @@ class StaticSolver:
         scale = max(scale, self.f.norm())
         if self.method == "snes":
             self.snes.solve(None, x)
-            reason = self.snes.getConvergedReason()
-            its, lits = self.snes.getIterationNumber(), self.snes.getLinearSolveIterations()
-            name = f"SNES {reason_name(self.snes)}"
+            done = outcome(self.snes)
+            lits = self.snes.getLinearSolveIterations()
         else:
             self.tao.setSolution(x)
             self.tao.solve(x)
-            reason = self.tao.getConvergedReason()
-            its = self.tao.getIterationNumber()
+            done = outcome(self.tao)
             lits = self.ksp.getIterationNumber()  # TAO reports no total; this is the last solve
-            name = f"TAO {reason_name(self.tao)}"
-        if reason <= 0 and self._bad_element is None:
+        its, converged = done.iterations, done.converged
+        if not converged and self._bad_element is None:
             # A solver that stalls only because its relative tolerance lies below the round-off
             # floor of the gradient (an increment solved exactly by the first Newton step) has
             # converged: accept it when the gradient is below STALL_RTOL times the force scale.
-            if self._gradient(x, work) and work.norm() <= STALL_RTOL * scale:
-                reason = 1
+            converged = self._gradient(x, work) and work.norm() <= STALL_RTOL * scale
         work.destroy()
-        if reason <= 0:
+        if not converged:
             why = f" ({self._bad_element})" if self._bad_element is not None else ""
-            return its, lits, f"{name}{why}"
-        return its, lits, reason
+            return its, lits, f"{done.kind} {done.reason}{why}"
+        return its, lits, max(done.code, 1)
 
     def _say(self, line: str) -> None:
         if self.monitor is not None and self.dmesh.comm.rank == 0:

@@ -34,11 +34,11 @@ import numpy as np  # noqa: E402
 from petsc4py import PETSc  # noqa: E402
 
 from petsoft.calibration.calibrate import build_forward  # noqa: E402
+from petsoft.calibration.forward import forward_defaults  # noqa: E402
 from petsoft.calibration.refinement import refinement  # noqa: E402
 from petsoft.experiment.parameters import get_parameter  # noqa: E402
 from petsoft.experiment.reader import load_experiment  # noqa: E402
 from petsoft.io.recording import read_recording  # noqa: E402
-from petsoft.solvers.options import experiment_options  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 EVENTS = ("SNESFunctionEval", "MatSolve", "MatCholFctrNum", "MatLUFactorNum")
@@ -71,7 +71,7 @@ def main() -> int:
           f"step {exp.time.step} s, parameters {dict(zip(names, values, strict=True))}")
     rows, ref = [], None
     for rtol in [float(x) for x in args.rtol.split(",")]:
-        with experiment_options({"fm_snes_rtol": repr(rtol)}):
+        with forward_defaults(snes_rtol=repr(rtol)):
             fm = build_forward(exp, names, rec, t[ident], PETSc.COMM_WORLD)
             before = counts()
             t0 = time.perf_counter()

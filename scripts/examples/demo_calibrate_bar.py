@@ -201,7 +201,6 @@ def main(argv=None) -> int:
     from petsoft.calibration.synth import SynthOptions, synth
     from petsoft.experiment import load_experiment
     from petsoft.io.recording import read_recording
-    from petsoft.solvers.options import experiment_options
 
     comm = MPI.COMM_WORLD
     rank0 = comm.rank == 0
@@ -238,9 +237,8 @@ def main(argv=None) -> int:
                                                               refine=2, integrator="midpoint",
                                                               seed=11))
         exp = load_experiment(d / "start.toml")
-        with experiment_options(exp.petsc):
-            res = run_calibration(exp, d / "recording.h5", method=args.method,
-                                  out=d / "calibrated", say=say)
+        res = run_calibration(exp, d / "recording.h5", method=args.method,
+                              out=d / "calibrated", say=say)
         for n, v, s in zip(res.names, res.values, res.std, strict=True):
             true = case["truth"][n]
             table.append({"case": name, "parameter": n, "truth": true, "start": case["start"][n],
