@@ -456,17 +456,17 @@ def test_the_shared_run_is_kept_beside_a_forward_only_simulation(case):
     is that far from the shared run's must still share it: the check is against
     SHARED_RUN_TOLERANCE of the noise (at the former 1e-6 every such round was scored one by
     one); 10x the noise is refused (test_a_rejected_shared_run_says_why)."""
+    from petsoft.calibration.forward import forward_defaults
     from petsoft.diagnosis.context import (
         NEWTON_RTOL,
         SHARED_RUN_TOLERANCE,
         evidence_of,
         scored_together,
     )
-    from petsoft.solvers.options import experiment_options
 
     exp = load_experiment(case["user"])
     diag = _diagnosis(exp, case["damped"])
-    with experiment_options({"fm_snes_rtol": repr(NEWTON_RTOL)}):
+    with forward_defaults(snes_rtol=repr(NEWTON_RTOL)):
         base = diag.calibrate(exp)
         diag.fix_scales(base, evidence_of(diag, base))
         cands, _ = build_candidates(exp, scales=diag.scales)
