@@ -27,7 +27,6 @@ from petsoft.calibration.forward import ForwardModel
 from petsoft.calibration.observation import MarkerObserver
 from petsoft.dynamics.alpha import GeneralizedAlpha
 from petsoft.dynamics.implicit import ImplicitIntegrator
-from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.experiment import experiment_from_dict
 from petsoft.physics.model import build_model
@@ -100,7 +99,7 @@ def test_factors_the_chord_cannot_use_leave_the_step_to_the_own_solver(stepper):
     exp = _bar()
     model = build_model(exp)
     s = DynamicSystem(model, exp.damping.mass, exp.damping.stiffness)
-    q0, v0 = initial_state(model, s, exp)
+    q0, v0 = s.initial_state()
     ends = []
     for lend in (False, True):
         integ = stepper(s)

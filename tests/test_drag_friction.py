@@ -38,7 +38,6 @@ from petsoft.dynamics.mass_spring import (
     build_mass_spring_model,
     rope_mesh,
 )
-from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError
 from petsoft.experiment import DragSpec, experiment_from_dict, load_experiment, with_parameters
@@ -155,8 +154,7 @@ def _spring_experiment(tmp_path, mesh, springs, **extra):
 def _run(system, exp, h, steps, method="be"):
     """Velocities (steps + 1, N, 3) (file numbering, every rank) of an implicit run."""
     integ = ImplicitIntegrator(system, method)
-    q, v = system.initial_state() if hasattr(system, "initial_state") else initial_state(
-        system.model, system, exp)
+    q, v = system.initial_state()
     q1, v1 = q.duplicate(), v.duplicate()
     out = [system.dmesh.to_all(v)]
     for n in range(steps):
@@ -261,7 +259,7 @@ def test_energy_balance_closes_with_each_term(section):
     model = build_model(exp)
     s = DynamicSystem(model)
     integ = ImplicitIntegrator(s, "midpoint")
-    q, v = initial_state(model, s, exp)
+    q, v = s.initial_state()
     q1, v1 = q.duplicate(), v.duplicate()
     ledger = EnergyLedger()
     first = ledger.record(s, 0.0, q, v)
@@ -544,7 +542,7 @@ def test_pendulum_dry_friction_is_a_coulomb_pivot_torque(tmp_path):
     # costs communication; the terms' parallel layout is tested on the plate and the bar)
     s = MassSpringSystem(build_mass_spring_model(exp, PETSc.COMM_SELF))
     integ = ImplicitIntegrator(s, "midpoint")
-    q, v = s.initial_state() if hasattr(s, "initial_state") else initial_state(s.model, s, exp)
+    q, v = s.initial_state()
     q1, v1 = q.duplicate(), v.duplicate()
     theta = []
     for n in range(int(round(end / h))):
@@ -645,7 +643,7 @@ def test_tao_step_equals_snes_step():
     exp = _bar(**ALL_TERMS)
     model = build_model(exp)
     s = DynamicSystem(model)
-    q, v = initial_state(model, s, exp)
+    q, v = s.initial_state()
     out = []
     for solver in ("snes", "tao"):
         integ = ImplicitIntegrator(s, "be", solver=solver)
@@ -668,7 +666,7 @@ def test_explicit_refuses_a_step_above_the_friction_limit():
     exp = _bar(friction={"dry": 10.0, "speed": 1e-3})     # viscous rate 1e4 1/s: h < 2e-4
     model = build_model(exp)
     s = DynamicSystem(model)
-    q, _ = initial_state(model, s, exp)
+    q, _ = s.initial_state()
     integ = ExplicitIntegrator(s)
     with pytest.raises(ExperimentError, match="regularised dry friction"):
         integ.check_step(q, 5e-4)
@@ -685,7 +683,7 @@ def test_explicit_refuses_a_step_above_the_friction_limit():
     expected = 2e4 * s.comm.tompi4py().allreduce(float(np.max(area / vt.node_mass)),
                                                  op=MPI.MAX)
     assert rate == pytest.approx(expected) and rate > 0
-    q, _ = initial_state(model, s, exp)
+    q, _ = s.initial_state()
     integ = ExplicitIntegrator(s)
     with pytest.raises(ExperimentError, match="drag.linear"):
         integ.check_step(q, 2.5 / rate)

@@ -18,7 +18,6 @@ from petsoft.dynamics.ere import EREIntegrator
 from petsoft.dynamics.explicit import ExplicitIntegrator, largest_frequency
 from petsoft.dynamics.implicit import ImplicitIntegrator
 from petsoft.dynamics.oscillator import OscillatorSystem
-from petsoft.dynamics.simulate import initial_state
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict
@@ -98,7 +97,7 @@ def _bar(comm=None, damping=(0.0, 0.0), **extra):
     exp = experiment_from_dict(_bar_data(**extra))
     model = build_model(exp, comm)
     system = DynamicSystem(model, *damping)
-    q0, v0 = initial_state(model, system, exp)
+    q0, v0 = system.initial_state()
     return system, q0, v0
 
 

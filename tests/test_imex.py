@@ -291,7 +291,6 @@ def test_modal_imex_keeps_slow_modes_of_a_fem_bar():
     energy in its two lowest modes (9.0 and 11.2 rad/s, tau*Omega <= 0.17) stays within 1% with
     modal IMEX (measured 0.2% change) while backward Euler loses more than half of it (measured
     80%); the rest (fast modes, tau*omega >> 1) is damped to below 1% by both (~1e-14)."""
-    from petsoft.dynamics.simulate import initial_state
     from petsoft.dynamics.system import DynamicSystem
     from petsoft.experiment import experiment_from_dict
     from petsoft.physics.model import build_model
@@ -312,7 +311,7 @@ def test_modal_imex_keeps_slow_modes_of_a_fem_bar():
         s = DynamicSystem(model)
         modal = ModalImexIntegrator(s, slow_modes=2)   # for BE: only its modes and energy
         integ = modal if name == "imex" else ImplicitIntegrator(s, "be")
-        q, v = initial_state(model, s, exp)
+        q, v = s.initial_state()
         modal.setup(q)
         total0, slow0 = s.elastic_energy(q) + s.kinetic_energy(v), modal.slow_energy(q, v)
         q1, v1 = q.duplicate(), v.duplicate()

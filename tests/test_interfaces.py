@@ -213,3 +213,137 @@ def test_integrator_properties_replace_the_name_comparisons():
     for e in SCHEMES.values():
         assert (e.maxwell is not None) == (e.name in ("be", "si", "alpha", "midpoint",
                                                       "trapezoidal")), e.name
+
+
+# -- the factory: every kind of body it builds is a System with its initial state --------------
+def _box(order: int):
+    """A 0.2 x 0.04 x 0.04 m bar of density 1000 fixed at x = 0, of elements of ``order``."""
+    return experiment_from_dict({
+        "mesh": {"box": {"size": [0.2, 0.04, 0.04], "cells": [2, 1, 1]}, "order": order},
+        "material": {"model": "linear", "youngs_modulus": 1e6, "poisson_ratio": 0.3,
+                     "density": 1000.0},
+        "boundary": [{"kind": "fixed", "where": "x < 1e-9"}],
+        "initial": {"displacement": ["0.01*x + 0.001", "0", "0"], "velocity": ["0", "0", "x"]},
+    }), [0.05, 0.01, 0.03], {"mass": 0.32, "area": 2 * (2 * 0.2 * 0.04 + 0.04 * 0.04),
+                             "length": np.sqrt(0.2**2 + 2 * 0.04**2)}
+
+
+def _rope(folder: str):
+    """A 1 m rope of 3 nodes of 0.1 kg along x, node 0 fixed."""
+    from petsoft.mesh.springs import write_spring_mesh
+
+    comm = MPI.COMM_WORLD
+    mesh = rope_mesh(3, 1.0)
+    if comm.rank == 0:
+        write_spring_mesh(f"{folder}/rope.msh", mesh.points, mesh.lines, mesh.triangles)
+    comm.Barrier()
+    return experiment_from_dict({
+        "mesh": {"file": f"{folder}/rope.msh"},
+        "springs": {"stiffness": 10.0, "node_mass": 0.1},
+        "boundary": [{"kind": "fixed", "where": "x < 0.1"}],
+        "initial": {"displacement": ["0.01*x + 0.001", "0", "0"], "velocity": ["0", "0", "x"]},
+    }), [0.5, 0.0, 0.0], {"mass": 0.3, "area": 1.0, "length": 1.0, "cell": 0.5}
+
+
+#: One example experiment per kind the factory builds (both element orders of the continuum):
+#: (kind, builder of (experiment, a probe point on the body, its sizes in closed form)).
+FACTORY_EXAMPLES = {"continuum P1": ("continuum", lambda folder: _box(1)),
+                    "continuum P2": ("continuum", lambda folder: _box(2)),
+                    "mass-spring": ("mass-spring", _rope)}
+
+#: The systems that are not built from an experiment, and what builds them instead.
+NOT_FROM_EXPERIMENTS = {
+    "OscillatorSystem": "scalar oscillators of given frequencies (petsoft damping)",
+    "FreeVibrationSystem": "a continuum model's undamped, unloaded body (petsoft damping's modes)",
+}
+
+
+def test_factory_every_kind_has_an_example_and_every_system_class_a_builder():
+    """A kind added to KINDS needs an example here; a System class added to petsoft is a kind of
+    the factory or says here what builds it; every one has initial_state."""
+    import importlib
+    import pkgutil
+
+    import petsoft
+    from petsoft.dynamics.factory import KINDS
+    from petsoft.dynamics.interfaces import SystemDefaults
+
+    assert {kind for kind, _ in FACTORY_EXAMPLES.values()} == set(KINDS), (
+        "every kind of dynamics.factory.KINDS needs an example in FACTORY_EXAMPLES")
+    for info in pkgutil.walk_packages(petsoft.__path__, "petsoft."):
+        if not info.name.endswith("__main__"):
+            importlib.import_module(info.name)
+
+    def subclasses(cls):
+        for sub in cls.__subclasses__():
+            yield sub
+            yield from subclasses(sub)
+
+    classes = {c for c in subclasses(SystemDefaults) if c.__module__.startswith("petsoft.")}
+    built = {k.system for k in KINDS.values()}
+    apart = {c for c in classes if c.__name__ in NOT_FROM_EXPERIMENTS}
+    assert classes - built - apart == set(), "System classes the factory does not build"
+    assert {c.__name__ for c in apart} == set(NOT_FROM_EXPERIMENTS)
+    for c in classes:
+        assert callable(getattr(c, "initial_state", None)), f"{c.__name__} has no initial_state"
+
+
+@pytest.mark.parametrize("example", list(FACTORY_EXAMPLES))
+def test_factory_builds_each_kind_as_a_system_with_its_initial_state(example, tmp_path_factory):
+    """build_system gives the kind's class, conforming to System and ExperimentSystem; its
+    initial state is the [initial] expressions with the fixed nodes at 0; a probe's weights
+    reproduce the probe point; the body's sizes are the closed-form ones."""
+    from petsoft.dynamics.factory import KINDS, ExperimentSystem, build_system, system_class
+
+    comm = MPI.COMM_WORLD
+    kind, builder = FACTORY_EXAMPLES[example]
+    folder = comm.bcast(str(tmp_path_factory.mktemp("kind")) if comm.rank == 0 else None)
+    exp, probe, sizes = builder(folder)
+    s = build_system(exp)
+    assert type(s) is KINDS[kind].system is system_class(exp)
+    _assert_implements(s, System)
+    _assert_implements(s, ExperimentSystem)
+    assert s.model is not None and s.model.experiment is exp
+    assert isinstance(s.volume_cells, bool) and isinstance(s.continuum_material, bool)
+    assert s.defined_by.startswith("[") and all(o in (1, 2) for o in s.element_orders)
+    assert (exp.mesh.order in s.element_orders) == bool(s.element_orders)
+
+    q, v = s.initial_state()
+    assert q.getSize() == v.getSize() == s.create_vec().getSize()
+    qf, vf = (comm.bcast(s.dmesh.gather_global(x), root=0) for x in (q, v))
+    pts = s.dmesh.mesh.points
+    fixed = pts[:, 0] < 1e-9      # the nodes at x = 0 (both examples fix only those)
+    assert fixed.any() and not fixed.all()
+    np.testing.assert_allclose(qf[~fixed, 0], 0.01 * pts[~fixed, 0] + 0.001, rtol=1e-12)
+    assert np.all(qf[fixed] == 0.0) and np.all(qf[:, 1:] == 0.0)
+    np.testing.assert_allclose(vf[:, 2], pts[:, 0], rtol=1e-12)
+    assert np.all(vf[:, :2] == 0.0)
+
+    conn, cells, weights = s.locate_probes([probe])
+    np.testing.assert_allclose(np.einsum("k,kd->d", weights[0], pts[conn[cells[0]]]), probe,
+                               atol=1e-12)
+    got = type(s).body_sizes(exp)
+    for name, value in sizes.items():
+        assert got[name] == pytest.approx(value, rel=1e-12), name
+    if s.volume_cells:    # the mean tet's volume: the bar's over its tets as read
+        from petsoft.physics.model import load_mesh
+
+        ntets = len(load_mesh(exp).tets)
+        assert got["cell"] ** 3 * ntets == pytest.approx(0.2 * 0.04 * 0.04, rel=1e-12)
+    for x in (q, v):
+        x.destroy()
+    s.destroy()
+
+
+def test_factory_kind_errors_are_clear(tmp_path_factory):
+    """A rest-shape mesh for a spring network, and a [springs] model given to the continuum's
+    model builder, are refused with the reason."""
+    from petsoft.dynamics.factory import build_system
+
+    comm = MPI.COMM_WORLD
+    folder = comm.bcast(str(tmp_path_factory.mktemp("errors")) if comm.rank == 0 else None)
+    rope, _, _ = _rope(folder)
+    with pytest.raises(ExperimentError, match=r"\[springs\] model is built from its own mesh"):
+        build_system(rope, mesh=rope_mesh(3, 1.0))
+    with pytest.raises(ExperimentError, match=r"\[springs\] models are not supported"):
+        build_model(rope)

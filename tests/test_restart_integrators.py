@@ -52,11 +52,11 @@ import pytest
 from mpi4py import MPI
 
 from petsoft.dynamics.checkpoint import checkpoint_files
-from petsoft.dynamics.mass_spring import build_mass_spring_model, cloth_mesh
+from petsoft.dynamics.factory import build_model
+from petsoft.dynamics.mass_spring import cloth_mesh
 from petsoft.dynamics.simulate import Simulation
 from petsoft.experiment import experiment_from_dict
 from petsoft.mesh.springs import write_spring_mesh
-from petsoft.physics.model import build_model
 
 STEPS, CUT, EVERY = 8, 4, 4
 INTEGRATORS = ("be", "si", "alpha", "midpoint", "trapezoidal", "ere", "imex", "explicit")
@@ -125,7 +125,7 @@ def _experiment(kind, integrator, base, out):
 def _run(exp, out: Path, restart=False):
     """(q, v) in file numbering on every rank and the monitor lines (rank 0's; [] elsewhere)."""
     lines: list[str] = []
-    model = build_mass_spring_model(exp) if exp.is_mass_spring else build_model(exp)
+    model = build_model(exp)
     sim = Simulation(model, exp, out=out, monitor=lines.append, progress_every=0.0)
     try:
         result = sim.run(restart=restart)

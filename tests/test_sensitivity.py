@@ -274,10 +274,8 @@ class _InterfaceOnly:
             return None
         return getattr(self._s, name)
 
-    def initial_state(self):
-        from petsoft.dynamics.simulate import initial_state
-
-        return initial_state(self._s.model, self._s, self._exp)
+    def initial_state(self, monitor=None):
+        return self._s.initial_state(monitor)
 
 
 @pytest.mark.parametrize("method", ["si", "alpha"])

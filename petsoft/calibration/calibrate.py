@@ -19,8 +19,6 @@ from petsc4py import PETSc
 from petsoft.calibration.check_mesh import check_mesh as check_mesh_refinement
 from petsoft.calibration.methods import METHOD_ALIASES, METHODS
 from petsoft.calibration.misfit import make_misfit
-from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
-from petsoft.dynamics.simulate import initial_state
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, with_parameters
 from petsoft.experiment.writer import write_experiment_update
@@ -254,8 +252,9 @@ def build_forward(experiment, names, recording, frame_times, comm, integrator=No
 
     The one factory of calibration's forward models (calibrate, diagnose's fits and scoring
     runs): the experiment's ``[petsc]`` solver options, the recording's measured inputs for
-    ``series`` supports, a mass-spring system for ``[springs]`` models. ``h`` overrides
-    ``[time] step`` (the numerics check's refined step).
+    ``series`` supports, the experiment's system (:func:`petsoft.dynamics.factory.build_system`:
+    a continuum or a mass-spring network). ``h`` overrides ``[time] step`` (the numerics check's
+    refined step).
     """
     from petsoft.calibration.forward import ForwardModel
     from petsoft.calibration.observation import MarkerObserver
@@ -265,25 +264,10 @@ def build_forward(experiment, names, recording, frame_times, comm, integrator=No
                               source=str(recording.source))
 
     comm = _petsc_comm(comm)
-    system = (mass_spring_system(experiment, comm, recording) if experiment.is_mass_spring
-              else None)
     # the experiment's [petsc] solver choice also for the forward model's own solvers
     return ForwardModel(experiment, names, observer, frame_times, comm=comm,
-                        integrator=integrator, h=h, system=system,
-                        solver_options=experiment.petsc, recording=recording, mesh=mesh)
-
-
-def mass_spring_system(experiment, comm, recording=None):
-    """The MassSpringSystem of a ``[springs]`` experiment, as :class:`ForwardModel` takes it.
-
-    ForwardModel's generic path takes the initial state from ``system.initial_state()``: here
-    ``[initial]`` displacement and velocity expressions, which do not depend on the calibrated
-    parameters (a static initial state is rejected by the mass-spring model builder).
-    """
-    model = build_mass_spring_model(experiment, comm, recording=recording)
-    system = MassSpringSystem(model, experiment.damping.mass, experiment.damping.stiffness)
-    system.initial_state = lambda: initial_state(model, system, experiment)
-    return system
+                        integrator=integrator, h=h, solver_options=experiment.petsc,
+                        recording=recording, mesh=mesh)
 
 
 def run_calibration(experiment, recording, *, method: str = "gauss-newton",

@@ -94,17 +94,15 @@ from petsc4py import PETSc
 from petsoft.calibration.checkpointing import SweepStats, reverse_sweep, spine
 from petsoft.calibration.observation import MarkerObserver, time_interpolation
 from petsoft.dynamics.alpha import GeneralizedAlpha, alpha_parameters
+from petsoft.dynamics.factory import build_system
 from petsoft.dynamics.implicit import ImplicitIntegrator
+from petsoft.dynamics.initial import initial_from_expressions
 from petsoft.dynamics.integrators import check_viscoelastic, scheme, with_gradients
 from petsoft.dynamics.interfaces import length_scale
-from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
 from petsoft.dynamics.parameters import VISCOELASTIC
-from petsoft.dynamics.simulate import initial_state
-from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, SolverError
 from petsoft.experiment import get_parameter
 from petsoft.io.progress import beat
-from petsoft.physics.model import build_model
 from petsoft.solvers.convergence import check_converged
 from petsoft.solvers.lagged_factors import LaggedFactors
 from petsoft.solvers.linear import is_direct, solver_chosen, symmetric_factorisation
@@ -199,9 +197,11 @@ class ForwardModel:
     recording : Recording or path, optional
         The recording whose ``/inputs`` drive ``series`` supports (a model driven by a measured
         input is fitted to the recording that holds that input).
-    system : optional
-        A prebuilt system offering the same interface (e.g. a mass-spring system); then
-        ``initial_state`` is taken from ``system.initial_state()``.
+    system : System, optional
+        A prebuilt system offering the same interface; default: the experiment's
+        (:func:`petsoft.dynamics.factory.build_system`). The initial state is
+        ``system.initial_state()``, except a static one (``initial.from = "static"``), which is
+        solved here, tightly, on ``system.model``.
     mesh : petsoft.mesh.serial.Mesh, optional
         Use this mesh instead of the experiment's (a computed rest shape,
         :mod:`petsoft.calibration.rest_shape`).
@@ -242,18 +242,16 @@ class ForwardModel:
         self.grad_options = SolverOptions(GRAD_PREFIX, solver_options, GRADIENT_KEYS)
         self.static_options = SolverOptions(PREFIX + "static_", solver_options,
                                             defaults=STATIC_OPTIONS)
-        if system is not None:
-            self.model = None
-        elif exp.is_mass_spring:
-            # the mass-spring system offers the same interface (parameter names, in-place
+        if system is None:
+            # a mass-spring system offers the same parameter interface (names, in-place
             # set_parameters, residual_parameter_derivatives): the generic derivative path
-
-            self.model = build_mass_spring_model(exp, comm, recording=recording)
-            system = MassSpringSystem(self.model, exp.damping.mass, exp.damping.stiffness)
-        else:
-            self.model = build_model(exp, comm, recording=recording, mesh=mesh)
-            system = DynamicSystem(self.model, exp.damping.mass, exp.damping.stiffness)
+            system = build_system(exp, comm, recording, mesh=mesh)
         self.system = s = system
+        self.model = s.model
+        if self.static and self.model is None:
+            raise ExperimentError(f"{exp.source}: initial.from = \"static\": the forward model "
+                                  "solves the static equilibrium on the system's model, and the "
+                                  "given system has none")
         self.comm = s.comm
         self.names = list(names)
         groups = [int(m.group(1)) for n in self.names if (m := _GROUP.search(n))]
@@ -347,10 +345,8 @@ class ForwardModel:
 
     def _initial(self):
         s = self.system
-        if self.model is None:
-            return s.initial_state()
         if not self.static:
-            return initial_state(self.model, s, self.experiment)
+            return s.initial_state()
 
         # the static equilibrium under the current parameters, solved tightly: its derivative
         # K(q0) dq0/dp = -d r_static/dp holds at the exact solution
@@ -359,11 +355,7 @@ class ForwardModel:
             q0 = solver.solve().displacement.copy()
         finally:
             solver.destroy()
-        pts = s.dmesh.mesh.points
-        v0 = s.dmesh.from_file_field(
-            np.column_stack([e.evaluate_at(pts) for e in self.experiment.initial.velocity]))
-        s.apply_prescribed(q0, 0.0)
-        return q0, v0
+        return initial_from_expressions(s, self.experiment.initial, q0)
 
     def _static_setup(self, q0):
         """(K(q0) in self.J, a solver on it, d r_static/dp at q0) for the static initial state.

@@ -45,6 +45,7 @@ from petsoft.calibration.optimize import LeastSquares, minimize
 from petsoft.calibration.scaling import ParameterScaling
 from petsoft.calibration.spectra import frequencies_from_recording
 from petsoft.calibration.uncertainty import UnidentifiableError, uncertainty
+from petsoft.dynamics.factory import system_class
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.fem.element import cell_integrals
@@ -176,9 +177,11 @@ class FrequencyModel:
         self.names, self.count = list(names), int(count)
         # the eigensolver's options (no prefix, as `petsoft modes`) from the [petsc] table
         self.options = SolverOptions("", experiment.petsc)
-        if experiment.is_mass_spring:
+        body = system_class(experiment)
+        if not body.continuum_material:
             raise ExperimentError(f"{experiment.source}: calibration from frequencies needs a "
-                                  "[material] model (a [springs] model has no modes solver)")
+                                  f"[material] model (a {body.defined_by} model has no modes "
+                                  "solver)")
         bad = [n for n in self.names if not n.startswith("material.")
                or n.split(".")[-1].split("#")[0] not in ("youngs_modulus", "poisson_ratio",
                                                          "density")]

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from petsoft.dynamics.factory import system_class
 from petsoft.experiment import experiment_from_dict
 from petsoft.mesh.refine import refined_cell_count
 from petsoft.mesh.serial import read_mesh
@@ -128,14 +129,16 @@ def _refine_mesh(experiment):
 
 
 def _mesh_applies(experiment) -> str | None:
-    if experiment.is_mass_spring:
-        return "a [springs] model's mesh is its springs: it is not refined"
+    body = system_class(experiment)
+    if not body.volume_cells:
+        return f"a {body.defined_by} model has no volume cells to split: its mesh is not refined"
     return None
 
 
 def _order_applies(experiment) -> str | None:
-    if experiment.is_mass_spring:
-        return "a [springs] model has no finite elements"
+    body = system_class(experiment)
+    if not body.element_orders:
+        return f"a {body.defined_by} model has no finite elements"
     if experiment.mesh.order != 1:
         return "the elements are already quadratic (order 2)"
     return None
@@ -164,7 +167,7 @@ STEP_HALVED = Refinement(
 
 def _nodes_factor(experiment) -> int:
     """Nodes of a model per node of the P1 model on its mesh (about 8 for 10-node tets)."""
-    return 1 if experiment.is_mass_spring or experiment.mesh.order == 1 else 8
+    return 1 if not system_class(experiment).element_orders or experiment.mesh.order == 1 else 8
 
 
 MESH_HALVED = Refinement(

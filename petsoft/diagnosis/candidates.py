@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from petsoft.diagnosis.report import PHYSICS
+from petsoft.dynamics.factory import system_class
 from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
 
@@ -286,7 +287,7 @@ def build_candidates(experiment, *, evidence_region: dict | None = None,
     cands: list[Candidate] = []
     skipped: dict[str, str] = {}
     cal = set(experiment.calibrate or {})
-    springs = experiment.is_mass_spring
+    body = system_class(experiment)
 
     def offer(c: Candidate) -> None:
         try:
@@ -328,10 +329,11 @@ def build_candidates(experiment, *, evidence_region: dict | None = None,
                                                                       "speed": speed}}))
     else:
         skipped["friction.dry"] = "already in the model"
-    if springs:
+    if not body.continuum_material:
         for physics in ("material.heterogeneous", "mass.added", "material.nonlinear",
                         "material.viscoelastic", "boundary.compliance"):
-            skipped[physics] = f"{NOT_APPLICABLE}: a mass-spring model has no continuum material"
+            skipped[physics] = (f"{NOT_APPLICABLE}: a {body.defined_by} model has no continuum "
+                                "material")
     else:
         stiffness = (stiffness_region, "the adjoint Young's-modulus map")
         mass = [(density_region, "the adjoint density map (where added mass lowers the misfit "

@@ -26,15 +26,13 @@ from petsoft.calibration.calibrate import (
 from petsoft.calibration.groups import map_on_groups
 from petsoft.calibration.optimize import STOPPED, iteration_limit
 from petsoft.diagnosis.pace import CannotWin
+from petsoft.dynamics.factory import system_class
 from petsoft.dynamics.integrators import scheme
-from petsoft.dynamics.mass_spring import load_spring_mesh
 from petsoft.dynamics.parameters import VISCOELASTIC
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.experiment import get_parameter, with_parameters
 from petsoft.io.progress import doing, touch
 from petsoft.io.recording import Recording, read_recording_on_all_ranks
-from petsoft.mesh.topology import exterior_faces
-from petsoft.physics.model import load_mesh
 from petsoft.solvers.options import scoped_defaults
 
 #: diagnose's fits stop when Gauss-Newton's next step is below sqrt(FIT_DTOL) = 0.1 of the
@@ -128,37 +126,9 @@ def model_scales(experiment, times: np.ndarray, data: np.ndarray,
     build_candidates`): ``mass`` (kg), ``area`` (exterior surface, m^2), ``length`` (bounding-box
     diagonal, m), ``cell`` (mean cell size, m) of the model; ``speed``/``speed_max`` (rms and
     largest marker speed, m/s, by differences of the seen samples) and ``frequency`` (the data's
-    dominant modal frequency, Hz, when the evidence found one)."""
-    out: dict = {}
-    if experiment.is_mass_spring:
-        mesh = load_spring_mesh(experiment)
-        pts = mesh.points
-        total = float(sum(m.value for m in experiment.masses))
-        total += float(experiment.springs.node_mass or 0.0) * len(pts)
-        out["mass"] = total if total > 0 else 1.0
-        tri = getattr(mesh, "triangles", None)
-        if tri is not None and len(tri):
-            e1, e2 = pts[tri[:, 1]] - pts[tri[:, 0]], pts[tri[:, 2]] - pts[tri[:, 0]]
-            out["area"] = float(0.5 * np.linalg.norm(np.cross(e1, e2), axis=1).sum())
-        else:
-            out["area"] = 1.0
-        edges = (mesh.lines if len(mesh.lines) else
-                 np.concatenate([mesh.triangles[:, [0, 1]], mesh.triangles[:, [1, 2]]])
-                 if len(mesh.triangles) else np.zeros((0, 2), dtype=int))
-        out["cell"] = float(np.mean(np.linalg.norm(pts[edges[:, 0]] - pts[edges[:, 1]],
-                                                   axis=1))) if len(edges) else 1.0
-    else:
-        mesh = load_mesh(experiment)
-        pts = mesh.points
-        p = pts[mesh.tets]
-        vol = np.abs(np.linalg.det(p[:, 1:] - p[:, :1])) / 6.0
-        out["mass"] = float(get_parameter(experiment, "material.density") * vol.sum())
-        faces, _ = exterior_faces(mesh.tets)
-        q = pts[faces]
-        out["area"] = float(0.5 * np.linalg.norm(np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]),
-                                                 axis=1).sum())
-        out["cell"] = float(np.cbrt(np.mean(vol)))
-    out["length"] = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) or 1.0
+    dominant modal frequency, Hz, when the evidence found one). The body's sizes are its system
+    class's ``body_sizes`` (:class:`petsoft.dynamics.factory.ExperimentSystem`)."""
+    out = system_class(experiment).body_sizes(experiment)
     dt = np.diff(times)[:, None, None]
     vel = np.diff(data, axis=0) / dt
     speed = np.linalg.norm(vel, axis=2)

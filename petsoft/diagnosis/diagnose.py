@@ -84,6 +84,7 @@ from petsoft.diagnosis.selection import (
     worth_fitting,
 )
 from petsoft.diagnosis.story import skipped_numerics
+from petsoft.dynamics.factory import system_class
 from petsoft.io.progress import heartbeat
 
 
@@ -236,7 +237,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                   + (f" beside one scoring run of {', '.join(c.physics for c in together)}"
                      if len(together) > 1 else ""))
         maps, shared = diag.regions_and_shared_scores(
-            current, together, regions=not current.experiment.is_mass_spring)
+            current, together, regions=system_class(current.experiment).volume_cells)
         cands, not_modelled = _round_candidates(diag, current, ev, plane, maps)
         diag.tell(f"round {rnd}: ranking {len(cands)} candidates "
                   f"({', '.join(c.physics for c in cands)})")

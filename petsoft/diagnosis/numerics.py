@@ -28,6 +28,7 @@ from petsoft.calibration.refinement import (
 )
 from petsoft.diagnosis.chord_refit import chord_refit, refit_step
 from petsoft.diagnosis.context import Diagnosis, Fit, evidence_of, petsc_comm, rms
+from petsoft.dynamics.factory import system_class
 from petsoft.errors import PetsoftError
 from petsoft.io.progress import doing
 
@@ -75,7 +76,7 @@ def _why_not(r, experiment) -> str | None:
 
 def is_mesh_file(experiment) -> bool:
     """A continuum model on a mesh file (not a built-in box): its mesh is checked first."""
-    return not experiment.is_mass_spring and experiment.mesh.file is not None
+    return system_class(experiment).volume_cells and experiment.mesh.file is not None
 
 
 #: The final check (:func:`numerics_check`) does not simulate a halved step again when the
@@ -371,7 +372,7 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
         excess = diag.excess(fit)
         entry = {"chi2": fit.chi2, "dof": dof, "step": exp.time.step, "options": {},
                  "parameters": dict(zip(fit.names, map(float, fit.values), strict=True))}
-        if not exp.is_mass_spring:
+        if system_class(exp).volume_cells:
             entry["tets"] = mesh_cells(exp)
         not_tried = {r.label: superseded.get(r.label) or _why_not(r, exp) for r in REFINEMENTS
                      if r not in tried and not (r.kind == "mesh" and mesh_done)}

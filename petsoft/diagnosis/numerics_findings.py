@@ -11,6 +11,7 @@ report.md says ``summary`` and ``recommendation`` in "In short", ``findings`` in
 from __future__ import annotations
 
 from petsoft.calibration.refinement import levels_needed, mesh_cells, refinement
+from petsoft.dynamics.factory import system_class
 
 #: The keys of :func:`numerics_findings` that go to report.json's ``numerics``.
 REPORT_KEYS = ("findings", "recommendation", "mesh", "summary", "adopted")
@@ -297,7 +298,7 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
     summary, adopted, unchecked = numerics_summary(num, rounds, final)
     out = {"findings": findings, "recommendation": None, "summary": summary,
            "adopted": adopted, "unchecked": unchecked}
-    if base.experiment.is_mass_spring:
+    if not system_class(base.experiment).volume_cells:
         return out
     user, now = mesh_cells(base.experiment), mesh_cells(final.experiment)
     mesh = {"tets": user, "tets_final": now}

@@ -15,6 +15,7 @@ from petsoft.diagnosis.figures import (
 )
 from petsoft.diagnosis.html import write_report_html
 from petsoft.diagnosis.result import DiagnoseResult
+from petsoft.dynamics.factory import system_class
 from petsoft.experiment.writer import write_experiment_update
 from petsoft.io.summary import write_summary
 from petsoft.mesh.topology import boundary_facets
@@ -75,7 +76,7 @@ def write_diagnosis_figures(out: Path, diag: Diagnosis, result: DiagnoseResult,
     plot_displacement(out / "displacement.png", diag.times, diag.data, before, after,
                       rec.reference, diag.cut, names)
     figs.append(out / "displacement.png")
-    if not result.base.experiment.is_mass_spring:
+    if system_class(result.base.experiment).volume_cells:
         mesh = load_mesh(result.base.experiment)
         plot_residual_on_body(out / "residual_on_body.png", mesh.points,
                               boundary_facets(mesh.tets), rec.reference,
@@ -100,7 +101,7 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
     if not diag.rank0:
         return
     out.mkdir(parents=True, exist_ok=True)
-    if not result.base.experiment.is_mass_spring and base_ev.get("markers") is not None:
+    if system_class(result.base.experiment).volume_cells and base_ev.get("markers") is not None:
         # where on the body: the base fit's per-marker residual spread over the mesh (ParaView)
         from petsoft.diagnosis.locate import write_residual_field
 

@@ -7,7 +7,11 @@ the FEM body (:class:`~petsoft.dynamics.system.DynamicSystem`), a mass-spring ne
 declares the members every integrator calls. Capabilities only some systems have (a viscoelastic
 branch, velocity-dependent forces, parameter derivatives, Dirichlet conditions, ...) are declared
 too, with a neutral default in :class:`SystemDefaults` that every system inherits, so callers ask
-``system.viscoelastic is not None`` instead of probing with ``getattr``.
+``system.viscoelastic is not None`` instead of probing with ``getattr``. What kind of body a system
+is (volume cells, finite element orders, a continuum material) it says by class attributes, which
+code that holds only an experiment reads from the class
+(:func:`petsoft.dynamics.factory.system_class`) without building the system; the systems of
+experiments are built by :func:`petsoft.dynamics.factory.build_system`.
 
 :class:`Stepper` declares what :class:`~petsoft.dynamics.simulate.Simulation` needs of a time
 integrator (the objects :mod:`petsoft.dynamics.integrators` builds); :class:`StepperDefaults`
@@ -50,6 +54,22 @@ class System(Protocol):
     moving_boundary: bool
     time_dependent_loads: bool
     jacobian_is_constant: bool
+
+    # -- what kind of body it is (class attributes; SystemDefaults: none of them) ----------------
+    #: the experiment table that defines such a body, for messages ("[material]", "[springs]")
+    defined_by: str
+    #: the body is meshed in volume cells (tetrahedra): regions of cells, cell-wise sensitivity
+    #: maps, a residual field over the body, a mesh refined by splitting its cells
+    volume_cells: bool
+    #: the finite element orders the body can be discretised with (empty: not finite elements)
+    element_orders: tuple[int, ...]
+    #: a continuum material (moduli and density per cell, elastic modes, supports' compliance,
+    #: the viscoelastic branch)
+    continuum_material: bool
+
+    def initial_state(self, monitor=None) -> tuple[PETSc.Vec, PETSc.Vec]:
+        """(q0, v0) at t = 0 as the system's source defines them (an experiment's ``[initial]``);
+        ``monitor`` receives progress lines of a solve it needs (a static equilibrium)."""
 
     def create_vec(self) -> PETSc.Vec: ...
 
@@ -113,6 +133,11 @@ class SystemDefaults:
     parameter_derivatives = None
     #: the viscoelastic branch's stored energy, or None
     viscoelastic_energy = None
+    #: what kind of body: none of the capabilities (see :class:`System`)
+    defined_by = "(no experiment table)"
+    volume_cells = False
+    element_orders: tuple[int, ...] = ()
+    continuum_material = False
 
 
 @runtime_checkable

@@ -40,6 +40,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from petsoft.dynamics.initial import initial_from_expressions
 from petsoft.dynamics.interfaces import SystemDefaults
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
@@ -387,6 +388,9 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         Rayleigh coefficients; ``beta`` is 1 and ``K0`` = damping_stiffness K_ref + dashpots
         (see the module docstring).
     """
+
+    # a network of nodes and springs: no cells, no finite elements, no continuum material
+    defined_by = "[springs]"
 
     def __init__(self, model: MassSpringModel, damping_mass: float = 0.0,
                  damping_stiffness: float = 0.0, clamp: bool = False):
@@ -887,6 +891,38 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         y = self._work
         mats[which].mult(v, y)
         return y.getArray(readonly=True).reshape(-1, 3).copy()
+
+    def locate_probes(self, probes, source: str = "probes"):
+        """(connectivity, cells, weights): probes sit on nodes (:func:`locate_nodes`), "cells" of
+        one node each with weight 1."""
+        nodes = locate_nodes(self.points, probes, source=source)
+        return np.arange(len(self.points))[:, None], nodes, np.ones((len(nodes), 1))
+
+    @staticmethod
+    def body_sizes(experiment) -> dict:
+        """Mass (node masses and point masses), triangle area (1 without triangles),
+        bounding-box diagonal and mean spring length (the lines, else the triangles' first two
+        edges; 1 without either) of the experiment's spring mesh."""
+        mesh = load_spring_mesh(experiment)
+        pts, tri = mesh.points, mesh.triangles
+        total = float(sum(m.value for m in experiment.masses))
+        total += float(experiment.springs.node_mass or 0.0) * len(pts)
+        area = 1.0
+        if len(tri):
+            e1, e2 = pts[tri[:, 1]] - pts[tri[:, 0]], pts[tri[:, 2]] - pts[tri[:, 0]]
+            area = float(0.5 * np.linalg.norm(np.cross(e1, e2), axis=1).sum())
+        edges = (mesh.lines if len(mesh.lines) else
+                 np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]]])
+                 if len(tri) else np.zeros((0, 2), dtype=int))
+        cell = (float(np.mean(np.linalg.norm(pts[edges[:, 0]] - pts[edges[:, 1]], axis=1)))
+                if len(edges) else 1.0)
+        return {"mass": total if total > 0 else 1.0, "area": area, "cell": cell,
+                "length": float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) or 1.0}
+
+    def initial_state(self, monitor=None):
+        """(q0, v0) from the ``[initial]`` expressions at the nodes (``monitor`` is not used: the
+        model builder refuses a static initial state, so nothing is solved here)."""
+        return initial_from_expressions(self, self.model.experiment.initial)
 
     def destroy(self) -> None:
         for obj in (self.M, self.K0, self.lumped, self.gravity, self._work):

@@ -105,6 +105,14 @@ class OscillatorSystem(SystemDefaults):
     def prescribed_offsets(self, vec: PETSc.Vec) -> np.ndarray:
         return np.zeros(0, dtype=np.int64)
 
+    def initial_state(self, monitor=None) -> tuple[PETSc.Vec, PETSc.Vec]:
+        """Every oscillator displaced by 1 and at rest (q = 1, v = 0): the start of the damping
+        analysis (:func:`petsoft.dynamics.damping_analysis.measure_oscillators`)."""
+        q, v = self.create_vec(), self.create_vec()
+        q.set(1.0)
+        v.set(0.0)
+        return q, v
+
     # -- the exact solution -------------------------------------------------------------------
     def exact(self, t: float, q0: np.ndarray, v0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Local entries of the exact q(t), v(t) from local initial values (underdamped)."""

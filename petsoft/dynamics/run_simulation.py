@@ -14,9 +14,8 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
-from petsoft.dynamics.mass_spring import build_mass_spring_model
+from petsoft.dynamics.factory import build_model
 from petsoft.dynamics.simulate import Simulation
-from petsoft.physics.model import build_model
 from petsoft.results import Result
 
 
@@ -108,10 +107,7 @@ def simulate_experiment(experiment, *, out: Path | None = None, integrator: str 
         if say is not None and comm.rank == 0:
             say(line)
 
-    if experiment.is_mass_spring:
-        model = build_mass_spring_model(experiment, comm, recording=recording)
-    else:
-        model = build_model(experiment, comm, recording=recording)
+    model = build_model(experiment, comm, recording)
     sim = Simulation(model, experiment, integrator=integrator, solver=solver, out=out,
                      monitor=tell, explicit_scheme=explicit_scheme,
                      alpha_backend=alpha_backend, spd=spd)

@@ -17,16 +17,15 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.energy import FIELDS, EnergyLedger
 from petsoft.dynamics.explicit import ExplicitIntegrator
+from petsoft.dynamics.factory import system_class, system_for
 from petsoft.dynamics.integrators import SCHEMES, IntegratorOptions, check_viscoelastic, scheme
-from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError, PetsoftError, SolverError
 from petsoft.io.progress import duration
 from petsoft.io.recording import write_recording
 from petsoft.io.summary import write_summary
 from petsoft.io.xdmf import XdmfWriter
-from petsoft.mesh.probes import embed, interpolate
+from petsoft.mesh.probes import interpolate
 from petsoft.solvers.options import SolverOptions
-from petsoft.solvers.static import StaticSolver
 
 MAX_HALVINGS = 6
 #: trajectory frames are written in batches at most this many seconds apart (and before every
@@ -82,30 +81,14 @@ def make_integrator(system, name: str, solver: str = "snes", explicit_scheme: st
         alpha_backend=alpha_backend, imex_slow_modes=imex_slow_modes, petsc=dict(petsc or {})))
 
 
-def initial_state(model, system, experiment, monitor=None):
-    """q0 and v0 (global vectors) from ``[initial]``."""
-    dm = model.dmesh
-    pts = dm.mesh.points
-    init = experiment.initial
-    if init.from_ == "static":
-        solver = StaticSolver(model, monitor=monitor,
-                              options=SolverOptions("", experiment.petsc))
-        q0 = solver.solve().displacement.copy()
-        solver.destroy()
-    else:
-        field_ = np.column_stack([e.evaluate_at(pts) for e in init.displacement])
-        q0 = dm.from_file_field(field_)
-    v0 = dm.from_file_field(np.column_stack([e.evaluate_at(pts) for e in init.velocity]))
-    system.apply_prescribed(q0, 0.0)
-    return q0, v0
-
-
 class Simulation:
     """A dynamic run of an experiment (all ranks construct and run it).
 
     Parameters
     ----------
-    model : petsoft.physics.model.Model
+    model : petsoft.physics.model.Model or petsoft.dynamics.mass_spring.MassSpringModel
+        The experiment's model (:func:`petsoft.dynamics.factory.build_model`); the system is made
+        from it by :func:`petsoft.dynamics.factory.system_for`.
     experiment : Experiment
         Needs ``[time]``.
     integrator : str, optional
@@ -129,41 +112,25 @@ class Simulation:
         self.model, self.experiment = model, experiment
         self.name = integrator or experiment.time.integrator
         entry = scheme(self.name, "integrator")        # a clear error for an unknown name
-        if experiment.is_mass_spring:
-            from petsoft.dynamics.mass_spring import MassSpringSystem
-
-            if entry.continuum_only:
-                raise ExperimentError(
-                    f"{experiment.source}: integrator {self.name} splits the modes of a "
-                    "continuum's reference stiffness and does not apply to [springs] models; use "
-                    + ", ".join(n for n, e in SCHEMES.items() if not e.continuum_only))
-
-            self.system = MassSpringSystem(model, experiment.damping.mass,
-                                           experiment.damping.stiffness, clamp=spd)
-        else:
-            self.system = DynamicSystem(model, experiment.damping.mass,
-                                        experiment.damping.stiffness)
+        body = system_class(experiment)
+        if entry.continuum_only and not body.continuum_material:
+            raise ExperimentError(
+                f"{experiment.source}: integrator {self.name} splits the modes of a "
+                f"continuum's reference stiffness and does not apply to {body.defined_by} "
+                "models; use " + ", ".join(n for n, e in SCHEMES.items() if not e.continuum_only))
+        self.system = system_for(model, experiment, spd=spd)
         self.integrator = make_integrator(self.system, self.name, solver, explicit_scheme,
                                           experiment.time.alpha_radius, alpha_backend,
                                           experiment.time.imex_slow_modes, experiment.petsc)
         self.out = Path(out) if out is not None else None
         self.monitor = monitor
         self.progress_every = progress_every
-        mesh = model.dmesh.mesh
         self.probes = experiment.output.probes
         self.probe_cells = self.probe_weights = self.probe_connectivity = None
-        if self.probes and experiment.is_mass_spring:
-            # mass-spring probes sit on nodes: "cells" of one node each, weight 1
-            from petsoft.dynamics.mass_spring import locate_nodes
-
-            self.probe_connectivity = np.arange(len(mesh.points))[:, None]
-            self.probe_cells = locate_nodes(mesh.points, self.probes,
-                                            source=f"{experiment.source}: output.probes")
-            self.probe_weights = np.ones((len(self.probe_cells), 1))
-        elif self.probes:
-            self.probe_connectivity = mesh.cells
-            self.probe_cells, self.probe_weights = embed(
-                mesh, self.probes, source=f"{experiment.source}: output.probes")
+        if self.probes:
+            self.probe_connectivity, self.probe_cells, self.probe_weights = (
+                self.system.locate_probes(self.probes,
+                                          source=f"{experiment.source}: output.probes"))
 
     def _say(self, line: str) -> None:
         if self.monitor is not None and self.model.dmesh.comm.rank == 0:
@@ -199,7 +166,7 @@ class Simulation:
         if restart:
             q, v, first, result = self._restore(ledger)
         else:
-            q, v = initial_state(self.model, s, exp, monitor=self.monitor)
+            q, v = s.initial_state(monitor=self.monitor)
             first = 1
             if s.viscoelastic is not None:
                 s.viscoelastic.reset(q)   # the branch starts relaxed

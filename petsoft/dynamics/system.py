@@ -35,13 +35,17 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from petsoft.dynamics.initial import initial_from_expressions
 from petsoft.dynamics.interfaces import SystemDefaults
 from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
 from petsoft.errors import InvertedElementError
+from petsoft.experiment import get_parameter
 from petsoft.fem.assembly import MatrixAssembler
 from petsoft.fem.element import face_lumped_areas
 from petsoft.fem.kernels.materials import lame_parameters
+from petsoft.mesh.probes import embed
 from petsoft.mesh.quadratic import face_nodes
+from petsoft.mesh.topology import exterior_faces
 from petsoft.physics import friction
 from petsoft.physics.drag import face_pairs
 from petsoft.physics.loads import (
@@ -50,9 +54,12 @@ from petsoft.physics.loads import (
     lumped_masses,
     traction_forces,
 )
+from petsoft.physics.model import load_mesh
 from petsoft.physics.viscoelastic import MaxwellBranch
 from petsoft.solvers.convergence import on_any_rank
 from petsoft.solvers.linear import linear_defaults
+from petsoft.solvers.options import SolverOptions
+from petsoft.solvers.static import StaticSolver
 
 #: The assembler's element set of single nodes: the velocity terms' 3x3 diagonal blocks.
 NODE_SET = "__nodes__"
@@ -72,6 +79,11 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
     damping_mass, damping_stiffness : float
         Rayleigh alpha (1/s) and beta (s).
     """
+
+    defined_by = "[material]"
+    volume_cells = True
+    element_orders = (1, 2)
+    continuum_material = True
 
     def __init__(self, model, damping_mass: float = 0.0, damping_stiffness: float = 0.0):
         self.model = model
@@ -474,6 +486,42 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
     def viscoelastic_energy(self, q: PETSc.Vec) -> float:
         """The branch's stored energy 1/2 g (q - z)^T K0 (q - z) (0 without a branch)."""
         return self.viscoelastic.energy(q)
+
+    def initial_state(self, monitor=None):
+        """(q0, v0) from the model's ``[initial]``: its expressions, or the static equilibrium
+        under gravity and the tractions at t = 0 (``from = "static"``, solved with the
+        experiment's ``[petsc]`` options without prefix, as ``petsoft static``; progress lines
+        to ``monitor``)."""
+        exp = self.model.experiment
+        init = exp.initial
+        q0 = None
+        if init.from_ == "static":
+            solver = StaticSolver(self.model, monitor=monitor, options=SolverOptions("", exp.petsc))
+            q0 = solver.solve().displacement.copy()
+            solver.destroy()
+        return initial_from_expressions(self, init, q0)
+
+    def locate_probes(self, probes, source: str = "probes"):
+        """(connectivity, cells, weights): the cell holding each probe point and its
+        barycentric weights (:func:`petsoft.mesh.probes.embed`)."""
+        mesh = self.dmesh.mesh
+        cells, weights = embed(mesh, probes, source=source)
+        return mesh.cells, cells, weights
+
+    @staticmethod
+    def body_sizes(experiment) -> dict:
+        """Mass, exterior area, bounding-box diagonal and mean cell size (the cube root of the
+        mean tet volume) of the experiment's mesh, with the default material's density."""
+        mesh = load_mesh(experiment)
+        pts = mesh.points
+        p = pts[mesh.tets]
+        vol = np.abs(np.linalg.det(p[:, 1:] - p[:, :1])) / 6.0
+        faces, _ = exterior_faces(mesh.tets)
+        q = pts[faces]
+        area = 0.5 * np.linalg.norm(np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0]), axis=1).sum()
+        return {"mass": float(get_parameter(experiment, "material.density") * vol.sum()),
+                "area": float(area), "cell": float(np.cbrt(np.mean(vol))),
+                "length": float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0))) or 1.0}
 
     def destroy(self) -> None:
         self.viscoelastic.destroy()

@@ -104,7 +104,7 @@ def build_model(experiment, comm: PETSc.Comm | None = None, *, project_spd: bool
     ``recording`` is the HDF5 recording whose ``/inputs`` drive ``series`` supports.
     """
     comm = comm if comm is not None else PETSc.COMM_WORLD
-    if experiment.is_mass_spring:
+    if "default" not in experiment.material:    # no [material]: the reader then has [springs]
         raise ExperimentError(f"{experiment.source}: [springs] models are not supported by this "
                               "command yet; give a [material]")
     if mesh is None:
