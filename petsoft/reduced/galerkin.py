@@ -208,6 +208,10 @@ class ReducedModel:
         for it in range(1, MAX_IT + 1):
             R = residual(x)
             norm = float(np.linalg.norm(R))
+            if not np.isfinite(norm):
+                # (an inverted element: the force providers return NaN on every rank)
+                raise SolverError(f"reduced model: a non-finite residual at {what} (an "
+                                  "element inverted?)")
             if r0 is None:
                 r0 = norm
                 if norm == 0.0:
@@ -216,8 +220,6 @@ class ReducedModel:
                 return x, it - 1
             dx = np.linalg.solve(jacobian(x), -R)
             x = x + dx
-            if not np.all(np.isfinite(x)):
-                break
             if np.linalg.norm(dx) <= STOL * max(np.linalg.norm(x), self.scale):
                 return x, it
         raise SolverError(f"reduced model: Newton did not converge in {MAX_IT} iterations at "
