@@ -166,3 +166,18 @@ def pod_basis(system, snapshots, energy: float = 0.99999, max_size: int | None =
     mx.destroy()
     return PODBasis(local=local, nowned=nown, eigenvalues=lam, energy=float(held[r - 1]),
                     comm=comm)
+
+
+def coordinates_of(system, basis: PODBasis, x: PETSc.Vec, ref: PETSc.Vec | None = None
+                   ) -> np.ndarray:
+    """V^T M (x - ref): the coordinates of the M-orthogonal projection of x - ref on the basis
+    (collective)."""
+    d = x.copy()
+    if ref is not None:
+        d.axpy(-1.0, ref)
+    md = d.duplicate()
+    system.M.mult(d, md)
+    out = basis.project(md)
+    d.destroy()
+    md.destroy()
+    return out

@@ -167,20 +167,23 @@ class SampledForces:
         """Nothing PETSc to free."""
 
 
-def training_columns(system, basis: PODBasis, states) -> tuple[np.ndarray, list]:
-    """G (S r x local elements): c_{s,e} = V_e^T f_e(q_s) of this rank's elements, and for
-    each group its elements' file cell numbers (the columns' order: group by group)."""
+def training_columns(system, basis: PODBasis, q_ref, coordinates) -> tuple[np.ndarray, list]:
+    """G (S r x local elements): c_{s,e} = V_e^T f_e(q_ref + V a_s) of this rank's elements
+    for the S rows a_s of ``coordinates``, and for each group its elements' file cell numbers
+    (the columns' order: group by group)."""
     elastic = _elastic(system)
     dm = system.dmesh
     r = basis.size
+    coordinates = np.atleast_2d(np.asarray(coordinates, dtype=float))
     Vl = basis.local.reshape(-1, 3, r)
+    u_ref = dm.to_local(q_ref)
     blocks, ids = [], []
     for g in elastic.groups:
         k = g.conn.shape[1]
         ids.append(dm.cell_ids[g.cells])
-        block = np.empty((len(states), r, len(g.cells)))
-        for s, q in enumerate(states):
-            u = dm.to_local(q)
+        block = np.empty((len(coordinates), r, len(g.cells)))
+        for s, a in enumerate(coordinates):
+            u = u_ref + Vl @ a
             for start in range(0, len(g.cells), CHUNK):
                 stop = min(start + CHUNK, len(g.cells))
                 conn = g.conn[start:stop]
@@ -188,7 +191,7 @@ def training_columns(system, basis: PODBasis, states) -> tuple[np.ndarray, list]
                 g.evaluate(start, stop, np.ascontiguousarray(u[conn]), g=gvec)
                 V = Vl[conn].reshape(stop - start, 3 * k, r)
                 block[s, :, start:stop] = np.einsum("edr,ed->re", V, gvec)
-        blocks.append(block.reshape(len(states) * r, len(g.cells)))
+        blocks.append(block.reshape(len(coordinates) * r, len(g.cells)))
     return np.concatenate(blocks, axis=1), ids
 
 
@@ -225,16 +228,19 @@ def select_elements(G: np.ndarray, tolerance: float, max_elements: int | None = 
     return chosen, w, err
 
 
-def ecsw_mesh(system, basis: PODBasis, states, tolerance: float = 1e-3,
+def ecsw_mesh(system, basis: PODBasis, q_ref, coordinates, tolerance: float = 1e-3,
               max_elements: int | None = None) -> ReducedMesh:
-    """The reduced mesh whose weighted forces reproduce V^T f_int(q_s) on the training states
-    ``states`` (global displacement vectors) to ``tolerance`` (relative, each state's block
-    scaled to unit norm). Collective; the same mesh on any number of ranks."""
-    if not states:
+    """The reduced mesh whose weighted forces reproduce V^T f_int(q_ref + V a_s) on the
+    training coordinates a_s (rows of ``coordinates``, e.g. a full run's states projected,
+    :func:`petsoft.reduced.basis.coordinates_of`) to ``tolerance``: the relative residual of
+    all states' blocks, each scaled to unit norm, i.e. the rms over the states of their
+    relative force errors. Collective; the same mesh on any number of ranks."""
+    states = np.atleast_2d(np.asarray(coordinates, dtype=float))
+    if states.size == 0:
         raise ValueError("ECSW needs at least one training state")
     if not tolerance > 0.0:
         raise ValueError(f"ECSW tolerance {tolerance!r} must be positive")
-    G_local, ids = training_columns(system, basis, states)
+    G_local, ids = training_columns(system, basis, q_ref, states)
     r = basis.size
     mpi = system.comm.tompi4py()
     parts = mpi.allgather((G_local, np.concatenate(ids)))
