@@ -170,8 +170,9 @@ def pod_basis(system, snapshots, energy: float = 0.99999, max_size: int | None =
 
 def coordinates_of(system, basis: PODBasis, x: PETSc.Vec, ref: PETSc.Vec | None = None
                    ) -> np.ndarray:
-    """V^T M (x - ref): the coordinates of the M-orthogonal projection of x - ref on the basis
-    (collective)."""
+    """V^T M (x - ref): the coordinates of the M-orthogonal projection of x - ref on the basis,
+    with the mass the basis was built with (V^T M V = I; after a density change use
+    :meth:`petsoft.reduced.galerkin.ReducedModel.coordinates`). Collective."""
     d = x.copy()
     if ref is not None:
         d.axpy(-1.0, ref)

@@ -195,9 +195,10 @@ class ReducedModel:
         return self.gr + self._tr
 
     def coordinates(self, x: PETSc.Vec) -> np.ndarray:
-        """V^T M x: the coordinates of the M-orthogonal projection of x (a velocity)."""
+        """(V^T M V)^-1 V^T M x: the coordinates of the M-orthogonal projection of x (a
+        velocity) with the current mass (a changed density leaves V M-orthonormal no more)."""
         self.system.M.mult(x, self._w1)
-        return self.basis.project(self._w1)
+        return np.linalg.solve(self.Mr, self.basis.project(self._w1))
 
     def markers(self, a: np.ndarray) -> np.ndarray:
         return self.markers_ref + (self.H @ a).reshape(-1, 3)
