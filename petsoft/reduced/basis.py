@@ -15,7 +15,7 @@ needs the ghost rows, the projections the owned ones.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from mpi4py import MPI
@@ -51,6 +51,8 @@ class PODBasis:
     eigenvalues: np.ndarray
     energy: float
     comm: PETSc.Comm
+    _dense: PETSc.Mat | None = field(default=None, repr=False)
+    _dense_array: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def size(self) -> int:
@@ -73,6 +75,26 @@ class PODBasis:
             apply(self.expand_column(j, work), out_vec)
             AV[:, j] = out_vec.getArray(readonly=True)
         return allreduce(self.comm, self.owned.T @ AV)
+
+    def project_matrix(self, A: PETSc.Mat) -> np.ndarray:
+        """V^T A V (r x r) by one sparse-times-dense product A V (one collective operation,
+        where r products A v_j made r, each with its ghost exchange)."""
+        if self._dense is None:
+            # PETSc uses the array's memory: kept alive with the matrix
+            self._dense_array = np.asfortranarray(self.owned)
+            rows = A.getSizes()[1]
+            self._dense = PETSc.Mat().createDense((rows, (PETSc.DECIDE, self.size)),
+                                                  array=self._dense_array, comm=self.comm)
+            self._dense.assemble()
+        AV = A.matMult(self._dense)
+        out = allreduce(self.comm, self.owned.T @ AV.getDenseArray())
+        AV.destroy()
+        return out
+
+    def destroy(self) -> None:
+        if self._dense is not None:
+            self._dense.destroy()
+            self._dense = None
 
     def expand(self, a: np.ndarray, out: PETSc.Vec, add: bool = False) -> PETSc.Vec:
         """out = V a (or out += V a)."""

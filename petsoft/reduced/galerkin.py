@@ -54,7 +54,7 @@ class FullForces:
     def __init__(self, system, basis: PODBasis, q_ref: PETSc.Vec):
         self.system, self.basis = system, basis
         self.q_ref = q_ref.copy()
-        self._q, self._g, self._w = (system.create_vec() for _ in range(3))
+        self._q, self._g = system.create_vec(), system.create_vec()
         self._K = system.create_matrix()
         #: full assemblies made (gradient, tangent): the online cost's measure
         self.counts = {"gradients": 0, "tangents": 0}
@@ -70,13 +70,13 @@ class FullForces:
     def tangent(self, a: np.ndarray) -> np.ndarray:
         self.counts["tangents"] += 1
         self.system.assemble_combination(self.state(a), 0.0, 1.0, 0.0, self._K, eliminate=False)
-        return self.basis.project_operator(self._K.mult, self._w, self._g)
+        return self.basis.project_matrix(self._K)
 
     def parameters_changed(self) -> None:
         """Nothing to follow: the assembly reads the system's current parameters."""
 
     def destroy(self) -> None:
-        for obj in (self.q_ref, self._q, self._g, self._w, self._K):
+        for obj in (self.q_ref, self._q, self._g, self._K):
             obj.destroy()
 
 
@@ -176,7 +176,7 @@ class ReducedModel:
     def parameters_changed(self) -> None:
         """Recompute V^T M V, V^T D V and V^T f_g (after the system's parameters changed)."""
         s, V = self.system, self.basis
-        self.Mr = V.project_operator(s.M.mult, self._w1, self._w2)
+        self.Mr = V.project_matrix(s.M)
         # linear damping (Rayleigh and linear drag): V^T D V from r products D v_j
         self.Dr = V.project_operator(s.damping_apply, self._w1, self._w2)
         self.gr = V.project(s.gravity)
@@ -291,6 +291,7 @@ class ReducedModel:
         for obj in (self.q_ref, self._w1, self._w2):
             obj.destroy()
         self.forces.destroy()
+        self.basis.destroy()
 
 
 def steps_for(frame_times, h: float) -> int:
