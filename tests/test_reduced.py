@@ -8,7 +8,9 @@ alpha and beta), under gravity, with an initial displacement and velocity:
    dropped eigenvalues and at most (1 - energy) of the total.
 2. A basis spanning every free dof (unit-vector snapshots, energy 1) reproduces the full
    forward model's markers (ForwardModel.simulate) to round-off, for generalized-alpha and
-   backward Euler.
+   backward Euler, also with every term a diagnosis adds changed in place (Rayleigh damping,
+   linear drag, gravity, a region's density and stiffness); the chord (kept reduced tangent)
+   converges to the Newton solution with fewer tangents.
 3. ECSW: every element at weight 1 gives the full assembly's V^T f_int and V^T K V to
    round-off; the greedy NNLS selection reproduces V^T f_int on each training state to its
    tolerance (checked state by state against the full assembly), with fewer elements.
@@ -201,6 +203,26 @@ def test_full_basis_follows_every_term(sampled):
     assert change > 1e-4          # the terms matter here
     assert np.abs(red - full).max() <= 1e-10 * np.abs(full - full[0]).max()
     rm.destroy()
+    fm.destroy()
+
+
+def test_chord_converges_to_the_newton_solution_with_fewer_tangents():
+    exp, fm = _forward("alpha")
+    s = fm.system
+    states = _trajectory(fm)
+    V = pod_basis(s, _differences(states), energy=0.99999)
+    _, v0 = initial_state(fm.model, s, exp)
+    out = {}
+    for chord in (False, True):
+        forces = FullForces(s, V, states[0])
+        rm = ReducedModel(s, V, states[0], fm.observer, forces=forces, radius=0.9)
+        rm.chord = chord
+        out[chord] = (rm.run(v0, fm.h, steps_for(FRAMES, fm.h)).frames(FRAMES, fm.h),
+                      forces.counts["tangents"])
+        rm.destroy()
+    motion = np.abs(out[False][0] - out[False][0][0]).max()
+    assert np.abs(out[True][0] - out[False][0]).max() <= 1e-9 * motion
+    assert out[True][1] < out[False][1]
     fm.destroy()
 
 

@@ -12,7 +12,9 @@ acceleration, predictor q0 + h v0) and backward Euler -- with Newton on the r un
 reduced tangent V^T K(q) V. A basis that spans the free dofs therefore reproduces the full run to
 the Newton tolerance. The elastic force and tangent come from a force provider: the full
 system's assembly (:class:`FullForces`, no hyper-reduction) or a reduced mesh
-(:class:`petsoft.reduced.ecsw.SampledForces`).
+(:class:`petsoft.reduced.ecsw.SampledForces`). Newton keeps the factors of its last reduced
+tangent across iterations and steps while the residual falls fast (a chord, as the full model's),
+so most iterations evaluate the force only.
 
 Markers are observed through the dense (3 M x r) matrix H V, computed once: positions
 X + B q_ref + H V a.
@@ -28,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from petsc4py import PETSc
+from scipy.linalg import lu_factor, lu_solve
 
 from petsoft.dynamics.alpha import alpha_parameters
 from petsoft.errors import ExperimentError, SolverError
@@ -38,6 +41,8 @@ METHODS = ("alpha", "be")
 #: Newton on the reduced unknowns: converged when the update is below STOL |q1| (|q1| floored
 #: by the basis coordinates' scale) or the residual fell by RTOL.
 RTOL, STOL, MAX_IT = 1e-12, 1e-13, 25
+#: The chord keeps its tangent while each iteration divides the residual by at least 1/this.
+CHORD_RATE = 0.1
 
 
 class FullForces:
@@ -154,6 +159,9 @@ class ReducedModel:
         self.H = self._observation(observer)
         self.markers_ref = np.asarray(observer.observe(self.q_ref), dtype=float).reshape(-1, 3)
         self.scale = 1.0
+        #: Newton on the kept factors of an earlier tangent (chord) while it converges fast
+        self.chord = True
+        self._factors = None
         self.parameters_changed()
 
     # -- operators --------------------------------------------------------------------------
@@ -205,7 +213,10 @@ class ReducedModel:
 
     # -- stepping ---------------------------------------------------------------------------
     def _newton(self, residual, jacobian, x: np.ndarray, what: str) -> tuple[np.ndarray, int]:
-        r0 = None
+        """Newton on the reduced unknowns; with :attr:`chord`, on the factors of the last
+        tangent (kept across steps) while the residual falls at least by :data:`CHORD_RATE` an
+        iteration, a new tangent where it does not (the full model's chord does the same)."""
+        r0 = prev = None
         for it in range(1, MAX_IT + 1):
             R = residual(x)
             norm = float(np.linalg.norm(R))
@@ -219,7 +230,11 @@ class ReducedModel:
                     return x, 0
             elif norm <= RTOL * r0:
                 return x, it - 1
-            dx = np.linalg.solve(jacobian(x), -R)
+            if (self._factors is None or not self.chord
+                    or (prev is not None and norm > CHORD_RATE * prev)):
+                self._factors = lu_factor(jacobian(x))
+            prev = norm
+            dx = lu_solve(self._factors, -R)
             x = x + dx
             if np.linalg.norm(dx) <= STOL * max(np.linalg.norm(x), self.scale):
                 return x, it
@@ -231,6 +246,7 @@ class ReducedModel:
         r = self.basis.size
         a = np.zeros(r)
         v = self.coordinates(v0)
+        self._factors = None        # a run's first step takes a new tangent
         # the coordinates' own scale floors the update test (a = 0 at the start)
         self.scale = max(float(np.linalg.norm(v)) * h, 1e-300)
         coords = np.empty((nsteps + 1, r))
