@@ -114,10 +114,12 @@ class _Sample:
             g = np.empty((n, nd))
             H = np.empty((n, nd, nd)) if tangent else None
             self.group.evaluate(start, stop, np.ascontiguousarray(ue), g=g, H=H)
-            Vw = V * w[:, None, None]
-            f += np.einsum("edr,ed->r", Vw, g)
+            # as single matrix products over the stacked element rows (BLAS): einsum's loops
+            # took 3x as long for the tangent and 8x for the force (309 10-node elements, r 30)
+            Vw = (V * w[:, None, None]).reshape(n * nd, r)
+            f += Vw.T @ g.reshape(-1)
             if tangent:
-                K += np.einsum("edr,eds->rs", Vw, H @ V)
+                K += Vw.T @ (H @ V).reshape(n * nd, r)
         return f, K
 
 
