@@ -15,7 +15,8 @@ alpha and beta), under gravity, with an initial displacement and velocity:
    round-off; the greedy NNLS selection reproduces V^T f_int on each training state to its
    tolerance (checked state by state against the full assembly), with fewer elements.
 4. The error measure equals a direct comparison of two runs' markers (rms and max over the
-   noise, unseen markers left out).
+   noise, unseen markers left out); the enrichment loop stops at the first basis below its
+   target (errors falling with the energy kept).
 5. On 2 ranks the reduced model (basis, ECSW mesh, run) equals the one each rank builds alone.
 """
 
@@ -32,7 +33,7 @@ from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict
 from petsoft.reduced.basis import BasisError, coordinates_of, pod_basis
 from petsoft.reduced.ecsw import ReducedMesh, SampledForces, ecsw_mesh, training_columns
-from petsoft.reduced.error import marker_error, reduced_error
+from petsoft.reduced.error import enrich_until, marker_error, reduced_error
 from petsoft.reduced.galerkin import FullForces, ReducedModel, steps_for
 
 MARKERS = np.array([[0.3, 0.04, 0.04], [0.3, 0.0, 0.0], [0.15, 0.02, 0.04], [0.2, 0.01, 0.0]])
@@ -299,6 +300,39 @@ def test_error_measure_is_the_direct_comparison():
         marker_error(full, red, 0.0)
     with pytest.raises(ValueError, match="shapes"):
         marker_error(full, red[:2], noise)
+    fm.destroy()
+
+
+def test_enrichment_stops_at_the_first_basis_below_the_target():
+    """enrich_until on bases of growing energy: it returns the first whose error (measured
+    here against the full run) is below the target, or the last one."""
+    exp, fm = _forward("alpha")
+    full = fm.simulate(fm.p0)
+    s = fm.system
+    states = _trajectory(fm)
+    snaps = _differences(states)
+    _, v0 = initial_state(fm.model, s, exp)
+    energies = [0.9, 0.999, 1.0]
+    built = []
+
+    def build(level):
+        V = pod_basis(s, snaps, energy=energies[level])
+        built.append(V.size)
+        return ReducedModel(s, V, states[0], fm.observer, radius=0.9)
+
+    def check(model):
+        run = model.run(v0, fm.h, steps_for(FRAMES, fm.h))
+        return reduced_error({"train": (full, run.frames(FRAMES, fm.h))}, 1e-6)
+
+    errors = [check(build(level)).rms for level in range(len(energies))]
+    assert errors[0] > errors[1] > errors[2]
+    built.clear()
+    target = 0.5 * (errors[0] + errors[1])         # between the first two levels
+    model, err, level = enrich_until(build, check, len(energies), target=target)
+    assert level == 1 and err.rms == pytest.approx(errors[1]) and len(built) == 2
+    built.clear()
+    model, err, level = enrich_until(build, check, len(energies), target=0.5 * errors[2])
+    assert level == 2 and not err.below(0.5 * errors[2]) and len(built) == 3
     fm.destroy()
 
 
