@@ -22,7 +22,8 @@ as diagnose adopts them), and its markers are observed as in a calibration (``Fo
 Run (1 and 2 ranks)::
 
     .venv/bin/python scripts/benchmarks/bench_reduced.py
-    mpiexec -n 2 .venv/bin/python scripts/benchmarks/bench_reduced.py [--levels 3] [--ecsw-tol 1e-3] [--ecsw-every 5]
+    mpiexec -n 2 .venv/bin/python scripts/benchmarks/bench_reduced.py [--levels 3] \\
+        [--ecsw-tol 1e-3] [--ecsw-every 5] [--end 0.2] [--json out.json]
 
 Times are wall seconds (max over ranks, each bracketed by a barrier). On a shared machine they
 are "under load": compare ratios of one run, re-time on a quiet machine.
@@ -195,7 +196,7 @@ def main() -> None:
         # ECSW trains on every --ecsw-every'th state's reduced coordinates
         coords = np.array([coordinates_of(s, V, q, q_ref) for q in qs[1::args.ecsw_every]])
         mesh, t_ecsw = timed(ecsw_mesh, s, V, q_ref, coords, tolerance=args.ecsw_tol)
-        ncells = s.dmesh.allreduce_sum(len(s.dmesh.cells))
+        ncells = int(s.dmesh.allreduce_sum(len(s.dmesh.cells)))
         row = {"level": level, "energy": energy, "enriched": enriched, "r": V.size,
                "snapshots": len(snaps), "basis_s": t_basis, "ecsw_s": t_ecsw,
                "ecsw_elements": mesh.size, "cells": int(ncells), "ecsw_fit": mesh.error}
