@@ -1,6 +1,7 @@
 """The benchmark scripts run: a smoke run of each in a subprocess (serial only)."""
 
 import functools
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -123,3 +124,25 @@ def test_bench_diagnose_plane_error_is_the_distance_between_the_planes():
     exp = experiment_from_dict(data, source="plane", base_dir=ROOT)
     assert bench.plane_error(exp, -0.012) == pytest.approx(0.0, abs=1e-15)
     assert bench.plane_error(exp, -0.0125) == pytest.approx(0.0005, rel=1e-12)
+
+
+@pytest.mark.serial_only
+def test_bench_reduced_short(tmp_path):
+    """``bench_reduced.py`` on 5 steps of the realistic control case (P2): exits 0 and reports
+    for its level a basis, an ECSW mesh within the mesh, and both reduced runs' errors."""
+    out = tmp_path / "reduced.json"
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "scripts" / "benchmarks" / "bench_reduced.py"),
+         "--end", "0.01", "--levels", "1", "--json", str(out)],
+        cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "times under load" in proc.stdout, proc.stdout
+    data = json.loads(out.read_text())
+    assert data["steps"] == 5 and data["ranks"] == 1
+    (level,) = data["levels"]
+    assert 1 <= level["r"] <= level["snapshots"]
+    assert 0 < level["ecsw_elements"] <= level["cells"]
+    for kind in ("full-assembly", "ecsw"):
+        row = level[kind]
+        assert set(row["checks"]) == {"train", "E-10%", "E+10%", "damping.mass=2"}
+        assert all(0.0 <= c["rms"] <= c["max"] for c in row["checks"].values()), row

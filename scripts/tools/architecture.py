@@ -38,6 +38,7 @@ LAYERS: list[set[str]] = [
     {"physics"},
     {"solvers"},
     {"dynamics"},
+    {"reduced"},
     {"calibration"},
     {"diagnosis"},
     {"api", "cli"},
