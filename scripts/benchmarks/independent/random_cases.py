@@ -205,10 +205,10 @@ def make_case(gmsh, case: dict, out: Path, refine: int = 1) -> dict:
                                         case["user_tets"], d / "mesh.msh", lo, hi)
     say(f"{name}: {case['category']}, concealed {'+'.join(case['concealed']) or 'nothing'}; "
         f"user mesh {len(tets)} tets (h {user_h:.3g} m), {case['end']:g} s, "
-        f"noise {case['noise']:.3g} m")
+        f"noise {case['noise_fraction']:.3g} x the motion")
     cand = pick_candidates(case, points, tets)
     h = rs.truth_h(case["geometry"])
-    noise = case["noise"]
+    noise = None
     levels, seconds = [], 0.0
     for level in range(refine + 1):
         # level L: h / 1.4^L at 4 x 2^L steps a frame, checked by two runs coarser in space
@@ -226,6 +226,14 @@ def make_case(gmsh, case: dict, out: Path, refine: int = 1) -> dict:
         found = np.logical_and.reduce([r["found"] for r in runs.values()])
         keep = np.flatnonzero(found)[:case["markers"]]
         disp = {k: r["displacements"][:, keep] for k, r in runs.items()}      # m
+        if noise is None:
+            # the noise is the drawn fraction of the first truth's largest marker
+            # displacement, fixed from then on (a case has one noise)
+            motion = float(np.linalg.norm(disp["truth"], axis=-1).max())
+            noise = rd.noise_level(case["noise_fraction"], motion)
+            case = dict(case, noise=noise)
+            say(f"{name}: largest marker displacement {motion * 1e3:.3g} mm, noise "
+                f"{noise * 1e3:.3g} mm")
         conv = truth_error({k: v / noise for k, v in disp.items()})
         for key in ("space", "space2", "time"):
             r = runs[key]
@@ -273,7 +281,7 @@ def make_case(gmsh, case: dict, out: Path, refine: int = 1) -> dict:
     row = {"index": case["index"], "name": name, "family": case["family"],
            "category": case["category"], "concealed": case["concealed"],
            "magnitudes": case["magnitudes"], "effect_size_over_noise": size["rms"],
-           "truth_error_bound_over_noise": bound, "refinements": level,
+           "truth_error_bound_over_noise": bound, "refinements": level, "noise": noise,
            "markers": int(len(keep)), "user_tets": int(len(tets)),
            "truth_tets": tr["fine_tets"], "simulation_seconds": seconds}
     say(f"{name}: effect size {_num(size['rms'])} x noise")
