@@ -165,7 +165,7 @@ def test_the_noise_is_a_fraction_of_the_motion_within_bounds():
     assert rd.noise_level(0.01, 0.01) == pytest.approx(1e-4)
     assert rd.noise_level(0.02, 0.004) == pytest.approx(8e-5)
     assert rd.noise_level(0.03, 1.0) == hi                  # a metre's motion: capped
-    assert rd.noise_level(0.005, 1e-4) == lo                # a tenth of a mm: floored
+    assert rd.noise_level(0.01, 1e-3) == lo                 # a mm: floored
     fr = np.array([c["noise_fraction"] for c in CASES])
     # log-uniform over the range: its log-mean is the range's
     assert np.mean(np.log(fr)) == pytest.approx(np.mean(np.log(rd.NOISE_FRACTION)), abs=0.15)

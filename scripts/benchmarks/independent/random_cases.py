@@ -20,8 +20,8 @@ random_draw.py draws each case's parameters from (S, index); here, for every cas
   order, at most P2's 3) and one in time (the step doubled, order 2), :func:`truth_error`
   (checked from the coarse side: the cheap side). A case whose bound exceeds :data:`TOLERANCE`
   x its noise
-  is simulated again one level finer (h / 1.4 where the space error exceeds half the tolerance,
-  the step halved where the time error does: :func:`refine_what`; checked the same way), up to
+  is simulated again one level finer (the step halved, h / 1.4 or both: the cheapest predicted
+  to pass, :func:`refine_what`; checked the same way), up to
   ``--refine`` times (default 1); if it still fails it is **discarded** (``discarded.json`` says
   why) and counted in ``draw.json``. The effect-free run is made at the accepted level;
 * ``recording.h5`` (noise, dropped samples, occluded stretches), ``user.toml`` and
@@ -142,16 +142,23 @@ def truth_error(d: dict) -> dict:
 
 def refine_what(conv: dict) -> tuple[bool, bool]:
     """Whether the next level makes the mesh finer (h / 1.4) and the step smaller (halved),
-    from a failed level's :func:`truth_error`: each where its own estimate exceeds half the
-    tolerance (no estimate in space: finer), so a bound above the tolerance refines at least
-    one. Seed 2's first case (r000) failed at 0.32 x the noise by its time error 0.18 (space
-    0.14): halving the step alone (~2 truths) passes it, h / 1.4 as well costs ~5.5."""
+    from a failed level's :func:`truth_error`: the cheapest of step only (~2 truths), mesh only
+    (~1.4^3 = 2.7) and both (~5.5) whose predicted bound is within the tolerance (the time
+    error / 4 for a halved step, the space error / 1.4^p at the order used), else both; no
+    estimate in space: the mesh (and the step where its error exceeds half the tolerance).
+    Seed 2's first case (r000) failed at 0.32 x the noise, space 0.14 and time 0.18: the step
+    halved alone predicts 0.19."""
     space, time_ = conv["space_error_estimate"], conv["time_error_estimate"]
-    finer_h = space is None or space > TOLERANCE / 2
-    finer_step = time_ > TOLERANCE / 2
-    if not (finer_h or finer_step):     # both within half: the bound is within the tolerance
+    if space is None:
+        return True, time_ > TOLERANCE / 2
+    if space + time_ < TOLERANCE:
         raise ValueError("refine_what: the level passed its error check")
-    return finer_h, finer_step
+    finer_space = space / COARSER ** conv["space_order_used"]
+    for finer_h, finer_step in ((False, True), (True, False)):
+        predicted = (finer_space if finer_h else space) + (time_ / 4 if finer_step else time_)
+        if predicted < TOLERANCE:
+            return finer_h, finer_step
+    return True, True
 
 
 def body(case: dict, effect_free: bool = False) -> dict:
