@@ -79,12 +79,21 @@ def test_a_failed_level_refines_what_its_error_says(rc):
     assert rc.refine_what(out) == (True, False)
     again = rc.truth_error(runs(2.0, 0.3, 0.02, h=1 / 1.4)[0])
     assert again["bound_rms_over_noise"] < rc.TOLERANCE
-    # neither alone is enough: both
-    assert rc.refine_what(rc.truth_error(runs(2.0, 0.2, 0.2)[0])) == (True, True)
+    # neither alone is enough: both, predicted as the errors / 1.4^2 and / 4
+    out = rc.truth_error(runs(2.0, 0.2, 0.2)[0])
+    assert rc.refine_what(out) == (True, True)
+    again = rc.truth_error(runs(2.0, 0.2, 0.2, h=1 / 1.4, dt=0.5)[0])
+    assert rc.predicted_bound(out, True, True) == pytest.approx(
+        again["bound_rms_over_noise"], rel=1e-9)
+    # r003 of seed 2: 0.57 at order 1.5 and 0.12 in time, both refined predicted ~0.37
+    out = rc.truth_error(runs(1.5, 0.55, 0.12)[0])
+    assert rc.refine_what(out) == (True, True)
+    assert rc.predicted_bound(out, True, True) > rc.TOLERANCE
     # no convergence seen in space: a finer mesh
     d, _ = runs(2.0, 0.2, 0.0)
     d["space2"] = d["truth"] + 0.5 * (d["space"] - d["truth"])
     assert rc.refine_what(rc.truth_error(d)) == (True, False)
+    assert rc.predicted_bound(rc.truth_error(d), True, False) is None
     # a level that passed has nothing to refine
     with pytest.raises(ValueError, match="passed"):
         rc.refine_what(rc.truth_error(runs(3.0, 0.01, 0.01)[0]))
