@@ -85,9 +85,11 @@ VELOCITY_TIP = (0.15, 0.5)          # m/s, the initial velocity's largest value 
 RELEASE_TIP = (0.003, 0.012)        # m, the released shape's tip deflection
 BASE_AMPLITUDE = (0.0005, 0.003)    # m, the base motion's amplitude
 #: the base motion's frequency over the body's estimated first bending frequency
-#: (:func:`first_frequency`, uniform): below it, where the response is at most 1 / (1 - 0.6^2)
-#: ~ 1.6 x the quasi-static one. Seed 1 drew 4-30 Hz regardless of the body: r007's 24 Hz
-#: drove a thin shell to 76 mm at its tip, and its truth meshes disagreed by mm
+#: (:func:`first_frequency`, uniform): below it, where one mode's steady response is at most
+#: 1 / (1 - 0.6^2) ~ 1.6 x the quasi-static one if the estimate holds (seed 2's r004, an L at
+#: 0.55, moved 5x its clamp amplitude: the L's estimate is likely high). Seed 1 drew 4-30 Hz
+#: regardless of the body: r007's 24 Hz drove a thin shell to 76 mm at its tip, and its truth
+#: meshes disagreed by mm
 BASE_RATIO = (0.2, 0.6)
 #: excitation kind -> probability
 EXCITATIONS = {"velocity": 0.45, "release": 0.3, "base": 0.25}
