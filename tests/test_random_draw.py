@@ -27,7 +27,7 @@ def test_a_case_depends_on_seed_and_index_only():
         assert json.dumps(again[i], sort_keys=True) == json.dumps(CASES[i], sort_keys=True)
         assert json.dumps(rd.draw_case(7, i)) == json.dumps(CASES[i])
     other = rd.draw(8, 30)
-    assert sum(a["family"] != b["family"] or a["noise"] != b["noise"]
+    assert sum(a["family"] != b["family"] or a["noise_fraction"] != b["noise_fraction"]
                for a, b in zip(other, CASES[:30], strict=True)) >= 25
 
 
@@ -83,7 +83,7 @@ def test_draws_stay_in_their_ranges():
             assert abs(c["end"] / rd.STEP - round(c["end"] / rd.STEP)) < 1e-9
     for c in CASES:
         assert rd.MARKER_RANGE[0] <= c["markers"] <= rd.MARKER_RANGE[1]
-        assert rd.NOISE_RANGE[0] <= c["noise"] <= rd.NOISE_RANGE[1]
+        assert rd.NOISE_FRACTION[0] <= c["noise_fraction"] <= rd.NOISE_FRACTION[1]
         assert rd.DROPOUT_RANGE[0] <= c["dropout"] <= rd.DROPOUT_RANGE[1]
         assert rd.E_RANGE[0] <= c["material"]["youngs_modulus"] <= rd.E_RANGE[1]
         assert rd.NU_RANGE[0] <= c["material"]["poisson_ratio"] <= rd.NU_RANGE[1]
@@ -114,6 +114,63 @@ def test_excitations_respect_their_exclusions():
         if exc["kind"] == "release":
             env = {"x": 0.01, "y": 0.01, "z": 0.01} | {c["geometry"]["axis"]: 0.0}
             assert all(eval(e, {}, env) == 0.0 for e in exc["displacement"])  # noqa: S307
+
+
+def test_first_frequency_against_the_cantilevers_closed_forms():
+    E, rho, L, w, t = 2e7, 1100.0, 0.2, 0.06, 0.025
+    mat = {"youngs_modulus": E, "density": rho}
+    f = rd.first_frequency("plate", {"length": L, "width": w, "thickness": t}, mat)
+    # Euler-Bernoulli's uniform cantilever: (1.8751^2 / 2 pi L^2) sqrt(EI / rho A); Rayleigh's
+    # quotient in the static shape is an upper bound, 1.5 % above it
+    exact = 1.8751040687 ** 2 / (2 * math.pi * L ** 2) * math.sqrt(E * w * t ** 3 / 12
+                                                                  / (rho * w * t))
+    assert 1.0 < f / exact < 1.02
+    # an L whose arm's mass dominates: the post's static stiffness 3EI/L^3 and the arm's mass
+    a, post, arm = 0.03, 0.15, 20.0
+    f = rd.first_frequency("bracket", {"thickness": a, "post": post, "arm": arm}, mat)
+    spring = math.sqrt(3 * E * a ** 4 / 12 / post ** 3 / (rho * a * a * (arm - a)))
+    assert f == pytest.approx(spring / (2 * math.pi), rel=2e-3)
+    # a bar bends about its tip section's weakest axis, whichever way round the taper goes
+    bar = {"length": L, "width": 0.04, "height": 0.03, "taper_w": 0.5, "taper_h": 0.8}
+    swap = dict(bar, width=0.03, height=0.04, taper_w=0.8, taper_h=0.5)
+    assert rd.first_frequency("bar", bar, mat) == pytest.approx(rd.first_frequency(
+        "bar", swap, mat))
+    tip = rd.first_frequency("plate", {"length": L, "width": 0.024, "thickness": 0.02}, mat)
+    assert rd.first_frequency("bar", bar, mat) == pytest.approx(tip)
+    with pytest.raises(ValueError, match="family"):
+        rd.first_frequency("sphere", bar, mat)
+
+
+def test_base_motions_are_driven_below_the_first_frequency():
+    ratios = []
+    for c in CASES:
+        base = c["excitation"]["base"]
+        if base is None:
+            continue
+        first = rd.first_frequency(c["family"], c["geometry"], c["material"])
+        assert base["first_frequency_estimate"] == pytest.approx(first)
+        ratios.append(base["omega"] / (2 * math.pi * first))
+    ratios = np.array(ratios)
+    assert len(ratios) >= 30
+    assert rd.BASE_RATIO[0] - 1e-5 <= ratios.min() and ratios.max() <= rd.BASE_RATIO[1] + 1e-5
+    assert rd.BASE_RATIO[1] < 0.8                       # amplification 1 / (1 - r^2) < 2.8
+    # the ratio is drawn, not fixed: it spans most of its range
+    assert ratios.max() - ratios.min() > 0.7 * (rd.BASE_RATIO[1] - rd.BASE_RATIO[0])
+    with pytest.raises(ValueError, match="first frequency"):
+        rd.excitation(np.random.default_rng(0), CASES[0]["geometry"], "base")
+
+
+def test_the_noise_is_a_fraction_of_the_motion_within_bounds():
+    lo, hi = rd.NOISE_BOUNDS
+    assert rd.noise_level(0.01, 0.01) == pytest.approx(1e-4)
+    assert rd.noise_level(0.02, 0.004) == pytest.approx(8e-5)
+    assert rd.noise_level(0.03, 1.0) == hi                  # a metre's motion: capped
+    assert rd.noise_level(0.01, 1e-3) == lo                 # a mm: floored
+    fr = np.array([c["noise_fraction"] for c in CASES])
+    # log-uniform over the range: its log-mean is the range's
+    assert np.mean(np.log(fr)) == pytest.approx(np.mean(np.log(rd.NOISE_FRACTION)), abs=0.15)
+    with pytest.raises(ValueError, match="> 0"):
+        rd.noise_level(0.01, 0.0)
 
 
 def test_loguniform_is_uniform_in_the_log():

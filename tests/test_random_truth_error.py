@@ -63,3 +63,37 @@ def test_no_convergence_seen_is_no_estimate(rc):
     d["space2"] = d["truth"] + 0.5 * (d["space"] - d["truth"])    # D2 < D1
     out = rc.truth_error(d)
     assert out["space_error_estimate"] is None and out["bound_rms_over_noise"] is None
+
+
+def test_a_failed_level_refines_what_its_error_says(rc):
+    # r000 of seed 2's shape: space 0.14, time 0.18 x the noise (bound 0.32 > 0.2). Halving
+    # the step alone (time error / 4) is predicted to pass, and does; the mesh is kept
+    d, _ = runs(3.0, 0.12, 0.18)
+    out = rc.truth_error(d)
+    assert out["bound_rms_over_noise"] > rc.TOLERANCE
+    assert rc.refine_what(out) == (False, True)
+    again = rc.truth_error(runs(3.0, 0.12, 0.18, dt=0.5)[0])
+    assert again["bound_rms_over_noise"] < rc.TOLERANCE
+    # space-dominated: a finer mesh (its error / 1.4^2 at order 2), the step kept; it passes
+    out = rc.truth_error(runs(2.0, 0.3, 0.02)[0])
+    assert rc.refine_what(out) == (True, False)
+    again = rc.truth_error(runs(2.0, 0.3, 0.02, h=1 / 1.4)[0])
+    assert again["bound_rms_over_noise"] < rc.TOLERANCE
+    # neither alone is enough: both, predicted as the errors / 1.4^2 and / 4
+    out = rc.truth_error(runs(2.0, 0.2, 0.2)[0])
+    assert rc.refine_what(out) == (True, True)
+    again = rc.truth_error(runs(2.0, 0.2, 0.2, h=1 / 1.4, dt=0.5)[0])
+    assert rc.predicted_bound(out, True, True) == pytest.approx(
+        again["bound_rms_over_noise"], rel=1e-9)
+    # r003 of seed 2: 0.57 at order 1.5 and 0.12 in time, both refined predicted ~0.37
+    out = rc.truth_error(runs(1.5, 0.55, 0.12)[0])
+    assert rc.refine_what(out) == (True, True)
+    assert rc.predicted_bound(out, True, True) > rc.TOLERANCE
+    # no convergence seen in space: a finer mesh
+    d, _ = runs(2.0, 0.2, 0.0)
+    d["space2"] = d["truth"] + 0.5 * (d["space"] - d["truth"])
+    assert rc.refine_what(rc.truth_error(d)) == (True, False)
+    assert rc.predicted_bound(rc.truth_error(d), True, False) is None
+    # a level that passed has nothing to refine
+    with pytest.raises(ValueError, match="passed"):
+        rc.refine_what(rc.truth_error(runs(3.0, 0.01, 0.01)[0]))

@@ -20,7 +20,8 @@ random_draw.py draws each case's parameters from (S, index); here, for every cas
   order, at most P2's 3) and one in time (the step doubled, order 2), :func:`truth_error`
   (checked from the coarse side: the cheap side). A case whose bound exceeds :data:`TOLERANCE`
   x its noise
-  is simulated again one level finer (h / 1.4 and the step halved, checked the same way), up to
+  is simulated again one level finer (the step halved, h / 1.4 or both: the cheapest predicted
+  to pass, :func:`refine_what`; checked the same way), up to
   ``--refine`` times (default 1); if it still fails it is **discarded** (``discarded.json`` says
   why) and counted in ``draw.json``. The effect-free run is made at the accepted level;
 * ``recording.h5`` (noise, dropped samples, occluded stretches), ``user.toml`` and
@@ -139,6 +140,36 @@ def truth_error(d: dict) -> dict:
             "bound_rms_over_noise": None if e_space is None else e_space + e_time}
 
 
+def refine_what(conv: dict) -> tuple[bool, bool]:
+    """Whether the next level makes the mesh finer (h / 1.4) and the step smaller (halved),
+    from a failed level's :func:`truth_error`: the cheapest of step only (~2 truths), mesh only
+    (~1.4^3 = 2.7) and both (~5.5) whose predicted bound is within the tolerance (the time
+    error / 4 for a halved step, the space error / 1.4^p at the order used), else both; no
+    estimate in space: the mesh (and the step where its error exceeds half the tolerance).
+    Seed 2's first case (r000) failed at 0.32 x the noise, space 0.14 and time 0.18: the step
+    halved alone predicts 0.19."""
+    space, time_ = conv["space_error_estimate"], conv["time_error_estimate"]
+    if space is None:
+        return True, time_ > TOLERANCE / 2
+    if space + time_ < TOLERANCE:
+        raise ValueError("refine_what: the level passed its error check")
+    for finer_h, finer_step in ((False, True), (True, False)):
+        if predicted_bound(conv, finer_h, finer_step) < TOLERANCE:
+            return finer_h, finer_step
+    return True, True
+
+
+def predicted_bound(conv: dict, finer_h: bool, finer_step: bool) -> float | None:
+    """The bound (x noise) a level refined so is predicted to have: the space error / 1.4^p
+    (p the order used) for h / 1.4, the time error / 4 for the step halved; None without a
+    space estimate (no convergence seen: nothing to predict from)."""
+    space, time_ = conv["space_error_estimate"], conv["time_error_estimate"]
+    if space is None:
+        return None
+    return ((space / COARSER ** conv["space_order_used"] if finer_h else space)
+            + (time_ / 4 if finer_step else time_))
+
+
 def body(case: dict, effect_free: bool = False) -> dict:
     """generate.simulate_truth's ``body`` of the case: the truth's or (``effect_free``) the
     user's physics at the true parameters (the user's law and gravity)."""
@@ -205,15 +236,28 @@ def make_case(gmsh, case: dict, out: Path, refine: int = 1) -> dict:
                                         case["user_tets"], d / "mesh.msh", lo, hi)
     say(f"{name}: {case['category']}, concealed {'+'.join(case['concealed']) or 'nothing'}; "
         f"user mesh {len(tets)} tets (h {user_h:.3g} m), {case['end']:g} s, "
-        f"noise {case['noise']:.3g} m")
+        f"noise {case['noise_fraction']:.3g} x the motion")
     cand = pick_candidates(case, points, tets)
     h = rs.truth_h(case["geometry"])
-    noise = case["noise"]
-    levels, seconds = [], 0.0
+    noise = None
+    levels, spent = [], {}
+    hl, sl, conv = h, SUBSTEPS, {}
     for level in range(refine + 1):
-        # level L: h / 1.4^L at 4 x 2^L steps a frame, checked by two runs coarser in space
-        # (h x 1.4, h x 1.96: the observed order) and one in time (the step doubled)
-        hl, sl = h / COARSER ** level, SUBSTEPS * 2 ** level
+        # level L: h at sl steps a frame (finer than the last level's where its error was),
+        # checked by two runs coarser in space (h x 1.4, h x 1.96: the observed order) and one
+        # in time (the step doubled)
+        if level > 0:
+            finer_h, finer_step = refine_what(conv)
+            predicted = predicted_bound(conv, finer_h, finer_step)
+            if predicted is not None and predicted >= TOLERANCE:
+                # one level is predicted to fail too (seed 2's r003: 0.68 at order 1.5, both
+                # refined ~0.37): discarded without the ~5.5 truths it costs
+                conv["predicted_next_bound"] = predicted
+                say(f"{name}: one refinement predicted to reach {predicted:.3g} x noise, above"
+                    f" {TOLERANCE}: not made")
+                level -= 1
+                break
+            hl, sl = (hl / COARSER if finer_h else hl), (2 * sl if finer_step else sl)
         runs = {"truth": run(gmsh, case, cand, f"truth-h{hl:.5g}-s{sl}", cache, h=hl,
                              substeps=sl),
                 "space": run(gmsh, case, cand, f"truth-h{hl * COARSER:.5g}-s{sl}", cache,
@@ -222,10 +266,20 @@ def make_case(gmsh, case: dict, out: Path, refine: int = 1) -> dict:
                               cache, h=hl * COARSER ** 2, substeps=sl),
                 "time": run(gmsh, case, cand, f"truth-h{hl:.5g}-s{sl // 2}", cache, h=hl,
                             substeps=sl // 2)}
-        seconds += sum(r["seconds"] for r in runs.values())
+        # per (h, steps a frame): a level that halves only the step reuses the last truth as
+        # its time check, counted once
+        spent.update({(r["h"], r["step"]): r["seconds"] for r in runs.values()})
         found = np.logical_and.reduce([r["found"] for r in runs.values()])
         keep = np.flatnonzero(found)[:case["markers"]]
         disp = {k: r["displacements"][:, keep] for k, r in runs.items()}      # m
+        if noise is None:
+            # the noise is the drawn fraction of the first truth's largest marker
+            # displacement, fixed from then on (a case has one noise)
+            motion = float(np.linalg.norm(disp["truth"], axis=-1).max())
+            noise = rd.noise_level(case["noise_fraction"], motion)
+            case = dict(case, noise=noise)
+            say(f"{name}: largest marker displacement {motion * 1e3:.3g} mm, noise "
+                f"{noise * 1e3:.3g} mm")
         conv = truth_error({k: v / noise for k, v in disp.items()})
         for key in ("space", "space2", "time"):
             r = runs[key]
@@ -235,6 +289,8 @@ def make_case(gmsh, case: dict, out: Path, refine: int = 1) -> dict:
         conv["converged"] = bound is not None and bound < TOLERANCE
         conv["level"] = level
         levels.append({"level": level, "h": hl, "step": runs["truth"]["step"],
+                       "space_error": conv["space_error_estimate"],
+                       "time_error": conv["time_error_estimate"],
                        "bound_rms_over_noise": bound})
         say(f"{name}: level {level} truth error bound {_num(bound)} x noise (space "
             f"{_num(conv['space_error_estimate'])} at observed order "
@@ -244,13 +300,17 @@ def make_case(gmsh, case: dict, out: Path, refine: int = 1) -> dict:
         if conv["converged"] or len(keep) < rd.MARKER_RANGE[0]:
             break
     conv["levels"] = levels
+    seconds = sum(spent.values())
     tr = runs["truth"]
     if len(keep) < rd.MARKER_RANGE[0]:
         bound_ok, why = False, f"only {len(keep)} markers inside every truth mesh"
     else:
         bound_ok = conv["converged"]
         why = (f"truth error bound {_num(bound)} x noise above {TOLERANCE} after {level} "
-               "refinement(s)" if bound is not None else
+               "refinement(s)" + (" (one more predicted to reach "
+                                  f"{_num(conv['predicted_next_bound'])})"
+                                  if "predicted_next_bound" in conv else "")
+               if bound is not None else
                f"no convergence in space seen (runs at 1.96 h, 1.4 h, h differed by "
                f"{conv['space2_difference']:.3f} and {conv['space_difference']:.3f} x noise) "
                f"after {level} refinement(s)")
@@ -273,7 +333,7 @@ def make_case(gmsh, case: dict, out: Path, refine: int = 1) -> dict:
     row = {"index": case["index"], "name": name, "family": case["family"],
            "category": case["category"], "concealed": case["concealed"],
            "magnitudes": case["magnitudes"], "effect_size_over_noise": size["rms"],
-           "truth_error_bound_over_noise": bound, "refinements": level,
+           "truth_error_bound_over_noise": bound, "refinements": level, "noise": noise,
            "markers": int(len(keep)), "user_tets": int(len(tets)),
            "truth_tets": tr["fine_tets"], "simulation_seconds": seconds}
     say(f"{name}: effect size {_num(size['rms'])} x noise")
@@ -281,6 +341,8 @@ def make_case(gmsh, case: dict, out: Path, refine: int = 1) -> dict:
         d.mkdir(parents=True, exist_ok=True)
         (d / "discarded.json").write_text(json.dumps(
             {"case": name, "reason": why, "convergence": conv, "draw": case}, indent=1) + "\n")
+        for stale in ("truth.json", "recording.h5", "user.toml"):
+            (d / stale).unlink(missing_ok=True)
         say(f"{name}: DISCARDED ({why})")
         return row | {"status": "discarded", "reason": why}
     markers = cand[keep]
@@ -320,6 +382,8 @@ def make_case(gmsh, case: dict, out: Path, refine: int = 1) -> dict:
         "max_marker_displacement": float(np.abs(disp["truth"]).max()),
     }
     (d / "truth.json").write_text(json.dumps(truth, indent=1) + "\n")
+    # an earlier run's verdict on this case (e.g. discarded at fewer refinements) is stale
+    (d / "discarded.json").unlink(missing_ok=True)
     say(f"{name}: written ({time.perf_counter() - t0:.0f} s)")
     return row | {"status": "written"}
 
