@@ -28,7 +28,6 @@ from petsc4py import PETSc
 
 from petsoft.calibration.forward import ForwardModel
 from petsoft.calibration.observation import MarkerObserver
-from petsoft.dynamics.simulate import initial_state
 from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict
 from petsoft.reduced.basis import BasisError, coordinates_of, pod_basis
@@ -155,7 +154,7 @@ def test_full_basis_reproduces_the_full_run(method):
     s = fm.system
     V = pod_basis(s, _unit_vectors(s), energy=1.0)
     assert V.size == 3 * 16          # every free dof of the 20-vertex bar (4 clamped)
-    q0, v0 = initial_state(fm.model, s, exp)
+    q0, v0 = s.initial_state()
     rm = ReducedModel(s, V, q0, fm.observer, method=method, radius=0.9)
     red = rm.run(v0, fm.h, steps_for(FRAMES, fm.h)).frames(FRAMES, fm.h)
     motion = np.abs(full - full[0]).max()
@@ -185,7 +184,7 @@ def test_full_basis_follows_every_term(sampled):
                          "density": 1000.0, "tip": {"density": 1000.0}})
     fm = ForwardModel(exp, TERMS, lambda s: MarkerObserver(s, MARKERS), FRAMES)
     s = fm.system
-    q0, v0 = initial_state(fm.model, s, exp)
+    q0, v0 = s.initial_state()
     V = pod_basis(s, _unit_vectors(s), energy=1.0)
     forces = SampledForces(s, V, q0, ReducedMesh.everything(s)) if sampled else None
     rm = ReducedModel(s, V, q0, fm.observer, forces=forces, method="alpha", radius=0.9)
@@ -212,7 +211,7 @@ def test_chord_converges_to_the_newton_solution_with_fewer_tangents():
     s = fm.system
     states = _trajectory(fm)
     V = pod_basis(s, _differences(states), energy=0.99999)
-    _, v0 = initial_state(fm.model, s, exp)
+    _, v0 = s.initial_state()
     out = {}
     for chord in (False, True):
         forces = FullForces(s, V, states[0])
@@ -231,7 +230,7 @@ def test_reduced_model_refuses_what_it_does_not_reduce():
     exp, fm = _forward("alpha", drag={"quadratic": 0.3})
     s = fm.system
     snaps = _differences(_trajectory(fm))
-    q0, _ = initial_state(fm.model, s, exp)
+    q0, _ = s.initial_state()
     with pytest.raises(ExperimentError, match="quadratic drag"):
         ReducedModel(s, pod_basis(s, snaps), q0, fm.observer)
     fm.destroy()
@@ -267,7 +266,7 @@ def test_ecsw_with_every_element_is_exact_and_selection_meets_its_tolerance():
     G, _ = training_columns(s, V, q0, coords)
     assert G.shape == (len(coords) * V.size, len(s.dmesh.cells))
     # a reduced run on the sampled mesh stays near the full-assembly reduced run
-    _, v0 = initial_state(fm.model, s, exp)
+    _, v0 = s.initial_state()
     runs = [ReducedModel(s, V, q0, fm.observer, forces=forces, method="alpha", radius=0.9)
             .run(v0, fm.h, steps_for(FRAMES, fm.h)).frames(FRAMES, fm.h)
             for forces in (FullForces(s, V, q0), sampled)]
@@ -282,7 +281,7 @@ def test_error_measure_is_the_direct_comparison():
     full = fm.simulate(fm.p0)
     s = fm.system
     V = pod_basis(s, _differences(_trajectory(fm)), energy=0.99)
-    q0, v0 = initial_state(fm.model, s, exp)
+    q0, v0 = s.initial_state()
     red = ReducedModel(s, V, q0, fm.observer, method="alpha", radius=0.9).run(
         v0, fm.h, steps_for(FRAMES, fm.h)).frames(FRAMES, fm.h)
     noise = 1e-5
@@ -311,7 +310,7 @@ def test_enrichment_stops_at_the_first_basis_below_the_target():
     s = fm.system
     states = _trajectory(fm)
     snaps = _differences(states)
-    _, v0 = initial_state(fm.model, s, exp)
+    _, v0 = s.initial_state()
     energies = [0.9, 0.999, 1.0]
     built = []
 
@@ -346,7 +345,7 @@ def test_reduced_model_same_on_one_and_all_ranks():
         V = pod_basis(s, _differences(states), energy=0.99999)
         coords = np.array([coordinates_of(s, V, q, states[0]) for q in states[1:]])
         mesh = ecsw_mesh(s, V, states[0], coords, tolerance=1e-3)
-        _, v0 = initial_state(fm.model, s, exp)
+        _, v0 = s.initial_state()
         rm = ReducedModel(s, V, states[0], fm.observer,
                           forces=SampledForces(s, V, states[0], mesh), radius=0.9)
         run = rm.run(v0, fm.h, steps_for(FRAMES, fm.h))

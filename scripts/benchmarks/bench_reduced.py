@@ -46,7 +46,6 @@ from petsc4py import PETSc
 from petsoft.api import load_experiment, read_recording
 from petsoft.calibration.forward import ForwardModel
 from petsoft.calibration.observation import MarkerObserver
-from petsoft.dynamics.simulate import initial_state
 from petsoft.experiment import experiment_from_dict
 from petsoft.reduced.basis import coordinates_of, pod_basis
 from petsoft.reduced.ecsw import SampledForces, ecsw_mesh
@@ -165,7 +164,7 @@ def main() -> None:
     size = max(m_norm(s, d) for d in disp)
     vel = scaled(s, vs, size)
     sens = [scaled(s, traj, size) for traj in sens]
-    _, v0 = initial_state(fm.model, s, exp)
+    _, v0 = s.initial_state()
 
     # the checks' full runs (not training data)
     checks = {"train": p0}
