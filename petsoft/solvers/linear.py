@@ -33,9 +33,8 @@ DIRECT_DOFS_QUADRATIC = 100_000
 #: LU took 0.51 / 0.64 / 0.98 / 1.8 x MUMPS's time).
 SMALL_DIRECT_DOFS = 1000
 #: On several ranks, systems up to this many dofs are solved by a redundant direct solve: each
-#: rank gathers the matrix and factors it alone, by PETSc's LU or a sequential MUMPS
-#: (:func:`redundant_by_mumps`; MUMPS's scheduling across ranks is not bit-reproducible, see
-#: :func:`linear_defaults`).
+#: rank gathers the matrix and factors it by PETSc's LU (MUMPS's parallel scheduling is not
+#: bit-reproducible, see :func:`linear_defaults`).
 REDUNDANT_DOFS = 6000
 
 
@@ -75,10 +74,9 @@ def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None
 
     The direct solve is PETSc's LU (nested dissection) up to :data:`SMALL_DIRECT_DOFS`, then
     MUMPS when PETSc has it (on a 1875-dof bar it factors 2.5x faster than PETSc's own LU),
-    on one rank; on several ranks, up to :data:`REDUNDANT_DOFS`, a redundant solve (each
-    rank factors the gathered matrix alone, by the same rule: PETSc's LU, then a sequential
-    MUMPS, :func:`redundant_by_mumps`; the 2-rank test pass 330 -> 257 s, a neo-Hookean bar's
-    midpoint run 24 -> 9 s, both against CG + GAMG), not MUMPS across ranks: there it schedules
+    on one rank; on several ranks, up to :data:`REDUNDANT_DOFS`, a redundant PETSc LU (each
+    rank factors the gathered matrix: the 2-rank test pass 330 -> 257 s, a neo-Hookean bar's
+    midpoint run 24 -> 9 s, both against CG + GAMG), not MUMPS: across ranks MUMPS schedules
     dynamically and asynchronously, and two identical 2-rank runs on a loaded machine differed
     in the last bits (tests/test_restart.py's bitwise restart failed once; not reproduced on a
     quiet machine, so the scheduling is the likely, unproven cause), while the iterative
@@ -100,12 +98,10 @@ def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None
     """
     small = dofs is not None and dofs <= direct_limit(order) and not solver_chosen(ksp)
     if small and ksp.getComm().getSize() > 1 and dofs <= REDUNDANT_DOFS:
-        # every rank factors the whole (small) matrix on its own: deterministic, unlike MUMPS
-        # across ranks, and no multigrid set-up
+        # every rank factors the whole (small) matrix by PETSc's own LU: deterministic, unlike
+        # MUMPS across ranks, and no multigrid set-up
         ksp.setType(PETSc.KSP.Type.PREONLY)
         ksp.getPC().setType(PETSc.PC.Type.REDUNDANT)
-        if dofs > SMALL_DIRECT_DOFS and PETSc.Sys.hasExternalPackage("mumps"):
-            redundant_by_mumps(ksp)
         return
     if small and ksp.getComm().getSize() == 1:
         ksp.setType(PETSc.KSP.Type.PREONLY)
@@ -120,23 +116,6 @@ def linear_defaults(ksp: PETSc.KSP, rtol: float = 1e-12, dofs: int | None = None
     ksp.setType(PETSc.KSP.Type.CG)
     ksp.getPC().setType(PETSc.PC.Type.GAMG)
     ksp.setTolerances(rtol=rtol, atol=1e-50, max_it=2000)
-
-
-def redundant_by_mumps(ksp: PETSc.KSP) -> None:
-    """Factor a redundant solve's gathered matrix by a sequential MUMPS on each rank instead of
-    PETSc's LU (which is as fast only below :data:`SMALL_DIRECT_DOFS`, as on one rank). The
-    inner solver is made by the first solve's set-up, which reads it from the options database
-    under ``<prefix>redundant_`` (petsc4py 3.18 has no getter for it), so the choice is set
-    there for the object's prefix, below any user option (``-fm_redundant_pc_factor_mat_solver_
-    type petsc`` restores PETSc's LU). Each rank factors the same matrix alone: nothing is
-    scheduled across ranks, so runs repeat to the bit (the reason MUMPS is not used across
-    ranks). Measured on the realistic damping case's 10-node model (4641 dofs, 2 ranks, 0.3 s
-    at 2 ms, a forward run and one with sensitivities, loaded machine): 151 / 148 s with
-    PETSc's LU, 34 / 63 s with MUMPS; one rank (MUMPS, symmetric) 4.1 / 8.8 s."""
-    from petsoft.solvers.options import set_default_option
-
-    set_default_option((ksp.getOptionsPrefix() or "") + "redundant_pc_factor_mat_solver_type",
-                       "mumps")
 
 
 def symmetric_factorisation(ksp: PETSc.KSP, A: PETSc.Mat) -> bool:
