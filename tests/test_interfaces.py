@@ -322,6 +322,8 @@ def test_factory_builds_each_kind_as_a_system_with_its_initial_state(example, tm
     conn, cells, weights = s.locate_probes([probe])
     np.testing.assert_allclose(np.einsum("k,kd->d", weights[0], pts[conn[cells[0]]]), probe,
                                atol=1e-12)
+    # the unknowns counted from the mesh file alone are the built system's
+    assert type(s).dof_count(exp) == q.getSize()
     got = type(s).body_sizes(exp)
     for name, value in sizes.items():
         assert got[name] == pytest.approx(value, rel=1e-12), name

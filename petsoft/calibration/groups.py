@@ -5,6 +5,9 @@
 multi-start calibration and the diagnosis' candidate fits use: each task builds its own PETSc
 objects on its group's communicator, so the tasks never synchronise with each other, and the
 answer does not depend on how many groups there are (each task is deterministic).
+``one_rank_each`` makes every group a single rank even when there are fewer tasks than ranks
+(the ranks without a task wait): for a model so small that one rank runs it faster than several
+together (the diagnosis' :meth:`~petsoft.diagnosis.context.Diagnosis.one_rank_each`).
 """
 
 from __future__ import annotations
@@ -39,8 +42,8 @@ def _mpi(comm) -> MPI.Comm:
 
 
 def map_on_groups(task: Callable[[Any, MPI.Comm], Any], items: Sequence, comm=None,
-                  groups: int | None = None, setup: Callable[[MPI.Comm], Any] | None = None
-                  ) -> list[TaskResult]:
+                  groups: int | None = None, setup: Callable[[MPI.Comm], Any] | None = None,
+                  one_rank_each: bool = False) -> list[TaskResult]:
     """Run ``task(item, subcomm)`` for every item on groups of ranks; results on every rank.
 
     Parameters
@@ -56,6 +59,9 @@ def map_on_groups(task: Callable[[Any, MPI.Comm], Any], items: Sequence, comm=No
         Number of groups (default: one per rank, at most one per item, at least 1).
     setup : callable(subcomm) -> state, optional
         Called once per group before its tasks (e.g. to build a shared problem).
+    one_rank_each : bool
+        One group per rank, whatever the number of items (``groups`` is then ignored): a
+        single task runs on the first rank alone while the others wait for its result.
 
     Returns
     -------
@@ -67,7 +73,8 @@ def map_on_groups(task: Callable[[Any, MPI.Comm], Any], items: Sequence, comm=No
     """
     comm = _mpi(comm)
     size, rank = comm.Get_size(), comm.Get_rank()
-    ngroups = max(1, min(size if groups is None else int(groups), size, max(len(items), 1)))
+    ngroups = (size if one_rank_each else
+               max(1, min(size if groups is None else int(groups), size, max(len(items), 1))))
     color = rank * ngroups // size
     sub = comm.Split(color, rank) if ngroups > 1 else comm
     local: list[TaskResult] = []

@@ -23,9 +23,9 @@ from petsoft.calibration.calibrate import (
     calibration_parameters,
     run_calibration,
 )
-from petsoft.calibration.groups import map_on_groups
 from petsoft.calibration.optimize import STOPPED, iteration_limit
 from petsoft.diagnosis.pace import CannotWin
+from petsoft.diagnosis.placement import ONE_RANK_DOFS, Placement
 from petsoft.dynamics.factory import system_class
 from petsoft.dynamics.integrators import scheme
 from petsoft.dynamics.parameters import VISCOELASTIC
@@ -96,6 +96,11 @@ def term_values(fit: Fit, names) -> tuple[dict, dict]:
     std = {n: float(fit.std[fit.names.index(n)]) for n in have
            if np.isfinite(fit.std[fit.names.index(n)])}
     return values, std
+
+
+def _changed(value, original):
+    """``value``, or None when it is ``original`` itself."""
+    return None if value is original else value
 
 
 def petsc_comm(comm):
@@ -175,10 +180,12 @@ class Diagnosis:
     """State shared by the steps (recording split, noise, communicator, options)."""
 
     def __init__(self, experiment, recording, *, fraction, alpha, method, gradient,
-                 integrator, noise, comm, say):
+                 integrator, noise, comm, say, one_rank_dofs: int = ONE_RANK_DOFS):
         from petsoft.diagnosis.noise import NoiseError, noise_summary
 
         self.comm = petsc_comm(comm)
+        #: where each model runs: a small one on one rank (placement.py)
+        self.placement = Placement(self.comm, one_rank_dofs)
         self.rank0 = self.comm.tompi4py().rank == 0
         self.say = say
         self.t0 = time.perf_counter()
@@ -305,7 +312,14 @@ class Diagnosis:
         name = "material.youngs_modulus"
         if name not in (experiment.calibrate or {}):
             return experiment
-        comm = self.comm if comm is None else petsc_comm(comm)
+        if comm is None:
+            # None for "as it is", so that an unchanged experiment comes back as itself
+            moved = self.placement.alone(
+                lambda sub: _changed(self.frequency_matched(experiment, sim, comm=sub,
+                                                            label=label, target=target),
+                                     experiment), experiment)
+            return experiment if moved is None else moved
+        comm = petsc_comm(comm)
         if sim is None:
             with doing(label):
                 sim = self.simulate_identification(experiment, comm=comm)
@@ -362,7 +376,11 @@ class Diagnosis:
         ``known``: the simulation and sensitivity columns at the start (:meth:`known_start`);
         ``stop``: a :class:`~petsoft.diagnosis.pace.CannotWin` ending the fit early (the
         fit's ``stopped`` then says why)."""
-        comm = self.comm if comm is None else petsc_comm(comm)
+        if comm is None:
+            return self.placement.alone(
+                lambda sub: self.calibrate(experiment, comm=sub, label=label, known=known,
+                                           stop=stop), experiment)
+        comm = petsc_comm(comm)
         started = time.perf_counter()
         # the identification window travels with the data, not as a rewritten [time] end
         observations = Observations(self.recording, noise=self.sigma, end=self.cut)
@@ -443,7 +461,7 @@ class Diagnosis:
                 best = min(best, (result.chi2 / 2.0, item[1].physics))
             return result
 
-        fits = map_on_groups(fit, need, self.comm)
+        fits = self.placement.on_groups(fit, need, current.experiment)
         gc.collect()                    # every rank, same point (see run_diagnose)
         for (s, _), f in zip(need, fits, strict=True):
             s["fit"] = f.value if f.ok else None
@@ -491,12 +509,14 @@ class Diagnosis:
 
     def simulate(self, experiment, h=None, comm=None, times=None) -> np.ndarray:
         """Marker positions of ``experiment`` at every frame of the record (or ``times``)."""
+        if comm is None:
+            return self.placement.alone(
+                lambda sub: self.simulate(experiment, h=h, comm=sub, times=times), experiment)
         names = list(experiment.calibrate)
         p = np.array([get_parameter(experiment, n) for n in names])
         fm = build_forward(experiment, names, self.recording,
                            self.times if times is None else times,
-                           self.comm if comm is None else petsc_comm(comm), self.integrator,
-                           h=h)
+                           petsc_comm(comm), self.integrator, h=h)
         try:
             return fm.simulate(p)
         finally:
@@ -609,7 +629,7 @@ class Diagnosis:
             # the fit itself stays behind: :attr:`_scored` is recognised by identity
             return entries, None if scored is None else scored[1:], why
 
-        done = dict(zip(jobs, map_on_groups(job, jobs, self.comm), strict=True))
+        done = dict(zip(jobs, self.placement.on_groups(job, jobs, fit.experiment), strict=True))
         maps = dict(NO_REGIONS)
         if "regions" in done:
             res = done["regions"]
@@ -719,7 +739,8 @@ class Diagnosis:
             ``{"stiffness": sphere where |d misfit/d E_cell| is largest, "density": sphere
             where d misfit/d rho_cell is most negative}``, each None when it cannot be made.
         """
-        maps, centroids = self._regions(fit, self.comm)
+        maps, centroids = self.placement.alone(lambda sub: self._regions(fit, sub),
+                                               fit.experiment)
         if centroids is not None:
             self.centroids = centroids
         return maps

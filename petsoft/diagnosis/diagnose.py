@@ -46,7 +46,7 @@ from pathlib import Path
 
 from petsoft.calibration.calibrate import canonical_method
 from petsoft.calibration.forward import forward_defaults
-from petsoft.calibration.groups import TaskResult, map_on_groups
+from petsoft.calibration.groups import TaskResult
 from petsoft.diagnosis.clock import PhaseClock
 
 # names the tests and scripts import from here
@@ -73,6 +73,7 @@ from petsoft.diagnosis.numerics import (  # noqa: F401
 )
 from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings, refinement_words
 from petsoft.diagnosis.outputs import build_diagnosis_report, write_outputs
+from petsoft.diagnosis.placement import ONE_RANK_DOFS
 from petsoft.diagnosis.reconsider import Added, reconsider
 from petsoft.diagnosis.result import DiagnoseResult
 from petsoft.diagnosis.selection import (
@@ -93,7 +94,8 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
                  method: str = "gauss-newton", gradient: str = "sensitivity",
                  integrator: str | None = None, noise: float | None = None,
                  numerics: bool = True, comm=None, say=None,
-                 spelled_out: bool = False) -> DiagnoseResult:
+                 spelled_out: bool = False, one_rank_dofs: int = ONE_RANK_DOFS
+                 ) -> DiagnoseResult:
     """Diagnose ``experiment`` against a recording (module docstring). All ranks call.
 
     Parameters
@@ -133,6 +135,11 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
     spelled_out : bool
         Write diagnosed.toml with every value spelled out instead of as the user's file with
         the calibrated values replaced and the added physics appended.
+    one_rank_dofs : int
+        On several ranks, a model of at most this many unknowns runs on one rank (a single run
+        on the first rank while the others wait; independent runs one per rank): faster, since
+        every rank would factor its whole matrix anyway (:mod:`petsoft.diagnosis.placement`).
+        0 runs every model on all the ranks.
 
     Returns
     -------
@@ -170,7 +177,8 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
                                  max_additions=max_additions, max_tries=max_tries,
                                  method=method, gradient=gradient, integrator=integrator,
                                  noise=noise, numerics=numerics, comm=comm, say=say,
-                                 spelled_out=spelled_out, t0=t0)
+                                 spelled_out=spelled_out, t0=t0,
+                                 one_rank_dofs=one_rank_dofs)
     finally:
         gc.collect()
         if enabled:
@@ -179,12 +187,12 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
 
 def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions, max_tries,
                   method, gradient, integrator, noise, numerics, comm, say,
-                  spelled_out, t0: float) -> DiagnoseResult:
+                  spelled_out, t0: float, one_rank_dofs: int) -> DiagnoseResult:
     """The diagnosis of :func:`run_diagnose` (call that: it handles the garbage collector and
     the heartbeat); its log's times count from ``t0``."""
     diag = Diagnosis(experiment, recording, fraction=fraction, alpha=alpha, method=method,
                       gradient=gradient, integrator=integrator, noise=noise, comm=comm,
-                      say=say)
+                      say=say, one_rank_dofs=one_rank_dofs)
     diag.t0 = t0
     clock = PhaseClock(start=t0)     # its total is the log's clock
     diag.tell(f"petsoft diagnose: {len(diag.times)} frames, identification t <= {diag.cut:.4g} s "
@@ -247,9 +255,9 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         ranked = {i: TaskResult(i, 0, entry_of[c.physics]) for i, c in enumerate(cands)
                   if c.physics in entry_of and _shareable(diag, current, [c])}
         alone = [i for i in range(len(cands)) if i not in ranked]
-        ranked.update(zip(alone, map_on_groups(
+        ranked.update(zip(alone, diag.placement.on_groups(
             lambda c, sub, cur=current: diag.score(cur, c, comm=sub),
-            [cands[i] for i in alone], diag.comm), strict=True))
+            [cands[i] for i in alone], current.experiment), strict=True))
         gc.collect()
         scores = []
         for i, c in enumerate(cands):

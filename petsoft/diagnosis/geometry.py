@@ -34,7 +34,6 @@ from scipy import stats
 from scipy.optimize import lsq_linear
 
 from petsoft.calibration.calibrate import build_forward
-from petsoft.calibration.groups import map_on_groups
 from petsoft.diagnosis.candidates import REGION, cells_in_sphere, sphere_condition
 from petsoft.diagnosis.chord_refit import refit_step
 from petsoft.diagnosis.context import (
@@ -207,7 +206,8 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS
             if cells.any() and key not in seen:
                 seen.add(key)
                 trials.append(region)
-        results = map_on_groups(lambda r, sub: search.trial(r, sub), trials, diag.comm)
+        results = diag.placement.on_groups(lambda r, sub: search.trial(r, sub), trials,
+                                           fit.experiment)
         gc.collect()                    # every rank, same point (see run_diagnose)
         scored = [(*res.value, r) for res, r in zip(results, trials, strict=True) if res.ok]
         moved = False

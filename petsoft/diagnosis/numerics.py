@@ -18,7 +18,6 @@ import gc
 
 import numpy as np
 
-from petsoft.calibration.groups import map_on_groups
 from petsoft.calibration.refinement import (
     MESH_AND_STEP_HALVED,
     REFINEMENTS,
@@ -258,14 +257,19 @@ def model_sensitivities(diag: Diagnosis, fit: Fit, comm=None) -> np.ndarray:
 
     key = _sensitivities_key(fit)
     if key not in diag.measured_meshes:
-        fm = build_forward(fit.experiment, fit.names, diag.recording, diag.times[diag.ident],
-                           diag.comm if comm is None else petsc_comm(comm), diag.integrator)
-        try:
-            with doing("numerics: the current model's sensitivities"):
-                diag.measured_meshes[key] = fm.jacobian(np.asarray(fit.values, dtype=float))[1]
-        finally:
-            fm.destroy()
-            gc.collect()
+        def run(sub):
+            fm = build_forward(fit.experiment, fit.names, diag.recording,
+                               diag.times[diag.ident], petsc_comm(sub), diag.integrator)
+            try:
+                with doing("numerics: the current model's sensitivities"):
+                    return fm.jacobian(np.asarray(fit.values, dtype=float))[1]
+            finally:
+                fm.destroy()
+                gc.collect()
+
+        # (kept on every rank: the value is every rank's whichever ranks computed it)
+        diag.measured_meshes[key] = (diag.placement.alone(run, fit.experiment) if comm is None
+                                     else run(comm))
     return diag.measured_meshes[key]
 
 
@@ -350,10 +354,13 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
         halves_step = any(r.kind == "step" for r in tried)
         beside = (exact and halves_step
                   and _sensitivities_key(fit) not in diag.measured_meshes)
-        runs = map_on_groups(
+        # on one rank each when every model of the round is small (placement.py)
+        largest = max((refined(exp, what) for what in options),
+                      key=diag.placement.dofs, default=exp)
+        runs = diag.placement.on_groups(
             lambda what, sub, fit=fit: (model_sensitivities(diag, fit, sub) if what is None
                                         else _simulate_refined(diag, fit, what, sub)),
-            options + ([None] if beside else []), diag.comm)
+            options + ([None] if beside else []), largest)
         if beside:
             done = runs.pop()
             if done.ok:      # (every rank keeps them; a failure is met again below)
@@ -363,10 +370,11 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
                  for res in runs]
         cols = (model_sensitivities(diag, fit)
                 if exact and (any(small) or halves_step) else None)
-        fits = map_on_groups(lambda item, sub, fit=fit, cols=cols:
-                             _refit(diag, fit, item[0], sub, cols, item[1]),
-                             [(what, res.value if res.ok else None)
-                              for what, res in zip(options, runs, strict=True)], diag.comm)
+        fits = diag.placement.on_groups(lambda item, sub, fit=fit, cols=cols:
+                                        _refit(diag, fit, item[0], sub, cols, item[1]),
+                                        [(what, res.value if res.ok else None)
+                                         for what, res in zip(options, runs, strict=True)],
+                                        largest)
         gc.collect()
         dof = diag.dof(len(fit.names))
         excess = diag.excess(fit)

@@ -39,6 +39,11 @@ class ExperimentSystem(System, Protocol):
         ``ExperimentError`` names a probe off the body."""
 
     @staticmethod
+    def dof_count(experiment) -> int:
+        """Unknowns (3 per node) of the model ``experiment`` describes, from its mesh (without
+        building the system)."""
+
+    @staticmethod
     def body_sizes(experiment) -> dict:
         """``mass`` (kg), ``area`` (exterior surface, m^2), ``length`` (bounding-box diagonal,
         m) and ``cell`` (mean cell size, m) of the body ``experiment`` describes, from its mesh

@@ -899,6 +899,12 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         return np.arange(len(self.points))[:, None], nodes, np.ones((len(nodes), 1))
 
     @staticmethod
+    def dof_count(experiment) -> int:
+        """Unknowns of the network ``experiment`` describes (3 per node of its spring mesh),
+        read from its mesh without building the system."""
+        return 3 * len(load_spring_mesh(experiment).points)
+
+    @staticmethod
     def body_sizes(experiment) -> dict:
         """Mass (node masses and point masses), triangle area (1 without triangles),
         bounding-box diagonal and mean spring length (the lines, else the triangles' first two

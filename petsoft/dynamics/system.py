@@ -509,6 +509,12 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
         return mesh.cells, cells, weights
 
     @staticmethod
+    def dof_count(experiment) -> int:
+        """Unknowns of the model ``experiment`` describes (3 per node of its mesh, after
+        ``refine`` and ``order``), read from its mesh without building the system."""
+        return 3 * len(load_mesh(experiment).points)
+
+    @staticmethod
     def body_sizes(experiment) -> dict:
         """Mass, exterior area, bounding-box diagonal and mean cell size (the cube root of the
         mean tet volume) of the experiment's mesh, with the default material's density."""

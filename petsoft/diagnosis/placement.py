@@ -1,0 +1,102 @@
+"""Where a diagnosis runs each model: on all its ranks together, or on one rank alone.
+
+A model of a few thousand unknowns gains nothing from several ranks: up to
+:data:`~petsoft.solvers.linear.REDUNDANT_DOFS` every rank of a communicator gathers the whole
+matrix and factors it itself (a redundant direct solve), so a second rank only splits the
+assembly and adds the messages between them. Measured on the realistic cases' 10-node model
+(4641 dofs, generalized-alpha, 0.3 s of record, the machine otherwise quiet): a forward run took
+1.9 s on one rank and 4.5 s on two, a run with sensitivities 4.1 s and 10.2 s. So a diagnosis on
+several ranks runs such a model on one rank: work that comes in independent pieces (refinements,
+candidate fits, scores) on one piece per rank, and a single run on the first rank while the
+others wait for its result (:meth:`Placement.alone`). Every rank then holds the same result, as
+after any collective run, and the diagnosis on two ranks takes the path it takes on one.
+
+:class:`Placement` decides by the model's unknowns (:meth:`Placement.one_rank_each`), counted
+from its mesh without building it, once per mesh.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from petsoft.calibration.groups import TaskResult, map_on_groups
+from petsoft.dynamics.factory import system_class
+from petsoft.errors import PetsoftError
+from petsoft.solvers.linear import REDUNDANT_DOFS
+
+#: A model of at most this many unknowns runs on one rank (module docstring).
+ONE_RANK_DOFS = REDUNDANT_DOFS
+
+
+class Placement:
+    """Where a diagnosis' runs go (module docstring).
+
+    Parameters
+    ----------
+    comm : PETSc.Comm
+        The diagnosis' ranks.
+    one_rank_dofs : int
+        Models of at most this many unknowns run on one rank (0: every run on all the ranks).
+    """
+
+    def __init__(self, comm, one_rank_dofs: int = ONE_RANK_DOFS):
+        self.comm = comm
+        self.one_rank_dofs = int(one_rank_dofs)
+        self._dofs: dict[tuple, int] = {}
+
+    def dofs(self, experiment) -> int:
+        """The unknowns of ``experiment``'s model (counted on the first rank, the same on
+        every rank; call collectively)."""
+        key = (system_class(experiment).__name__, repr(experiment.mesh),
+               repr(getattr(experiment, "springs", None)))
+        if key not in self._dofs:
+            mpi = self.comm.tompi4py()
+            count = system_class(experiment).dof_count(experiment) if mpi.rank == 0 else None
+            self._dofs[key] = int(mpi.bcast(count, root=0))
+        return self._dofs[key]
+
+    def one_rank_each(self, experiment) -> bool:
+        """Whether ``experiment``'s model runs on one rank (several ranks, and at most
+        :attr:`one_rank_dofs` unknowns); call collectively."""
+        return (self.comm.getSize() > 1 and self.one_rank_dofs > 0
+                and self.dofs(experiment) <= self.one_rank_dofs)
+
+    def on_groups(self, task: Callable[[Any, Any], Any], items: Sequence, experiment
+                  ) -> list[TaskResult]:
+        """:func:`~petsoft.calibration.groups.map_on_groups` of ``task`` over ``items``, on one
+        rank each when ``experiment``'s model is small (:meth:`one_rank_each`)."""
+        return map_on_groups(task, items, self.comm,
+                             one_rank_each=self.one_rank_each(experiment))
+
+    def alone(self, task: Callable[[Any], Any], experiment):
+        """``task(comm)``'s value: on all the ranks, or on the first rank alone when
+        ``experiment``'s model is small (the others wait); every rank gets it. A
+        :class:`~petsoft.errors.PetsoftError` the task raises is raised on every rank."""
+        if not self.one_rank_each(experiment):
+            return task(self.comm)
+
+        def run(_, sub):
+            try:
+                return True, task(sub)
+            except PetsoftError as err:
+                # its class and message, to raise it again as it was (not the error itself:
+                # its frames hold the run's PETSc objects, see errors.without_frames)
+                return False, (type(err), str(err))
+
+        res = map_on_groups(run, [None], self.comm, one_rank_each=True)[0]
+        if not res.ok:     # (map_on_groups keeps a PetsoftError that escaped as a message)
+            raise PetsoftError(res.error)
+        ok, value = res.value
+        if not ok:
+            raise _rebuilt(*value)
+        return value
+
+
+def _rebuilt(cls: type, message: str) -> PetsoftError:
+    """The error of class ``cls`` with ``message``; a :class:`PetsoftError` with it when that
+    class is not made from a message alone."""
+    try:
+        return cls(message)
+    except Exception:  # noqa: BLE001 - e.g. InvertedElementError(element, jacobian)
+        return PetsoftError(message)
