@@ -10,6 +10,7 @@ their comments state. No PETSc solve: a mesh is never built.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -82,6 +83,22 @@ def _set_every_key(data: dict, keys) -> None:
         e.setdefault("normal", [0.0, 0.0, 1.0])
 
 
+def _key_cell(k: Key) -> str:
+    if k.section == "table":
+        return f"`[{k.table}] {k.key}`"
+    if k.section == "array":
+        return f"`[[{k.table}]] {k.key}` ({k.only})"
+    return f"`[{k.table}.<name>] {k.key}`"
+
+
+def _term_row(t: Term) -> tuple[str, str]:
+    """How formats.md's table of terms says ``t``'s keys and parameters."""
+    p = t.proposal
+    params = ", ".join(f"`{q.name.format(region=p.region, index='<i>')}`"
+                       + (f" ({q.unit})" if q.unit else "") for q in p.parameters)
+    return ", ".join(_key_cell(k) for k in t.keys), params or "none (a switch)"
+
+
 def mismatches() -> list[str]:
     """Every way the registry disagrees with a place that names terms or their keys."""
     out = []
@@ -93,6 +110,17 @@ def mismatches() -> list[str]:
     documented = {n for cell in table for n in re.findall(r"`([a-z.]+)`", cell)} - {"name"}
     if documented != names:
         out.append(f"formats.md section 3 lists {sorted(documented ^ names)} differently")
+    rows = DOC[DOC.index("| name | experiment keys |"):].splitlines()[2:]
+    shown = {}
+    for row in rows:
+        cells = [c.strip() for c in row.strip().strip("|").split(" | ")]
+        shown[cells[0].strip("`")] = tuple(cells[1:])
+    if list(shown) != list(TERMS):
+        out.append(f"formats.md's table of terms lists {list(shown)}")
+    for name, t in TERMS.items():
+        if name in shown and shown[name] != _term_row(t):
+            out.append(f"formats.md's table of terms says {name}: {shown[name]}, the registry "
+                       f"{_term_row(t)}")
     # the candidates: on a model where every term applies, each is built, as declared
     try:
         _exp, cands, skipped = _candidates()
@@ -151,26 +179,36 @@ def mismatches() -> list[str]:
     return out
 
 
+@pytest.fixture
+def registry():
+    """TERMS, to change in a test: put back afterwards in its order (the vocabulary's)."""
+    saved = dict(TERMS)
+    yield TERMS
+    TERMS.clear()
+    TERMS.update(saved)
+
+
 def test_the_registry_agrees_with_every_place_that_names_terms():
     assert mismatches() == []
 
 
-def test_a_term_declared_only_in_the_registry_is_caught(monkeypatch):
+def test_a_term_declared_only_in_the_registry_is_caught(registry):
     extra = Term(name="damping.hysteretic", meaning="structural damping",
                  keys=(Key("hysteresis", "loss_factor", minimum=0.0),),
                  proposal=Proposal(kind="value", parameters=(
                      Parameter("hysteresis.loss_factor", "", lower="0", upper="1"),)))
-    monkeypatch.setitem(TERMS, extra.name, extra)
+    registry[extra.name] = extra
     found = "\n".join(mismatches())
     assert "report vocabulary" in found         # PHYSICS was read from the registry at import
     assert "formats.md section 3 lists ['damping.hysteretic']" in found
+    assert "formats.md's table of terms lists" in found
     assert "candidates build ['damping.hysteretic'] differently" in found
     assert "the reader does not read the declared keys" in found
     assert "hysteresis" in found
 
 
-def test_a_term_built_elsewhere_but_not_registered_is_caught(monkeypatch):
-    monkeypatch.delitem(TERMS, "drag.quadratic")
+def test_a_term_built_elsewhere_but_not_registered_is_caught(registry):
+    del registry["drag.quadratic"]
     found = "\n".join(mismatches())
     assert "formats.md section 3 lists ['drag.quadratic']" in found
     assert "build_candidates fails: KeyError('drag.quadratic')" in found
@@ -179,6 +217,17 @@ def test_a_term_built_elsewhere_but_not_registered_is_caught(monkeypatch):
     with pytest.raises(ExperimentError, match="quadratic"):
         experiment_from_dict({**_base(), "drag": {"quadratic": 0.1}}, source="x",
                              base_dir=Path.cwd())
+
+
+def test_a_unit_declared_differently_from_the_doc_and_the_parameters_is_caught(registry):
+    t = TERMS["damping.mass"]
+    wrong = dataclasses.replace(t, proposal=dataclasses.replace(t.proposal, parameters=(
+        dataclasses.replace(t.proposal.parameters[0], unit="1/min"),)))
+    registry["damping.mass"] = wrong
+    found = mismatches()
+    assert "damping.mass: unit '1/s', declared '1/min'" in found
+    assert any(m.startswith("formats.md's table of terms says damping.mass") for m in found)
+    assert len(found) == 2, found
 
 
 def test_declared_bounds_are_the_closed_forms_their_comments_state():
