@@ -18,5 +18,5 @@ TERM = Term(
         settings=(("boundary.compliance", "start"),),
         note=" (support springs, starting numerically rigid at {start:.3g} m/Pa)",
         continuum_only=True),
-    hints=("lower frequencies in the data: a softer support",),
+    hints=(("lower frequencies", "{shift}: a softer support lowers them"),),
 )

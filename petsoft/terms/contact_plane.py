@@ -19,5 +19,6 @@ TERM = Term(
     proposal=Proposal(kind="switch", ranking="switch", parameters=(
         Parameter("collider.{index}.offset", "m", lower="-depth", upper="depth"),),
         note=": the simulation passes the data's extent by {depth:.3g} m along {normal}"),
-    hints=("an intermittent mismatch (windows covering under half the record)",),
+    hints=(("intermittent", "the mismatch is intermittent ({count} window(s), {covered:.3g} s "
+                            "of {duration:.3g} s)"),),
 )

@@ -10,6 +10,10 @@ TERM = Term(
     keys=(Key("damping", "mass", unit="1/s", minimum=0.0),),
     proposal=Proposal(kind="value", parameters=(
         Parameter("damping.mass", "1/s", lower="0", upper="100"),)),
-    hints=("modes decay faster in the data than in the model",
-           "exponential amplitude decay (viscous)"),
+    hints=(
+        ("faster modes", "{count} mode(s) decay faster in the data than in the model (e.g. "
+                         "{data:.3g} vs {sim:.3g} 1/s)"),
+        ("partly", "the extra decay could also be partly mass-proportional"),
+        ("viscous envelope", "exponential amplitude decay (viscous; {share:.0%} of the decay "
+                             "rate beyond the model's)")),
 )

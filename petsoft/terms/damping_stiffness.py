@@ -10,5 +10,8 @@ TERM = Term(
     keys=(Key("damping", "stiffness", unit="s", minimum=0.0),),
     proposal=Proposal(kind="value", parameters=(
         Parameter("damping.stiffness", "s", lower="0", upper="0.05"),)),
-    hints=("modes decay faster in the data than in the model, more so the higher the mode",),
+    hints=(
+        ("faster modes", "{count} mode(s) decay faster in the data than in the model (e.g. "
+                         "{data:.3g} vs {sim:.3g} 1/s)"),
+        ("partly", "the extra decay could also be partly stiffness-proportional")),
 )

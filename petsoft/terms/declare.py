@@ -166,16 +166,26 @@ class Term:
         The experiment keys that set it.
     proposal : Proposal
         How diagnose proposes it.
-    hints : tuple of str
-        The evidence that points at it, in the words of the hints
-        (:func:`petsoft.diagnosis.evidence.suggest_physics`).
+    hints : tuple of (str, str)
+        ``(evidence, words)``: what the hints (:func:`petsoft.diagnosis.evidence.suggest_physics`)
+        say when that evidence points at the term, a :meth:`str.format` template of the
+        evidence's numbers (:meth:`hint`).
     """
 
     name: str
     meaning: str
     keys: tuple[Key, ...]
     proposal: Proposal
-    hints: tuple[str, ...] = ()
+    hints: tuple[tuple[str, str], ...] = ()
+
+    def hint(self, evidence: str, **values) -> str:
+        """The hint's words for ``evidence`` with ``values`` filled in; a KeyError names the
+        evidence this term declares."""
+        for name, words in self.hints:
+            if name == evidence:
+                return words.format(**values)
+        raise KeyError(f"{self.name}: no hint for evidence {evidence!r} (declared: "
+                       f"{[n for n, _ in self.hints]})")
 
     def __post_init__(self):
         # A declaration error is a programming error of the term's module: fail at import.

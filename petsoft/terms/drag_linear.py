@@ -12,5 +12,5 @@ TERM = Term(
     proposal=Proposal(kind="value", parameters=(
         Parameter("drag.linear", "Pa s/m", lower="0", upper="100 * mass / area"),),
         settings=(("drag.linear", "0"),), note=" (on the body's surface)"),
-    hints=("exponential amplitude decay (linear drag on the body)",),
+    hints=(("viscous envelope", "exponential amplitude decay (linear drag on the body)"),),
 )

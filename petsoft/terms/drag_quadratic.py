@@ -13,5 +13,7 @@ TERM = Term(
         Parameter("drag.quadratic", "kg/m^3", lower="0",
                   upper="100 * mass / (area * speed_max)"),),
         settings=(("drag.quadratic", "0"),), note=" (on the body's surface)"),
-    hints=("the amplitude's decay rate grows with the amplitude squared",),
+    hints=(("quadratic envelope", "the amplitude's decay rate grows with the amplitude squared "
+                                  "(velocity-squared drag; {share:.0%} of it beyond the "
+                                  "model's)"),),
 )

@@ -16,5 +16,7 @@ TERM = Term(
         parameters=(Parameter("friction.dry", "m/s^2", lower="0", upper="100 * speed"),),
         settings=(("friction.dry", "0"), ("friction.speed", "start")),
         note=" (per unit mass, regularised below {start:.3g} m/s)"),
-    hints=("the amplitude decays at a rate that stays finite as it shrinks",),
+    hints=(("constant envelope", "the oscillation amplitude decays at a rate that stays finite "
+                                 "as it shrinks (a constant term, {share:.0%} of its decay "
+                                 "rate, beyond the model's; envelope law: {law})"),),
 )

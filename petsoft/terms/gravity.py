@@ -13,5 +13,5 @@ TERM = Term(
     proposal=Proposal(kind="value", parameters=tuple(
         Parameter(f"gravity.acceleration.{c}", "m/s^2", lower="current - 20",
                   upper="current + 20") for c in "xyz")),
-    hints=("a common, steady offset of the residual",),
+    hints=(("offset", "the residual has a common offset along {axis} ({offset:.3g} m)"),),
 )

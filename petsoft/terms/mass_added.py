@@ -15,5 +15,6 @@ TERM = Term(
         Parameter("material.{region}.density", "kg/m^3", lower="current",
                   upper="10 * current", scale="log"),),
         note="; sphere from {origin}", continuum_only=True),
-    hints=("lower frequencies in the data: extra mass", "a localised residual"),
+    hints=(("localised shift", "{shift}, localised"),
+           ("lower frequencies", "{shift}: extra mass lowers them")),
 )

@@ -15,5 +15,5 @@ TERM = Term(
         Parameter("material.{region}.youngs_modulus", "Pa", lower="current / 5",
                   upper="5 * current", scale="log"),),
         note="; sphere from {origin}", continuum_only=True),
-    hints=("a frequency shift with a localised residual",),
+    hints=(("localised shift", "{shift}, with a localised residual"),),
 )

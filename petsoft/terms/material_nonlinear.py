@@ -15,5 +15,5 @@ TERM = Term(
     proposal=Proposal(kind="switch", ranking="switch",
                       settings=(("material.model", "corotated"),),
                       note=" (linear -> corotated)", continuum_only=True),
-    hints=("higher frequencies in the data: stiffening at the observed strains",),
+    hints=(("higher frequencies", "{shift}: stiffening at the observed strains"),),
 )

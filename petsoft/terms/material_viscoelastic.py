@@ -19,5 +19,5 @@ TERM = Term(
         settings=(("viscoelastic.ratio", "0"), ("viscoelastic.relaxation_time", "start")),
         note=" (standard linear solid, relaxation time from {start:.3g} s)",
         continuum_only=True),
-    hints=(),
+    hints=(),   # no evidence points at it before its score test
 )
