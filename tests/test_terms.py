@@ -22,7 +22,8 @@ from petsoft.diagnosis.candidates import build_candidates
 from petsoft.diagnosis.report import PHYSICS
 from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict
-from petsoft.experiment.parameters import parameter_unit
+from petsoft.experiment.parameters import parameter_table, parameter_unit
+from petsoft.experiment.ranges import key_range
 from petsoft.terms import TERMS, Key, Parameter, Proposal, Term, keys_of
 
 DOC = (Path(petsoft.__file__).parent / "formats.md").read_text()
@@ -144,6 +145,14 @@ def mismatches() -> list[str]:
             for name, q in zip(c.parameters, p.parameters, strict=False):
                 if parameter_unit(name) != q.unit:
                     out.append(f"{name}: unit {parameter_unit(name)!r}, declared {q.unit!r}")
+    # a key that is also a parameter has the same valid range for [calibrate] as in its table
+    table_of = parameter_table(experiment_from_dict(_base(), source="ranges",
+                                                    base_dir=Path.cwd()))
+    for k in (k for t in TERMS.values() for k in t.keys):
+        if k.section == "table" and k.dotted in table_of and table_of[k.dotted][1] != \
+                key_range(k):
+            out.append(f"{k.dotted}: [calibrate] range {table_of[k.dotted][1]}, declared "
+                       f"{key_range(k)}")
     # the reader: every declared key is accepted and read back; absent, it takes its default
     data = _base()
     data.pop("gravity")
