@@ -14,10 +14,12 @@ import dataclasses
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 import tomllib
 
 import petsoft
+from petsoft.calibration.scaling import ParameterScaling
 from petsoft.diagnosis.candidates import build_candidates
 from petsoft.diagnosis.report import PHYSICS
 from petsoft.errors import ExperimentError
@@ -270,6 +272,20 @@ def test_declared_bounds_are_the_closed_forms_their_comments_state():
     assert by["material.nonlinear"].settings == {"material": {"model": "corotated"}}
     assert by["friction.dry"].reason == (TERMS["friction.dry"].meaning + " (per unit mass, "
                                          "regularised below 0.0003 m/s)")
+
+
+def test_the_declared_scale_is_the_one_calibration_uses():
+    """A parameter declared ``log`` is log-scaled by the calibration (ParameterScaling: a
+    positive lower bound), a ``linear`` one is not, with the bounds the candidates propose."""
+    exp, cands, _ = _candidates()
+    for c in cands:
+        if not c.parameters:
+            continue
+        declared = [q.scale for q in TERMS[c.physics].proposal.parameters]
+        start = [c.zero_values(exp)[n] for n in c.parameters]
+        lo, hi = (np.array(b) for b in zip(*c.bounds, strict=True))
+        used = ParameterScaling(c.parameters, start, lo, hi).is_log
+        assert [("log" if u else "linear") for u in used] == declared, c.physics
 
 
 def test_a_malformed_declaration_fails_at_import_time():
