@@ -241,6 +241,34 @@ def test_a_unit_declared_differently_from_the_doc_and_the_parameters_is_caught(r
     assert len(found) == 2, found
 
 
+def test_a_new_term_of_values_is_proposed_from_its_declaration_alone(registry):
+    """No rule in candidates.py names it: the declaration is enough for diagnose to propose it
+    (on a mass-spring model, whose springs' damping is a parameter of the experiment)."""
+    new = Term(name="springs.viscous", meaning="viscous dashpots along the springs",
+               keys=(Key("springs", "damping", unit="N s/m", minimum=0.0),),
+               proposal=Proposal(kind="value", parameters=(
+                   Parameter("springs.damping", "N s/m", lower="0", upper="10 * mass"),)))
+    registry[new.name] = new
+    ms = experiment_from_dict(
+        {"mesh": {"box": {"size": [0.4, 0.04, 0.04], "cells": [4, 1, 1]}},
+         "springs": {"stiffness": 100.0, "node_mass": 0.01},
+         "boundary": [{"kind": "fixed", "where": "x < 1e-6"}],
+         "time": {"end": 0.1, "step": 0.01}}, source="springs", base_dir=Path.cwd())
+    cands, skipped = build_candidates(ms, scales=SCALES)
+    (c,) = [c for c in cands if c.physics == "springs.viscous"]
+    assert (c.parameters, c.bounds, c.reason) == (["springs.damping"], [(0.0, 20.0)],
+                                                   "viscous dashpots along the springs")
+    assert c.extend(ms).calibrate == {"springs.damping": (0.0, 20.0)}
+    # the continuum-only terms stay out of a spring network, with the reason
+    assert set(skipped) == {n for n, t in TERMS.items() if t.proposal.continuum_only} | {
+        "contact.plane"}
+    # ... and a term already in the model is not proposed again
+    with_damping = experiment_from_dict({**ms.to_dict(), "springs": {
+        **ms.to_dict()["springs"], "damping": 0.5}}, source="springs", base_dir=Path.cwd())
+    assert build_candidates(with_damping, scales=SCALES)[1]["springs.viscous"] == \
+        "already in the model"
+
+
 def test_declared_bounds_are_the_closed_forms_their_comments_state():
     exp, cands, _ = _candidates()
     by = {c.physics: c for c in cands}

@@ -405,6 +405,22 @@ def build_candidates(experiment, *, evidence_region: dict | None = None,
         c.colliders = [{"kind": "plane", "point": [float(x) for x in plane["point"]],
                         "normal": n.tolist()}]
         offer(c)
+    # A registered term the rules above do not name: a term of values is proposed from its zero
+    # value like a damping coefficient; a switch or a region needs a placement rule here.
+    for physics, t in TERMS.items():
+        if physics in skipped or any(c.physics == physics for c in cands):
+            continue
+        tested = [q.name for q in t.proposal.parameters if q.tested]
+        if t.proposal.continuum_only and not body.continuum_material:
+            skipped[physics] = (f"{NOT_APPLICABLE}: a {body.defined_by} model has no continuum "
+                                "material")
+        elif t.proposal.kind != "value" or not tested:
+            skipped[physics] = (f"petsoft.diagnosis.candidates has no rule to place a "
+                                f"{t.proposal.kind} term")
+        elif all(_off(experiment, n, cal) for n in tested):
+            offer(propose(physics, experiment, sc))
+        else:
+            skipped[physics] = "already in the model"
     return cands, skipped
 
 

@@ -9,7 +9,11 @@ diagnosis (the vocabulary, the candidates' parameters and bounds).
 
 :data:`TERMS` is the registry, in the vocabulary's order (formats.md section 3 lists it; the
 order is the diagnosis' tie-break, so a new term goes at the end). Adding a term is one module
-here plus its line in :data:`_MODULES`; what builds its force or energy is not declared here yet.
+here plus its line in :data:`_MODULES`: the report's vocabulary, formats.md's check and the
+experiment reader (for keys of the tables terms own) follow, and diagnose proposes a term of
+values from its declaration alone (a switch or a region still needs its placement rule in
+:mod:`petsoft.diagnosis.candidates`). What builds its force or energy is not declared here yet:
+that is still physics/, dynamics/velocity.py and the experiment's dataclasses.
 """
 
 from __future__ import annotations
