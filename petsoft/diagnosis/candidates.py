@@ -18,7 +18,10 @@ ranked (``Candidate.kind``):
   among the best.
 
 The terms and how each is placed and bounded (``scales`` are the model's size, mass, surface, the
-data's speed and dominant frequency, :func:`petsoft.diagnosis.diagnose.model_scales`):
+data's speed and dominant frequency, :func:`petsoft.diagnosis.diagnose.model_scales`). Each term's
+parameters, bounds, starting values, settings and words are declared by its module in
+:mod:`petsoft.terms` (:func:`propose` evaluates them); this module decides whether a term applies
+to the model and where a placed one goes:
 
 * ``damping.mass`` / ``damping.stiffness``: Rayleigh alpha / beta from 0;
 * ``gravity``: the three components of ``gravity.acceleration``, freed at their current values;
@@ -46,16 +49,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from petsoft.diagnosis.report import PHYSICS
 from petsoft.dynamics.factory import system_class
 from petsoft.errors import ExperimentError
 from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
+from petsoft.experiment.expressions import parse_expression
+from petsoft.terms import TERMS
 
 #: Why a vocabulary term may not be tried (the reasons are filled in by build_candidates).
 NOT_APPLICABLE = "not applicable to this model"
 
-#: Name of the region a spatial candidate adds.
-REGION = {"material.heterogeneous": "diag_stiffness", "mass.added": "diag_mass"}
+#: Name of the region a spatial candidate adds (declared by its term).
+REGION = {name: t.proposal.region for name, t in TERMS.items() if t.proposal.kind == "region"}
 
 #: Ranking methods (module docstring).
 KINDS = ("score", "score-fd", "switch")
@@ -248,6 +252,70 @@ def _off(experiment, name: str, cal: set) -> bool:
     return name not in cal and _value(experiment, name) == 0.0
 
 
+def _evaluate(text: str, env: dict, source: str) -> float:
+    """A declared bound or value (an expression of the scales in ``env``) as a float."""
+    expr = parse_expression(text, source=source, variables=tuple(env), expect="number")
+    return float(expr.evaluate(**{k: env[k] for k in expr.variables}))
+
+
+def propose(name: str, experiment, env: dict, *, words: dict | None = None,
+            region: dict | None = None, **labels) -> Candidate:
+    """The candidate of the registered term ``name`` (:mod:`petsoft.terms`) for ``experiment``.
+
+    Parameters
+    ----------
+    name : str
+        Vocabulary name.
+    experiment : Experiment
+        The model it extends (``current``, the value a parameter has in it, starts bounds).
+    env : dict
+        The scales the term's declared expressions use (``mass``, ``area``, ``speed``, ...).
+    words : dict, optional
+        More values for the reason's template (``origin``, ``normal``).
+    region : dict, optional
+        ``{"center", "radius"}`` of a region proposal.
+    **labels
+        ``index`` (of the collider a switch adds) for parameter names that hold it.
+    """
+    term = TERMS[name]
+    p = term.proposal
+    env = dict(env)
+    if p.start:
+        env["start"] = _evaluate(p.start, env, f"petsoft.terms {name}: start")
+    labels = {"region": p.region, **labels}
+    names, bounds, tested, steps = [], [], [], {}
+    for q in p.parameters:
+        pname = q.name.format(**labels)
+        # a region's parameter starts at the surrounding (default) material's value
+        base = f"material.{pname.rsplit('.', 1)[1]}" if p.kind == "region" else pname
+        e = {**env, "current": _value(experiment, base)}
+        bounds.append(tuple(_evaluate(getattr(q, end), e, f"petsoft.terms {name}: {q.name} "
+                                      f"{end}") for end in ("lower", "upper")))
+        names.append(pname)
+        if q.tested:
+            tested.append(pname)
+        if q.fd_step is not None:
+            steps[pname] = q.fd_step
+    choices = {f"{k.table}.{k.key}" for k in term.keys if k.type == "choice"}
+    settings: dict = {}
+    compliance = None
+    for key, value in p.settings:
+        if key == "boundary.compliance":   # every rigid fixed support, not one table's key
+            compliance = _evaluate(value, env, f"petsoft.terms {name}: {key}")
+            continue
+        table, k = key.split(".")
+        settings.setdefault(table, {})[k] = (value if key in choices else
+                                             _evaluate(value, env, f"petsoft.terms {name}: "
+                                                       f"{key}"))
+    regions = {}
+    if region is not None:
+        regions = {p.region: sphere_condition(region["center"], region["radius"])}
+    return Candidate(name, names, bounds, region=region, regions=regions, kind=p.ranking,
+                     settings=settings, compliance=compliance,
+                     tested=tested if len(tested) < len(names) else None, fd_steps=steps,
+                     reason=term.meaning + p.note.format(**env, **(words or {})))
+
+
 def build_candidates(experiment, *, evidence_region: dict | None = None,
                      stiffness_region: dict | None = None, density_region: dict | None = None,
                      centroids: np.ndarray | None = None, scales: dict | None = None,
@@ -284,6 +352,8 @@ def build_candidates(experiment, *, evidence_region: dict | None = None,
     sc = {"mass": 1.0, "area": 1.0, "length": 1.0, "cell": 1.0, "speed": 1.0,
           "speed_max": 1.0, "frequency": None}
     sc.update({k: v for k, v in (scales or {}).items() if v is not None})
+    # the dominant frequency, else one period over the record
+    sc["frequency"] = sc["frequency"] or 1.0 / max(experiment.time.end, 1e-12)
     cands: list[Candidate] = []
     skipped: dict[str, str] = {}
     cal = set(experiment.calibrate or {})
@@ -297,43 +367,26 @@ def build_candidates(experiment, *, evidence_region: dict | None = None,
             return
         cands.append(c)
 
-    for physics, hi in (("damping.mass", 100.0), ("damping.stiffness", 0.05)):
+    for physics in ("damping.mass", "damping.stiffness"):
         if _off(experiment, physics, cal):
-            offer(Candidate(physics, [physics], [(0.0, hi)], reason=PHYSICS[physics]))
+            offer(propose(physics, experiment, sc))
         else:
             skipped[physics] = "already in the model"
-    gnames = [f"gravity.acceleration.{c}" for c in "xyz"]
+    gnames = [q.name for q in TERMS["gravity"].proposal.parameters]
     if not cal.intersection(gnames):
-        g = [get_parameter(experiment, n) for n in gnames]
-        offer(Candidate("gravity", gnames, [(v - 20.0, v + 20.0) for v in g],
-                        reason=PHYSICS["gravity"]))
+        offer(propose("gravity", experiment, sc))
     else:
         skipped["gravity"] = "already calibrated"
-    # velocity-dependent forces, bounded by an equivalent mass-damping rate of 100/s
-    rate = 100.0
-    for physics, bound, what in (
-            ("drag.linear", rate * sc["mass"] / sc["area"], "on the body's surface"),
-            ("drag.quadratic", rate * sc["mass"] / (sc["area"] * sc["speed_max"]),
-             "on the body's surface")):
+    for physics in ("drag.linear", "drag.quadratic", "friction.dry"):
         if _off(experiment, physics, cal):
-            key = physics.split(".")[1]
-            offer(Candidate(physics, [physics], [(0.0, bound)], reason=f"{PHYSICS[physics]} "
-                            f"({what})", settings={"drag": {key: 0.0}}))
+            offer(propose(physics, experiment, sc))
         else:
             skipped[physics] = "already in the model"
-    if _off(experiment, "friction.dry", cal):
-        speed = 0.01 * sc["speed"]
-        offer(Candidate("friction.dry", ["friction.dry"], [(0.0, rate * sc["speed"])],
-                        reason=f"{PHYSICS['friction.dry']} (per unit mass, regularised below "
-                        f"{speed:.3g} m/s)", settings={"friction": {"dry": 0.0,
-                                                                      "speed": speed}}))
-    else:
-        skipped["friction.dry"] = "already in the model"
     if not body.continuum_material:
-        for physics in ("material.heterogeneous", "mass.added", "material.nonlinear",
-                        "material.viscoelastic", "boundary.compliance"):
-            skipped[physics] = (f"{NOT_APPLICABLE}: a {body.defined_by} model has no continuum "
-                                "material")
+        for physics, t in TERMS.items():
+            if t.proposal.continuum_only:
+                skipped[physics] = (f"{NOT_APPLICABLE}: a {body.defined_by} model has no "
+                                    "continuum material")
     else:
         stiffness = (stiffness_region, "the adjoint Young's-modulus map")
         mass = [(density_region, "the adjoint density map (where added mass lowers the misfit "
@@ -347,14 +400,27 @@ def build_candidates(experiment, *, evidence_region: dict | None = None,
                                     "(no side where a plane could stop it)")
     else:
         n = np.asarray(plane["normal"], dtype=float)
-        depth = float(plane["excess"])
-        index = len(experiment.colliders)
-        offer(Candidate("contact.plane", [f"collider.{index}.offset"], [(-depth, depth)],
-                        kind="switch", colliders=[{"kind": "plane",
-                                                "point": [float(c) for c in plane["point"]],
-                                                "normal": n.tolist()}],
-                        reason=f"{PHYSICS['contact.plane']}: the simulation passes the data's "
-                        f"extent by {depth:.3g} m along {n.tolist()}"))
+        c = propose("contact.plane", experiment, {**sc, "depth": float(plane["excess"])},
+                    words={"normal": n.tolist()}, index=len(experiment.colliders))
+        c.colliders = [{"kind": "plane", "point": [float(x) for x in plane["point"]],
+                        "normal": n.tolist()}]
+        offer(c)
+    # A registered term the rules above do not name: a term of values is proposed from its zero
+    # value like a damping coefficient; a switch or a region needs a placement rule here.
+    for physics, t in TERMS.items():
+        if physics in skipped or any(c.physics == physics for c in cands):
+            continue
+        tested = [q.name for q in t.proposal.parameters if q.tested]
+        if t.proposal.continuum_only and not body.continuum_material:
+            skipped[physics] = (f"{NOT_APPLICABLE}: a {body.defined_by} model has no continuum "
+                                "material")
+        elif t.proposal.kind != "value" or not tested:
+            skipped[physics] = (f"petsoft.diagnosis.candidates has no rule to place a "
+                                f"{t.proposal.kind} term")
+        elif all(_off(experiment, n, cal) for n in tested):
+            offer(propose(physics, experiment, sc))
+        else:
+            skipped[physics] = "already in the model"
     return cands, skipped
 
 
@@ -362,11 +428,9 @@ def _continuum_candidates(experiment, cal, sc, offer, skipped, centroids, placed
     """The FEM-only terms: spatial ones (``placed``: physics -> (sphere or None, where it comes
     from)), supports, viscoelasticity, the nonlinear law."""
     regions = experiment.regions or {}
-    for physics, key in (("material.heterogeneous", "youngs_modulus"),
-                         ("mass.added", "density")):
+    for physics in ("material.heterogeneous", "mass.added"):
         where_from, origin = placed[physics]
-        name = REGION[physics]
-        if name in regions:
+        if REGION[physics] in regions:
             skipped[physics] = "already in the model"
             continue
         if where_from is None:
@@ -379,15 +443,9 @@ def _continuum_candidates(experiment, cal, sc, offer, skipped, centroids, placed
             skipped[physics] = (f"the located sphere (centre {where_from['center']}, radius "
                                 f"{where_from['radius']:.3g}) holds no cell")
             continue
-        value = get_parameter(experiment, f"material.{key}")
-        hi = 10.0 * value if key == "density" else 5.0 * value
-        lo = value if key == "density" else value / 5.0
         region = {"center": [float(c) for c in where_from["center"]],
                   "radius": float(where_from["radius"])}
-        offer(Candidate(
-            physics, [f"material.{name}.{key}"], [(lo, hi)], region=region,
-            regions={name: sphere_condition(region["center"], region["radius"])},
-            reason=f"{PHYSICS[physics]}; sphere from {origin}"))
+        offer(propose(physics, experiment, sc, region=region, words={"origin": origin}))
     E = get_parameter(experiment, "material.youngs_modulus")
     rigid = [b for b in experiment.boundaries
              if b.kind == "fixed" and not getattr(b, "compliance", 0.0)]
@@ -397,30 +455,19 @@ def _continuum_candidates(experiment, cal, sc, offer, skipped, centroids, placed
     elif not rigid:
         skipped["boundary.compliance"] = f"{NOT_APPLICABLE}: no fixed support"
     else:
-        c0 = 1e-3 * sc["cell"] / E
-        offer(Candidate("boundary.compliance", ["boundary.compliance"],
-                        [(c0, max(10.0 * sc["length"] / E, 10.0 * c0))], compliance=c0,
-                        reason=f"{PHYSICS['boundary.compliance']} (support springs, starting "
-                        f"numerically rigid at {c0:.3g} m/Pa)"))
+        offer(propose("boundary.compliance", experiment, {**sc, "youngs_modulus": E}))
     if _off(experiment, "viscoelastic.ratio", cal):
-        f = sc["frequency"] or 1.0 / max(experiment.time.end, 1e-12)
-        tau = 1.0 / (2.0 * np.pi * f)
-        offer(Candidate("material.viscoelastic", ["viscoelastic.ratio",
-                                                  "viscoelastic.relaxation_time"],
-                        [(0.0, 2.0), (tau / 30.0, 30.0 * tau)], kind="score-fd",
-                        settings={"viscoelastic": {"ratio": 0.0, "relaxation_time": tau}},
-                        tested=["viscoelastic.ratio"], fd_steps={"viscoelastic.ratio": 1e-3},
-                        reason=f"{PHYSICS['material.viscoelastic']} (standard linear solid, "
-                        f"relaxation time from {tau:.3g} s)"))
+        offer(propose("material.viscoelastic", experiment, sc))
     else:
         skipped["material.viscoelastic"] = "already in the model"
     linear = [name for name, m in experiment.material.items() if m.model == "linear"]
     if linear:
-        settings: dict = {"material": {"model": "corotated"}}
+        c = propose("material.nonlinear", experiment, sc)
+        # the switch reaches every linear material: the default and each region's own
+        law = dict(c.settings["material"])
         for name in linear:
             if name != "default":
-                settings["material"][name] = {"model": "corotated"}
-        offer(Candidate("material.nonlinear", [], [], kind="switch", settings=settings,
-                        reason=f"{PHYSICS['material.nonlinear']} (linear -> corotated)"))
+                c.settings["material"][name] = dict(law)
+        offer(c)
     else:
         skipped["material.nonlinear"] = "the material law is already nonlinear"

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from petsoft.diagnosis import locate, noise, report, spectral
+from petsoft.terms import TERMS
 
 __all__ = ["collect_evidence", "suggest_physics", "write_figures"]
 
@@ -180,9 +181,11 @@ def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
         return []
     out: dict[str, dict] = {}
 
-    def add(name: str, strength: float, reason: str) -> None:
+    def add(name: str, strength: float, evidence: str, **values) -> None:
+        # the words are the term's own (petsoft.terms), filled with this evidence's numbers
         if name not in out or out[name]["strength"] < strength:
-            out[name] = {"physics": name, "reason": reason, "strength": float(strength)}
+            out[name] = {"physics": name, "reason": TERMS[name].hint(evidence, **values),
+                         "strength": float(strength)}
 
     modes = evidence.get("modes")
     if modes and modes["matched"]:
@@ -196,22 +199,20 @@ def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
             rel = max(m["decay_shift"] / max(m["data_decay"], 1e-12) for m in faster)
             # The modal decays are exponential fits whatever the law, so they point at damping
             # less strongly than the envelope's own law does (strengths below 3).
-            add(first, 2.0 + min(rel, 1.0), f"{len(faster)} mode(s) decay faster in the data "
-                f"than in the model (e.g. {faster[0]['data_decay']:.3g} vs "
-                f"{faster[0]['sim_decay']:.3g} 1/s)")
-            add(second, 1.0 + min(rel, 1.0) / 2, "the extra decay could also be partly "
-                f"{'stiffness' if second == 'damping.stiffness' else 'mass'}-proportional")
+            add(first, 2.0 + min(rel, 1.0), "faster modes", count=len(faster),
+                data=faster[0]["data_decay"], sim=faster[0]["sim_decay"])
+            add(second, 1.0 + min(rel, 1.0) / 2, "partly")
         ratio = modes["frequency_ratio"]
         if np.isfinite(ratio) and abs(ratio - 1) > 0.005:
             shift = f"data frequencies {ratio:.4f} x the model's after calibration"
             if evidence.get("region") is not None:
-                add("material.heterogeneous", 2.5, shift + ", with a localised residual")
-                add("mass.added", 2.4 if ratio < 1 else 1.2, shift + ", localised")
+                add("material.heterogeneous", 2.5, "localised shift", shift=shift)
+                add("mass.added", 2.4 if ratio < 1 else 1.2, "localised shift", shift=shift)
             if ratio < 1:
-                add("boundary.compliance", 2.0, shift + ": a softer support lowers them")
-                add("mass.added", 1.8, shift + ": extra mass lowers them")
+                add("boundary.compliance", 2.0, "lower frequencies", shift=shift)
+                add("mass.added", 1.8, "lower frequencies", shift=shift)
             else:
-                add("material.nonlinear", 1.8, shift + ": stiffening at the observed strains")
+                add("material.nonlinear", 1.8, "higher frequencies", shift=shift)
     terms = evidence.get("friction_terms")
     if terms is not None:
         # Only what the data's decay has beyond the simulation's: each term's share of the
@@ -226,19 +227,15 @@ def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
                  for k, p in powers.items()}
         law = evidence["envelope"]["best"]
         if share["dry"] > 0.1:
-            add("friction.dry", 3.0 + share["dry"] + (law == "linear"), "the oscillation "
-                "amplitude decays at a rate that stays finite as it shrinks (a constant term, "
-                f"{share['dry']:.0%} of its decay rate, beyond the model's; envelope law: {law})")
+            add("friction.dry", 3.0 + share["dry"] + (law == "linear"), "constant envelope",
+                share=share["dry"], law=law)
         if share["quadratic"] > 0.1:
-            add("drag.quadratic", 3.0 + share["quadratic"] + (law == "inverse"), "the "
-                "amplitude's decay rate grows with the amplitude squared (velocity-squared "
-                f"drag; {share['quadratic']:.0%} of it beyond the model's)")
+            add("drag.quadratic", 3.0 + share["quadratic"] + (law == "inverse"),
+                "quadratic envelope", share=share["quadratic"])
         if share["viscous"] > 0.1:
             add("damping.mass", 3.0 + share["viscous"] + (law == "exponential"),
-                f"exponential amplitude decay (viscous; {share['viscous']:.0%} of the decay "
-                "rate beyond the model's)")
-            add("drag.linear", 1.5 + share["viscous"] / 2,
-                "exponential amplitude decay (linear drag on the body)")
+                "viscous envelope", share=share["viscous"])
+            add("drag.linear", 1.5 + share["viscous"] / 2, "viscous envelope")
     # A common offset: significant against white noise (offset_z) and a fifth of the
     # residual's rms along that axis (a correlated residual's mean alone is no offset).
     oz = np.asarray(evidence.get("offset_z", np.zeros(3)), dtype=float)
@@ -253,14 +250,13 @@ def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
     oz = np.where(big & steady, oz, 0.0)
     if np.max(np.abs(oz)) > offset_z:
         axis = "xyz"[int(np.argmax(np.abs(oz)))]
-        add("gravity", 2.0 + min(np.max(np.abs(oz)) / 100.0, 2.0),
-            f"the residual has a common offset along {axis} "
-            f"({evidence['offset'][int(np.argmax(np.abs(oz)))]:.3g} m)")
+        add("gravity", 2.0 + min(np.max(np.abs(oz)) / 100.0, 2.0), "offset", axis=axis,
+            offset=evidence["offset"][int(np.argmax(np.abs(oz)))])
     windows = evidence.get("windows", {}).get("intervals", [])
     covered = sum(b - a for a, b in windows)
     if windows and covered < 0.5 * evidence.get("duration", np.inf):
-        add("contact.plane", 1.0, f"the mismatch is intermittent ({len(windows)} window(s), "
-            f"{covered:.3g} s of {evidence['duration']:.3g} s)")
+        add("contact.plane", 1.0, "intermittent", count=len(windows), covered=covered,
+            duration=evidence["duration"])
     return sorted(out.values(), key=lambda c: -c["strength"])
 
 

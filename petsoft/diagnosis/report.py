@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from petsoft.errors import PetsoftError
+from petsoft.terms import TERMS
 
 __all__ = ["CAUSES", "PHYSICS", "VERDICTS", "ReportError", "fit_summary", "build_report",
            "validate_report", "write_report", "read_report", "write_report_md",
@@ -42,23 +43,9 @@ VERDICTS = ("consistent", "missing-physics")
 #: ``unexplained`` (a mismatch that neither a refinement nor a vocabulary term explained).
 CAUSES = ("none", "numerics", "physics", "both", "unexplained")
 
-#: The physics vocabulary of formats.md section 3 (extend it, never rename).
-PHYSICS = {
-    "damping.mass": "viscous damping proportional to mass (Rayleigh alpha; air, internal losses)",
-    "damping.stiffness": "viscous damping proportional to stiffness (Rayleigh beta; material "
-                         "losses)",
-    "gravity": "missing or wrong body force",
-    "material.nonlinear": "the material law is nonlinear at the observed strains",
-    "material.heterogeneous": "stiffness varies in space; mismatch.region says where",
-    "material.viscoelastic": "rate-dependent stress relaxation (Kelvin-Voigt / standard linear "
-                             "solid)",
-    "boundary.compliance": "the support is elastic, not rigid",
-    "mass.added": "extra mass attached (sensor, fixture); mismatch.region says where",
-    "drag.linear": "velocity-dependent (linear) drag from the surrounding air/fluid",
-    "drag.quadratic": "velocity-squared drag from the surrounding air/fluid",
-    "friction.dry": "Coulomb (rate-independent) friction in joints or contacts",
-    "contact.plane": "unmodelled contact with a plane (floor, wall)",
-}
+#: The physics vocabulary of formats.md section 3 (extend it, never rename): name -> meaning,
+#: read from the term registry (:mod:`petsoft.terms`), in its order.
+PHYSICS = {name: t.meaning for name, t in TERMS.items()}
 
 
 class ReportError(PetsoftError):

@@ -48,6 +48,12 @@ MATERIAL_RANGES = {
 }
 
 
+def key_range(key) -> Range:
+    """The valid range a term declares for one of its keys (a :class:`petsoft.terms.Key`:
+    ``minimum``, ``open``)."""
+    return Range(lo=key.minimum, lo_open=key.open) if key.minimum is not None else ANY
+
+
 def format_number(v: float) -> str:
     """A number as a message shows it: integers without a decimal point."""
     return str(int(v)) if float(v).is_integer() and abs(v) < 1e15 else repr(float(v))

@@ -87,6 +87,7 @@ from petsoft.experiment.ranges import (
     UNIT,
     Range,
     format_number,
+    key_range,
 )
 from petsoft.experiment.spec import (
     BOUNDARY_KINDS,
@@ -120,6 +121,7 @@ from petsoft.experiment.spec import (
 )
 from petsoft.experiment.table import TableReader, describe_range
 from petsoft.mesh.springs import read_spring_mesh
+from petsoft.terms import keys_of
 
 try:
     import tomllib
@@ -481,34 +483,45 @@ def _read_regions(r: TableReader | None) -> dict[str, RegionSpec]:
     return regions
 
 
+def _term_values(r: TableReader, table: str, only: str = "") -> dict[str, Any]:
+    """The numbers and vectors the physics terms declare in ``[table]`` (:mod:`petsoft.terms`;
+    for an array of tables, those of entries of kind ``only``), each checked against its declared
+    range and unit, its default when absent."""
+    out: dict[str, Any] = {}
+    for k in keys_of(table):
+        if k.only != only:
+            continue
+        if k.type == "number":
+            out[k.key] = r.number(k.key, k.default, key_range(k), k.text or k.unit)
+        elif k.type == "vector":
+            out[k.key] = r.vector(k.key, k.default, unit=k.text or k.unit)
+    return out
+
+
+def _term_keys(table: str) -> tuple[str, ...]:
+    """The keys ``[table]`` accepts: those its terms declare."""
+    return tuple(k.key for k in keys_of(table))
+
+
 def _read_damping(r: TableReader | None) -> DampingSpec:
     if r is None:
         return DampingSpec()
-    r.check_keys(("mass", "stiffness"))
-    return DampingSpec(
-        mass=r.number("mass", 0.0, NONNEGATIVE, "1/s"),
-        stiffness=r.number("stiffness", 0.0, NONNEGATIVE, "s"),
-    )
+    r.check_keys(_term_keys("damping"))
+    return DampingSpec(**_term_values(r, "damping"))
 
 
 def _read_viscoelastic(r: TableReader | None) -> ViscoelasticSpec:
     if r is None:
         return ViscoelasticSpec()
-    r.check_keys(("ratio", "relaxation_time"))
-    return ViscoelasticSpec(
-        ratio=r.number("ratio", 0.0, NONNEGATIVE, "E_M / E"),
-        relaxation_time=r.number("relaxation_time", 0.1, POSITIVE, "s"),
-    )
+    r.check_keys(_term_keys("viscoelastic"))
+    return ViscoelasticSpec(**_term_values(r, "viscoelastic"))
 
 
 def _read_drag(r: TableReader | None) -> DragSpec:
     if r is None:
         return DragSpec()
-    r.check_keys(("linear", "quadratic"))
-    return DragSpec(
-        linear=r.number("linear", 0.0, NONNEGATIVE, "Pa s/m"),
-        quadratic=r.number("quadratic", 0.0, NONNEGATIVE, "kg/m^3"),
-    )
+    r.check_keys(_term_keys("drag"))
+    return DragSpec(**_term_values(r, "drag"))
 
 
 def _read_where(r: TableReader, k: str) -> str | Expression:
@@ -523,19 +536,16 @@ def _read_where(r: TableReader, k: str) -> str | Expression:
 def _read_friction(r: TableReader | None) -> FrictionSpec:
     if r is None:
         return FrictionSpec()
-    r.check_keys(("dry", "speed", "where"))
-    return FrictionSpec(
-        dry=r.number("dry", 0.0, NONNEGATIVE, "m/s^2"),
-        speed=r.number("speed", 1e-3, POSITIVE, "m/s"),
-        where=_read_where(r, "where") if "where" in r.data else None,
-    )
+    r.check_keys(_term_keys("friction"))
+    return FrictionSpec(**_term_values(r, "friction"),
+                        where=_read_where(r, "where") if "where" in r.data else None)
 
 
 def _read_gravity(r: TableReader | None) -> GravitySpec:
     if r is None:
         return GravitySpec()
-    r.check_keys(("acceleration",))
-    return GravitySpec(acceleration=r.vector("acceleration", (0.0, 0.0, 0.0), unit="m/s^2"))
+    r.check_keys(_term_keys("gravity"))
+    return GravitySpec(**_term_values(r, "gravity"))
 
 
 def _is_region_name(text: str) -> bool:
@@ -600,9 +610,7 @@ def _read_boundary(r: TableReader) -> BoundarySpec:
     elif kind == "traction":
         spec = dataclasses.replace(spec, value=r.expressions("value", SPACE_TIME, what="in Pa"))
     else:
-        spec = dataclasses.replace(
-            spec, compliance=r.number("compliance", 0.0, NONNEGATIVE, unit="m/Pa")
-        )
+        spec = dataclasses.replace(spec, **_term_values(r, "boundary", only="fixed"))
     return spec
 
 

@@ -19,9 +19,11 @@ from pathlib import Path
 from typing import Any
 
 from petsoft.experiment.expressions import Expression, parse_expression
+from petsoft.terms import keys_of
 
 FORMAT_VERSION = 1
-MATERIAL_MODELS = ("linear", "stvk", "corotated", "neohookean")
+#: The material laws (declared by the ``material.nonlinear`` term, :mod:`petsoft.terms`).
+MATERIAL_MODELS = next(k.choices for k in keys_of("material") if k.key == "model")
 INTEGRATORS = ("be", "si", "alpha", "midpoint", "trapezoidal", "ere", "explicit", "imex")
 BOUNDARY_KINDS = ("fixed", "prescribed", "traction")
 COLLIDER_KINDS = ("sphere", "plane")

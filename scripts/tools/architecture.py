@@ -31,6 +31,7 @@ from pathlib import Path
 LAYERS: list[set[str]] = [
     {"errors", "version", "blas_threads", "carrays", "results"},
     {"dependencies"},
+    {"terms"},
     {"mesh"},
     {"experiment"},
     {"io"},
