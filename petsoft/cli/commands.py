@@ -120,7 +120,9 @@ def run(args) -> int:
                               alpha=args.alpha, max_additions=args.max_additions,
                               method=args.method, integrator=args.integrator,
                               noise=args.noise, numerics=not args.no_numerics,
-                              say=_print_here, spelled_out=args.spelled_out)
+                              say=_print_here, spelled_out=args.spelled_out,
+                              **({} if args.one_rank_dofs is None
+                                 else {"one_rank_dofs": args.one_rank_dofs}))
         # the console ends with the conclusion, in the report's words and numbers
         _print("")
         for line in Story(result.report).conclusion(out):
