@@ -89,10 +89,11 @@ class FullForces:
         names = list(names)
         if self._zero_derivatives is None or self._zero_derivatives[0] != names:
             self._q.zeroEntries()
-            self._zero_derivatives = (names, _projected(self.system, self.basis, names,
-                                                        self._q, self._q, self._q))
+            self._zero_derivatives = (names, projected_derivatives(
+                self.system, self.basis, names, self._q, self._q, self._q))
         self._g.zeroEntries()
-        at_q = _projected(self.system, self.basis, names, self.state(a), self._g, self._g)
+        at_q = projected_derivatives(self.system, self.basis, names, self.state(a), self._g,
+                                     self._g)
         return at_q - self._zero_derivatives[1]
 
     def destroy(self) -> None:
@@ -100,7 +101,7 @@ class FullForces:
             obj.destroy()
 
 
-def _projected(system, basis: PODBasis, names, q, v, a) -> np.ndarray:
+def projected_derivatives(system, basis: PODBasis, names, q, v, a) -> np.ndarray:
     """(r, P): V^T d r/d p_j at the full state (q, v, a) (the system's residual derivatives,
     :class:`petsoft.dynamics.parameters.ParameterDerivatives`). Collective; O(mesh)."""
     vecs = system.parameter_derivatives(q, v, a).vectors(list(names))

@@ -40,7 +40,7 @@ from scipy.linalg import lu_factor, lu_solve
 
 from petsoft.dynamics.alpha import alpha_parameters
 from petsoft.errors import ExperimentError
-from petsoft.reduced.galerkin import ReducedModel, ReducedRun, _projected, at_frames
+from petsoft.reduced.galerkin import ReducedModel, ReducedRun, at_frames, projected_derivatives
 
 
 @dataclass
@@ -81,18 +81,18 @@ def operator_derivatives(model: ReducedModel, names, v0: PETSc.Vec | None = None
     r, P = V.size, len(names)
     zero, col = s.create_vec(), s.create_vec()
     zero.zeroEntries()
-    base = _projected(s, V, names, zero, zero, zero)
+    base = projected_derivatives(s, V, names, zero, zero, zero)
     Dp = np.empty((P, r, r))
     Mp = np.zeros((P, r, r))
     dens = any(_is_density(n) for n in names)
     for j in range(V.size):
         V.expand_column(j, col)
-        Dp[:, :, j] = (_projected(s, V, names, zero, col, zero) - base).T
+        Dp[:, :, j] = (projected_derivatives(s, V, names, zero, col, zero) - base).T
         if dens:
-            Mp[:, :, j] = (_projected(s, V, names, zero, zero, col) - base).T
+            Mp[:, :, j] = (projected_derivatives(s, V, names, zero, zero, col) - base).T
     dmv0 = np.zeros((r, P))
     if dens and v0 is not None:
-        dmv0 = _projected(s, V, names, zero, zero, v0) - base
+        dmv0 = projected_derivatives(s, V, names, zero, zero, v0) - base
     zero.destroy()
     col.destroy()
     return Mp, Dp, base, dmv0
@@ -170,7 +170,7 @@ def sensitivities(model: ReducedModel, v0: PETSc.Vec, h: float, nsteps: int, nam
     else:
         def step(n, st0, st1):
             nonlocal dq, dv
-            (q0, v0c, _), (q1, v1, _) = st0, st1
+            (_, v0c, _), (q1, v1, _) = st0, st1
             K = forces.tangent(q1)
             J = Mr / h**2 + K + Dr / h
             dv1 = -dq / h
