@@ -24,8 +24,8 @@ converged state, e.g. am/(b h^2) M_r + af K_r(q_f) + af g/(b h) D_r: per step on
 tangent K_r (the full assembly projected, or the sampled elements' r x r sum), one r x r LU
 and one solve with P right-hand sides, plus f_p (one force evaluation per parameter on the
 sampled elements). The start: dq_0 = 0 (q_ref holds the initial displacement), dv_0 from the
-M-projection of the initial velocity (nonzero for a density only), and the consistent
-acceleration's derivative M_r da_0 = -(R_p + M_p-free terms) at t = 0.
+M-projection of the initial velocity v = M_r^-1 V^T M v0 (nonzero for a density only), and
+the consistent acceleration's derivative M_r da_0 = -(R_p + D_r dv_0) at t = 0.
 
 Markers: d markers/dp = H V dq/dp.
 """
