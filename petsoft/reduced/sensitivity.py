@@ -72,24 +72,53 @@ def _is_density(name: str) -> bool:
     return name.startswith("material.") and name.endswith(".density")
 
 
+def _is_lame(name: str) -> bool:
+    """A material name whose derivative is the elastic law's (E, nu, a stiffness field)."""
+    return name.startswith("material.") and not _is_density(name)
+
+
 def operator_derivatives(model: ReducedModel, names, v0: PETSc.Vec | None = None):
     """(M_p (P, r, r), D_p (P, r, r), l_p (r, P), V^T dM/dp v0 (r, P)) at the system's current
-    parameters (module docstring). Collective; 2 r + 2 residual-derivative evaluations on the
-    full mesh (r + 1 without a density name), once per run."""
+    parameters (module docstring). Collective; once per run.
+
+    Known forms first (D = alpha M + beta K0 + linear drag; the mass linear in the density):
+    D_p = M_r for damping.mass, V^T K0 V for damping.stiffness, alpha M_p for a density, 0 for
+    gravity and for a Lame-type name when beta = 0; M_p = 0 but for a density. The rest -- M_p
+    of a density, D_p of a Lame-type name when beta != 0, linear drag and anything else --
+    from the residual derivatives column by column: r evaluations on the full mesh for each
+    of the two kinds needed (none for E and the Rayleigh coefficients at beta = 0).
+    """
     s, V = model.system, model.basis
     names = list(names)
     r, P = V.size, len(names)
     zero, col = s.create_vec(), s.create_vec()
     zero.zeroEntries()
     base = projected_derivatives(s, V, names, zero, zero, zero)
-    Dp = np.empty((P, r, r))
+    Dp = np.zeros((P, r, r))
     Mp = np.zeros((P, r, r))
-    dens = any(_is_density(n) for n in names)
-    for j in range(V.size):
-        V.expand_column(j, col)
-        Dp[:, :, j] = (projected_derivatives(s, V, names, zero, col, zero) - base).T
-        if dens:
-            Mp[:, :, j] = (projected_derivatives(s, V, names, zero, zero, col) - base).T
+    dens = [j for j, n in enumerate(names) if _is_density(n)]
+    generic = [j for j, n in enumerate(names)
+               if not (_is_density(n) or n.startswith("gravity.")
+                       or n in ("damping.mass", "damping.stiffness")
+                       or (_is_lame(n) and s.beta == 0.0))]
+    if dens or generic:
+        for j in range(r):
+            V.expand_column(j, col)
+            if generic:
+                d = projected_derivatives(s, V, names, zero, col, zero) - base
+                for k in generic:
+                    Dp[k, :, j] = d[:, k]
+            if dens:
+                d = projected_derivatives(s, V, names, zero, zero, col) - base
+                for k in dens:
+                    Mp[k, :, j] = d[:, k]
+    for k, name in enumerate(names):
+        if name == "damping.mass":
+            Dp[k] = model.Mr
+        elif name == "damping.stiffness":
+            Dp[k] = V.project_matrix(s.K0_matrix())
+        elif k in dens:
+            Dp[k] = s.alpha * Mp[k]
     dmv0 = np.zeros((r, P))
     if dens and v0 is not None:
         dmv0 = projected_derivatives(s, V, names, zero, zero, v0) - base
