@@ -26,7 +26,7 @@ from petsoft.calibration.forward import ForwardModel
 from petsoft.calibration.observation import MarkerObserver
 from petsoft.errors import ExperimentError
 from petsoft.reduced.basis import coordinates_of, pod_basis
-from petsoft.reduced.ecsw import SampledForces, ecsw_mesh
+from petsoft.reduced.ecsw import ReducedMesh, SampledForces, ecsw_mesh
 from petsoft.reduced.galerkin import ReducedModel, steps_for
 from petsoft.reduced.sensitivity import sensitivities
 
@@ -48,6 +48,32 @@ def test_full_basis_sensitivities_equal_the_full_models(method, beta):
     red, djac = sensitivities(rm, v0, fm.h, steps_for(FRAMES, fm.h), ALL).frames(FRAMES, fm.h)
     assert djac.shape == jac.shape
     for j, name in enumerate(ALL):
+        size = np.abs(jac[..., j]).max()
+        assert size > 0.0, name
+        assert np.abs(djac[..., j] - jac[..., j]).max() <= 1e-9 * size, name
+    rm.destroy()
+    fm.destroy()
+
+
+def test_regions_and_stiffness_fields_with_every_element_sampled():
+    """A region's E and density and a stiffness field's multipliers (per-cell coefficients:
+    the sampled derivative picks each sampled element's own) through ECSW with every element
+    at weight 1 and a full basis: the full model's sensitivities to round-off."""
+    names = ["material.youngs_modulus", "material.tip.youngs_modulus", "material.tip.density",
+             "material.youngs_modulus#0", "material.youngs_modulus#2"]
+    exp = _bar("alpha", region={"tip": {"where": "x > 0.2"}},
+               material={"model": "neohookean", "youngs_modulus": 1e5, "poisson_ratio": 0.3,
+                         "density": 1000.0, "tip": {"density": 1500.0,
+                                                    "youngs_modulus": 2e5}})
+    fm = ForwardModel(exp, names, lambda s: MarkerObserver(s, MARKERS), FRAMES)
+    _, jac = fm.jacobian(fm.p0)
+    s = fm.system
+    V = pod_basis(s, _unit_vectors(s), energy=1.0)
+    q0, v0 = s.initial_state()
+    forces = SampledForces(s, V, q0, ReducedMesh.everything(s))
+    rm = ReducedModel(s, V, q0, fm.observer, forces=forces, method="alpha", radius=0.9)
+    _, djac = sensitivities(rm, v0, fm.h, steps_for(FRAMES, fm.h), names).frames(FRAMES, fm.h)
+    for j, name in enumerate(names):
         size = np.abs(jac[..., j]).max()
         assert size > 0.0, name
         assert np.abs(djac[..., j] - jac[..., j]).max() <= 1e-9 * size, name
@@ -108,6 +134,8 @@ def test_sensitivities_refuse_bad_names():
         sensitivities(rm, v0, fm.h, 2, ["damping.mass", "damping.mass"])
     with pytest.raises(ExperimentError, match="not a differentiable parameter"):
         sensitivities(rm, v0, fm.h, 2, ["material.stiffness"])
+    with pytest.raises(ExperimentError, match="not differentiated in the reduced model"):
+        sensitivities(rm, v0, fm.h, 2, ["drag.quadratic"])
     rm.destroy()
     fm.destroy()
 

@@ -42,6 +42,12 @@ from petsoft.dynamics.alpha import alpha_parameters
 from petsoft.errors import ExperimentError
 from petsoft.reduced.galerkin import ReducedModel, ReducedRun, at_frames, projected_derivatives
 
+#: The parameter names (prefixes) the reduced sensitivities cover: the terms the reduced model
+#: projects whose residual is affine in the velocity (quadratic drag and dry friction are not
+#: reduced; elastic supports and colliders are not differentiated here).
+DIFFERENTIATED = ("material.", "damping.mass", "damping.stiffness", "drag.linear",
+                  "gravity.acceleration.")
+
 
 @dataclass
 class ReducedSensitivities:
@@ -156,6 +162,11 @@ def sensitivities(model: ReducedModel, v0: PETSc.Vec, h: float, nsteps: int, nam
     if len(set(names)) != len(names):
         raise ExperimentError(f"reduced sensitivities: repeated parameter names in {names}")
     s.parameters.check(names)
+    other = [n for n in names if not n.startswith(DIFFERENTIATED)]
+    if other:
+        raise ExperimentError(f'reduced sensitivities: "{other[0]}" is not differentiated in '
+                              "the reduced model (materials, damping, linear drag and gravity "
+                              "are); use ForwardModel.jacobian")
     forces, Mr, Dr = model.forces, model.Mr, model.Dr
     Mp, Dp, lp, dmv0 = operator_derivatives(model, names, v0)
     r, P = model.basis.size, len(names)
