@@ -5,7 +5,9 @@ sensitivity trajectory of Young's modulus, with full-model checks at the trainin
 E +-10 %, build_reduced returns the first model (over its energy fractions) whose error is
 below the target; its reported error is the direct comparison of its runs with the full ones;
 the levels before it were not below; with a target no level meets it returns the richest model
-with an error that says so; the system is left at the training parameters.
+with an error that says so; the system is left at the training parameters. A sensitivity check
+(ForwardModel.jacobian's columns times a parameter change) enters the error as its own check,
+equal to the direct comparison of the returned model's sensitivities.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from test_reduced import FRAMES, _forward, _trajectory
 from petsoft.reduced.build import build_reduced, training_snapshots
 from petsoft.reduced.error import marker_error
 from petsoft.reduced.galerkin import steps_for
+from petsoft.reduced.sensitivity import sensitivities
 
 E = "material.youngs_modulus"
 ENERGIES = (0.99, 0.9999, 1 - 1e-8)
@@ -95,4 +98,24 @@ def test_build_reduced_refuses_bad_input():
         build_reduced(s, fm.observer, states, v0, fm.h, FRAMES, train, bad, 1e-6)
     with pytest.raises(ValueError, match="at least one step"):
         training_snapshots(s, states[:1])
+    fm.destroy()
+
+
+def test_build_reduced_checks_sensitivities():
+    fm, states, sens, checks, v0, train = _setup()
+    s = fm.system
+    _, jac = fm.jacobian(fm.p0)
+    step = [0.1 * train[E]]
+    noise = 1e-6
+    model, err = build_reduced(s, fm.observer, states, v0, fm.h, FRAMES, train, checks, noise,
+                               extra=[sens], method="alpha", radius=0.9, energies=ENERGIES,
+                               sensitivity_checks={"train": (train, [E], jac, step)})
+    label = f"train d/d{E}"
+    assert set(err.checks) == set(checks) | {label}
+    _, red = sensitivities(model, v0, fm.h, steps_for(FRAMES, fm.h), [E]).frames(FRAMES, fm.h)
+    direct = marker_error(jac[..., 0] * step[0], red[..., 0] * step[0], noise)[0]
+    assert direct > 0.0
+    assert err.checks[label]["rms"] == pytest.approx(direct, rel=1e-9)
+    assert err.rms >= direct
+    model.destroy()
     fm.destroy()

@@ -10,6 +10,13 @@ marker error (:mod:`petsoft.reduced.error`) is below ``target`` times the noise 
 and returns that model with its error -- or the richest one built, whose error then says it is
 not below (the caller keeps the full model).
 
+Sensitivity checks (optional) hold the full model's marker sensitivities at some parameters
+(``ForwardModel.jacobian``) and a parameter change per column: the reduced sensitivities
+(:mod:`petsoft.reduced.sensitivity`) times that change are compared with the full ones times
+the same change, in the same noise units, as checks of their own (``"<label> d/d<name>"``):
+a reduced model that fits and screens must get the derivatives right too, and on a long record
+the derivatives need a richer basis than the runs (bench_reduced ``--sensitivities``).
+
 The full runs are the caller's: this package never runs the calibration's forward model.
 """
 
@@ -24,6 +31,7 @@ from petsoft.reduced.basis import coordinates_of, pod_basis
 from petsoft.reduced.ecsw import SampledForces, ecsw_mesh
 from petsoft.reduced.error import TARGET, ReducedError, enrich_until, reduced_error
 from petsoft.reduced.galerkin import ReducedModel, steps_for
+from petsoft.reduced.sensitivity import sensitivities
 
 #: The energy fractions tried, in order (the bench's levels: 1 - 1e-7 met 0.2x the noise on
 #: the 1.0 s realistic record, the 0.2 s one needed 1 - 1e-9).
@@ -66,7 +74,8 @@ def build_reduced(system, observer, states: Sequence[PETSc.Vec], v0: PETSc.Vec, 
                   checks: Mapping[str, tuple[Mapping[str, float], np.ndarray]], noise: float,
                   extra=(), seen=None, method: str = "alpha", radius: float = 0.5,
                   energies: Sequence[float] = ENERGIES, target: float = TARGET,
-                  ecsw: bool = True, ecsw_tolerance: float = 1e-3, ecsw_every: int = 5
+                  ecsw: bool = True, ecsw_tolerance: float = 1e-3, ecsw_every: int = 5,
+                  sensitivity_checks: Mapping[str, tuple] | None = None
                   ) -> tuple[ReducedModel, ReducedError]:
     """The first reduced model (over ``energies``) whose marker error is below ``target``.
 
@@ -104,6 +113,9 @@ def build_reduced(system, observer, states: Sequence[PETSc.Vec], v0: PETSc.Vec, 
     ecsw_tolerance : float
     ecsw_every : int
         ECSW trains on every this-many-th state (and the last).
+    sensitivity_checks : mapping, optional
+        label -> (parameter values, names (P,), the full model's marker sensitivities
+        (K, M, 3, P) at ``frame_times``, the parameter change of each column (P,)).
 
     Returns
     -------
@@ -116,7 +128,8 @@ def build_reduced(system, observer, states: Sequence[PETSc.Vec], v0: PETSc.Vec, 
     if ecsw_every < 1:
         raise ValueError(f"ecsw_every = {ecsw_every!r}: must be >= 1")
     energies = list(energies)
-    for label, (values, _) in checks.items():
+    sensitivity_checks = dict(sensitivity_checks or {})
+    for label, (values, *_) in list(checks.items()) + list(sensitivity_checks.items()):
         missing = sorted(set(values) - set(parameters))
         if missing:
             raise ValueError(f"check {label!r} sets {', '.join(missing)}, which the training "
@@ -150,6 +163,11 @@ def build_reduced(system, observer, states: Sequence[PETSc.Vec], v0: PETSc.Vec, 
         for label, (values, full) in checks.items():
             model.set_parameters(dict(values))
             pairs[label] = (full, model.run(v0, h, nsteps).frames(frame_times, h))
+        for label, (values, names, full, steps) in sensitivity_checks.items():
+            model.set_parameters(dict(values))
+            _, red = sensitivities(model, v0, h, nsteps, names).frames(frame_times, h)
+            for j, name in enumerate(names):
+                pairs[f"{label} d/d{name}"] = (full[..., j] * steps[j], red[..., j] * steps[j])
         model.set_parameters(dict(parameters))
         return reduced_error(pairs, noise, seen)
 
