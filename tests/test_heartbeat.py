@@ -66,10 +66,15 @@ def test_forward_adjoint_and_sensitivity_steps_beat():
             sensitivities = list(said)
     finally:
         fm.destroy()
+    assert np.isfinite(sim).all()
+    if PETSc.COMM_WORLD.getRank() != 0:
+        # the run's first rank alone speaks for it (a run on a group of ranks is heard from
+        # the group's first rank; the others would repeat its lines)
+        assert forward == adjoint == sensitivities == []
+        return
     dofs = 3 * 7 * 3 * 3             # 7 x 3 x 3 nodes, 3 dofs each (the clamp's included)
     assert forward == [f"base fit: still simulating: step {k} of 5 ({dofs} dofs, alpha)"
                        for k in range(1, 6)]
     assert [line for line in adjoint if "adjoint" in line] == [
         f"base fit: still computing the gradient: adjoint step {k} of 5" for k in range(1, 6)]
     assert len(sensitivities) >= 5 and all("still simulating" in s for s in sensitivities)
-    assert np.isfinite(sim).all()
