@@ -25,22 +25,16 @@ of ~1e-11 a solve; :attr:`ForwardModel.lags_factors` = False factors every step)
 those factors to the next step's Newton chord (:mod:`petsoft.solvers.borrowed_chord`).
 ``stats["tangent_solves"]`` counts their factorisations and GMRES iterations.
 
-Per step with h, Jacobian J and parameter derivative R_p = d r/d p of the step equation
-(:meth:`DynamicSystem.parameter_derivatives`):
-
-* BE: J dq1 = -R_p + M (dq0/h^2 + dv0/h) + D dq0/h, dv1 = (dq1 - dq0)/h.
-* SI, q1 = qp - J(qp)^-1 R(qp): J(qp) dq1 = -S_p - T_w (dq0 + h dv0) + M (dq0/h^2 + dv0/h)
-  + D dq0/h, with w = q1 - qp, S_p = R_p + d/dp [K(qp) w] and T_w = d/deps K(qp + eps w), a
-  third derivative of W. T_w is zero for the linear material, and is computed as the central
-  difference (K(qp + eps w) - K(qp - eps w)) / (2 eps) with eps |w|_inf = 1e-4 x the mean cell
-  size: exact to round-off for StVK (K quadratic in q), O(1e-8) relative error in T_w for
-  corotated and neo-Hookean. Measured (tests/test_sensitivity.py, corotated bar): the SI
-  gradient's Taylor remainder falls as eps^2 from eps = 2e-2 to ~5e-6 (relative) and flattens
-  at the misfit's round-off (~1e-19 absolute, eps ~ 1e-7) before the difference's error shows;
-  without T_w it falls only as eps.
-* alpha: the tangents of a1, v1, q_f, v_f, a_m from (dq0, dv0, da0, dq1) (see
-  :meth:`ForwardModel._alpha_tangent`) and J dq1 = -R_p - (M da_m' + K(q_f) dq_f' + D dv_f');
-  the consistent initial acceleration M a0 = f - grad W(q0) - D v0 gives M da0 = -R_p(t0).
+The formulas of one step's tangent and adjoint live beside each scheme, behind one protocol
+(:class:`petsoft.dynamics.step_derivatives.StepDerivatives`, built by the registry's
+``Scheme.derivatives``): :mod:`petsoft.dynamics.implicit_derivatives` (be; si with its
+third-derivative term T_w) and :mod:`petsoft.dynamics.alpha_derivatives` (generalized-alpha).
+This module runs the steps, stores or recomputes the states, calls the scheme's
+``linearize``/``tangent_step``/``adjoint_step`` with its own solver of the step's Jacobian, and
+contracts the parameter derivatives R_p = d r/d p (:meth:`DynamicSystem.parameter_derivatives`)
+into the gradient. The initial state's derivatives are its own: the consistent initial
+acceleration M a0 = f - grad W(q0) - D v0 (alpha's start, and what ``observe="acceleration"``
+reports at t = 0) gives M da0 = -R_p(t0) (- K(q0) dq0 from a static start, below).
 
 A viscoelastic branch (``[viscoelastic]`` ratio > 0, or its parameters among the names) is
 simulated by be, si and alpha (:meth:`ForwardModel.simulate`, :meth:`~ForwardModel.fd_jacobian`).
@@ -56,9 +50,10 @@ When the branch's parameters are among the names, z is tracked also at ratio 0 (
 then zero and the trajectory exactly the elastic one), so d sim/d ratio exists at 0, the null
 hypothesis of a diagnosis.
 
-The adjoint (:meth:`~ForwardModel.gradient`, :meth:`~ForwardModel.cell_gradient`) and the si and
-alpha sensitivities do not include z: they raise an ExperimentError pointing to
-``--gradient fd`` (or ``sensitivity`` with be).
+Generalized-alpha's forward sensitivities carry z too (:mod:`petsoft.dynamics.alpha_derivatives`).
+The adjoint (:meth:`~ForwardModel.gradient`, :meth:`~ForwardModel.cell_gradient`) and the si
+sensitivities do not include z: they raise an ExperimentError pointing to ``--gradient fd`` (or
+``sensitivity`` with be or alpha).
 
 Also: :meth:`ForwardModel.cell_gradient` (the adjoint gradient plus d value/d E and d value/d rho
 of every cell, sensitivity maps, from the same sweep), :meth:`ForwardModel.fd_jacobian` (central
