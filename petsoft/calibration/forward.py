@@ -504,14 +504,15 @@ class ForwardModel:
         (:meth:`~petsoft.solvers.borrowed_chord.ChordBorrower.keep_factors`; unless
         :attr:`keeps_factors` is False): a run that is neither differentiated nor checkpointed
         need not factor at every step."""
-        keep = getattr(self.integrator, "keep_factors", None) if self.keeps_factors else None
-        if keep is not None:
-            keep(True)
+        # (both integrators are ChordBorrowers)
+        keep = self.keeps_factors
+        if keep:
+            self.integrator.keep_factors(True)
         try:
             states, sim = self._run(p, store=False)
         finally:
-            if keep is not None:
-                keep(False)
+            if keep:
+                self.integrator.keep_factors(False)
         self._free(states)
         return sim
 
@@ -639,7 +640,7 @@ class ForwardModel:
             lin = steps.linearize(n, st0, st1, self.J)
             ksp.setOperators(self.J)
             if lagged is not None:
-                if getattr(self.integrator, "borrowed_failed", False):
+                if self.integrator.borrowed_failed:
                     # the step's chord failed on the kept factors (its own solver solved it):
                     # renewed here, or the next steps' chords would fail on them too
                     lagged.renew()
@@ -668,7 +669,7 @@ class ForwardModel:
                 self.integrator.borrow_chord(lagged.factors if lagged is not None else ksp)
 
         # (not to si: its one Newton step is the method, not a solve to convergence)
-        lend = (hasattr(self.integrator, "borrow_chord") and not self.scheme.one_newton_step
+        lend = (not self.scheme.one_newton_step
                 and (lagged is not None or is_direct(ksp)))
         try:
             states, sim = self._run(p, store=False, on_step=on_step)
