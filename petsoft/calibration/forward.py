@@ -581,10 +581,8 @@ class ForwardModel:
 
         def solve(rhs, out):
             self._solve(solver, rhs, out)
-        # backward Euler with a viscoelastic branch: z is one more state (dz0 = dq0: z0 = q0)
 
-        visco = [j for j, n in enumerate(self.names) if n in VISCOELASTIC]
-        others = [j for j in range(P) if j not in visco]
+        # with a viscoelastic branch (be, alpha): z is one more state (dz0 = dq0: z0 = q0)
         tangents["z"] = ([s.create_vec() for _ in range(P)]
                          if self.scheme.branch_sensitivities else None)
 
@@ -594,47 +592,13 @@ class ForwardModel:
                     x = tangents["a" if self.accel else "q"][j]
                     dsim[k, :, :, j] += w * self._apply_B(x)
 
-        def start(states0):
-            q0, v0, a0 = states0
-            if self.static:
-                # K(q0) dq0 = -P d r_static/dp
-                sksp, sderiv = self._static_setup(q0)
-                # (the relaxed branch does not act on the static equilibrium: dq0 = 0 for its
-                # parameters)
-                for j, r in zip(others, sderiv.vectors([self.names[j] for j in others]),
-                                strict=True):
-                    r.scale(-1.0)
-                    s.zero_prescribed(r)
-                    self._solve(sksp, r, tangents["q"][j])
-                    r.destroy()
-                sksp.destroy()
-            if tangents["z"] is not None:
-                for dq, dz in zip(tangents["q"], tangents["z"], strict=True):
-                    dq.copy(dz)
-            if self.has_a:
-                # M da0 = -P (R_p + K(q0) dq0)   (self.J holds K(q0) when static); the relaxed
-                # branch's force g K0 (q0 - z0) and its tangents are zero at t = 0 (dz0 = dq0)
-                deriv = self._derivatives(q0, v0, a0)
-                mksp = mass_solver(s)
-                for j in visco:
-                    tangents["a"][j].zeroEntries()
-                for j, r in zip(others, deriv.vectors([self.names[j] for j in others]),
-                                strict=True):
-                    if self.static:
-                        r.axpy(1.0, self.J * tangents["q"][j])
-                    r.scale(-1.0)
-                    s.zero_prescribed(r)
-                    mksp.solve(r, tangents["a"][j])
-                    r.destroy()
-                mksp.destroy()
-            observe_tangents(0)
-
         started = []
         failed_chords = [0]
 
         def on_step(n, st0, st1):
             if not started:
-                start(st0)
+                self._initial_tangents(st0, tangents)
+                observe_tangents(0)
                 started.append(True)
             steps = self.step_derivatives
             lin = steps.linearize(n, st0, st1, self.J)
@@ -647,13 +611,7 @@ class ForwardModel:
                     failed_chords[0] += 1
                 with self.grad_options.pushed():
                     lagged.operator_changed()
-            Rp = [None] * P
-            for j, r in zip(others, lin.deriv.vectors([self.names[j] for j in others]),
-                            strict=True):
-                Rp[j] = r
-            branch = self._branch() if self.scheme.branch_sensitivities else None
-            for j in visco:   # (be and alpha only: _refuse_derivatives; the branch is tracked)
-                Rp[j] = branch.residual_derivative(self.names[j], st1[0], s.create_vec())
+            Rp = self._residual_derivatives(lin.deriv, st1[0])
             rhs, tmp = s.create_vec(), s.create_vec()
             for j in range(P):
                 steps.tangent_step(lin, Rp[j], tangents["q"][j], tangents["v"][j],
@@ -684,6 +642,62 @@ class ForwardModel:
         for x in tangents["q"] + tangents["v"] + (tangents["a"] or []) + (tangents["z"] or []):
             x.destroy()
         return sim, dsim
+
+    def _split_names(self) -> tuple[list[int], list[int]]:
+        """(indices of the viscoelastic branch's parameters, of the others)."""
+        visco = [j for j, n in enumerate(self.names) if n in VISCOELASTIC]
+        return visco, [j for j in range(len(self.names)) if j not in visco]
+
+    def _residual_derivatives(self, deriv, q1) -> list:
+        """R_p of every parameter (new vectors) at a step's linearisation: ``deriv``'s, the
+        branch's own for its parameters (be and alpha only: _refuse_derivatives; the branch is
+        tracked) at the step's end ``q1``."""
+        visco, others = self._split_names()
+        Rp = [None] * len(self.names)
+        for j, r in zip(others, deriv.vectors([self.names[j] for j in others]), strict=True):
+            Rp[j] = r
+        branch = self._branch() if self.scheme.branch_sensitivities else None
+        for j in visco:
+            Rp[j] = branch.residual_derivative(self.names[j], q1, self.system.create_vec())
+        return Rp
+
+    def _initial_tangents(self, state0, tangents) -> None:
+        """The tangents of the initial state (q0, v0, a0), in place: dq0 of a static start,
+        dz0 = dq0, da0 of the consistent acceleration."""
+        s = self.system
+        visco, others = self._split_names()
+        q0, v0, a0 = state0
+        if self.static:
+            # K(q0) dq0 = -P d r_static/dp
+            sksp, sderiv = self._static_setup(q0)
+            # (the relaxed branch does not act on the static equilibrium: dq0 = 0 for its
+            # parameters)
+            for j, r in zip(others, sderiv.vectors([self.names[j] for j in others]),
+                            strict=True):
+                r.scale(-1.0)
+                s.zero_prescribed(r)
+                self._solve(sksp, r, tangents["q"][j])
+                r.destroy()
+            sksp.destroy()
+        if tangents["z"] is not None:
+            for dq, dz in zip(tangents["q"], tangents["z"], strict=True):
+                dq.copy(dz)
+        if self.has_a:
+            # M da0 = -P (R_p + K(q0) dq0)   (self.J holds K(q0) when static); the relaxed
+            # branch's force g K0 (q0 - z0) and its tangents are zero at t = 0 (dz0 = dq0)
+            deriv = self._derivatives(q0, v0, a0)
+            mksp = mass_solver(s)
+            for j in visco:
+                tangents["a"][j].zeroEntries()
+            for j, r in zip(others, deriv.vectors([self.names[j] for j in others]),
+                            strict=True):
+                if self.static:
+                    r.axpy(1.0, self.J * tangents["q"][j])
+                r.scale(-1.0)
+                s.zero_prescribed(r)
+                mksp.solve(r, tangents["a"][j])
+                r.destroy()
+            mksp.destroy()
 
     # -- discrete adjoint -------------------------------------------------------------------------
     @_collects_garbage
@@ -784,7 +798,23 @@ class ForwardModel:
                                  "recomputed_steps": stats.recomputed_steps,
                                  "peak_states": stats.peak_states,
                                  "peak_bytes": stats.peak_states * self._state_bytes()}
-        q0, v0, a0 = start
+        self._initial_adjoint(start, gq, ga, mu, tmp, contract)
+        for x in (gq, gv, ga, mu, rhs, tmp):
+            if x is not None:
+                x.destroy()
+        ksp.destroy()
+        if stored is None:
+            self._free(states)
+        else:
+            self._free_state(start)
+        return float(value), grad, cells
+
+    def _initial_adjoint(self, state0, gq, ga, mu, tmp, contract) -> None:
+        """The adjoint sweep's end: the initial state's dependence on the parameters (the
+        consistent acceleration's, a static start's) contracted; ``gq``, ``ga`` the adjoints of
+        q0 and a0 (used up)."""
+        s = self.system
+        q0, v0, a0 = state0
         if self.static:
             sksp, sderiv = self._static_setup(q0)       # self.J = K(q0)
         if self.has_a:
@@ -804,15 +834,6 @@ class ForwardModel:
             self._solve(sksp, gq, mu)
             contract(sderiv, mu)
             sksp.destroy()
-        for x in (gq, gv, ga, mu, rhs, tmp):
-            if x is not None:
-                x.destroy()
-        ksp.destroy()
-        if stored is None:
-            self._free(states)
-        else:
-            self._free_state(start)
-        return float(value), grad, cells
 
     def _state_bytes(self) -> int:
         """Bytes of one stored state on this rank (q, v and, if carried, a)."""
