@@ -30,6 +30,7 @@ from petsoft.calibration.rest_shape import compute_rest_shape, write_rest_mesh
 from petsoft.calibration.synth import SynthOptions, SynthResult
 from petsoft.calibration.synth import synth as _synth
 from petsoft.diagnosis.diagnose import DiagnoseResult, run_diagnose
+from petsoft.diagnosis.placement import ONE_RANK_DOFS
 from petsoft.dynamics.run_simulation import SimulationRun, simulate_experiment
 from petsoft.experiment import Experiment
 from petsoft.experiment import load_experiment as _load_experiment
@@ -469,7 +470,7 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
              max_additions: int = 3, max_tries: int = 4, method: str = "gauss-newton",
              gradient: str = "sensitivity", integrator: str | None = None,
              noise: float | None = None, numerics: bool = True, spelled_out: bool = False,
-             say=_quiet) -> DiagnoseResult:
+             one_rank_dofs: int = ONE_RANK_DOFS, say=_quiet) -> DiagnoseResult:
     """Find, model and verify the physics ``experiment`` lacks (``petsoft diagnose``).
 
     Calibrates the model on the first ``fraction`` of the record, tests the residual against
@@ -501,6 +502,9 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
     spelled_out : bool
         diagnosed.toml with every value written out, instead of the user's own file with the
         calibrated values changed and the added physics appended.
+    one_rank_dofs : int
+        Under mpiexec, a model of at most this many unknowns runs on one rank (faster: each
+        rank would factor its whole matrix anyway); 0 spreads every model over all the ranks.
     say : callable(str)
         Progress lines (rank 0); default silent.
 
@@ -513,4 +517,4 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
                         fraction=fraction, alpha=alpha, max_additions=max_additions,
                         max_tries=max_tries, method=method, gradient=gradient,
                         integrator=integrator, noise=noise, numerics=numerics, say=say,
-                        spelled_out=spelled_out)
+                        spelled_out=spelled_out, one_rank_dofs=one_rank_dofs)

@@ -37,6 +37,11 @@ def test_diagnose_help_shows_every_option_of_the_library_function():
     library = set(inspect.signature(run_diagnose).parameters) - {"comm", "recording"}
     api = set(inspect.signature(petsoft.diagnose).parameters)
     assert library - {"recording"} <= api
+    # the command line's help says the library's default
+    from petsoft.cli.main import ONE_RANK_DOFS_DEFAULT
+    from petsoft.diagnosis.placement import ONE_RANK_DOFS
+
+    assert ONE_RANK_DOFS_DEFAULT == ONE_RANK_DOFS
 
 
 @pytest.mark.serial_only

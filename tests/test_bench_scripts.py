@@ -129,11 +129,12 @@ def test_bench_diagnose_plane_error_is_the_distance_between_the_planes():
 @pytest.mark.serial_only
 def test_bench_reduced_short(tmp_path):
     """``bench_reduced.py`` on 5 steps of the realistic control case (P2): exits 0 and reports
-    for its level a basis, an ECSW mesh within the mesh, and both reduced runs' errors."""
+    for its level a basis, an ECSW mesh within the mesh, both reduced runs' errors, and
+    (``--sensitivities``) their sensitivities' differences from the full model's."""
     out = tmp_path / "reduced.json"
     proc = subprocess.run(
         [sys.executable, str(ROOT / "scripts" / "benchmarks" / "bench_reduced.py"),
-         "--end", "0.01", "--levels", "1", "--json", str(out)],
+         "--end", "0.01", "--levels", "1", "--sensitivities", "--json", str(out)],
         cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "times under load" in proc.stdout, proc.stdout
@@ -146,3 +147,11 @@ def test_bench_reduced_short(tmp_path):
         row = level[kind]
         assert set(row["checks"]) == {"train", "E-10%", "E+10%", "damping.mass=2"}
         assert all(0.0 <= c["rms"] <= c["max"] for c in row["checks"].values()), row
+    sens = level["sensitivities"]
+    assert set(sens) == {"train", "E-10%", "E+10%"}
+    for check in sens.values():
+        for kind in ("full-assembly", "ecsw"):
+            cols = check[kind]["columns"]
+            assert set(cols) == {"material.youngs_modulus", "damping.mass", "damping.stiffness"}
+            # the reduced columns follow the full ones (a sign or scale error would not)
+            assert all(0.0 <= c["difference_rms"] < c["column_rms"] for c in cols.values()), cols

@@ -294,6 +294,24 @@ def test_the_console_ends_with_the_conclusion_and_says_the_skipped_check(case, c
     assert box.startswith("**Verdict: consistent.**") and "Not checked: numerics" in box
 
 
+def test_on_two_ranks_each_line_is_said_once_by_the_rank_doing_the_work(case, capsys):
+    """`petsoft diagnose` on 2 ranks: the candidate fits run one per rank, and the fit on the
+    second rank is heard from it (the console is not silent while rank 0 waits); the run's own
+    lines come from rank 0 alone, so no line is said twice."""
+    if MPI.COMM_WORLD.size != 2:
+        pytest.skip("the console of a 2-rank run (run under mpiexec -n 2)")
+    from petsoft.cli.main import main
+
+    out = case["dir"] / "out_cli_ranks"
+    assert main(["diagnose", str(case["user"]), str(case["damped"]), "--no-numerics",
+                 "--out", str(out)]) == 0
+    said = MPI.COMM_WORLD.allgather(capsys.readouterr().out.splitlines())
+    unstamped = [{re.sub(r"^\[ *[0-9.]+ s\]", "", line) for line in lines} for lines in said]
+    assert any(line.lstrip().startswith("candidate ") for line in unstamped[1]), said[1]
+    assert not any("verdict:" in line for line in unstamped[1]), said[1]
+    assert unstamped[0] & unstamped[1] == set(), unstamped[0] & unstamped[1]
+
+
 def test_two_ranks_agree_with_one(case):
     if MPI.COMM_WORLD.size != 2:
         pytest.skip("compares a 2-rank run with a rank-local one (run under mpiexec -n 2)")

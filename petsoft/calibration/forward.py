@@ -246,6 +246,8 @@ class ForwardModel:
                                   "solves the static equilibrium on the system's model, and the "
                                   "given system has none")
         self.comm = s.comm
+        #: the heartbeat's lines come from the first rank of the run's communicator only
+        self._speaks = self.comm.getRank() == 0
         self.names = list(names)
         groups = [int(m.group(1)) for n in self.names if (m := _GROUP.search(n))]
         if groups:
@@ -412,8 +414,9 @@ class ForwardModel:
     def _step(self, n, q, v, q1, v1, p):
         """Step n -> n+1 from (q, v) into (q1, v1); returns a1 (a new vector) or None."""
         h = self.h
-        beat(lambda: f"still simulating: step {n + 1} of {self.nsteps} "
-                     f"({q.getSize()} dofs, {self.method})")
+        if self._speaks:
+            beat(lambda: f"still simulating: step {n + 1} of {self.nsteps} "
+                         f"({q.getSize()} dofs, {self.method})")
         report = self.integrator.step(n * h, q, v, h, q1, v1)
         if not report.converged:
             raise SolverError(
@@ -778,7 +781,8 @@ class ForwardModel:
         def backward(n, st0, st1) -> None:
             """The adjoint of step n -> n+1 (states n and n+1): (gq, gv, ga) of n+1 -> of n."""
             nonlocal gq, gv, ga
-            beat(lambda: f"still computing the gradient: adjoint step {N - n} of {N}")
+            if self._speaks:
+                beat(lambda: f"still computing the gradient: adjoint step {N - n} of {N}")
             lin = self.step_derivatives.linearize(n, st0, st1, self.J)
             ksp.setOperators(self.J)
             gq, gv, ga = self.step_derivatives.adjoint_step(lin, gq, gv, ga, solve, contract, mu,

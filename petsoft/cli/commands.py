@@ -59,6 +59,14 @@ def _print(line: str) -> None:
         print(line, flush=True)
 
 
+def _print_here(line: str) -> None:
+    """A progress line of ``petsoft diagnose``, printed by the rank that says it: the diagnosis
+    already speaks from one rank per group of ranks (rank 0 for the whole run, a group's first
+    rank for a fit or run on a group), so that a group's fit is heard while rank 0 waits."""
+    touch()
+    print(line, flush=True)
+
+
 def _pulse(line: str) -> None:
     """The heartbeat's line: where a long simulation is (never silent for more than 10 s)."""
     _print(f"  {line}")
@@ -111,8 +119,10 @@ def run(args) -> int:
         result = run_diagnose(experiment, recording, out=out, fraction=args.fraction,
                               alpha=args.alpha, max_additions=args.max_additions,
                               method=args.method, integrator=args.integrator,
-                              noise=args.noise, numerics=not args.no_numerics, say=_print,
-                              spelled_out=args.spelled_out)
+                              noise=args.noise, numerics=not args.no_numerics,
+                              say=_print_here, spelled_out=args.spelled_out,
+                              **({} if args.one_rank_dofs is None
+                                 else {"one_rank_dofs": args.one_rank_dofs}))
         # the console ends with the conclusion, in the report's words and numbers
         _print("")
         for line in Story(result.report).conclusion(out):

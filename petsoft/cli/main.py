@@ -18,6 +18,9 @@ from petsoft.dependencies import require
 from petsoft.errors import PetsoftError
 from petsoft.version import __version__
 
+#: ``diagnose --one-rank-dofs``'s default, said in its help without importing PETSc here
+#: (tests/test_api.py ties it to :data:`petsoft.diagnosis.placement.ONE_RANK_DOFS`).
+ONE_RANK_DOFS_DEFAULT = 6000
 #: The user's reference of the experiment, recording and report formats (installed with petsoft).
 FORMATS = Path(__file__).resolve().parents[1] / "formats.md"
 
@@ -144,6 +147,13 @@ def _positive_int(text: str) -> int:
     value = int(text)
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be >= 1, not {value}")
+    return value
+
+
+def _count(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, not {value}")
     return value
 
 
@@ -326,6 +336,12 @@ def _add_diagnose_parser(sub) -> None:
                                                 "has no /noise (default: estimated from it)")
     c.add_argument("--no-numerics", action="store_true",
                    help="skip the step/mesh refinement check")
+    c.add_argument("--one-rank-dofs", type=_count, metavar="N",
+                   help="under mpiexec, a model of at most N unknowns runs on one rank (the "
+                        "others wait, or run independent fits side by side): faster, since up "
+                        f"to {ONE_RANK_DOFS_DEFAULT} every rank factors the whole matrix anyway; "
+                        "0 spreads every model over all the ranks (default "
+                        f"{ONE_RANK_DOFS_DEFAULT})")
 
 
 def _static_options(s) -> None:

@@ -159,12 +159,13 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
     gc.collect()
     gc.disable()
     t0 = time.perf_counter()
-    rank0 = petsc_comm(comm).tompi4py().rank == 0
 
     def pulse(line: str) -> None:
         # where a long simulation is, when no other line was said for 10 s (a refined model's
-        # single run took 138 s on the independent L-bracket, a scoring round 108 s)
-        if say is not None and rank0:
+        # single run took 138 s on the independent L-bracket, a scoring round 108 s); said by
+        # the first rank of the running model's communicator (the forward model beats there
+        # only), so a run on a group of ranks is heard while rank 0 waits for it
+        if say is not None:
             say(f"[{time.perf_counter() - t0:7.1f} s]   {line}")
 
     try:
@@ -198,6 +199,12 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     diag.tell(f"petsoft diagnose: {len(diag.times)} frames, identification t <= {diag.cut:.4g} s "
               f"({int(diag.ident.sum())} frames), held out {int(diag.held.sum())}; noise "
               f"{diag.sigma:.3g} m ({diag.sigma_source})")
+    if diag.comm.getSize() > 1:
+        place = diag.placement
+        diag.tell(f"{diag.comm.getSize()} ranks: a model of at most {place.one_rank_dofs} "
+                  f"unknowns runs on one rank (this one has {place.dofs(experiment)}; "
+                  "independent runs side by side)" if place.one_rank_dofs > 0 else
+                  f"{diag.comm.getSize()} ranks: every model runs on all of them")
     with clock.phase("base_fit"):
         base = diag.calibrate(diag.frequency_matched(experiment, label="base fit"),
                               label="base fit")

@@ -5,7 +5,11 @@
   schemes (generalized-alpha, backward Euler), markers observed through H V;
 * :mod:`~petsoft.reduced.ecsw`: energy-conserving sampling and weighting of the elastic forces
   (a reduced mesh of weighted elements);
-* :mod:`~petsoft.reduced.error`: the reduced model's marker error in units of the noise.
+* :mod:`~petsoft.reduced.error`: the reduced model's marker error in units of the noise;
+* :mod:`~petsoft.reduced.sensitivity`: forward sensitivities of a reduced run (the derivative
+  of its discrete steps), observed at the markers;
+* :mod:`~petsoft.reduced.build`: a reduced model built from a full run's snapshots and enriched
+  until its error on full-model checks is below a fraction of the noise.
 
 The package may use fem, physics, solvers and dynamics; never calibration or diagnosis (the
 callers build snapshots and full runs and hand them in as values).

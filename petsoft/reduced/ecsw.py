@@ -100,6 +100,30 @@ class _Sample:
         self.group.mu[:] = self.source.mu[self.rows]
         self.group.lam[:] = self.source.lam[self.rows]
 
+    def evaluate_lame(self, a: np.ndarray, coefficients) -> np.ndarray:
+        """(r, P): sum w V^T g(q; dmu_j, dlam_j) of this rank's sampled elements, for each
+        (dmu, dlam) pair of per-local-cell arrays (or None: a zero column). Every law is
+        linear in its Lame parameters, so this is the derivative of the sampled force."""
+        r = self.V.shape[2]
+        out = np.zeros((r, len(coefficients)))
+        nd = 3 * self.k
+        cells = self.group.cells
+        for start in range(0, len(self.rows), CHUNK):
+            stop = min(start + CHUNK, len(self.rows))
+            n = stop - start
+            V, w = self.V[start:stop], self.weights[start:stop]
+            ue = np.ascontiguousarray((self.u_ref[start:stop] + V @ a).reshape(n, self.k, 3))
+            Vw = (V * w[:, None, None]).reshape(n * nd, r)
+            g = np.empty((n, nd))
+            for j, (dmu, dlam) in enumerate(coefficients):
+                if dmu is None:
+                    continue
+                c = cells[start:stop]
+                self.group.evaluate(start, stop, ue, g=g, mu=np.ascontiguousarray(dmu[c]),
+                                    lam=np.ascontiguousarray(dlam[c]))
+                out[:, j] += Vw.T @ g.reshape(-1)
+        return out
+
     def evaluate(self, a: np.ndarray, tangent: bool):
         """(sum w V^T g, sum w V^T H V or None) of this rank's sampled elements of the group."""
         r = self.V.shape[2]
@@ -160,6 +184,27 @@ class SampledForces:
     def tangent(self, a: np.ndarray) -> np.ndarray:
         self.counts["tangents"] += 1
         return self._sum(np.asarray(a, dtype=float), True)[1]
+
+    def parameter_force(self, a: np.ndarray, names) -> np.ndarray:
+        """(r, P): d/dp_j of the sampled elastic force at a: the sampled derivative (the same
+        elements and weights, the law evaluated with the Lame parameters' derivatives).
+        Parameters that are not the elastic law's (damping, density, gravity) give zero here:
+        their derivatives are in the reduced model's linear operators."""
+        names = list(names)
+        pm = self.system.parameters
+        coefficients = []
+        for name in names:
+            dmu, dlam = (pm.coefficients(name, names)[:2] if name.startswith("material.")
+                         else (None, None))
+            coefficients.append((dmu, dlam) if dmu is not None else (None, None))
+        a = np.asarray(a, dtype=float)
+        part = np.zeros((self.basis.size, len(names)))
+        try:
+            for sample in self.samples:
+                part += sample.evaluate_lame(a, coefficients)
+        except InvertedElementError:
+            part[:] = np.nan
+        return allreduce(self.system.comm, part)
 
     def parameters_changed(self) -> None:
         for sample in self.samples:

@@ -63,6 +63,7 @@ class FullForces:
         self._K = system.create_matrix()
         #: full assemblies made (gradient, tangent): the online cost's measure
         self.counts = {"gradients": 0, "tangents": 0}
+        self._zero_derivatives = None
 
     def state(self, a: np.ndarray) -> PETSc.Vec:
         self.q_ref.copy(self._q)
@@ -79,10 +80,36 @@ class FullForces:
 
     def parameters_changed(self) -> None:
         """Nothing to follow: the assembly reads the system's current parameters."""
+        self._zero_derivatives = None
+
+    def parameter_force(self, a: np.ndarray, names) -> np.ndarray:
+        """(r, P): d/dp_j of V^T grad W(q_ref + V a), the potential force (elastic and nodal
+        terms), by the system's residual derivatives at (q, v = 0, a = 0) minus those at
+        q = 0 (what remains there is the load's derivative, which the caller holds apart)."""
+        names = list(names)
+        if self._zero_derivatives is None or self._zero_derivatives[0] != names:
+            self._q.zeroEntries()
+            self._zero_derivatives = (names, projected_derivatives(
+                self.system, self.basis, names, self._q, self._q, self._q))
+        self._g.zeroEntries()
+        at_q = projected_derivatives(self.system, self.basis, names, self.state(a), self._g,
+                                     self._g)
+        return at_q - self._zero_derivatives[1]
 
     def destroy(self) -> None:
         for obj in (self.q_ref, self._q, self._g, self._K):
             obj.destroy()
+
+
+def projected_derivatives(system, basis: PODBasis, names, q, v, a) -> np.ndarray:
+    """(r, P): V^T d r/d p_j at the full state (q, v, a) (the system's residual derivatives,
+    :class:`petsoft.dynamics.parameters.ParameterDerivatives`). Collective; O(mesh)."""
+    vecs = system.parameter_derivatives(q, v, a).vectors(list(names))
+    out = np.column_stack([basis.project(x) for x in vecs]) if vecs else \
+        np.zeros((basis.size, 0))
+    for x in vecs:
+        x.destroy()
+    return out
 
 
 @dataclass
@@ -106,14 +133,20 @@ class ReducedRun:
     def frames(self, frame_times, h: float) -> np.ndarray:
         """(K, M, 3) markers at ``frame_times``, linear between the two neighbouring steps
         (as the forward model interpolates)."""
-        t = np.asarray(frame_times, dtype=float) / h
-        n = len(self.markers) - 1
-        if t.min() < -1e-9 or t.max() > n + 1e-9:
-            raise ValueError(f"frame times outside the run [0, {n * h:g}] s")
-        i = np.clip(np.floor(t + 1e-9).astype(int), 0, max(n - 1, 0))
-        w = np.clip(t - i, 0.0, 1.0)[:, None, None]
-        j = np.minimum(i + 1, n)
-        return (1.0 - w) * self.markers[i] + w * self.markers[j]
+        return at_frames(self.markers, frame_times, h)
+
+
+def at_frames(values: np.ndarray, frame_times, h: float) -> np.ndarray:
+    """``values`` (N + 1, ...) given at the steps t_n = n h, at ``frame_times`` (K, ...):
+    linear between the two neighbouring steps (as the forward model interpolates)."""
+    t = np.asarray(frame_times, dtype=float) / h
+    n = len(values) - 1
+    if t.min() < -1e-9 or t.max() > n + 1e-9:
+        raise ValueError(f"frame times outside the run [0, {n * h:g}] s")
+    i = np.clip(np.floor(t + 1e-9).astype(int), 0, max(n - 1, 0))
+    w = np.clip(t - i, 0.0, 1.0).reshape((-1,) + (1,) * (values.ndim - 1))
+    j = np.minimum(i + 1, n)
+    return (1.0 - w) * values[i] + w * values[j]
 
 
 class ReducedModel:
@@ -241,8 +274,13 @@ class ReducedModel:
         raise SolverError(f"reduced model: Newton did not converge in {MAX_IT} iterations at "
                           f"{what} (residual {norm:.3g} from {r0:.3g})")
 
-    def run(self, v0: PETSc.Vec, h: float, nsteps: int) -> ReducedRun:
-        """Step from q = q_ref (a = 0) and velocity V^T M v0 for ``nsteps`` steps of ``h``."""
+    def run(self, v0: PETSc.Vec, h: float, nsteps: int, on_step=None) -> ReducedRun:
+        """Step from q = q_ref (a = 0) and velocity V^T M v0 for ``nsteps`` steps of ``h``.
+
+        ``on_step(n, (q0, v0, a0), (q1, v1, a1))`` is called after each converged step (the
+        coordinates of displacement, velocity and acceleration at its start and end; the
+        accelerations None for backward Euler), e.g. by the sensitivities
+        (:mod:`petsoft.reduced.sensitivity`)."""
         r = self.basis.size
         a = np.zeros(r)
         v = self.coordinates(v0)
@@ -255,12 +293,18 @@ class ReducedModel:
         if self.method == "alpha":
             acc = np.linalg.solve(self.Mr, self.load(0.0) - self.forces.force(a) - self.Dr @ v)
             for n in range(nsteps):
-                a, v, acc, k = self._alpha_step(n * h, h, a, v, acc)
+                a1, v1, acc1, k = self._alpha_step(n * h, h, a, v, acc)
+                if on_step is not None:
+                    on_step(n, (a, v, acc), (a1, v1, acc1))
+                a, v, acc = a1, v1, acc1
                 coords[n + 1] = a
                 its += k
         else:
             for n in range(nsteps):
-                a, v, k = self._be_step(n * h, h, a, v)
+                a1, v1, k = self._be_step(n * h, h, a, v)
+                if on_step is not None:
+                    on_step(n, (a, v, None), (a1, v1, None))
+                a, v = a1, v1
                 coords[n + 1] = a
                 its += k
         markers = self.markers_ref[None] + (coords @ self.H.T).reshape(nsteps + 1, -1, 3)

@@ -17,13 +17,21 @@ as diagnose adopts them), and its markers are observed as in a calibration (``Fo
    against the full run, at the training parameters and at parameters moved (E +-10 %,
    damping.mass 0 -> 2): the marker error rms / noise and max / noise
    (:func:`petsoft.reduced.error.reduced_error`), the basis enriched level by level until the
-   worst check is below 0.2x the noise.
+   worst check is below 0.2x the noise;
+3. with ``--sensitivities``: at the last level built, the reduced model's forward
+   sensitivities (:func:`petsoft.reduced.sensitivity.sensitivities`) of the markers to
+   ``material.youngs_modulus``, ``damping.mass`` and ``damping.stiffness``, against the full
+   model's (``ForwardModel.jacobian``), at the training point and at E +-10 %: each column
+   scaled by a parameter change (E 10 %, damping.mass 1 1/s, damping.stiffness 1e-4 s), the
+   rms of the difference over the noise (and the column's own rms over the noise, for scale);
+   and the time of a reduced run with sensitivities against ``ForwardModel.jacobian``.
 
 Run (1 and 2 ranks)::
 
     .venv/bin/python scripts/benchmarks/bench_reduced.py
     mpiexec -n 2 .venv/bin/python scripts/benchmarks/bench_reduced.py [--levels 3] \\
-        [--ecsw-tol 1e-3] [--ecsw-every 5] [--end 0.2] [--json out.json]
+        [--ecsw-tol 1e-3] [--ecsw-every 5] [--end 0.2] [--sensitivities] [--min-level 2] \\
+        [--json out.json]
 
 Times are wall seconds (max over ranks, each bracketed by a barrier). On a shared machine they
 are "under load": compare ratios of one run, re-time on a quiet machine.
@@ -49,12 +57,18 @@ from petsoft.calibration.observation import MarkerObserver
 from petsoft.experiment import experiment_from_dict
 from petsoft.reduced.basis import coordinates_of, pod_basis
 from petsoft.reduced.ecsw import SampledForces, ecsw_mesh
-from petsoft.reduced.error import TARGET, reduced_error
+from petsoft.reduced.error import TARGET, marker_error, reduced_error
 from petsoft.reduced.galerkin import FullForces, ReducedModel, steps_for
+from petsoft.reduced.sensitivity import sensitivities
 
 HERE = Path(__file__).resolve().parent
 CASES = HERE / "realistic" / "cases"
 NAMES = ["material.youngs_modulus", "damping.mass"]
+#: --sensitivities: the parameters differentiated and the change each column is scaled by
+#: (E: 10 % of its value; the damping coefficients are 0 in the cases: absolute changes)
+SENS_NAMES = NAMES + ["damping.stiffness"]
+SENS_STEPS = {"material.youngs_modulus": ("relative", 0.1), "damping.mass": ("absolute", 1.0),
+              "damping.stiffness": ("absolute", 1e-4)}
 #: (energy kept, with sensitivity trajectories) per enrichment level
 LEVELS = [(1 - 1e-6, False), (1 - 1e-7, True), (1 - 1e-9, True), (1 - 1e-11, True)]
 COMM = PETSc.COMM_WORLD
@@ -113,6 +127,55 @@ def scaled(system, vectors, size: float):
     return out
 
 
+def make_model(s, V, q_ref, mesh, kind, observer, method, radius):
+    forces = SampledForces(s, V, q_ref, mesh) if kind == "ecsw" else FullForces(s, V, q_ref)
+    return ReducedModel(s, V, q_ref, observer, forces=forces, method=method, radius=radius)
+
+
+def compare_sensitivities(fm, V, q_ref, mesh, v0, times, noise, seen, names, p0, jacobians):
+    """The reduced sensitivities against ForwardModel.jacobian (cached in ``jacobians``) at
+    the training point and E +-10 %: per check and force kind, per parameter, the rms over the
+    noise of the difference of the columns scaled by SENS_STEPS, and the run times."""
+    s, h = fm.system, fm.h
+    nsteps = steps_for(times, h)
+    dp = np.array([SENS_STEPS[n][1] * (abs(p) if SENS_STEPS[n][0] == "relative" else 1.0)
+                   for n, p in zip(names, p0, strict=True)])
+    out = {}
+    for label, factor in (("train", 1.0), ("E-10%", 0.9), ("E+10%", 1.1)):
+        p = p0.copy()
+        p[0] *= factor
+        if label not in jacobians:
+            (_, jac), t = timed(fm.jacobian, p)
+            jacobians[label] = (jac, t)
+        jac, t_jac = jacobians[label]
+        row = {"jacobian_s": t_jac}
+        for kind in ("full-assembly", "ecsw"):
+            rm = make_model(s, V, q_ref, mesh, kind, fm.observer, fm.method,
+                            fm.integrator.radius)
+            rm.set_parameters(dict(zip(names, p.tolist(), strict=True)))
+            run_plain, t_plain = timed(rm.run, v0, h, nsteps)
+            sens, t_sens = timed(sensitivities, rm, v0, h, nsteps, names)
+            _, djac = sens.frames(times, h)
+            cols = {}
+            for j, name in enumerate(names):
+                full_col, red_col = jac[..., j] * dp[j], djac[..., j] * dp[j]
+                size = marker_error(np.zeros_like(full_col), full_col, noise, seen)[0]
+                diff = marker_error(full_col, red_col, noise, seen)[0]
+                cols[name] = {"step": float(dp[j]), "column_rms": size, "difference_rms": diff}
+            row[kind] = {"run_s": t_plain, "sensitivities_s": t_sens,
+                         "jacobian_over_sensitivities": t_jac / t_sens, "columns": cols}
+            say(f"  sensitivities {label:6s} {kind:13s}: reduced run {t_plain:.2f} s, with "
+                f"sensitivities {t_sens:.2f} s; ForwardModel.jacobian {t_jac:.1f} s "
+                f"({t_jac / t_sens:.1f}x); difference rms / noise per column (column rms "
+                "/ noise): " + ", ".join(f"{n.split('.')[-1]} {c['difference_rms']:.3g} "
+                                         f"({c['column_rms']:.3g})"
+                                         for n, c in cols.items()))
+            rm.destroy()
+        out[label] = row
+    s.set_parameters(dict(zip(names, p0.tolist(), strict=True)))
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--case", default="control")
@@ -120,6 +183,12 @@ def main() -> None:
     ap.add_argument("--levels", type=int, default=len(LEVELS))
     ap.add_argument("--ecsw-tol", type=float, default=1e-3)
     ap.add_argument("--ecsw-every", type=int, default=5, help="ECSW training: every k-th state")
+    ap.add_argument("--min-level", type=int, default=0,
+                    help="enrich at least to this level, even when an earlier one is below "
+                    "the target (e.g. to compare its sensitivities)")
+    ap.add_argument("--sensitivities", action="store_true",
+                    help="compare the reduced sensitivities with the full model's at the last "
+                    "level built")
     ap.add_argument("--json", default=None, help="write the results here (rank 0)")
     args = ap.parse_args()
     exp = experiment_of(args.case, args.end)
@@ -127,7 +196,8 @@ def main() -> None:
     times = rec.times[rec.times <= exp.time.end + 1e-12]
     seen = rec.seen()[:len(times)]
     noise = float(rec.noise.get("position_std", 1e-4))
-    fm = ForwardModel(exp, NAMES, lambda s: MarkerObserver.from_recording(s, rec), times)
+    names = SENS_NAMES if args.sensitivities else NAMES
+    fm = ForwardModel(exp, names, lambda s: MarkerObserver.from_recording(s, rec), times)
     s, h = fm.system, fm.h
     nsteps = steps_for(times, h)
     dofs = s.create_vec().getSize()
@@ -188,6 +258,7 @@ def main() -> None:
     out["training_s"] = t_train
     out["sensitivity_runs_s"] = t_sens
 
+    jacobians = {}
     for level in range(min(args.levels, len(LEVELS))):
         energy, enriched = LEVELS[level]
         snaps = disp + vel + ([x for traj in sens for x in traj] if enriched else [])
@@ -211,7 +282,7 @@ def main() -> None:
                               radius=fm.integrator.radius)
             pairs, t_red = {}, []
             for label, p in checks.items():
-                rm.set_parameters(dict(zip(NAMES, p.tolist(), strict=True)))
+                rm.set_parameters(dict(zip(names, p.tolist(), strict=True)))
                 run, t = timed(rm.run, v0, h, nsteps)
                 t_red.append(t)
                 pairs[label] = (full[label], run.frames(times, h))
@@ -225,10 +296,16 @@ def main() -> None:
                 + ", ".join(f"{k} {v['rms']:.3f}" for k, v in err.checks.items()))
             rm.destroy()
         # the systems' parameters back at the training point for the next level
-        s.set_parameters(dict(zip(NAMES, p0.tolist(), strict=True)))
+        s.set_parameters(dict(zip(names, p0.tolist(), strict=True)))
         out["levels"].append(row)
-        if row["ecsw"]["rms"] <= TARGET and row["full-assembly"]["rms"] <= TARGET:
+        below = row["ecsw"]["rms"] <= TARGET and row["full-assembly"]["rms"] <= TARGET
+        if below:
             say(f"level {level}: below {TARGET}x the noise on every check")
+        done = below and level >= args.min_level
+        if args.sensitivities and (done or level == min(args.levels, len(LEVELS)) - 1):
+            row["sensitivities"] = compare_sensitivities(fm, V, q_ref, mesh, v0, times, noise,
+                                                         seen, names, p0, jacobians)
+        if done:
             break
     if args.json and COMM.getRank() == 0:
         Path(args.json).write_text(json.dumps(out, indent=1))
