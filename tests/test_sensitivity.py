@@ -245,7 +245,7 @@ def test_si_third_derivative_term_is_needed_and_where_taylor_flattens(light_forw
     eps = 2e-2 * 8.0 ** -np.arange(7)
     table = {}
     for with_t in (True, False):
-        fm.linear_material = not with_t      # True skips T_w
+        fm.step_derivatives.linear_material = not with_t      # True skips T_w
         value, grad = fm.gradient(p, dphi)
         table[with_t] = np.array([abs(dphi(fm.simulate(p + e * d))[0] - value - e * grad @ d)
                                   for e in eps])

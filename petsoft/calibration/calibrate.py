@@ -420,7 +420,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
     # the user's start, not a polish start; with one start from it, the optimizer's first
     # evaluation (remembered by the problem, as is its last Jacobian at the optimum)
     before = problem.simulate(scaling.to_scaled(start))
-    f_before = 0.5 * float(np.sum(problem._data_residual(before) ** 2))
+    f_before = 0.5 * float(np.sum(problem.data_residual(before) ** 2))
     z = opt.z
     r, J = problem.residual_jacobian(z)
     after = problem.last_simulation

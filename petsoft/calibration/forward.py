@@ -25,22 +25,16 @@ of ~1e-11 a solve; :attr:`ForwardModel.lags_factors` = False factors every step)
 those factors to the next step's Newton chord (:mod:`petsoft.solvers.borrowed_chord`).
 ``stats["tangent_solves"]`` counts their factorisations and GMRES iterations.
 
-Per step with h, Jacobian J and parameter derivative R_p = d r/d p of the step equation
-(:meth:`DynamicSystem.parameter_derivatives`):
-
-* BE: J dq1 = -R_p + M (dq0/h^2 + dv0/h) + D dq0/h, dv1 = (dq1 - dq0)/h.
-* SI, q1 = qp - J(qp)^-1 R(qp): J(qp) dq1 = -S_p - T_w (dq0 + h dv0) + M (dq0/h^2 + dv0/h)
-  + D dq0/h, with w = q1 - qp, S_p = R_p + d/dp [K(qp) w] and T_w = d/deps K(qp + eps w), a
-  third derivative of W. T_w is zero for the linear material, and is computed as the central
-  difference (K(qp + eps w) - K(qp - eps w)) / (2 eps) with eps |w|_inf = 1e-4 x the mean cell
-  size: exact to round-off for StVK (K quadratic in q), O(1e-8) relative error in T_w for
-  corotated and neo-Hookean. Measured (tests/test_sensitivity.py, corotated bar): the SI
-  gradient's Taylor remainder falls as eps^2 from eps = 2e-2 to ~5e-6 (relative) and flattens
-  at the misfit's round-off (~1e-19 absolute, eps ~ 1e-7) before the difference's error shows;
-  without T_w it falls only as eps.
-* alpha: the tangents of a1, v1, q_f, v_f, a_m from (dq0, dv0, da0, dq1) (see
-  :meth:`ForwardModel._alpha_tangent`) and J dq1 = -R_p - (M da_m' + K(q_f) dq_f' + D dv_f');
-  the consistent initial acceleration M a0 = f - grad W(q0) - D v0 gives M da0 = -R_p(t0).
+The formulas of one step's tangent and adjoint live beside each scheme, behind one protocol
+(:class:`petsoft.dynamics.step_derivatives.StepDerivatives`, built by the registry's
+``Scheme.derivatives``): :mod:`petsoft.dynamics.implicit_derivatives` (be; si with its
+third-derivative term T_w) and :mod:`petsoft.dynamics.alpha_derivatives` (generalized-alpha).
+This module runs the steps, stores or recomputes the states, calls the scheme's
+``linearize``/``tangent_step``/``adjoint_step`` with its own solver of the step's Jacobian, and
+contracts the parameter derivatives R_p = d r/d p (:meth:`DynamicSystem.parameter_derivatives`)
+into the gradient. The initial state's derivatives are its own: the consistent initial
+acceleration M a0 = f - grad W(q0) - D v0 (alpha's start, and what ``observe="acceleration"``
+reports at t = 0) gives M da0 = -R_p(t0) (- K(q0) dq0 from a static start, below).
 
 A viscoelastic branch (``[viscoelastic]`` ratio > 0, or its parameters among the names) is
 simulated by be, si and alpha (:meth:`ForwardModel.simulate`, :meth:`~ForwardModel.fd_jacobian`).
@@ -56,9 +50,10 @@ When the branch's parameters are among the names, z is tracked also at ratio 0 (
 then zero and the trajectory exactly the elastic one), so d sim/d ratio exists at 0, the null
 hypothesis of a diagnosis.
 
-The adjoint (:meth:`~ForwardModel.gradient`, :meth:`~ForwardModel.cell_gradient`) and the si and
-alpha sensitivities do not include z: they raise an ExperimentError pointing to
-``--gradient fd`` (or ``sensitivity`` with be).
+Generalized-alpha's forward sensitivities carry z too (:mod:`petsoft.dynamics.alpha_derivatives`).
+The adjoint (:meth:`~ForwardModel.gradient`, :meth:`~ForwardModel.cell_gradient`) and the si
+sensitivities do not include z: they raise an ExperimentError pointing to ``--gradient fd`` (or
+``sensitivity`` with be or alpha).
 
 Also: :meth:`ForwardModel.cell_gradient` (the adjoint gradient plus d value/d E and d value/d rho
 of every cell, sensitivity maps, from the same sweep), :meth:`ForwardModel.fd_jacobian` (central
@@ -93,13 +88,14 @@ from petsc4py import PETSc
 
 from petsoft.calibration.checkpointing import SweepStats, reverse_sweep, spine
 from petsoft.calibration.observation import MarkerObserver, time_interpolation
-from petsoft.dynamics.alpha import GeneralizedAlpha, alpha_parameters
+from petsoft.dynamics.alpha import GeneralizedAlpha, consistent_acceleration
 from petsoft.dynamics.factory import build_system
 from petsoft.dynamics.implicit import ImplicitIntegrator
 from petsoft.dynamics.initial import initial_from_expressions
 from petsoft.dynamics.integrators import check_viscoelastic, scheme, with_gradients
 from petsoft.dynamics.interfaces import length_scale
 from petsoft.dynamics.parameters import VISCOELASTIC
+from petsoft.dynamics.step_derivatives import mass_solver, parameter_derivatives
 from petsoft.errors import ExperimentError, SolverError
 from petsoft.experiment import get_parameter
 from petsoft.io.progress import beat
@@ -143,8 +139,6 @@ def forward_options(table=None) -> SolverOptions:
                          defaults={**FORWARD_OPTIONS, **(_CALLER_DEFAULTS.get() or {})})
 #: Bytes of stored states the adjoint may hold per rank before it checkpoints (binomial).
 ADJOINT_MEMORY = 1 << 30
-#: Relative size of the SI third-derivative difference: eps |w|_inf = this x mean cell size.
-SI_EPS = 1e-4
 _GROUP = re.compile(r"#(\d+)$")
 
 
@@ -232,7 +226,6 @@ class ForwardModel:
                 f"{exp.source}: time.integrator = {self.method!r}: gradients are implemented for "
                 f"{', '.join(INTEGRATORS)} only")
         self.scheme = scheme(self.method)
-        self._helper = None     # what the consistent acceleration needs (_a0_helper)
         # accelerations are part of the state (alpha) or observed (a_n = (v_n - v_n-1)/h for
         # be/si, the consistent acceleration at t = 0)
         self.has_a = self.scheme.carries_acceleration or self.accel
@@ -294,20 +287,16 @@ class ForwardModel:
         if self.scheme.carries_acceleration:
             self.integrator = GeneralizedAlpha(s, exp.time.alpha_radius if exp.time else 0.5,
                                                options=self.options)
-            self.am, self.af, self.gamma, self.nbeta = alpha_parameters(self.integrator.radius)
         else:
             self.integrator = ImplicitIntegrator(s, self.method, options=self.options)
         self.J = s.create_matrix()
         modes = s.near_nullspace()
         if modes is not None:
             self.J.setNearNullSpace(modes)
-        self._K = None
-        # a length scale for the SI third-derivative difference: mean cell size or spring length
+        # the scheme's tangent and adjoint steps (petsoft.dynamics.step_derivatives)
+        self.step_derivatives = self.scheme.derivatives(s, self.integrator, self.h, self.accel)
+        # the length scale of the generic parameter derivatives' difference (initial state)
         self.cell_size = length_scale(s)
-        # the SI third-derivative term vanishes for the linear law (K constant)
-        elastic = s.elastic
-        self.linear_material = elastic is not None and all(g.model == "linear"
-                                                           for g in elastic.groups)
         self.stats = {}
 
     # -- parameters and the forward run -----------------------------------------------------------
@@ -390,9 +379,9 @@ class ForwardModel:
         if self.has_a:
             a = s.create_vec()
             if self.scheme.carries_acceleration:
-                self.integrator._forget()
+                self.integrator.forget()
             # the integrator's own formula (alpha recomputes the same a0 on its first step)
-            GeneralizedAlpha.consistent_acceleration(self._a0_helper(), 0.0, q, v, a)
+            consistent_acceleration(s, 0.0, q, v, a)
         states = [(q.copy(), v.copy(), a.copy() if a is not None else None)]
         kept = {0: states[0]} if keep else None
         obs = {}
@@ -454,7 +443,7 @@ class ForwardModel:
         q1, v1 = q.duplicate(), v.duplicate()
         self.integrator.new_run()
         if self.scheme.carries_acceleration:
-            self.integrator._forget()
+            self.integrator.forget()
             self.integrator.restore(n0 * self.h, q, v, {"acceleration": a0})
         a1 = None
         for n in range(n0, n1):
@@ -490,16 +479,6 @@ class ForwardModel:
         y.destroy()
         return out
 
-    def _a0_helper(self):
-        """What GeneralizedAlpha.consistent_acceleration needs of its instance."""
-        if self.scheme.carries_acceleration:
-            return self.integrator
-        if self._helper is None:
-            from types import SimpleNamespace
-
-            self._helper = SimpleNamespace(system=self.system, work=self.system.create_vec())
-        return self._helper
-
     def _frames(self, obs) -> np.ndarray:
         """(K, M, 3) positions (or accelerations) from the observed steps."""
         ref = self.reference
@@ -528,14 +507,15 @@ class ForwardModel:
         (:meth:`~petsoft.solvers.borrowed_chord.ChordBorrower.keep_factors`; unless
         :attr:`keeps_factors` is False): a run that is neither differentiated nor checkpointed
         need not factor at every step."""
-        keep = getattr(self.integrator, "keep_factors", None) if self.keeps_factors else None
-        if keep is not None:
-            keep(True)
+        # (both integrators are ChordBorrowers)
+        keep = self.keeps_factors
+        if keep:
+            self.integrator.keep_factors(True)
         try:
             states, sim = self._run(p, store=False)
         finally:
-            if keep is not None:
-                keep(False)
+            if keep:
+                self.integrator.keep_factors(False)
         self._free(states)
         return sim
 
@@ -572,187 +552,22 @@ class ForwardModel:
                         f"{self.experiment.source}: a sensitivity/adjoint linear solve",
                         hint=f"try -{GRAD_PREFIX}pc_type lu")
 
-    def _predictor(self, n, q0, v0):
-        qp = q0.copy()
-        qp.axpy(self.h, v0)
-        self.system.apply_prescribed(qp, (n + 1) * self.h)
-        return qp
-
-    def _step_setup(self, n, st0, st1):
-        """Jacobian (into self.J), parameter derivatives and scheme data of step n -> n+1."""
-        s, h = self.system, self.h
-        (q0, v0, a0), (q1, v1, a1) = st0, st1
-        data = {}
-        # backward Euler (full Newton: the Jacobian at the step's end), semi-implicit (one
-        # Newton step from the predictor), generalized-alpha (the acceleration carried)
-        if not (self.scheme.one_newton_step or self.scheme.carries_acceleration):
-            acc = v1.copy()
-            acc.axpy(-1.0, v0)
-            acc.scale(1.0 / h)
-            # the viscoelastic branch (forward sensitivities only; the adjoint refuses it):
-            # c K0 (q1 - z0) with c = g/(1 + h/tau), z0 the step's start (see jacobian)
-            branch, c, k0x = self._branch(), 0.0, None
-            if branch is not None:
-                c = branch.jacobian_coefficient()
-                k0x = q1.copy()
-                k0x.axpy(-1.0, branch.step_start)
-                k0x.scale(c)
-            data["v"] = v1.copy()
-            self._velocity_state(data["v"])
-            s.assemble_combination(q1, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h + c, self.J,
-                                   velocity=1.0 / h, reuse=True)
-            deriv = self._derivatives(q1, v1, acc, k0x=k0x)
-            acc.destroy()
-            if k0x is not None:
-                k0x.destroy()
-        elif self.scheme.one_newton_step:
-            qp = self._predictor(n, q0, v0)
-            w = q1.copy()
-            w.axpy(-1.0, qp)
-            acc = v1.copy()
-            acc.axpy(-1.0, v0)
-            acc.scale(1.0 / h)
-            # the SI residual evaluates the damping at u = (qp - q0)/h (v0, with the supports'
-            # velocity) and its Jacobian linearises the velocity terms there
-            u = qp.copy()
-            u.axpy(-1.0, q0)
-            u.scale(1.0 / h)
-            data["v"], data["w"] = u, w
-            self._velocity_state(u)
-            s.assemble_combination(qp, 1.0 / h**2 + s.alpha / h, 1.0, s.beta / h, self.J,
-                                   velocity=1.0 / h, reuse=True)
-            deriv = self._derivatives(qp, v1, acc, w, v_lin=u)
-            data["T"] = self._third(qp, w)
-            for x in (acc, qp):
-                x.destroy()
-        else:
-            am, af, g, b = self.am, self.af, self.gamma, self.nbeta
-            qf, vf, amv = q0.copy(), v0.copy(), a0.copy()
-            qf.scale(1.0 - af)
-            qf.axpy(af, q1)
-            vf.scale(1.0 - af)
-            vf.axpy(af, v1)
-            amv.scale(1.0 - am)
-            amv.axpy(am, a1)
-            c = af * g / (b * h)
-            data["aJ"], data["cD"] = am / (b * h * h), c
-            data["v"] = vf
-            self._velocity_state(vf)
-            # the viscoelastic branch at alpha_f: g K0 W(q1; q0, z0) (K0 k0x with k0x = g W)
-            branch = self._branch() if self.scheme.branch_sensitivities else None
-            cb, k0x = 0.0, None
-            if branch is not None:
-                cb = branch.jacobian_coefficient()
-                k0x = branch.strain(q1).copy()
-                k0x.scale(branch.ratio)
-            data["cB"] = cb
-            s.assemble_combination(qf, data["aJ"] + s.alpha * c, af, s.beta * c + cb, self.J,
-                                   velocity=c, reuse=True)
-            deriv = self._derivatives(qf, vf, amv, k0x=k0x)
-            for x in (qf, amv) + ((k0x,) if k0x is not None else ()):
-                x.destroy()
-        return deriv, data
-
     def _branch(self):
         """The system's viscoelastic branch when it is on or tracked, else None."""
         branch = self.system.viscoelastic
         return branch if branch is not None and branch.stepping else None
 
-    def _velocity_state(self, v) -> None:
-        """Linearise the system's velocity terms at v in the next Jacobian assembly."""
-        setter = self.system.set_velocity_state
-        if setter is not None:
-            setter(v)
-
-    def _damp_tangent(self, data, x, out):
-        """out = the damping term linearised at the step's velocity, applied to x: D x +
-        dG/dv x (drag and friction); D x for systems without velocity terms."""
-        tangent = self.system.damping_tangent_apply
-        if tangent is None:
-            return self.system.damping_apply(x, out)
-        return tangent(data["v"], x, out)
-
-    def _damp_second(self, data, x, out):
-        """out = d/dv [dG/dv x] along the SI step's w at its u (None when zero)."""
-        second = self.system.damping_second_apply
-        terms = self.system.velocity_terms
-        if second is None or terms is None or not terms.nonlinear or "w" not in data:
-            return None
-        return second(data["v"], data["w"], x, out)
-
-    @staticmethod
-    def _free_data(data) -> None:
-        for key in ("v", "w", "T"):
-            if data.get(key) is not None:
-                data[key].destroy()
-
-    def _derivatives(self, q, v, a, w=None, v_lin=None, k0x=None):
-        """d r/d p of the system at (q, v, a) (+ d/dp [K(q) w]; velocity terms linearised at
-        v_lin, the SI step's u; + d/dp [K0 k0x], the viscoelastic branch): ``.vectors``,
+    def _derivatives(self, q, v, a):
+        """d r/d p of the system at (q, v, a) (the initial state's): ``.vectors``,
         ``.contract``."""
-        if k0x is not None:
-            return self.system.parameter_derivatives(q, v, a, w, k0x, v_lin)
-        if self.system.parameter_derivatives is not None:
-            if v_lin is not None:
-                return self.system.parameter_derivatives(q, v, a, w, v_lin=v_lin)
-            return self.system.parameter_derivatives(q, v, a, w)
-        return _GenericDerivatives(self.system, q, v, a, w, self.cell_size, v_lin)
-
-    def _third(self, qp, w):
-        """T_w = d/deps K(qp + eps w) as a matrix (None when zero: linear material, w = 0)."""
-        s = self.system
-        wmax = w.norm(PETSc.NormType.INFINITY)
-        if self.linear_material or wmax == 0.0:
-            return None
-        eps = SI_EPS * self.cell_size / wmax
-        T, Km = s.create_matrix(), s.create_matrix()
-        x = qp.copy()
-        x.axpy(eps, w)
-        s.assemble_combination(x, 0.0, 1.0, 0.0, T, eliminate=False)
-        x.axpy(-2.0 * eps, w)
-        s.assemble_combination(x, 0.0, 1.0, 0.0, Km, eliminate=False)
-        T.axpy(-1.0, Km)
-        T.scale(0.5 / eps)
-        x.destroy()
-        Km.destroy()
-        return T
-
-    def _K_apply(self, data, x, out) -> None:
-        """out = K(q_f) x (free rows; x zero on supports) from the eliminated alpha Jacobian."""
-        s = self.system
-        self.J.mult(x, out)
-        tmp = x.duplicate()
-        s.M.mult(x, tmp)
-        out.axpy(-data["aJ"], tmp)
-        self._damp_tangent(data, x, tmp)
-        out.axpy(-data["cD"], tmp)
-        if data.get("cB"):
-            # the viscoelastic branch's c K0 in the step's Jacobian is not K(q_f)'s
-            s.K0_matrix().mult(x, tmp)
-            out.axpy(-data["cB"], tmp)
-        out.scale(1.0 / self.af)
-        tmp.destroy()
-
-    def _mass_solver(self):
-        """CG on the eliminated consistent mass (initial acceleration of alpha)."""
-        s = self.system
-        M = s.M.copy()
-        if s.dirichlet is not None:
-            s.dirichlet.eliminate(M)
-        ksp = PETSc.KSP().create(comm=self.comm)
-        ksp.setOperators(M)
-        ksp.setType(PETSc.KSP.Type.CG)
-        ksp.getPC().setType(PETSc.PC.Type.JACOBI)
-        ksp.setTolerances(rtol=1e-14, atol=1e-50, max_it=10000)
-        M.destroy()
-        return ksp
+        return parameter_derivatives(self.system, q, v, a, size=self.cell_size)
 
     # -- forward sensitivities --------------------------------------------------------------------
     @_collects_garbage
     def jacobian(self, p):
         """(sim (K, M, 3), dsim/dp (K, M, 3, P)) by forward sensitivities (one run)."""
         self._refuse_derivatives(p, sensitivities=True)
-        s, h, P = self.system, self.h, len(self.names)
+        s, P = self.system, len(self.names)
         K_frames = len(self.frame_times)
         nm = len(self.reference)
         dsim = np.zeros((K_frames, nm, 3, P))
@@ -766,10 +581,11 @@ class ForwardModel:
         solver = self._solver(lag=self.lags_factors)
         lagged = solver if isinstance(solver, LaggedFactors) else None
         ksp = solver.ksp if lagged is not None else solver
-        # backward Euler with a viscoelastic branch: z is one more state (dz0 = dq0: z0 = q0)
 
-        visco = [j for j, n in enumerate(self.names) if n in VISCOELASTIC]
-        others = [j for j in range(P) if j not in visco]
+        def solve(rhs, out):
+            self._solve(solver, rhs, out)
+
+        # with a viscoelastic branch (be, alpha): z is one more state (dz0 = dq0: z0 = q0)
         tangents["z"] = ([s.create_vec() for _ in range(P)]
                          if self.scheme.branch_sensitivities else None)
 
@@ -779,117 +595,42 @@ class ForwardModel:
                     x = tangents["a" if self.accel else "q"][j]
                     dsim[k, :, :, j] += w * self._apply_B(x)
 
-        def start(states0):
-            q0, v0, a0 = states0
-            if self.static:
-                # K(q0) dq0 = -P d r_static/dp
-                sksp, sderiv = self._static_setup(q0)
-                # (the relaxed branch does not act on the static equilibrium: dq0 = 0 for its
-                # parameters)
-                for j, r in zip(others, sderiv.vectors([self.names[j] for j in others]),
-                                strict=True):
-                    r.scale(-1.0)
-                    s.zero_prescribed(r)
-                    self._solve(sksp, r, tangents["q"][j])
-                    r.destroy()
-                sksp.destroy()
-            if tangents["z"] is not None:
-                for dq, dz in zip(tangents["q"], tangents["z"], strict=True):
-                    dq.copy(dz)
-            if self.has_a:
-                # M da0 = -P (R_p + K(q0) dq0)   (self.J holds K(q0) when static); the relaxed
-                # branch's force g K0 (q0 - z0) and its tangents are zero at t = 0 (dz0 = dq0)
-                deriv = self._derivatives(q0, v0, a0)
-                mksp = self._mass_solver()
-                for j in visco:
-                    tangents["a"][j].zeroEntries()
-                for j, r in zip(others, deriv.vectors([self.names[j] for j in others]),
-                                strict=True):
-                    if self.static:
-                        r.axpy(1.0, self.J * tangents["q"][j])
-                    r.scale(-1.0)
-                    s.zero_prescribed(r)
-                    mksp.solve(r, tangents["a"][j])
-                    r.destroy()
-                mksp.destroy()
-            observe_tangents(0)
-
         started = []
         failed_chords = [0]
 
         def on_step(n, st0, st1):
             if not started:
-                start(st0)
+                self._initial_tangents(st0, tangents)
+                observe_tangents(0)
                 started.append(True)
-            deriv, data = self._step_setup(n, st0, st1)
+            steps = self.step_derivatives
+            lin = steps.linearize(n, st0, st1, self.J)
             ksp.setOperators(self.J)
             if lagged is not None:
-                if getattr(self.integrator, "borrowed_failed", False):
+                if self.integrator.borrowed_failed:
                     # the step's chord failed on the kept factors (its own solver solved it):
                     # renewed here, or the next steps' chords would fail on them too
                     lagged.renew()
                     failed_chords[0] += 1
                 with self.grad_options.pushed():
                     lagged.operator_changed()
-            Rp = [None] * P
-            for j, r in zip(others, deriv.vectors([self.names[j] for j in others]),
-                            strict=True):
-                Rp[j] = r
-            branch = self._branch() if self.scheme.branch_sensitivities else None
-            for j in visco:   # (be only: _refuse_derivatives; the branch is tracked)
-                Rp[j] = branch.residual_derivative(self.names[j], st1[0], s.create_vec())
+            Rp = self._residual_derivatives(lin.deriv, st1[0])
             rhs, tmp = s.create_vec(), s.create_vec()
             for j in range(P):
-                dq0, dv0 = tangents["q"][j], tangents["v"][j]
-                if self.scheme.carries_acceleration:
-                    self._alpha_tangent(data, Rp[j], dq0, dv0, tangents["a"][j], solver, rhs,
-                                        tmp, branch, tangents["z"][j] if branch is not None
-                                        else None, st1[0], self.names[j])
-                    continue
-                # rhs = -R_p + M (dq0/h^2 + dv0/h) + D dq0/h (- T_w (dq0 + h dv0) for SI)
-                tmp.waxpy(h, dv0, dq0)
-                s.M.mult(tmp, rhs)
-                rhs.scale(1.0 / h**2)
-                rhs.axpy(-1.0, Rp[j])
-                rhs.axpy(1.0 / h, self._damp_tangent(data, dq0, tmp))
-                if self._damp_second(data, dv0, tmp) is not None:
-                    # SI: the Jacobian's velocity terms at u = v0 move with dv0
-                    rhs.axpy(-1.0 / h, tmp)
-                if data.get("T") is not None:
-                    tmp.waxpy(h, dv0, dq0)
-                    dqp = tmp.copy()
-                    data["T"].mult(dqp, tmp)
-                    rhs.axpy(-1.0, tmp)
-                    dqp.destroy()
-                if branch is not None:
-                    # R has -c K0 z0: its tangent moves to the right-hand side as + c K0 dz0
-                    s.K0_matrix().mult(tangents["z"][j], tmp)
-                    rhs.axpy(branch.jacobian_coefficient(), tmp)
-                s.zero_prescribed(rhs)
-                dq1 = tmp
-                self._solve(solver, rhs, dq1)
-                if branch is not None:
-                    branch.tangent_update(tangents["z"][j], dq1, st1[0], self.names[j])
-                if self.accel:
-                    dv0.copy(tangents["a"][j])
-                # dv1 = (dq1 - dq0)/h
-                dv0.waxpy(-1.0, dq0, dq1)
-                dv0.scale(1.0 / h)
-                dq1.copy(dq0)
-                if self.accel:
-                    # da1 = (dv1 - dv0)/h
-                    tangents["a"][j].aypx(-1.0, dv0)
-                    tangents["a"][j].scale(1.0 / h)
+                steps.tangent_step(lin, Rp[j], tangents["q"][j], tangents["v"][j],
+                                   tangents["a"][j] if tangents["a"] is not None else None,
+                                   tangents["z"][j] if tangents["z"] is not None else None,
+                                   solve, rhs, tmp, st1[0], self.names[j])
             for x in Rp + [rhs, tmp]:
                 x.destroy()
-            self._free_data(data)
+            lin.free()
             observe_tangents(n + 1)
             if lend:
                 # the next step's Newton chord iterates on these factors (borrowed_chord)
                 self.integrator.borrow_chord(lagged.factors if lagged is not None else ksp)
 
         # (not to si: its one Newton step is the method, not a solve to convergence)
-        lend = (hasattr(self.integrator, "borrow_chord") and not self.scheme.one_newton_step
+        lend = (not self.scheme.one_newton_step
                 and (lagged is not None or is_direct(ksp)))
         try:
             states, sim = self._run(p, store=False, on_step=on_step)
@@ -905,55 +646,61 @@ class ForwardModel:
             x.destroy()
         return sim, dsim
 
-    def _alpha_tangent(self, data, Rp, dq0, dv0, da0, ksp, rhs, tmp, branch=None, dz0=None,
-                       q1=None, name=None) -> None:
-        """One generalized-alpha tangent step, in place: (dq0, dv0, da0) -> (dq1, dv1, da1);
-        with the viscoelastic ``branch`` also dz0 -> dz1 (its term K0 (a_q dq0 + a_z dz0) in
-        the residual's tangent, :meth:`~petsoft.physics.viscoelastic.MaxwellBranch.
-        state_coefficients`; ``q1`` the step's end, ``name`` the parameter)."""
-        s, h = self.system, self.h
-        am, af, g, b = self.am, self.af, self.gamma, self.nbeta
-        ca = 1.0 / (b * h * h)
-        # primed: the tangents with dq1 = 0
-        da1 = dq0.copy()
-        da1.axpy(h, dv0)
-        da1.axpy(h * h * (0.5 - b), da0)
-        da1.scale(-ca)
-        dv1 = dv0.copy()
-        dv1.axpy(h * (1.0 - g), da0)
-        dv1.axpy(h * g, da1)
-        dvf = dv0.copy()
-        dvf.scale(1.0 - af)
-        dvf.axpy(af, dv1)
-        dam = da0.copy()
-        dam.scale(1.0 - am)
-        dam.axpy(am, da1)
-        dqf = dq0.copy()
-        dqf.scale(1.0 - af)
-        s.M.mult(dam, rhs)
-        self._K_apply(data, dqf, tmp)
-        rhs.axpy(1.0, tmp)
-        rhs.axpy(1.0, self._damp_tangent(data, dvf, tmp))
-        rhs.axpy(1.0, Rp)
-        if branch is not None:
-            a_q, a_z = branch.state_coefficients()
-            dq0.copy(dqf)                   # dqf <- a_q dq0 + a_z dz0 (dqf is spent)
-            dqf.scale(a_q)
-            dqf.axpy(a_z, dz0)
-            s.K0_matrix().mult(dqf, tmp)
-            rhs.axpy(1.0, tmp)
-        rhs.scale(-1.0)
-        s.zero_prescribed(rhs)
-        self._solve(ksp, rhs, tmp)          # tmp = dq1
-        if branch is not None:
-            branch.tangent_update(dz0, tmp, q1, name, dq0=dq0)
-        tmp.copy(dq0)
-        da1.axpy(ca, tmp)
-        dv1.axpy(h * g * ca, tmp)
-        da1.copy(da0)
-        dv1.copy(dv0)
-        for x in (da1, dv1, dvf, dam, dqf):
-            x.destroy()
+    def _split_names(self) -> tuple[list[int], list[int]]:
+        """(indices of the viscoelastic branch's parameters, of the others)."""
+        visco = [j for j, n in enumerate(self.names) if n in VISCOELASTIC]
+        return visco, [j for j in range(len(self.names)) if j not in visco]
+
+    def _residual_derivatives(self, deriv, q1) -> list:
+        """R_p of every parameter (new vectors) at a step's linearisation: ``deriv``'s, the
+        branch's own for its parameters (be and alpha only: _refuse_derivatives; the branch is
+        tracked) at the step's end ``q1``."""
+        visco, others = self._split_names()
+        Rp = [None] * len(self.names)
+        for j, r in zip(others, deriv.vectors([self.names[j] for j in others]), strict=True):
+            Rp[j] = r
+        branch = self._branch() if self.scheme.branch_sensitivities else None
+        for j in visco:
+            Rp[j] = branch.residual_derivative(self.names[j], q1, self.system.create_vec())
+        return Rp
+
+    def _initial_tangents(self, state0, tangents) -> None:
+        """The tangents of the initial state (q0, v0, a0), in place: dq0 of a static start,
+        dz0 = dq0, da0 of the consistent acceleration."""
+        s = self.system
+        visco, others = self._split_names()
+        q0, v0, a0 = state0
+        if self.static:
+            # K(q0) dq0 = -P d r_static/dp
+            sksp, sderiv = self._static_setup(q0)
+            # (the relaxed branch does not act on the static equilibrium: dq0 = 0 for its
+            # parameters)
+            for j, r in zip(others, sderiv.vectors([self.names[j] for j in others]),
+                            strict=True):
+                r.scale(-1.0)
+                s.zero_prescribed(r)
+                self._solve(sksp, r, tangents["q"][j])
+                r.destroy()
+            sksp.destroy()
+        if tangents["z"] is not None:
+            for dq, dz in zip(tangents["q"], tangents["z"], strict=True):
+                dq.copy(dz)
+        if self.has_a:
+            # M da0 = -P (R_p + K(q0) dq0)   (self.J holds K(q0) when static); the relaxed
+            # branch's force g K0 (q0 - z0) and its tangents are zero at t = 0 (dz0 = dq0)
+            deriv = self._derivatives(q0, v0, a0)
+            mksp = mass_solver(s)
+            for j in visco:
+                tangents["a"][j].zeroEntries()
+            for j, r in zip(others, deriv.vectors([self.names[j] for j in others]),
+                            strict=True):
+                if self.static:
+                    r.axpy(1.0, self.J * tangents["q"][j])
+                r.scale(-1.0)
+                s.zero_prescribed(r)
+                mksp.solve(r, tangents["a"][j])
+                r.destroy()
+            mksp.destroy()
 
     # -- discrete adjoint -------------------------------------------------------------------------
     @_collects_garbage
@@ -989,7 +736,7 @@ class ForwardModel:
 
     def _adjoint(self, p, dphi, cell_map: bool):
         self._refuse_derivatives(p)
-        s, h, P = self.system, self.h, len(self.names)
+        s, P = self.system, len(self.names)
         N = self.nsteps
         snapshots = self._snapshots(N)
         stats = SweepStats()
@@ -1028,45 +775,19 @@ class ForwardModel:
         ksp = self._solver()
         mu, rhs, tmp = s.create_vec(), s.create_vec(), s.create_vec()
 
+        def solve(rhs, out):
+            self._solve(ksp, rhs, out)
+
         def backward(n, st0, st1) -> None:
             """The adjoint of step n -> n+1 (states n and n+1): (gq, gv, ga) of n+1 -> of n."""
             nonlocal gq, gv, ga
             if self._speaks:
                 beat(lambda: f"still computing the gradient: adjoint step {N - n} of {N}")
-            deriv, data = self._step_setup(n, st0, st1)
+            lin = self.step_derivatives.linearize(n, st0, st1, self.J)
             ksp.setOperators(self.J)
-            if self.scheme.carries_acceleration:
-                gq, gv, ga = self._alpha_adjoint(data, deriv, gq, gv, ga, ksp, mu, rhs, tmp,
-                                                 contract)
-            else:
-                if self.accel:
-                    # a1 = (v1 - v0)/h: its adjoint joins v1's (and v0's below)
-                    gv.axpy(1.0 / h, ga)
-                # g = gq1 + gv1/h; mu = J^-1 P g
-                rhs.waxpy(1.0 / h, gv, gq)
-                s.zero_prescribed(rhs)
-                self._solve(ksp, rhs, mu)
-                contract(deriv, mu)
-                # gq0 = -gv1/h + M mu/h^2 + D mu/h (- T_w mu), gv0 = M mu/h (- h T_w mu)
-                s.M.mult(mu, tmp)
-                gq0 = tmp.copy()
-                gq0.scale(1.0 / h**2)
-                gq0.axpy(-1.0 / h, gv)
-                tmp.copy(gv)
-                gv.scale(1.0 / h)
-                gq0.axpy(1.0 / h, self._damp_tangent(data, mu, tmp))
-                if self._damp_second(data, mu, tmp) is not None:
-                    gv.axpy(-1.0 / h, tmp)      # the transpose of the tangent's term (symmetric)
-                if data.get("T") is not None:
-                    data["T"].mult(mu, tmp)
-                    gq0.axpy(-1.0, tmp)
-                    gv.axpy(-h, tmp)
-                gq0.copy(gq)
-                gq0.destroy()
-                if self.accel:
-                    gv.axpy(-1.0 / h, ga)
-                    ga.zeroEntries()
-            self._free_data(data)
+            gq, gv, ga = self.step_derivatives.adjoint_step(lin, gq, gv, ga, solve, contract, mu,
+                                                            rhs, tmp)
+            lin.free()
             if n in loads:
                 (ga if self.accel else gq).axpy(1.0, loads.pop(n))
 
@@ -1081,13 +802,29 @@ class ForwardModel:
                                  "recomputed_steps": stats.recomputed_steps,
                                  "peak_states": stats.peak_states,
                                  "peak_bytes": stats.peak_states * self._state_bytes()}
-        q0, v0, a0 = start
+        self._initial_adjoint(start, gq, ga, mu, tmp, contract)
+        for x in (gq, gv, ga, mu, rhs, tmp):
+            if x is not None:
+                x.destroy()
+        ksp.destroy()
+        if stored is None:
+            self._free(states)
+        else:
+            self._free_state(start)
+        return float(value), grad, cells
+
+    def _initial_adjoint(self, state0, gq, ga, mu, tmp, contract) -> None:
+        """The adjoint sweep's end: the initial state's dependence on the parameters (the
+        consistent acceleration's, a static start's) contracted; ``gq``, ``ga`` the adjoints of
+        q0 and a0 (used up)."""
+        s = self.system
+        q0, v0, a0 = state0
         if self.static:
             sksp, sderiv = self._static_setup(q0)       # self.J = K(q0)
         if self.has_a:
             # M da0 = -P (R_p(t0) + K(q0) dq0): grad -= R_p(t0) . nu, gq0 -= K(q0) nu,
             # nu = M^-1 P ga0
-            mksp = self._mass_solver()
+            mksp = mass_solver(s)
             s.zero_prescribed(ga)
             mksp.solve(ga, mu)
             mksp.destroy()
@@ -1101,15 +838,6 @@ class ForwardModel:
             self._solve(sksp, gq, mu)
             contract(sderiv, mu)
             sksp.destroy()
-        for x in (gq, gv, ga, mu, rhs, tmp):
-            if x is not None:
-                x.destroy()
-        ksp.destroy()
-        if stored is None:
-            self._free(states)
-        else:
-            self._free_state(start)
-        return float(value), grad, cells
 
     def _state_bytes(self) -> int:
         """Bytes of one stored state on this rank (q, v and, if carried, a)."""
@@ -1131,47 +859,6 @@ class ForwardModel:
         fit = self.comm.tompi4py().allreduce(int(fit), op=MPI.MIN)
         return None if fit >= steps + 1 else max(int(fit), 2)
 
-    def _alpha_adjoint(self, data, deriv, gq1, gv1, ga1, ksp, mu, rhs, tmp, contract):
-        """Transpose of :meth:`_alpha_tangent`: adjoints of (q1, v1, a1) -> of (q0, v0, a0)."""
-        s, h = self.system, self.h
-        am, af, g, b = self.am, self.af, self.gamma, self.nbeta
-        ca = 1.0 / (b * h * h)
-        # dv1 = dv0 + h(1-g) da0 + h g da1 ; da1 = ca (dq1 - dq0 - h dv0 - h^2 (1/2-b) da0)
-        gda1 = ga1.copy()
-        gda1.axpy(h * g, gv1)
-        gv0 = gv1.copy()
-        ga0 = gv1.copy()
-        ga0.scale(h * (1.0 - g))
-        rhs.waxpy(ca, gda1, gq1)                      # adjoint of dq1
-        gq0 = gda1.copy()
-        gq0.scale(-ca)
-        gv0.axpy(-ca * h, gda1)
-        ga0.axpy(-ca * h * h * (0.5 - b), gda1)
-        s.zero_prescribed(rhs)
-        self._solve(ksp, rhs, mu)
-        contract(deriv, mu)
-        # minus the transpose of L(dq0, dv0, da0) = M dam' + K dqf' + D dvf' applied to mu
-        ym, yk, yd = s.create_vec(), s.create_vec(), s.create_vec()
-        s.M.mult(mu, ym)
-        self._K_apply(data, mu, yk)
-        self._damp_tangent(data, mu, yd)
-        b_dv1 = yd.copy()
-        b_dv1.scale(af)
-        b_da1 = ym.copy()
-        b_da1.scale(am)
-        b_da1.axpy(h * g, b_dv1)
-        gq0.axpy(-(1.0 - af), yk)
-        gq0.axpy(ca, b_da1)
-        gv0.axpy(-(1.0 - af), yd)
-        gv0.axpy(-1.0, b_dv1)
-        gv0.axpy(ca * h, b_da1)
-        ga0.axpy(-(1.0 - am), ym)
-        ga0.axpy(-h * (1.0 - g), b_dv1)
-        ga0.axpy(ca * h * h * (0.5 - b), b_da1)
-        for x in (ym, yk, yd, b_dv1, b_da1, gda1, gq1, gv1, ga1):
-            x.destroy()
-        return gq0, gv0, ga0
-
     # -- finite differences -----------------------------------------------------------------------
     def fd_jacobian(self, p, rel_step: float = 1e-6) -> np.ndarray:
         """dsim/dp (K, M, 3, P) by central differences, step rel_step * max(|p_j|, 1)."""
@@ -1191,48 +878,4 @@ class ForwardModel:
         self.J.destroy()
         if self._own_observer:
             self.observer.destroy()
-        if self._helper is not None:
-            self._helper.work.destroy()
 
-
-class _GenericDerivatives:
-    """d r/d p of a system offering only ``residual_parameter_derivatives`` (e.g. mass-spring):
-    the w term d/dp [K(q) w] by a central difference of the derivatives in q along w."""
-
-    def __init__(self, system, q, v, a, w, size, v_lin=None):
-        self.system = system
-        self.q, self.v, self.a = q.copy(), v.copy(), a.copy()
-        self.w = w.copy() if w is not None else None
-        self.v_lin = v_lin.copy() if v_lin is not None else None
-        self.size = size
-
-    def _at(self, names, q):
-        s = self.system
-        if self.v_lin is not None:
-            return s.residual_parameter_derivatives(names, q, self.v, self.a, v_lin=self.v_lin)
-        return s.residual_parameter_derivatives(names, q, self.v, self.a)
-
-    def vectors(self, names) -> list:
-        out = self._at(names, self.q)
-        wmax = self.w.norm(PETSc.NormType.INFINITY) if self.w is not None else 0.0
-        if wmax > 0.0:
-            eps = SI_EPS * self.size / wmax
-            x = self.q.copy()
-            x.axpy(eps, self.w)
-            plus = self._at(names, x)
-            x.axpy(-2.0 * eps, self.w)
-            minus = self._at(names, x)
-            for o, hi, lo in zip(out, plus, minus, strict=True):
-                hi.axpy(-1.0, lo)
-                o.axpy(0.5 / eps, hi)
-                hi.destroy()
-                lo.destroy()
-            x.destroy()
-        return out
-
-    def contract(self, names, mu) -> np.ndarray:
-        vecs = self.vectors(names)
-        result = np.array([vec.dot(mu) for vec in vecs])
-        for vec in vecs:
-            vec.destroy()
-        return result

@@ -81,7 +81,9 @@ class MarkerMisfit:
         return int(self.seen.sum()) + (self.n if self.regularization > 0.0 else 0)
 
     # -- pieces -------------------------------------------------------------------------------
-    def _data_residual(self, sim: np.ndarray) -> np.ndarray:
+    def data_residual(self, sim: np.ndarray) -> np.ndarray:
+        """The seen data residuals over sigma of a simulation ``sim`` (K, M, 3): r(z) without
+        the regularisation rows."""
         if self.misfit is not None:
             return self.misfit.residual(sim)
         return (sim[self.seen] - self.data[self.seen]) / self.sigma
@@ -117,7 +119,7 @@ class MarkerMisfit:
     # -- the LeastSquaresProblem protocol ---------------------------------------------------
     def residual(self, z: np.ndarray) -> np.ndarray:
         """r(z): seen data residuals over sigma (then the regularisation rows)."""
-        r = self._data_residual(self.simulate(z))
+        r = self.data_residual(self.simulate(z))
         if self.regularization > 0.0:
             r = np.concatenate([r, self._regularization_residual(z)])
         return r
@@ -171,7 +173,7 @@ class MarkerMisfit:
         if not in_z:
             J = J * self.scaling.dp_dz(z)[None, :]              # chain rule dp/dz (diagonal)
         self.last_simulation = sim
-        r = self._data_residual(sim)
+        r = self.data_residual(sim)
         if self.regularization > 0.0:
             r = np.concatenate([r, self._regularization_residual(z)])
             J = np.vstack([J, np.sqrt(self.regularization) * np.eye(self.n)])

@@ -32,6 +32,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.implicit import NoBranch, SolverReuse, StepReport, branch_of
 from petsoft.dynamics.interfaces import StepperDefaults, length_scale
+from petsoft.dynamics.step_derivatives import mass_solver
 from petsoft.errors import InvertedElementError, without_frames
 from petsoft.physics.viscoelastic import MaxwellRule
 from petsoft.solvers.borrowed_chord import ChordBorrower
@@ -204,6 +205,31 @@ def alpha_parameters(radius: float) -> tuple[float, float, float, float]:
     return am, af, 0.5 + am - af, 0.25 * (1.0 + am - af) ** 2
 
 
+def consistent_acceleration(system, t0, q0, v0, out, work=None) -> None:
+    """out = M^-1 (f(t0) - grad W(q0) - D v0 - the viscoelastic branch's force) (zero on
+    supports): the acceleration :class:`GeneralizedAlpha` starts from, and the one a forward
+    model observes at t0. ``work``: a scratch vector of the system's layout (else one is made).
+    """
+    s = system
+    own = work is None
+    if own:
+        work = s.create_vec()
+    rhs = s.create_vec()
+    s.internal_gradient(q0, rhs)
+    rhs.scale(-1.0)
+    rhs.axpy(-1.0, s.damping_apply(v0, work))
+    branch = s.viscoelastic
+    if branch is not None and branch.active:
+        rhs.axpy(-1.0, branch.stress_force(q0, work))   # g K0 (q0 - z0)
+    rhs.axpy(1.0, s.gravity)
+    rhs.axpy(1.0, s.tractions(t0, work))
+    s.zero_prescribed(rhs)
+    ksp = mass_solver(s)
+    ksp.solve(rhs, out)
+    for obj in (ksp, rhs) + ((work,) if own else ()):
+        obj.destroy()
+
+
 class GeneralizedAlpha(ChordBorrower, SolverReuse):
     """Generalized-alpha steps solved for q1 with SNES, started from the consistent a0.
 
@@ -259,29 +285,9 @@ class GeneralizedAlpha(ChordBorrower, SolverReuse):
         self._lagged = reuse_across_iterations(snes, s)
 
     def consistent_acceleration(self, t0, q0, v0, out) -> None:
-        """out = M^-1 (f(t0) - grad W(q0) - D v0) (zero on supports)."""
-        s = self.system
-        rhs = s.create_vec()
-        s.internal_gradient(q0, rhs)
-        rhs.scale(-1.0)
-        rhs.axpy(-1.0, s.damping_apply(v0, self.work))
-        branch = s.viscoelastic
-        if branch is not None and branch.active:
-            rhs.axpy(-1.0, branch.stress_force(q0, self.work))   # g K0 (q0 - z0)
-        rhs.axpy(1.0, s.gravity)
-        rhs.axpy(1.0, s.tractions(t0, self.work))
-        s.zero_prescribed(rhs)
-        M = s.M.copy()
-        if s.dirichlet is not None:
-            s.dirichlet.eliminate(M)
-        ksp = PETSc.KSP().create(comm=s.comm)
-        ksp.setOperators(M)
-        ksp.setType(PETSc.KSP.Type.CG)
-        ksp.getPC().setType(PETSc.PC.Type.JACOBI)
-        ksp.setTolerances(rtol=1e-14, atol=1e-50, max_it=10000)
-        ksp.solve(rhs, out)
-        for obj in (ksp, M, rhs):
-            obj.destroy()
+        """out = M^-1 (f(t0) - grad W(q0) - D v0) (zero on supports):
+        :func:`consistent_acceleration`."""
+        consistent_acceleration(self.system, t0, q0, v0, out, self.work)
 
     def _update(self, q1) -> None:
         """a1, v1, q_f, v_f from q1."""
@@ -329,7 +335,9 @@ class GeneralizedAlpha(ChordBorrower, SolverReuse):
                                s.beta * c + self._branch.jacobian_coefficient(), P, velocity=c,
                                reuse=True)
 
-    def _forget(self) -> None:
+    def forget(self) -> None:
+        """Start the next step from a newly computed consistent acceleration, wherever it
+        starts (a new run from the same state as the last step's end, too)."""
         if self._last is not None:
             self._last[1].destroy()
             self._last[2].destroy()
@@ -416,7 +424,7 @@ class GeneralizedAlpha(ChordBorrower, SolverReuse):
         if bad:
             report.reason += f" ({self._bad or 'an element inverted on another rank'})"
         if not report.converged:
-            self._forget()
+            self.forget()
             self.new_run()
             traction_f.destroy()
             return report

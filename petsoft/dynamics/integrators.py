@@ -46,8 +46,10 @@ class Scheme:
         Order of accuracy (for smooth motion).
     implicit : bool
         Solves a (non)linear system per step.
-    gradients : bool
-        Calibration's forward model differentiates through it (sensitivities and adjoint).
+    derivatives : callable(system, integrator, h, observe_acceleration) -> StepDerivatives, or None
+        The tangent and adjoint steps beside the scheme's step
+        (:class:`~petsoft.dynamics.step_derivatives.StepDerivatives`): calibration's forward
+        model differentiates through the scheme (sensitivities and adjoint); None: it does not.
     maxwell : MaxwellRule or None
         How the viscoelastic branch's internal variable steps with it; None: the scheme does
         not include the branch.
@@ -75,7 +77,7 @@ class Scheme:
     description: str
     order: int
     implicit: bool
-    gradients: bool
+    derivatives: Callable | None
     maxwell: MaxwellRule | None
     build: Callable
     one_newton_step: bool = False
@@ -86,6 +88,11 @@ class Scheme:
     continuum_only: bool = False
     ts_backend: bool = False
 
+    @property
+    def gradients(self) -> bool:
+        """Calibration's forward model differentiates through it (sensitivities and adjoint)."""
+        return self.derivatives is not None
+
 
 def _implicit(name: str):
     def build(system, options: IntegratorOptions):
@@ -94,6 +101,22 @@ def _implicit(name: str):
         return ImplicitIntegrator(system, name, solver=options.solver,
                                   options=SolverOptions("", options.petsc))
     return build
+
+
+def _implicit_derivatives(one_newton_step: bool):
+    def build(system, integrator, h: float, observe_acceleration: bool):
+        from petsoft.dynamics.implicit_derivatives import ImplicitStepDerivatives
+
+        return ImplicitStepDerivatives(system, h, one_newton_step, observe_acceleration)
+    return build
+
+
+def _alpha_derivatives(system, integrator, h: float, observe_acceleration: bool):
+    from petsoft.dynamics.alpha_derivatives import AlphaStepDerivatives
+
+    # (the accelerations are the scheme's own: observing them adds nothing to its tangent)
+    return AlphaStepDerivatives(system, h, integrator.radius,
+                                branch_sensitivities=SCHEMES["alpha"].branch_sensitivities)
 
 
 def _alpha(system, options: IntegratorOptions):
@@ -127,22 +150,22 @@ def _imex(system, options: IntegratorOptions):
 
 #: Every scheme, by its name in the experiment file.
 SCHEMES: dict[str, Scheme] = {s.name: s for s in (
-    Scheme("be", "backward Euler, full Newton", 1, True, True,
+    Scheme("be", "backward Euler, full Newton", 1, True, _implicit_derivatives(False),
            MaxwellRule.BACKWARD_EULER, _implicit("be"),
            branch_sensitivities=True, minimization=True),
-    Scheme("si", "semi-implicit: one Newton step", 1, True, True,
+    Scheme("si", "semi-implicit: one Newton step", 1, True, _implicit_derivatives(True),
            MaxwellRule.BACKWARD_EULER, _implicit("si"), one_newton_step=True),
-    Scheme("alpha", "generalized-alpha", 2, True, True,
+    Scheme("alpha", "generalized-alpha", 2, True, _alpha_derivatives,
            MaxwellRule.GENERALIZED_ALPHA, _alpha, force_at="alpha", carries_acceleration=True,
            branch_sensitivities=True, ts_backend=True),
-    Scheme("midpoint", "implicit midpoint with a discrete gradient", 2, True, False,
+    Scheme("midpoint", "implicit midpoint with a discrete gradient", 2, True, None,
            MaxwellRule.TRAPEZOIDAL, _implicit("midpoint"), force_at="midpoint"),
-    Scheme("trapezoidal", "trapezoidal rule", 2, True, False,
+    Scheme("trapezoidal", "trapezoidal rule", 2, True, None,
            MaxwellRule.TRAPEZOIDAL, _implicit("trapezoidal"), force_at="trapezoidal"),
-    Scheme("ere", "exponential Rosenbrock-Euler", 2, False, False, None, _ere),
-    Scheme("explicit", "velocity Verlet (or symplectic Euler), lumped mass", 2, False, False,
+    Scheme("ere", "exponential Rosenbrock-Euler", 2, False, None, None, _ere),
+    Scheme("explicit", "velocity Verlet (or symplectic Euler), lumped mass", 2, False, None,
            None, _explicit),
-    Scheme("imex", "fast/slow modal splitting", 1, True, False, None, _imex,
+    Scheme("imex", "fast/slow modal splitting", 1, True, None, None, _imex,
            continuum_only=True),
 )}
 
