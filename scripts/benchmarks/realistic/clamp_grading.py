@@ -50,20 +50,20 @@ H_EDGE = 0.001
 VARIANTS = ("uniform", "scaled", "fixed")
 
 
-def mesh(gmsh, variant: str, h: float) -> None:
-    """The finger meshed in a new gmsh model: family ``variant``, bulk size ``h``. "uniform"
-    and "scaled" are the truth meshes of ``generate.mesh_shape`` (``graded=True``, and
-    ``clamp=True`` for "scaled")."""
+def mesh(gmsh, variant: str, h: float, shape: str = "finger") -> None:
+    """``shape`` (the independent suite's) meshed in a new gmsh model: family ``variant``, bulk
+    size ``h``. "uniform" and "scaled" are the truth meshes of ``generate.mesh_shape``
+    (``graded=True``, and ``clamp=True`` for "scaled")."""
     if variant != "fixed":
-        indep.mesh_shape(gmsh, "finger", h, graded=True, clamp=variant == "scaled")
+        indep.mesh_shape(gmsh, shape, h, graded=True, clamp=variant == "scaled")
         return
-    gmsh.model.add(f"finger-{variant}-{h}")
-    indep.build_geometry(gmsh, "finger")
+    gmsh.model.add(f"{shape}-{variant}-{h}")
+    indep.build_geometry(gmsh, shape)
     gmsh.option.setNumber("Mesh.CharacteristicLengthMin", H_EDGE)
     gmsh.option.setNumber("Mesh.CharacteristicLengthMax", h)
     field = gmsh.model.mesh.field
     dist = field.add("Distance")
-    field.setNumbers(dist, "CurvesList", indep.clamp_edges(gmsh, 0))
+    field.setNumbers(dist, "CurvesList", indep.clamp_edges(gmsh, 2 if shape == "bracket" else 0))
     field.setNumber(dist, "NumPointsPerCurve", 200)
     thr = field.add("Threshold")
     field.setNumber(thr, "InField", dist)
@@ -79,8 +79,9 @@ def mesh(gmsh, variant: str, h: float) -> None:
         indep.size_options(gmsh)
 
 
-def modes(gmsh, variant: str, h: float, count: int = 4) -> dict:
-    """The lowest ``count`` natural frequencies (Hz) of the clamped linear-elastic finger, P2."""
+def modes(gmsh, variant: str, h: float, count: int = 4, shape: str = "finger") -> dict:
+    """The lowest ``count`` natural frequencies (Hz) of the clamped linear-elastic ``shape``,
+    P2."""
     import ufl
     from dolfinx import fem
     from dolfinx import mesh as dmesh
@@ -90,7 +91,7 @@ def modes(gmsh, variant: str, h: float, count: int = 4) -> dict:
     from petsc4py import PETSc
     from slepc4py import SLEPc
 
-    mesh(gmsh, variant, h)
+    mesh(gmsh, variant, h, shape)
     msh, _, _ = gmshio.model_to_mesh(gmsh.model, MPI.COMM_SELF, 0, gdim=3)
     gmsh.model.remove()
     V = fem.VectorFunctionSpace(msh, ("CG", 2))
@@ -103,7 +104,7 @@ def modes(gmsh, variant: str, h: float, count: int = 4) -> dict:
 
     k = (2 * mu * ufl.inner(eps(u), eps(w)) + lam * ufl.div(u) * ufl.div(w)) * ufl.dx
     m = indep.RHO * ufl.dot(u, w) * ufl.dx
-    facets = dmesh.locate_entities_boundary(msh, 2, lambda x: x[0] < 1e-9)
+    facets = dmesh.locate_entities_boundary(msh, 2, lambda x: indep.clamp_mask(shape, x))
     bcs = [fem.dirichletbc(np.zeros(3, dtype=PETSc.ScalarType),
                            fem.locate_dofs_topological(V, 2, facets), V)]
     K = assemble_matrix(fem.form(k), bcs=bcs, diagonal=1.0)
@@ -128,7 +129,8 @@ def modes(gmsh, variant: str, h: float, count: int = 4) -> dict:
     lams = sorted(eps_.getEigenvalue(i).real for i in range(eps_.getConverged()))[:count]
     if len(lams) < count:
         raise RuntimeError(f"{variant} h {h}: {len(lams)} eigenvalues converged")
-    return {"variant": variant, "h": h, "tets": int(msh.topology.index_map(3).size_local),
+    return {"shape": shape, "variant": variant, "h": h,
+            "tets": int(msh.topology.index_map(3).size_local),
             "dofs": int(3 * V.dofmap.index_map.size_global),
             "hz": [float(np.sqrt(x) / (2 * np.pi)) for x in lams]}
 
@@ -199,6 +201,7 @@ def main() -> int:
     a.add_argument("--mesh", default="uniform", choices=VARIANTS)
     a.add_argument("--h", type=float, nargs="+", default=[0.011, 0.008, 0.0058])
     a.add_argument("--count", type=int, default=4)
+    a.add_argument("--shape", default="finger", choices=sorted(indep.SHAPES))
     b = sub.add_parser("run")
     b.add_argument("variant", choices=VARIANTS)
     b.add_argument("h", type=float)
@@ -218,7 +221,7 @@ def main() -> int:
     if args.cmd == "modes":
         rows = []
         for h in args.h:
-            rows.append(modes(gmsh, args.mesh, h, args.count))
+            rows.append(modes(gmsh, args.mesh, h, args.count, args.shape))
             print(json.dumps(rows[-1]), flush=True)
         f = np.array([r["hz"] for r in rows])
         for i in range(len(rows) - 2):
