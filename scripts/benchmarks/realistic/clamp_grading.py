@@ -46,8 +46,9 @@ CACHE = HERE.parents[2] / "out" / "clamp_grading"
 #: the fixed smallest element size at the clamp's edges (m) of the "fixed" family
 H_EDGE = 0.001
 #: mesh families: uniform; graded towards the clamp's edges, h / 4 there (within h / 4 of them)
-#: growing to h at 4 h; the same with H_EDGE at the edges
-VARIANTS = ("uniform", "scaled", "fixed")
+#: growing to h at 4 h; the same with H_EDGE at the edges; "curved": "scaled" with
+#: second-order (curved) cells on curved faces (the plate's hole)
+VARIANTS = ("uniform", "scaled", "fixed", "curved")
 
 
 def mesh(gmsh, variant: str, h: float, shape: str = "finger") -> None:
@@ -55,7 +56,9 @@ def mesh(gmsh, variant: str, h: float, shape: str = "finger") -> None:
     size ``h``. "uniform" and "scaled" are the truth meshes of ``generate.mesh_shape``
     (``graded=True``, and ``clamp=True`` for "scaled")."""
     if variant != "fixed":
-        indep.mesh_shape(gmsh, shape, h, graded=True, clamp=variant == "scaled")
+        indep.mesh_shape(gmsh, shape, h, graded=True, clamp=variant != "uniform")
+        if variant == "curved":
+            gmsh.model.mesh.setOrder(2)
         return
     gmsh.model.add(f"{shape}-{variant}-{h}")
     indep.build_geometry(gmsh, shape)
