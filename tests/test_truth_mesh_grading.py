@@ -6,7 +6,8 @@ singularity where the clamped face meets the free faces (scripts/benchmarks/real
 the truths' meshes are therefore refined there. Checked here with gmsh alone (no DOLFINx, no
 petsoft): the curves found are the clamp face's whole boundary (their length is its perimeter,
 computed from the drawn dimensions), and the graded mesh's nodes along them are about h / 4
-apart where the uniform mesh's are about h apart.
+apart where the uniform mesh's are about h apart; the families with curved faces get curved
+(second-order) cells with a positive Jacobian everywhere.
 """
 
 import importlib.util
@@ -81,6 +82,15 @@ def test_the_clamp_edges_are_found_and_graded(session, family):
         total = sum(session.model.occ.getMass(1, c) for c in curves)
         assert total == pytest.approx(perimeter(family, g), rel=1e-6)
         spaced[graded] = spacing(session, curves)
+        types = session.model.mesh.getElementTypes(3)
+        if graded and family in rs.CURVED:
+            # curved (10-node) tets, none turned inside out by the curving
+            assert list(types) == [11]
+            points, _ = session.model.mesh.getIntegrationPoints(11, "Gauss4")
+            _, dets, _ = session.model.mesh.getJacobians(11, points)
+            assert dets.min() > 0
+        else:
+            assert list(types) == [4]
         session.model.remove()
     # uniform: about h along the edges; graded: about h / 4 (gmsh meets sizes loosely)
     assert 0.6 * h < spaced[False] < 1.2 * h
