@@ -29,14 +29,22 @@ import numpy as np
 from generate_realistic import CACHE_DIR, CASES_DIR, H_FINEST, H_REFINED, H_TRUTH, MARKERS, indep
 
 
-def record(case: str, p: float, span: float, cosine: float, graded: bool = False) -> None:
-    """Write the measured order ``p`` into ``cases/<case>/truth.json`` (module docstring)."""
+def record(case: str, p: float, span: float, cosine: float, graded: bool = False,
+           used: tuple[float, str] | None = None) -> None:
+    """Write the measured order ``p`` into ``cases/<case>/truth.json`` (module docstring);
+    ``used``: (order, why): estimate the error at that order instead (the case's own
+    measurement recorded beside it), e.g. when its difference fields are not one shape."""
     path = CASES_DIR / case / "truth.json"
     truth = json.loads(path.read_text())
     conv = truth["convergence"]
     if truth.get("fine_mesh", "uniform").startswith("graded") != graded:
         raise ValueError(f"{case}: its truth mesh is {truth.get('fine_mesh', 'uniform')}, the "
                          f"runs measured {'graded' if graded else 'uniform'}")
+    meshes = "graded towards the clamp's edges" if graded else "uniform"
+    own = {"p": p, "from": f"h 11, 8, 5.8 mm at 0.25 ms, {meshes} (measured_order.py)",
+           "span": span, "cosine": cosine}
+    if used is not None:
+        p = used[0]
     h_other, h = conv["space_run"]["h"], truth["fine_h"]
     if h_other > h:     # the truth is the finer of the pair: D = e (r^p - 1)
         space = conv["space_coarser_difference"]["rms_over_noise"] / ((h_other / h) ** p - 1.0)
@@ -44,19 +52,17 @@ def record(case: str, p: float, span: float, cosine: float, graded: bool = False
         space = conv["space_refined_difference"]["rms_over_noise"] / (1.0 - (h_other / h) ** p)
     bound = space + conv["time_error_estimate"]["rms_over_noise"]
     tol = truth["truth_tolerance_over_noise"]
-    meshes = "graded towards the clamp's edges" if graded else "uniform"
-    conv["measured_order"] = {
-        "p": p, "from": f"h 11, 8, 5.8 mm at 0.25 ms, {meshes} (measured_order.py)",
-        "span": span,
-        "cosine": cosine, "space_error_estimate_rms": space, "bound_rms_over_noise": bound}
+    conv["measured_order"] = (own if used is None else
+                              {"p": used[0], "from": used[1], "this_case": own}) | {
+        "space_error_estimate_rms": space, "bound_rms_over_noise": bound}
     conv["converged"] = bool(conv["bound_rms_over_noise"] < tol and bound < tol)
     path.write_text(json.dumps(truth, indent=1) + "\n")
     print(f"{case}: at p {p:.2f} the truth's space error is {space:.3f}, bound {bound:.3f} x the "
           f"noise -> converged {conv['converged']} (truth.json written)")
 
 
-def main(cases: list[str], span: float = 1.0, write: bool = False, graded: bool = False
-         ) -> int:
+def main(cases: list[str], span: float = 1.0, write: bool = False, graded: bool = False,
+         used: tuple[float, str] | None = None) -> int:
     r = H_TRUTH / H_REFINED
     assert abs(H_REFINED / H_FINEST - r) < 0.01     # the nominal ratio of both pairs
     for case in cases:
@@ -100,7 +106,7 @@ def main(cases: list[str], span: float = 1.0, write: bool = False, graded: bool 
             if name == "all":
                 whole = (float(np.log(rms1 / rms2) / np.log(r)), float(cos))
         if write:
-            record(case, whole[0], (frames - 1) * indep.STEP, whole[1], graded)
+            record(case, whole[0], (frames - 1) * indep.STEP, whole[1], graded, used)
     return 0
 
 
@@ -111,7 +117,14 @@ if __name__ == "__main__":
                     help="the 5.8 mm runs' span (s; their cache files' suffix)")
     ap.add_argument("--graded", action="store_true",
                     help="the runs on meshes graded towards the clamp's edges (graded-<level>)")
+    ap.add_argument("--use-order", type=float, default=None,
+                    help="with --write: estimate the error at this order (measured elsewhere, "
+                         "--why says where), recording the case's own beside it")
+    ap.add_argument("--why", default="", help="where --use-order was measured")
     ap.add_argument("--write", action="store_true",
                     help="record the order and the bound at it in the cases' truth.json")
     args = ap.parse_args()
-    raise SystemExit(main(args.cases, args.span, args.write, args.graded))
+    if args.use_order is not None and not args.why:
+        ap.error("--use-order needs --why (where that order was measured)")
+    used = None if args.use_order is None else (args.use_order, args.why)
+    raise SystemExit(main(args.cases, args.span, args.write, args.graded, used))
