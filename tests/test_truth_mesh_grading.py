@@ -19,6 +19,9 @@ import pytest
 
 gmsh = pytest.importorskip("gmsh")
 
+#: rank-local (gmsh in each process): once, serially
+pytestmark = pytest.mark.serial_only
+
 HERE = Path(__file__).resolve().parents[1] / "scripts/benchmarks/independent"
 
 
