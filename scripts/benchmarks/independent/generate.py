@@ -179,9 +179,14 @@ def build_geometry(gmsh, shape: str, ball: dict | None = None) -> None:
 REENTRANT = {"bracket": ((0.04, 0.0, 0.16), (0.04, 0.04, 0.16))}
 
 
-def grade_towards(gmsh, curves: list[int], h: float) -> None:
-    """Element size h / 4 at ``curves`` (a re-entrant edge, where the stress is singular),
-    growing to h over 4 h: a threshold on the distance to them, as the background field."""
+def grade_towards(gmsh, curves: list[int], h: float, field_only: bool = False) -> None:
+    """Element size h / 4 at ``curves`` (a re-entrant edge or the clamped face's edges, where
+    the stress is singular), growing to h over 4 h: a threshold on the distance to them, as the
+    background field. ``field_only``: the size comes from the field alone, not also extended
+    from the sizes on the boundary's curves into the faces and the volume (gmsh's default,
+    which the suite's bracket keeps: 4,483 instead of 3,487 tets on the finger graded at its
+    clamp at h 11 mm, for no measured gain). gmsh's options are global: restore them with
+    :func:`size_options` after meshing."""
     field = gmsh.model.mesh.field
     dist = field.add("Distance")
     field.setNumbers(dist, "CurvesList", curves)
@@ -193,6 +198,32 @@ def grade_towards(gmsh, curves: list[int], h: float) -> None:
     field.setNumber(thr, "DistMin", h / 4)
     field.setNumber(thr, "DistMax", 4 * h)
     field.setAsBackgroundMesh(thr)
+    if field_only:
+        size_options(gmsh, 0)
+
+
+#: gmsh's options deciding where element sizes come from besides the background field
+SIZE_FROM = ("Mesh.MeshSizeExtendFromBoundary", "Mesh.MeshSizeFromPoints",
+             "Mesh.MeshSizeFromCurvature")
+
+
+def size_options(gmsh, value: int | None = None) -> None:
+    """Set :data:`SIZE_FROM` to ``value``, or (None) back to gmsh's defaults (1, 1, 0)."""
+    for key, default in zip(SIZE_FROM, (1, 1, 0), strict=True):
+        gmsh.option.setNumber(key, default if value is None else value)
+
+
+def clamp_edges(gmsh, axis: int) -> list[int]:
+    """The curves of the current model lying in the clamp's plane (coordinate ``axis`` = 0):
+    the clamped face's edges, where it meets the free faces and the stress is singular (r^l, l
+    ~ 0.7: P2 frequencies then converge at ~h^1.4, not h^4; README.md of ../realistic)."""
+    eps = 1e-6
+    lo, hi = np.full(3, -1e3), np.full(3, 1e3)
+    lo[axis], hi[axis] = -eps, eps
+    curves = [t for _, t in gmsh.model.getEntitiesInBoundingBox(*lo, *hi, dim=1)]
+    if not curves:
+        raise RuntimeError(f"no curve in the clamp's plane (axis {axis} = 0)")
+    return curves
 
 
 def generate_tets(gmsh) -> None:
@@ -214,10 +245,12 @@ def cached_run(path: Path, markers: np.ndarray, say) -> dict | None:
     return json.loads(str(z["meta"])) | {"displacements": z["displacements"], "found": z["found"]}
 
 
-def mesh_shape(gmsh, shape: str, h: float, graded: bool = False, ball: dict | None = None
-               ) -> None:
+def mesh_shape(gmsh, shape: str, h: float, graded: bool = False, ball: dict | None = None,
+               clamp: bool = False) -> None:
     """Mesh ``shape`` with element size ``h``; ``graded``: down to h / 4 at a re-entrant edge
-    (:data:`REENTRANT`), growing to h over 4 h (the truth's meshes only: the user's is uniform).
+    (:data:`REENTRANT`), growing to h over 4 h (the truth's meshes only: the user's is uniform);
+    ``clamp`` (with ``graded``): at the clamped face's edges too (:func:`clamp_edges`; the
+    sizes from the field only), which the suite's committed truths were made without.
     ``ball``: a conforming ball part (:func:`build_geometry`), meshed with second-order (curved)
     cells: with flat facets the finger's ball part (28.53 cm^3) was 1.3 % too small at h = 11 mm
     and 0.66 % at 8 mm, a mass error of second order in h; curved, 2e-5 and 2e-6."""
@@ -225,6 +258,7 @@ def mesh_shape(gmsh, shape: str, h: float, graded: bool = False, ball: dict | No
     build_geometry(gmsh, shape, ball)
     gmsh.option.setNumber("Mesh.CharacteristicLengthMin", h / 4 if graded else h)
     gmsh.option.setNumber("Mesh.CharacteristicLengthMax", h)
+    curves = []
     if graded and shape in REENTRANT:
         (x0, y0, z0), (x1, y1, z1) = REENTRANT[shape]
         eps = 1e-6
@@ -232,8 +266,15 @@ def mesh_shape(gmsh, shape: str, h: float, graded: bool = False, ball: dict | No
                                                     y1 + eps, z1 + eps, dim=1)
         if not edges:
             raise RuntimeError(f"{shape}: no edge found at the re-entrant corner")
-        grade_towards(gmsh, [e[1] for e in edges], h)
-    generate_tets(gmsh)
+        curves = [e[1] for e in edges]
+    if graded and clamp:
+        curves += clamp_edges(gmsh, 2 if shape == "bracket" else 0)
+    if curves:
+        grade_towards(gmsh, curves, h, field_only=clamp)
+    try:
+        generate_tets(gmsh)
+    finally:
+        size_options(gmsh)
     if ball:
         gmsh.model.mesh.setOrder(2)     # the edges' midpoints placed on the ball's surface
 
@@ -290,7 +331,7 @@ def velocity_fn(exprs):
 def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
                    h_fine: float | None = None, substeps: int = SUBSTEPS,
                    end: float = END, newton_tol: float = 1e-10, body: dict | None = None,
-                   degree: int = 2) -> dict:
+                   degree: int = 2, grade_clamp: bool = False) -> dict:
     """Simulate the truth of ``case`` and return marker displacements at the user's frames
     (``h_fine``, ``substeps``, ``end``: the fine mesh size, steps per frame and the span,
     default the suite's; ``newton_tol``: the largest accepted last Newton increment, m).
@@ -304,7 +345,8 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
     ``direction``). ``case["truth"]`` may also hold ``regions`` (a list of spheres ``center``,
     ``radius`` or slabs ``center``, ``normal``, ``thickness`` with their own ``youngs_modulus``
     and/or ``density``) and ``viscoelastic2``, a second standard-linear-solid branch.
-    ``degree``: the elements' (2, the suite's; quadrature degree 2 x degree)."""
+    ``degree``: the elements' (2, the suite's; quadrature degree 2 x degree). ``grade_clamp``:
+    the suite's shape meshed graded towards the clamped face's edges too (:func:`mesh_shape`)."""
     # imported here: DOLFINx is in the system python only, and --list works without it
     import ufl
     from dolfinx import fem, geometry
@@ -320,7 +362,8 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
     ball = sphere["where"] if sphere and sphere.get("conforming") else None
     if body is None:
         sh = SHAPES[shape]
-        mesh_shape(gmsh, shape, h_fine or sh["h_fine"], graded=True, ball=ball)
+        mesh_shape(gmsh, shape, h_fine or sh["h_fine"], graded=True, ball=ball,
+                   clamp=grade_clamp)
         velocity = case.get("velocity", sh["velocity"])
         E0, nu, rho0, gravity, law = E_TRUE, NU, RHO, GRAVITY, "neohookean"
 

@@ -68,14 +68,18 @@ SUBSTEPS = 4
 LEVELS = {"truth": (H_TRUTH, SUBSTEPS), "space": (H_REFINED, SUBSTEPS),
           "time": (H_TRUTH, 2 * SUBSTEPS), "fine": (H_REFINED, 2 * SUBSTEPS),
           "finest-space": (H_FINEST, SUBSTEPS), "finest": (H_FINEST, 2 * SUBSTEPS)}
-#: level -> (the run differing from it in space only, the one differing in time only)
+#: level -> (the run differing from it in space only, the one differing in time only); the
+#: "time" level (h 11 mm at 0.25 ms, the truth with ``--graded``) is checked by the run finer
+#: in space and the one coarser in time: the cheapest pair of a converged graded truth
 CHECKS = {"truth": ("space", "time"), "fine": ("time", "space"),
-          "finest": ("fine", "finest-space")}
+          "finest": ("fine", "finest-space"), "time": ("fine", "truth")}
 #: Newton's last increment (m): 1e-5 of the noise, so that even a systematic error of this size
 #: every step (2000 steps) stays at 0.02 x the noise (the independent suite: 1e-10)
 NEWTON_TOL = 1e-9
 #: the largest accepted truth error (rms over all markers and frames) in units of the noise
 TOLERANCE = 0.2
+#: truth.json's description of a graded truth mesh (``--graded``; generate.py's mesh_shape)
+GRADED = "graded towards the clamped face's edges: h / 4 within h / 4 of them, h from 4 h"
 
 #: user meshes: name -> gmsh shape of the independent suite and element size (m)
 MESHES = {
@@ -111,10 +115,15 @@ def _case(name: str) -> dict:
     return dict(CASES[name], shape=MESHES[CASES[name]["mesh"]]["shape"])
 
 
-def run_truth(gmsh, group: str, markers: np.ndarray, label: str, **kw) -> dict:
-    """One truth simulation of case ``group`` at ``markers`` (cached by label)."""
+def run_truth(gmsh, group: str, markers: np.ndarray, label: str, graded: bool = False,
+              **kw) -> dict:
+    """One truth simulation of case ``group`` at ``markers`` (cached by label; ``graded``: on a
+    mesh graded towards the clamp's edges, cached as ``graded-<label>``)."""
     CACHE_DIR.mkdir(parents=True, exist_ok=True)
     end = kw.get("end", END)
+    if graded:
+        label = f"graded-{label}"
+        kw["grade_clamp"] = True
     path = CACHE_DIR / f"{group}-{label}-{end:g}.npz"
     if (cached := indep.cached_run(path, markers, say)) is not None:
         return cached
@@ -137,25 +146,24 @@ def difference(a: np.ndarray, b: np.ndarray) -> dict:
 
 
 def convergence(truth: np.ndarray, space: np.ndarray, time_: np.ndarray, r_space: float,
-                finer: bool = True) -> dict:
+                finer: bool | tuple[bool, bool] = True) -> dict:
     """The truth's error at the markers from one refinement in space and one in time (module
     docstring): the differences and the Richardson estimates, in units of the noise.
     ``space``/``time_``: the runs one level finer (``finer``) or one level coarser (the truth
-    is then the finer run of each pair) in space / in time."""
+    is then the finer run of each pair) in space / in time; a pair (space, time) of flags: each
+    on its own side ("mixed")."""
+    fs, ft = (finer, finer) if isinstance(finer, bool) else finer
     rs, rt = r_space ** 3, 2.0 ** 2         # P2 displacements: third order; the step halved,
     #                                         generalized-alpha: second order
-    if finer:       # D = e_truth - e_truth / r^p
-        e_space = (truth - space) / (1.0 - 1.0 / rs)
-        e_time = (truth - time_) / (1.0 - 1.0 / rt)
-    else:           # D = e_truth r^p - e_truth
-        e_space = (space - truth) / (rs - 1.0)
-        e_time = (time_ - truth) / (rt - 1.0)
+    # finer: D = e_truth - e_truth / r^p; coarser: D = e_truth r^p - e_truth
+    e_space = (truth - space) / (1.0 - 1.0 / rs) if fs else (space - truth) / (rs - 1.0)
+    e_time = (truth - time_) / (1.0 - 1.0 / rt) if ft else (time_ - truth) / (rt - 1.0)
     zero = np.zeros_like(truth)
-    side = "refined" if finer else "coarser"
+    sides = ["refined" if f else "coarser" for f in (fs, ft)]
     out = {
-        "checked_from": side,
-        f"space_{side}_difference": difference(space, truth),
-        f"time_{side}_difference": difference(time_, truth),
+        "checked_from": sides[0] if fs == ft else "mixed",
+        f"space_{sides[0]}_difference": difference(space, truth),
+        f"time_{sides[1]}_difference": difference(time_, truth),
         "space_error_estimate": difference(e_space, zero),
         "time_error_estimate": difference(e_time, zero),
         "combined_error_estimate": difference(e_space + e_time, zero),
@@ -167,12 +175,14 @@ def convergence(truth: np.ndarray, space: np.ndarray, time_: np.ndarray, r_space
 
 def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, end: float,
                force: bool, check_end: float | None = None, cases_dir: Path = CASES_DIR,
-               level: str = "truth", only_run: str | None = None) -> None:
+               level: str = "truth", only_run: str | None = None, graded: bool = False
+               ) -> None:
     """Simulate the truth of ``group`` at ``level`` (:data:`LEVELS`) once for every case in
     ``members`` (their markers together), check it by refinement (over the first ``check_end``
     s, default all), and write the cases. ``only_run``: simulate that level (a label of
     :data:`LEVELS`, over ``check_end``) into the cache and stop (so that the runs of one check
-    can go in separate processes)."""
+    can go in separate processes). ``graded``: every run's mesh graded towards the clamp's
+    edges (README.md)."""
     check_end = min(check_end or end, end)
     picks = {}
     for name in members:
@@ -183,21 +193,23 @@ def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, 
     allm = np.concatenate([m for _, m in picks.values()])
     if only_run:
         h, sub = LEVELS[only_run]
-        run_truth(gmsh, group, allm, only_run, h_fine=h, substeps=sub,
+        run_truth(gmsh, group, allm, only_run, graded, h_fine=h, substeps=sub,
                   end=min(check_end or end, end))
         return
     levels, label = LEVELS, level
     # the runs checking the truth: "space" differs from it in the mesh only, "time" in the step
     checks = dict(zip(("space", "time"), CHECKS[label], strict=True))
     h, sub = levels[label]
-    finer = label == "truth"        # the base level is checked by finer runs, the others by
-    #                                 coarser ones
-    r_space = (levels[checks["space"]][0] / h) ** (-1 if finer else 1)
-    runs = {"truth": run_truth(gmsh, group, allm, label, h_fine=h, substeps=sub, end=end)}
+    # each check run is finer or coarser than the truth (the base level: both finer; "fine"
+    # and "finest": both coarser; "time": finer in space, coarser in time)
+    finer = (levels[checks["space"]][0] < h, levels[checks["time"]][1] > sub)
+    r_space = (levels[checks["space"]][0] / h) ** (-1 if finer[0] else 1)
+    runs = {"truth": run_truth(gmsh, group, allm, label, graded, h_fine=h, substeps=sub,
+                               end=end)}
     if check:
         for key, lab in checks.items():
             h, sub = levels[lab]
-            runs[key] = run_truth(gmsh, group, allm, lab, h_fine=h, substeps=sub,
+            runs[key] = run_truth(gmsh, group, allm, lab, graded, h_fine=h, substeps=sub,
                                   end=check_end)
     # the frames the check covers (the truth's first ones when it is shortened)
     checked = int(round(check_end / indep.STEP)) + 1
@@ -238,6 +250,7 @@ def make_group(gmsh, group: str, members: list[str], meshes: dict, check: bool, 
         extra = {"user_mesh": mesh_file, "coarse_tets": int(len(tets)),
                  "coarse_dofs_p1": int(3 * len(np.unique(tets))),
                  "fine_h": levels[label][0], "fine_tets": tr["fine_tets"],
+                 "fine_mesh": GRADED if graded else "uniform",
                  "fine_dofs": tr["dofs"],
                  "step": tr["step"], "steps": tr["steps"], "end": end,
                  "newton_iterations": tr["newton"], "refactorizations": tr["refactors"],
@@ -271,6 +284,10 @@ def main() -> int:
                     help="the truth one refinement in space beyond --fine (h = H_FINEST, the "
                          "same step), checked from the coarse side: by the --fine run and "
                          "the run on H_FINEST at twice the step")
+    ap.add_argument("--graded", action="store_true",
+                    help="every truth mesh graded towards the clamp's edges (README.md); the "
+                         "truth is the level h 11 mm at 0.25 ms, checked by h 8 mm (same "
+                         "step) and by 0.5 ms (same mesh)")
     ap.add_argument("--only-run", choices=sorted(LEVELS), default=None,
                     help="simulate this level into the cache (out/realistic_runs) and stop: "
                          "run a check's levels in parallel processes, then generate")
@@ -308,8 +325,8 @@ def main() -> int:
         say(f"truth of {group} for {', '.join(members)}")
         make_group(gmsh, group, members, meshes, args.check, args.end, args.force,
                    args.check_end, args.out / "cases",
-                   "finest" if args.finest else "fine" if args.fine else "truth",
-                   args.only_run)
+                   "time" if args.graded else "finest" if args.finest else "fine" if args.fine
+                   else "truth", args.only_run, args.graded)
         say(f"{group}: {time.perf_counter() - t0:.0f} s")
     gmsh.finalize()
     return 0
