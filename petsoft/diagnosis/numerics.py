@@ -355,12 +355,11 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
         beside = (exact and halves_step
                   and _sensitivities_key(fit) not in diag.measured_meshes)
         # on one rank each when every model of the round is small (placement.py)
-        largest = max((refined(exp, what) for what in options),
-                      key=diag.placement.dofs, default=exp)
+        models = [exp] + [refined(exp, what) for what in options]
         runs = diag.placement.on_groups(
             lambda what, sub, fit=fit: (model_sensitivities(diag, fit, sub) if what is None
                                         else _simulate_refined(diag, fit, what, sub)),
-            options + ([None] if beside else []), largest)
+            options + ([None] if beside else []), *models)
         if beside:
             done = runs.pop()
             if done.ok:      # (every rank keeps them; a failure is met again below)
@@ -374,7 +373,7 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
                                         _refit(diag, fit, item[0], sub, cols, item[1]),
                                         [(what, res.value if res.ok else None)
                                          for what, res in zip(options, runs, strict=True)],
-                                        largest)
+                                        *models)
         gc.collect()
         dof = diag.dof(len(fit.names))
         excess = diag.excess(fit)

@@ -56,18 +56,18 @@ class Placement:
             self._dofs[key] = int(mpi.bcast(count, root=0))
         return self._dofs[key]
 
-    def one_rank_each(self, experiment) -> bool:
-        """Whether ``experiment``'s model runs on one rank (several ranks, and at most
-        :attr:`one_rank_dofs` unknowns); call collectively."""
+    def one_rank_each(self, *experiments) -> bool:
+        """Whether the models of ``experiments`` run on one rank (several ranks, and each at
+        most :attr:`one_rank_dofs` unknowns; none counted on one rank); call collectively."""
         return (self.comm.getSize() > 1 and self.one_rank_dofs > 0
-                and self.dofs(experiment) <= self.one_rank_dofs)
+                and all(self.dofs(e) <= self.one_rank_dofs for e in experiments))
 
-    def on_groups(self, task: Callable[[Any, Any], Any], items: Sequence, experiment
+    def on_groups(self, task: Callable[[Any, Any], Any], items: Sequence, *experiments
                   ) -> list[TaskResult]:
         """:func:`~petsoft.calibration.groups.map_on_groups` of ``task`` over ``items``, on one
-        rank each when ``experiment``'s model is small (:meth:`one_rank_each`)."""
+        rank each when every model of ``experiments`` is small (:meth:`one_rank_each`)."""
         return map_on_groups(task, items, self.comm,
-                             one_rank_each=self.one_rank_each(experiment))
+                             one_rank_each=self.one_rank_each(*experiments))
 
     def alone(self, task: Callable[[Any], Any], experiment):
         """``task(comm)``'s value: on all the ranks, or on the first rank alone when

@@ -296,6 +296,12 @@ def coarse_mesh(gmsh, shape: str, h: float | None = None, path: Path | None = No
     return its nodes (N, 3) and tets."""
     mesh_shape(gmsh, shape, h or SHAPES[shape]["h_coarse"])
     write_msh(gmsh, Path(path) if path else MESH_DIR / f"{shape}.msh")
+    return model_tets(gmsh)
+
+
+def model_tets(gmsh) -> tuple[np.ndarray, np.ndarray]:
+    """The current gmsh model's nodes (N, 3) and 4-node tets (indices into them); the model
+    is removed."""
     tags, coords, _ = gmsh.model.mesh.getNodes()
     order = np.argsort(tags)
     points = coords.reshape(-1, 3)[order]
@@ -304,6 +310,13 @@ def coarse_mesh(gmsh, shape: str, h: float | None = None, path: Path | None = No
     tets = np.array([index[int(t)] for t in enodes[list(etypes).index(4)]]).reshape(-1, 4)
     gmsh.model.remove()
     return points, tets
+
+
+def save_run(path: Path, markers: np.ndarray, res: dict) -> None:
+    """Cache a truth run (:func:`simulate_truth`'s result) for :func:`cached_run`."""
+    meta = {k: v for k, v in res.items() if k not in ("displacements", "found")}
+    np.savez(path, markers=markers, displacements=res["displacements"], found=res["found"],
+             meta=json.dumps(meta))
 
 
 def surface_nodes(tets: np.ndarray) -> np.ndarray:

@@ -142,13 +142,7 @@ def control_markers(gmsh) -> np.ndarray:
     """The control case's 24 markers' candidates: the user's mesh file (the committed
     ``meshes/taper.msh``) and the generator's seed for the control (401)."""
     gmsh.open(str(HERE / "meshes" / "taper.msh"))
-    tags, coords, _ = gmsh.model.mesh.getNodes()
-    order = np.argsort(tags)
-    points = coords.reshape(-1, 3)[order]
-    index = {int(t): i for i, t in enumerate(tags[order])}
-    etypes, _, enodes = gmsh.model.mesh.getElements(3)
-    tets = np.array([index[int(t)] for t in enodes[list(etypes).index(4)]]).reshape(-1, 4)
-    gmsh.model.remove()
+    points, tets = indep.model_tets(gmsh)
     return indep.pick_markers("finger", points, tets, 401, 24)
 
 
@@ -168,9 +162,7 @@ def run(gmsh, variant: str, h: float, end: float) -> Path:
     res = indep.simulate_truth(gmsh, "control", {"shape": "finger", "truth": {}}, markers,
                                print, h_fine=h, substeps=4, end=end, newton_tol=1e-9,
                                body=body)
-    meta = {k: v for k, v in res.items() if k not in ("displacements", "found")}
-    np.savez(path, markers=markers, displacements=res["displacements"], found=res["found"],
-             meta=json.dumps(meta))
+    indep.save_run(path, markers, res)
     print(f"{variant} h {h:g}: {res['fine_tets']} P2 tets, {res['dofs']} dofs, "
           f"{res['seconds']:.0f} s")
     return path

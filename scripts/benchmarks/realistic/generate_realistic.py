@@ -43,7 +43,6 @@ generation resumes); delete them to recompute.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -130,9 +129,7 @@ def run_truth(gmsh, group: str, markers: np.ndarray, label: str, graded: bool = 
     say(f"  {label}: {kw}")
     res = indep.simulate_truth(gmsh, group, _case(group), markers, say, newton_tol=NEWTON_TOL,
                                **kw)
-    meta = {k: v for k, v in res.items() if k not in ("displacements", "found")}
-    np.savez(path, markers=markers, displacements=res["displacements"], found=res["found"],
-             meta=json.dumps(meta))
+    indep.save_run(path, markers, res)
     say(f"  {label}: {res['fine_tets']} P2 tets, {res['dofs']} dofs, step {res['step']:g} s, "
         f"{res['newton']} Newton iterations, {res['seconds']:.0f} s")
     return res
