@@ -69,3 +69,19 @@ def test_the_report_says_the_final_change_was_estimated():
     num["step/2"]["estimated"] = False
     (step,) = [s for s in numerics_summary(num, rounds, final)[0] if s.startswith("Time step")]
     assert "changes the simulation by 0.12x" in step and "estimated" not in step
+
+
+def test_a_small_remaining_step_error_is_counted_instead_of_halving_again():
+    from petsoft.diagnosis.numerics import estimated_instead, next_halving_estimate
+
+    rounds = _rounds(same=0.77, refitted=0.25)
+    o = rounds[-1]["options"]["step/2"]
+    # Richardson: the adopting change at the same parameters times the share, 0.77 / 3
+    assert next_halving_estimate(o, SIGMA) == pytest.approx(0.77 / 3.0)
+    why = estimated_instead(o, SIGMA)
+    assert why is not None and "0.26x the noise" in why and "not simulated" in why
+    # the threshold is the final check's: at it and above, the step is halved again
+    at = _rounds(same=3.0 * ESTIMATE_FINAL_BELOW)[-1]["options"]["step/2"]
+    assert estimated_instead(at, SIGMA) is None
+    below = _rounds(same=2.99 * ESTIMATE_FINAL_BELOW)[-1]["options"]["step/2"]
+    assert estimated_instead(below, SIGMA) is not None
