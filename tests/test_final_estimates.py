@@ -80,8 +80,8 @@ def test_a_small_remaining_step_error_is_counted_instead_of_halving_again():
     assert next_halving_estimate(o, SIGMA) == pytest.approx(0.77 / 3.0)
     why = estimated_instead(o, SIGMA)
     assert why is not None and "0.26x the noise" in why and "not simulated" in why
-    # the threshold is the final check's: at it and above, the step is halved again
-    at = _rounds(same=3.0 * ESTIMATE_FINAL_BELOW)[-1]["options"]["step/2"]
-    assert estimated_instead(at, SIGMA) is None
+    # the threshold is the final check's: above it, the step is halved again
+    above = _rounds(same=3.01 * ESTIMATE_FINAL_BELOW)[-1]["options"]["step/2"]
+    assert estimated_instead(above, SIGMA) is None
     below = _rounds(same=2.99 * ESTIMATE_FINAL_BELOW)[-1]["options"]["step/2"]
     assert estimated_instead(below, SIGMA) is not None
