@@ -503,8 +503,9 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
         diagnosed.toml with every value written out, instead of the user's own file with the
         calibrated values changed and the added physics appended.
     one_rank_dofs : int
-        Under mpiexec, a model of at most this many unknowns runs on one rank (faster: each
-        rank would factor its whole matrix anyway); 0 spreads every model over all the ranks.
+        Under mpiexec, a model of at most this many unknowns runs on one rank (faster: one
+        rank solves it directly, several iteratively or each factoring the whole matrix
+        anyway); 0 spreads every model over all the ranks.
     say : callable(str)
         Progress lines (rank 0); default silent.
 

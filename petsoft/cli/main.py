@@ -20,7 +20,7 @@ from petsoft.version import __version__
 
 #: ``diagnose --one-rank-dofs``'s default, said in its help without importing PETSc here
 #: (tests/test_api.py ties it to :data:`petsoft.diagnosis.placement.ONE_RANK_DOFS`).
-ONE_RANK_DOFS_DEFAULT = 6000
+ONE_RANK_DOFS_DEFAULT = 100_000
 #: The user's reference of the experiment, recording and report formats (installed with petsoft).
 FORMATS = Path(__file__).resolve().parents[1] / "formats.md"
 
@@ -338,9 +338,9 @@ def _add_diagnose_parser(sub) -> None:
                    help="skip the step/mesh refinement check")
     c.add_argument("--one-rank-dofs", type=_count, metavar="N",
                    help="under mpiexec, a model of at most N unknowns runs on one rank (the "
-                        "others wait, or run independent fits side by side): faster, since up "
-                        f"to {ONE_RANK_DOFS_DEFAULT} every rank factors the whole matrix anyway; "
-                        "0 spreads every model over all the ranks (default "
+                        "others wait, or run independent fits side by side): faster, since one "
+                        f"rank solves up to {ONE_RANK_DOFS_DEFAULT} directly where several "
+                        "solve iteratively; 0 spreads every model over all the ranks (default "
                         f"{ONE_RANK_DOFS_DEFAULT})")
 
 

@@ -138,7 +138,7 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
     one_rank_dofs : int
         On several ranks, a model of at most this many unknowns runs on one rank (a single run
         on the first rank while the others wait; independent runs one per rank): faster, since
-        every rank would factor its whole matrix anyway (:mod:`petsoft.diagnosis.placement`).
+        one rank solves it directly (:mod:`petsoft.diagnosis.placement`).
         0 runs every model on all the ranks.
 
     Returns

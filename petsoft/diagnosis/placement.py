@@ -1,15 +1,23 @@
 """Where a diagnosis runs each model: on all its ranks together, or on one rank alone.
 
-A model of a few thousand unknowns gains nothing from several ranks: up to
+A model that one rank solves directly gains nothing from several ranks. Up to
 :data:`~petsoft.solvers.linear.REDUNDANT_DOFS` every rank of a communicator gathers the whole
 matrix and factors it itself (a redundant direct solve), so a second rank only splits the
-assembly and adds the messages between them. Measured on the realistic cases' 10-node model
-(4641 dofs, generalized-alpha, 0.3 s of record, the machine otherwise quiet): a forward run took
-1.9 s on one rank and 4.5 s on two, a run with sensitivities 4.1 s and 10.2 s. So a diagnosis on
-several ranks runs such a model on one rank: work that comes in independent pieces (refinements,
-candidate fits, scores) on one piece per rank, and a single run on the first rank while the
-others wait for its result (:meth:`Placement.alone`). Every rank then holds the same result, as
-after any collective run, and the diagnosis on two ranks takes the path it takes on one.
+assembly and adds the messages between them: measured on the realistic cases' 10-node model
+(4641 dofs, generalized-alpha, 0.3 s of record, the machine otherwise quiet), a forward run took
+1.9 s on one rank and 4.5 s on two, a run with sensitivities 4.1 s and 10.2 s. Above it, several
+ranks solve iteratively (CG + algebraic multigrid, deterministic across ranks where MUMPS is not,
+see :func:`~petsoft.solvers.linear.linear_defaults`) while one rank still factors directly up to
+:data:`~petsoft.solvers.linear.DIRECT_DOFS`, and keeps the factorisation across a time step's
+Newton iterations: the realistic payload taper's 10-node model split 1 -> 8 (29,595 dofs, the
+numerics check's measuring run, 15 steps of 2 ms, the machine loaded alike) took 8.9 s on one
+rank (MUMPS) and 93 s on two (CG + GAMG, ~10 Krylov iterations a Newton iteration).
+
+So a diagnosis on several ranks runs every model up to the one-rank direct limit on one rank:
+work that comes in independent pieces (refinements, candidate fits, scores) on one piece per
+rank, and a single run on the first rank while the others wait for its result
+(:meth:`Placement.alone`). Every rank then holds the same result, as after any collective run,
+and the diagnosis on two ranks takes the path it takes on one.
 
 :class:`Placement` decides by the model's unknowns (:meth:`Placement.one_rank_each`), counted
 from its mesh without building it, once per mesh.
@@ -23,10 +31,11 @@ from typing import Any
 from petsoft.calibration.groups import TaskResult, map_on_groups
 from petsoft.dynamics.factory import system_class
 from petsoft.errors import PetsoftError
-from petsoft.solvers.linear import REDUNDANT_DOFS
+from petsoft.solvers.linear import DIRECT_DOFS
 
-#: A model of at most this many unknowns runs on one rank (module docstring).
-ONE_RANK_DOFS = REDUNDANT_DOFS
+#: A model of at most this many unknowns runs on one rank (module docstring): what one rank
+#: solves directly by default.
+ONE_RANK_DOFS = DIRECT_DOFS
 
 
 class Placement:
