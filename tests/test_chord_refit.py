@@ -62,6 +62,38 @@ def test_the_chord_refit_finds_the_calibrations_minimum(case):
     assert chord.heldout_rms == pytest.approx(full.heldout_rms, rel=0.05)
 
 
+def test_a_last_small_step_is_checked_by_the_run_of_the_whole_record(case, monkeypatch):
+    """After its first run, a step whose linear model lowers chi2 by at most
+    CHECKED_BY_FINAL_RUN is taken without a run of its own; when the whole record's run shows
+    it did not lower chi2, the point before it is the refit."""
+    diag, fit, half, moved, cols, _ = case
+    taken = chord_refit(diag, half, cols, moved)
+    monkeypatch.setattr(chord_refit_module, "CHECKED_BY_FINAL_RUN", 0.0)
+    checked = chord_refit(diag, half, cols, moved)
+    assert "checked by the run of the whole record" in taken.by
+    assert "checked by the run" not in checked.by
+    # one identification run fewer, the same fit to a fraction of E's deviation and of chi2 1
+    assert taken.evaluations == checked.evaluations - 1
+    assert abs(taken.values[0] - checked.values[0]) < 0.2 * checked.std[0]
+    assert taken.chi2 == pytest.approx(checked.chi2, abs=1.0)
+    # a last step that makes the fit worse (here: the step turned around and made far larger,
+    # taken unchecked whatever its size) is undone by the point before it
+    monkeypatch.setattr(chord_refit_module, "CHECKED_BY_FINAL_RUN", np.inf)
+    steps = []
+    real_step = chord_refit_module.refit_step
+
+    def turned(c, r):
+        step = real_step(c, r)
+        steps.append(step)
+        return step if len(steps) < 2 else -20.0 * step
+
+    monkeypatch.setattr(chord_refit_module, "refit_step", turned)
+    undone = chord_refit(diag, half, cols, moved)
+    assert undone.iterations == 1 and undone.evaluations == 1 + 2
+    assert undone.values[0] == pytest.approx(fit.values[0] + steps[0][0], rel=1e-12)
+    assert undone.chi2 <= checked.chi2 + 0.1 * (fit.chi2 - checked.chi2)
+
+
 def test_a_chord_that_does_not_converge_in_its_runs_gives_up(case, monkeypatch):
     """The caller calibrates instead (None) rather than reporting a point that is not a fit:
     this refit needs more than two runs."""
