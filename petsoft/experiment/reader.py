@@ -535,13 +535,9 @@ def _read_package_table(r: TableReader, table: str) -> dict[str, Any]:
         if k.type == "choice":
             out[k.key] = r.choice(k.key, k.choices, k.default)
         elif k.type == "where":
-            if k.key in r.data:
-                out[k.key] = _read_where(r, k.key)
-            elif k.default is None:
-                r.fail(k.key, ' is missing (a region name or a condition of x, y, z, e.g. '
-                       '"z < 1e-6")')
-            else:
-                out[k.key] = k.default
+            # absent: the declared default (a region name or condition), or None, which the
+            # term reads as its own choice of place
+            out[k.key] = _read_where(r, k.key) if k.key in r.data else k.default
     return out
 
 

@@ -473,7 +473,7 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
     for table, values in exp.terms.items():
         d[table] = {k: (list(v) if isinstance(v, tuple) else
                         v.literal if isinstance(v, Expression) else v)
-                    for k, v in values.items()}
+                    for k, v in values.items() if v is not None}
     if exp.boundaries:
         boundaries = []
         for b in exp.boundaries:

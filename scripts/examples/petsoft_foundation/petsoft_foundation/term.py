@@ -8,8 +8,9 @@ pyproject.toml registers it::
     [project.entry-points."petsoft.terms"]
     foundation = "petsoft_foundation.term"
 
-The foundation is a Winkler bed under the boundary faces selected by ``where``: each node i of
-them carries the lumped area A_i of those faces and a spring along the unit ``direction`` d
+The foundation is a Winkler bed under the boundary faces selected by ``where`` (a region name or
+a condition of x, y, z; without it, the boundary faces that face the ``direction``: whose
+outward unit normal n has n . d > 0.99): each node i of them carries the lumped area A_i of those faces and a spring along the unit ``direction`` d
 (pointing from the body into the foundation). With s_i = d . u_i the node's push into the bed,
 
     W(u) = sum_i 1/2 A_i k(s_i) s_i^2,   k(s) = k_c (s > 0, compression), k_t (s <= 0, tension),
@@ -39,9 +40,8 @@ TERM = Term(
     meaning="the body rests on an elastic foundation, stiffer in compression than in tension",
     keys=(Key("foundation", "compression", unit="Pa/m", minimum=0.0),
           Key("foundation", "tension", unit="Pa/m", minimum=0.0),
-          # the faces it supports: a region name (a mesh face group or [region.foundation])
-          # or a condition of x, y, z
-          Key("foundation", "where", type="where", default="foundation"),
+          # the faces it supports (None: those facing the direction)
+          Key("foundation", "where", type="where", default=None),
           Key("foundation", "direction", type="vector", default=(0.0, 0.0, -1.0))),
     # both moduli from 0; upper: a bed whose stiffness over the body's surface is 100x the
     # body's mass times its dominant angular frequency squared
@@ -121,6 +121,17 @@ class BilinearFoundation:
         out[self.nodes] += (self.areas * side * y)[:, None] * self.direction[None, :]
 
 
+def facing(mesh, direction: np.ndarray) -> np.ndarray:
+    """(F, 3) the mesh's boundary faces whose outward unit normal n has n . direction > 0.99."""
+    from petsoft.mesh.topology import exterior_faces
+
+    faces = exterior_faces(mesh.tets)[0]
+    p = mesh.points[faces]                                   # (F, 3 corners, 3)
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    return faces[n @ direction > 0.99]
+
+
 def build(experiment, dmesh, resolver, dirichlet) -> BilinearFoundation:
     """The foundation of ``experiment`` (its ``[foundation]`` table) on this rank (all ranks
     call, with the same replicated mesh: errors are raised everywhere)."""
@@ -133,7 +144,10 @@ def build(experiment, dmesh, resolver, dirichlet) -> BilinearFoundation:
     if norm == 0.0:
         raise ExperimentError(f"{experiment.source}: foundation.direction = {list(d)}: the "
                               "direction into the foundation must not be zero")
-    faces = resolver.faces(values["where"], "foundation.where")
+    if values["where"] is not None:
+        faces = resolver.faces(values["where"], "foundation.where")
+    else:
+        faces = facing(dmesh.mesh, d / norm)
     lumped = lumped_face_areas(dmesh.mesh, faces)       # the whole mesh's: same on every rank
     if not lumped.any():
         raise ExperimentError(f"{experiment.source}: foundation.where: selects no boundary face "
