@@ -10,8 +10,9 @@ pyproject.toml registers it::
 
 The foundation is a Winkler bed under the boundary faces selected by ``where`` (a region name or
 a condition of x, y, z; without it, the boundary faces that face the ``direction``: whose
-outward unit normal n has n . d > 0.99): each node i of them carries the lumped area A_i of those faces and a spring along the unit ``direction`` d
-(pointing from the body into the foundation). With s_i = d . u_i the node's push into the bed,
+outward unit normal n has n . d > 0.99). Each node i of them carries the lumped area A_i of
+those faces and a spring along the unit ``direction`` d (pointing from the body into the
+foundation). With s_i = d . u_i the node's push into the bed,
 
     W(u) = sum_i 1/2 A_i k(s_i) s_i^2,   k(s) = k_c (s > 0, compression), k_t (s <= 0, tension),
 
