@@ -43,7 +43,7 @@ from importlib.metadata import entry_points
 from petsoft.terms.declare import KINDS, RANKINGS, SCALES, Key, Parameter, Proposal, Term
 
 __all__ = ["GROUP", "KINDS", "PLUGINS", "RANKINGS", "SCALES", "TERMS", "Key", "Parameter",
-           "Plugin", "Proposal", "Term", "keys_of", "plugin_tables", "term"]
+           "Plugin", "Proposal", "Term", "keys_of", "load_plugin", "plugin_tables", "term"]
 
 #: The entry-point group of terms from other packages.
 GROUP = "petsoft.terms"
@@ -94,8 +94,17 @@ class Plugin:
         return tuple(dict.fromkeys(k.table for k in self.term.keys))
 
 
-def _load(ep, builtin: dict[str, Term], found: dict[str, Plugin]) -> Plugin:
-    """One entry point's :class:`Plugin`, checked (an ImportError names the package)."""
+def load_plugin(ep, builtin: dict[str, Term], found: dict[str, Plugin]) -> Plugin:
+    """The :class:`Plugin` of the entry point ``ep`` (an :class:`importlib.metadata.EntryPoint`),
+    checked against the built-in terms ``builtin`` and the packages' terms ``found`` so far.
+
+    Raises
+    ------
+    ImportError
+        Naming the package: the module cannot be loaded, has no ``TERM`` or ``build``, its
+        term's name or a table of its keys is taken, a key is not of its own table, a
+        parameter is none of its number keys, or it is not proposed by its values.
+    """
     package = ep.dist.name if getattr(ep, "dist", None) is not None else "?"
     where = f"petsoft.terms entry point {ep.name!r} = {ep.value!r} of package {package!r}"
     try:
@@ -140,7 +149,7 @@ def _load(ep, builtin: dict[str, Term], found: dict[str, Plugin]) -> Plugin:
 def _plugins(builtin: dict[str, Term]) -> dict[str, Plugin]:
     found: dict[str, Plugin] = {}
     for ep in sorted(entry_points(group=GROUP), key=lambda e: (e.name, e.value)):
-        p = _load(ep, builtin, found)
+        p = load_plugin(ep, builtin, found)
         found[p.term.name] = p
     return found
 
