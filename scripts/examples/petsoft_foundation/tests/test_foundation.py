@@ -21,7 +21,15 @@ from petsoft.calibration.observation import MarkerObserver
 from petsoft.calibration.synth import SynthOptions, synth
 from petsoft.diagnosis.diagnose import run_diagnose
 from petsoft.diagnosis.report import PHYSICS
-from petsoft.experiment import dumps_toml, experiment_from_dict, load_experiment
+from petsoft.errors import ExperimentError
+from petsoft.experiment import (
+    dumps_toml,
+    experiment_from_dict,
+    get_parameter,
+    load_experiment,
+    parameter_names,
+    with_parameters,
+)
 from petsoft.terms import PLUGINS, TERMS
 
 E, KC, KT = 2.0e7, 2.0e5, 2.0e4
@@ -51,31 +59,57 @@ def test_the_registry_holds_the_term():
     assert PLUGINS["foundation.bilinear"].package == "petsoft-foundation"
 
 
-@pytest.mark.parametrize("order", [1, 2])
-def test_simulated_and_differentiated(order):
-    """P1 and P2: the foundation moves the tip (the bar swings up off the bed, whose tension
-    pulls it back), and the forward model's exact sensitivities in k_c, k_t agree with central
-    differences."""
+def test_read_and_refused_with_clear_errors():
+    exp = experiment_from_dict(_experiment(foundation={"compression": 1e5, "where": "z < 1e-9"}))
+    values = exp.terms["foundation"]
+    assert values["compression"] == 1e5 and values["tension"] == 0.0
+    assert values["direction"] == (0.0, 0.0, -1.0)
+    assert "foundation.compression" in parameter_names(exp)
+    moved = with_parameters(exp, {"foundation.tension": 3e4})
+    assert get_parameter(moved, "foundation.tension") == 3e4
+    assert experiment_from_dict(moved.to_dict()) == moved
+    assert "foundation.compression" not in parameter_names(experiment_from_dict(_experiment()))
+    for table, words in [({"compresion": 1.0}, "did you mean foundation.compression"),
+                         ({"tension": -1.0},
+                          "foundation.tension = -1.0 is out of range: valid is tension >= 0"),
+                         ({"direction": [0.0, 1.0]}, "expected an array of 3 numbers")]:
+        with pytest.raises(ExperimentError, match=words):
+            experiment_from_dict(_experiment(foundation=table))
+
+
+#: The schemes whose sensitivities are checked: be (P1 and P2), and on P1 the semi-implicit
+#: step (its derivative carries the Hessian's action on w) and generalized-alpha.
+SCHEMES = [(1, "be"), (2, "be"), (1, "si"), (1, "alpha")]
+
+
+@pytest.mark.parametrize("order, integrator", SCHEMES)
+def test_simulated_and_differentiated(order, integrator):
+    """The foundation moves the tip (the bar swings up off the bed, whose tension pulls it
+    back); the forward model's exact sensitivities in k_c, k_t agree with central differences
+    and the adjoint gradient with the sensitivities."""
     exp = experiment_from_dict(_experiment(order, foundation=FOUNDATION,
                                            time={"end": 0.04, "step": 0.004,
-                                                 "integrator": "be"}))
+                                                 "integrator": integrator}))
     names = ["foundation.compression", "foundation.tension"]
     fm = ForwardModel(exp, names, lambda s: MarkerObserver(s, MARKERS), [0.02, 0.04],
                       comm=PETSc.COMM_WORLD)
+    weights = np.random.default_rng(2).standard_normal((2, len(MARKERS), 3))
     try:
         p = fm.p0.copy()
         sim, jac = fm.jacobian(p)
         fd = fm.fd_jacobian(p, rel_step=1e-6)
         off = fm.simulate(np.zeros(2))
+        _, grad = fm.gradient(p, lambda x: (float(np.sum(weights * x)), weights))
     finally:
         fm.destroy()
     # the tip (marker 0) at 40 ms: moved by the bed by more than a noise level (0.1 mm)
     assert abs(off[-1, 0, 2] - sim[-1, 0, 2]) > 1e-4, (off[-1, 0], sim[-1, 0])
+    np.testing.assert_allclose(grad, np.einsum("kmc,kmcp->p", weights, jac), rtol=1e-8)
     for j, name in enumerate(names):
         scale = np.abs(jac[..., j]).max()
         err = np.abs(jac[..., j] - fd[..., j]).max() / scale
-        print(f"P{order} {name}: |d sim/dp| {scale:.3e}, relative difference to central "
-              f"differences {err:.2e}")
+        print(f"P{order} {integrator} {name}: |d sim/dp| {scale:.3e}, relative difference to "
+              f"central differences {err:.2e}")
         assert scale > 0.0 and err < 1e-4, (name, err)
 
 
@@ -96,11 +130,14 @@ def test_calibrated_back(recording):
                                   "foundation.tension": [0.0, 1e7]})
     (recording / "cal.toml").write_text(dumps_toml(user))
     res = run_calibration(load_experiment(recording / "cal.toml"), recording / "rec.h5",
-                          gradient="sensitivity", comm=PETSc.COMM_WORLD)
+                          out=recording / "cal", comm=PETSc.COMM_WORLD)
     values = dict(zip(res.names, res.values, strict=True))
     print(f"calibrated {values} (truth k_c {KC:g}, k_t {KT:g})")
     assert values["foundation.compression"] == pytest.approx(KC, rel=0.1)
     assert values["foundation.tension"] == pytest.approx(KT, rel=0.3)
+    # the user's file with the calibrated values in its [foundation] table
+    written = load_experiment(recording / "cal" / "calibrated.toml").terms["foundation"]
+    assert written["compression"] == pytest.approx(values["foundation.compression"])
 
 
 def test_diagnose_names_it(recording):
