@@ -10,9 +10,11 @@ it (compression).
 from __future__ import annotations
 
 import copy
+from pathlib import Path
 
 import numpy as np
 import pytest
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from petsoft.calibration.calibrate import run_calibration
@@ -113,13 +115,24 @@ def test_simulated_and_differentiated(order, integrator):
         assert scale > 0.0 and err < 1e-4, (name, err)
 
 
+def _write(path, data: dict) -> None:
+    """Write an experiment file on rank 0; every rank then reads it."""
+    comm = MPI.COMM_WORLD
+    if comm.rank == 0:
+        path.write_text(dumps_toml(data))
+    comm.Barrier()
+
+
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
-    """A noisy recording of the bar on its foundation (the truth), with its folder."""
-    d = tmp_path_factory.mktemp("foundation")
-    (d / "truth.toml").write_text(dumps_toml(_experiment(foundation=FOUNDATION)))
+    """A noisy recording of the bar on its foundation (the truth), with its folder (rank 0's,
+    shared by every rank)."""
+    comm = MPI.COMM_WORLD
+    d = Path(comm.bcast(str(tmp_path_factory.mktemp("foundation")) if comm.rank == 0 else None))
+    _write(d / "truth.toml", _experiment(foundation=FOUNDATION))
     synth(load_experiment(d / "truth.toml"),
           SynthOptions(out=d / "rec.h5", noise=1e-4, markers=8, dropout=0.1, seed=3))
+    comm.Barrier()
     return d
 
 
@@ -128,14 +141,15 @@ def test_calibrated_back(recording):
     user = _experiment(foundation={**FOUNDATION, "compression": 2 * KC, "tension": 0.5 * KT},
                        calibrate={"foundation.compression": [0.0, 1e7],
                                   "foundation.tension": [0.0, 1e7]})
-    (recording / "cal.toml").write_text(dumps_toml(user))
+    _write(recording / "cal.toml", user)
     res = run_calibration(load_experiment(recording / "cal.toml"), recording / "rec.h5",
                           out=recording / "cal", comm=PETSc.COMM_WORLD)
     values = dict(zip(res.names, res.values, strict=True))
     print(f"calibrated {values} (truth k_c {KC:g}, k_t {KT:g})")
     assert values["foundation.compression"] == pytest.approx(KC, rel=0.1)
     assert values["foundation.tension"] == pytest.approx(KT, rel=0.3)
-    # the user's file with the calibrated values in its [foundation] table
+    # the user's file with the calibrated values in its [foundation] table (rank 0 wrote it)
+    MPI.COMM_WORLD.Barrier()
     written = load_experiment(recording / "cal" / "calibrated.toml").terms["foundation"]
     assert written["compression"] == pytest.approx(values["foundation.compression"])
 
@@ -144,7 +158,7 @@ def test_diagnose_names_it(recording):
     """The user's model without the foundation (E 10 % low, calibrated): diagnose names it."""
     user = _experiment(calibrate={"material.youngs_modulus": [1e6, 1e8]})
     user["material"]["youngs_modulus"] = 0.9 * E
-    (recording / "user.toml").write_text(dumps_toml(user))
+    _write(recording / "user.toml", user)
     res = run_diagnose(load_experiment(recording / "user.toml"), recording / "rec.h5",
                        out=None, numerics=False, comm=PETSc.COMM_WORLD)
     named = [a["physics"] for a in res.added]
