@@ -26,7 +26,18 @@ import numpy as np
 import pytest
 from child_process import child_env
 
-from petsoft.terms import PLUGINS, TERMS, Key, Parameter, Proposal, Term, load_plugin
+from petsoft.errors import PetsoftError
+from petsoft.physics.model import check_package_term
+from petsoft.terms import (
+    PLUGINS,
+    TERMS,
+    Key,
+    Parameter,
+    Plugin,
+    Proposal,
+    Term,
+    load_plugin,
+)
 
 PACKAGE = Path(__file__).resolve().parents[1] / "scripts" / "examples" / "petsoft_foundation"
 
@@ -125,13 +136,10 @@ def test_a_planted_wrong_coefficient_fails_the_check():
 
 
 # -- the registry's checks ------------------------------------------------------------------------
-def _plugin(name="fake.term", **changes) -> types.ModuleType:
-    term = Term(name=name, meaning="a test term",
-                keys=(Key("fake", "stiffness", unit="N/m", minimum=0.0),),
-                proposal=Proposal(kind="value", parameters=(
-                    Parameter("fake.stiffness", "N/m", lower="0", upper="1"),)))
+def _plugin(**changes) -> types.ModuleType:
+    """A well-formed package term module, with ``changes`` made to it."""
     module = types.ModuleType("_fake_petsoft_term")
-    module.TERM = term
+    module.TERM = _term()
     module.build = lambda *args: None
     for k, v in changes.items():
         setattr(module, k, v)
@@ -190,6 +198,28 @@ def test_two_packages_cannot_declare_one_term():
             load_plugin(ep, dict(TERMS), {first.term.name: first})
     finally:
         del sys.modules["_fake_petsoft_term"]
+
+
+def test_what_build_returns_is_checked():
+    """A package's build() must return a NodalTerm and ParametricTerm of the term's kind,
+    outside K0, with the declaration's number keys as its parameters."""
+    module = _term_module()
+    plugin = Plugin(module.TERM, module.build, "petsoft-foundation", "petsoft_foundation.term")
+    good, _, _ = _foundation(module)
+    assert check_package_term(plugin, good) is good
+    stiff, _, _ = _foundation(module)
+    stiff.in_reference = True
+    renamed, _, _ = _foundation(module)
+    renamed.kind = "support"
+    fewer, _, _ = _foundation(module)
+    del fewer.k[module.TENSION]
+    for t, words in [(object(), "is not a petsoft.physics.term.NodalTerm"),
+                     (stiff, "in_reference = True is not supported"),
+                     (renamed, "kind is 'support'"),
+                     (fewer, "parameters() gives ['foundation.compression']")]:
+        with pytest.raises(PetsoftError, match="package 'petsoft-foundation'") as info:
+            check_package_term(plugin, t)
+        assert words in str(info.value)
 
 
 def test_this_environment_has_no_package_terms():
