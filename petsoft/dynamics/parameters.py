@@ -43,6 +43,10 @@ Parameter names (see :meth:`ParameterMap.names`):
   offset along its normal; d r/ds = -e''(phi) n on the surface nodes in contact
   (:mod:`petsoft.physics.contact`; the penalty's curvature is piecewise constant, so the ``w``
   term has no offset derivative).
+* the number keys of a package's term (``<table>.<key>``, :data:`petsoft.terms.PLUGINS`): its
+  nodal term (:func:`petsoft.physics.model.package_terms`) sets them and gives d/dp of its
+  gradient plus its Hessian applied to ``w`` (``add_parameter_derivative(name, u, out, w)``);
+  such a term is outside K0, so the stiffness damping adds nothing to its derivative.
 """
 
 from __future__ import annotations
@@ -55,12 +59,14 @@ from petsc4py import PETSc
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, key_part
+from petsoft.experiment.ranges import key_range
 from petsoft.fem.element import cell_integrals
 from petsoft.fem.kernels.scatter import scatter_add_vector
 from petsoft.mesh.ordering import cell_morton_order
 from petsoft.physics.loads import gravity_forces
 from petsoft.physics.model import cell_materials
 from petsoft.physics.support import shared_compliance
+from petsoft.terms import PLUGINS, keys_of
 
 MATERIAL_KEYS = ("youngs_modulus", "poisson_ratio", "density")
 #: Parameters set_parameters changes but the residual derivatives do not cover: the Maxwell
@@ -144,6 +150,11 @@ class ParameterMap:
             for i, c in enumerate(self.contact.colliders):
                 if c.kind == "plane":
                     self.values[f"collider.{i}.offset"] = self.contact.offsets[i]
+        # packages' terms (petsoft.terms.PLUGINS): parameter name -> its nodal term
+        self.package = {n: t for t in system.elastic.nodal_terms if t.kind in PLUGINS
+                        for n in t.parameters()}
+        for name, t in self.package.items():
+            self.values[name] = float(t.parameters()[name])
         # the Maxwell branch: settable in place, not differentiable (see VISCOELASTIC)
         branch = system.viscoelastic
         self.values["viscoelastic.ratio"] = branch.ratio
@@ -230,6 +241,9 @@ class ParameterMap:
                                       "condition and cannot be set in place)")
             elif name == "viscoelastic.relaxation_time":
                 ok, valid = v > 0.0, "> 0 (seconds)"
+            elif name in self.package:
+                rng = package_range(name)
+                ok, valid = rng.contains(v), rng.text(key)
             else:
                 ok, valid = np.isfinite(v), "finite"
             if not (ok and np.isfinite(v)):
@@ -289,11 +303,19 @@ class ParameterMap:
                 self.support.set_compliance(value)
             elif name.startswith("collider."):
                 self.contact.set_offset(int(name.split(".")[1]), value)
+            elif name in self.package:
+                self.package[name].set_parameter(name, value)
             elif name.startswith("material."):
                 key = name.rsplit(".", 1)[1]
                 arr = {"youngs_modulus": self.E_base, "poisson_ratio": self.nu,
                        "density": self.rho}[key]
                 arr[self.governed(name, values)] = value
+
+
+def package_range(name: str):
+    """The valid range of a package's term's parameter ``table.key`` (its key's declaration)."""
+    table, key = name.split(".")
+    return key_range(next(k for k in keys_of(table) if k.key == key))
 
 
 def get_default(system, name: str) -> float:
@@ -347,6 +369,7 @@ class ParameterDerivatives:
         # nodal terms: d/dp of K_s (u + w) + beta K_s v (supports), of the contact gradient
         self.u = u
         self.support_state = u + (wl if wl is not None else 0.0) + s.beta * vl
+        self.w = wl
         self.v_lin = v_lin.copy() if v_lin is not None else None
 
     def _global_vector(self, name: str, out: PETSc.Vec) -> None:
@@ -365,6 +388,11 @@ class ParameterDerivatives:
             contact = s.parameters.contact
             local = np.zeros((s.dmesh.nvertices, 3))
             local[contact.nodes] = contact.offset_derivative(int(name.split(".")[1]), self.u)
+            s.dmesh.add_to_global(local, out)
+        elif name in s.parameters.package:
+            # a package's term: d/dp (grad W(u) + H(u) w) on its nodes (outside K0: no beta v)
+            local = np.zeros((s.dmesh.nvertices, 3))
+            s.parameters.package[name].add_parameter_derivative(name, self.u, local, self.w)
             s.dmesh.add_to_global(local, out)
         elif name in VELOCITY_NAMES:
             lin = None

@@ -189,8 +189,10 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
     @property
     def jacobian_is_constant(self) -> bool:
         """Whether :meth:`assemble_combination` depends on its coefficients only: a linear
-        material, no contact, no quadratic drag or dry friction (same on every rank)."""
-        return (self._linear_material and self.elastic.contact is None
+        material, no state-dependent nodal term (contact, a package's term: those outside K0),
+        no quadratic drag or dry friction (same on every rank)."""
+        return (self._linear_material
+                and all(t.in_reference for t in self.elastic.nodal_terms)
                 and not self.velocity_terms.nonlinear)
 
     def assemble_combination(self, q: PETSc.Vec | None, a_mass: float, b_tangent: float,

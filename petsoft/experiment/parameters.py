@@ -19,8 +19,16 @@ from typing import Any
 
 from petsoft.errors import ExperimentError
 from petsoft.experiment.messages import show_value, suggest
-from petsoft.experiment.ranges import ANY, MATERIAL_RANGES, NONNEGATIVE, POSITIVE, Range
+from petsoft.experiment.ranges import (
+    ANY,
+    MATERIAL_RANGES,
+    NONNEGATIVE,
+    POSITIVE,
+    Range,
+    key_range,
+)
 from petsoft.experiment.spec import COMPONENTS, Experiment
+from petsoft.terms import keys_of, plugin_tables
 
 # ------------------------------------------------------------------------------------------------
 # Named numeric parameters (calibration).
@@ -71,6 +79,11 @@ def parameter_table(exp: Experiment) -> dict[str, tuple[float, Range]]:
     else:
         params["viscoelastic.ratio"] = (exp.viscoelastic.ratio, NONNEGATIVE)
         params["viscoelastic.relaxation_time"] = (exp.viscoelastic.relaxation_time, POSITIVE)
+    # the number keys of the tables of other packages' terms the experiment gives
+    for table, values in exp.terms.items():
+        for k in keys_of(table):
+            if k.type == "number":
+                params[f"{table}.{k.key}"] = (values[k.key], key_range(k))
     return params
 
 
@@ -95,6 +108,11 @@ def parameter_unit(name: str) -> str:
         For a name that is no parameter kind of :func:`parameter_table`.
     """
     parts = split_parameter(name)
+    plugin = plugin_tables().get(parts[0])
+    if plugin is not None and len(parts) == 2:
+        for k in plugin.term.keys:
+            if k.table == parts[0] and k.key == parts[1] and k.type == "number":
+                return k.unit
     for key in (name, ".".join(parts[:2]), parts[-1]):
         if key in PARAMETER_UNITS and (key != parts[-1] or parts[0] in ("material", "collider")):
             return PARAMETER_UNITS[key]
@@ -136,6 +154,9 @@ def unknown_parameter(source: str, name: str, table: Mapping[str, Any]) -> str:
             ' (no [[boundary]] kind = "fixed" has compliance > 0: give the support an elastic '
             "compliance > 0 in the experiment to calibrate it)"
         )
+    if parts[0] in plugin_tables() and len(parts) == 2:
+        note = (f" (a term of package {plugin_tables()[parts[0]].package!r}: give its "
+                f"[{parts[0]}] table in the experiment to use or calibrate it)")
     if parts[0] == "collider":
         note = (
             ' (collider.<i>.offset exists for [[collider]] kind = "plane" of [material] models '

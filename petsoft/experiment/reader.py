@@ -121,7 +121,7 @@ from petsoft.experiment.spec import (
 )
 from petsoft.experiment.table import TableReader, describe_range
 from petsoft.mesh.springs import read_spring_mesh
-from petsoft.terms import keys_of
+from petsoft.terms import keys_of, plugin_tables
 
 try:
     import tomllib
@@ -152,6 +152,22 @@ TOP_KEYS = (
     "drag",
     "friction",
 )
+
+
+def _package_tables() -> tuple[str, ...]:
+    """The top-level tables of terms from other packages; a table petsoft reads itself is an
+    error naming the package (checked once, when this module is imported)."""
+    tables = plugin_tables()
+    for table, plugin in tables.items():
+        if table in TOP_KEYS:
+            raise ImportError(f"petsoft.terms entry point {plugin.module!r} of package "
+                              f"{plugin.package!r}: term {plugin.term.name!r} reads table "
+                              f"[{table}], which is petsoft's own; use a table of its own")
+    return tuple(tables)
+
+
+#: The tables of terms from other packages (:data:`petsoft.terms.PLUGINS`).
+PACKAGE_TABLES = _package_tables()
 _BOUNDARY_KEYS = {
     "fixed": ("kind", "where", "components", "compliance"),
     "prescribed": ("kind", "where", "components", "displacement", "series"),
@@ -256,7 +272,7 @@ def experiment_from_dict(
         raise ExperimentError(f"{source}: expected a table of sections, got {type_name(data)}")
     base = Path(base_dir).resolve()
     top = TableReader(dict(data), "", source)
-    top.check_keys(TOP_KEYS)
+    top.check_keys(TOP_KEYS + PACKAGE_TABLES)
 
     version = top.integer("format_version", FORMAT_VERSION)
     if version != FORMAT_VERSION:
@@ -309,6 +325,11 @@ def experiment_from_dict(
             "[viscoelastic] or set ratio = 0")
     drag = _read_drag(top.table("drag"))
     friction = _read_friction(top.table("friction"))
+    terms = {t: _read_package_table(top.table(t), t) for t in PACKAGE_TABLES if t in data}
+    if terms and springs is not None:
+        raise ExperimentError(
+            f"{source}: [{next(iter(terms))}]: the terms of other packages act on a continuum "
+            "[material] model, not on [springs]")
 
     experiment = Experiment(
         mesh=mesh,
@@ -328,6 +349,7 @@ def experiment_from_dict(
         viscoelastic=viscoelastic,
         drag=drag,
         friction=friction,
+        terms=terms,
         format_version=version,
         path=Path(path) if path is not None else None,
         source=source,
@@ -501,6 +523,22 @@ def _term_values(r: TableReader, table: str, only: str = "") -> dict[str, Any]:
 def _term_keys(table: str) -> tuple[str, ...]:
     """The keys ``[table]`` accepts: those its terms declare."""
     return tuple(k.key for k in keys_of(table))
+
+
+def _read_package_table(r: TableReader, table: str) -> dict[str, Any]:
+    """``[table]`` of a term from another package: every key it declares, checked against its
+    declaration (range, unit, choices, a ``where``), its default when absent."""
+    r.check_keys(_term_keys(table), note=f" (declared by package "
+                 f"{plugin_tables()[table].package!r})")
+    out = _term_values(r, table)
+    for k in keys_of(table):
+        if k.type == "choice":
+            out[k.key] = r.choice(k.key, k.choices, k.default)
+        elif k.type == "where":
+            # absent: the declared default (a region name or condition), or None, which the
+            # term reads as its own choice of place
+            out[k.key] = _read_where(r, k.key) if k.key in r.data else k.default
+    return out
 
 
 def _read_damping(r: TableReader | None) -> DampingSpec:

@@ -336,6 +336,11 @@ class Experiment:
         ``[viscoelastic]`` (ratio 0, the default, is the purely elastic model).
     drag : DragSpec
     friction : FrictionSpec
+    terms : dict of str to dict
+        The tables of terms from other packages (:data:`petsoft.terms.PLUGINS`) the file gives:
+        table -> {key: value} with every declared key (its default when absent): numbers as
+        floats, vectors as tuples, choices as strings, a ``where`` as a region name or an
+        :class:`Expression`. A term whose table is absent is not in the model.
     format_version : int
     source : str
         The name used in messages (the path as given, or ``"<embedded>"``).
@@ -362,6 +367,7 @@ class Experiment:
     viscoelastic: ViscoelasticSpec = ViscoelasticSpec()
     drag: DragSpec = DragSpec()
     friction: FrictionSpec = FrictionSpec()
+    terms: dict[str, dict[str, Any]] = field(default_factory=dict)
     format_version: int = FORMAT_VERSION
     path: Path | None = field(default=None, compare=False)
     source: str = field(default="<embedded>", compare=False)
@@ -464,6 +470,10 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
             w = exp.friction.where
             fr["where"] = w if isinstance(w, str) else w.literal
         d["friction"] = fr
+    for table, values in exp.terms.items():
+        d[table] = {k: (list(v) if isinstance(v, tuple) else
+                        v.literal if isinstance(v, Expression) else v)
+                    for k, v in values.items() if v is not None}
     if exp.boundaries:
         boundaries = []
         for b in exp.boundaries:

@@ -20,6 +20,8 @@ from petsoft.physics.elastic import ElasticTerm
 from petsoft.physics.loads import gravity_forces, traction_forces
 from petsoft.physics.potential import ModelPotential
 from petsoft.physics.support import build_support
+from petsoft.physics.term import NodalTerm, ParametricTerm
+from petsoft.terms import plugin_tables
 
 
 def on_root(comm: PETSc.Comm, fn, *args):
@@ -97,6 +99,40 @@ def cell_materials(experiment, resolver: RegionResolver):
     return model, E, nu, rho
 
 
+def package_terms(experiment, dmesh, resolver, dirichlet) -> list:
+    """The nodal terms of other packages' terms the experiment uses (:data:`petsoft.terms.
+    PLUGINS`; a term whose table the experiment gives), each built by its package's ``build``
+    and checked by :func:`check_package_term` (all ranks call)."""
+    out = []
+    tables = plugin_tables()
+    for plugin in {id(p): p for t, p in tables.items() if t in experiment.terms}.values():
+        t = plugin.build(experiment, dmesh, resolver, dirichlet)
+        if t is not None:
+            out.append(check_package_term(plugin, t))
+    return out
+
+
+def check_package_term(plugin, t):
+    """``t``, what ``plugin``'s build returned, if the system can use it; a PetsoftError
+    naming the package says why not."""
+    what = f"term {plugin.term.name!r} of package {plugin.package!r}"
+    if not isinstance(t, NodalTerm) or not isinstance(t, ParametricTerm):
+        raise PetsoftError(f"{what}: build() returned a {type(t).__name__}, which is not a "
+                           "petsoft.physics.term.NodalTerm and ParametricTerm")
+    if t.kind != plugin.term.name:
+        raise PetsoftError(f"{what}: its nodal term's kind is {t.kind!r}; it must be the "
+                           "term's name (the parameters find it by it)")
+    if t.in_reference:
+        # the parameter derivatives add no beta dK0/dp v (petsoft.dynamics.parameters)
+        raise PetsoftError(f"{what}: in_reference = True is not supported for a package's "
+                           "term yet (its Hessian would enter K0 and the stiffness damping)")
+    names = {f"{k.table}.{k.key}" for k in plugin.term.keys if k.type == "number"}
+    if set(t.parameters()) != names:
+        raise PetsoftError(f"{what}: parameters() gives {sorted(t.parameters())}, its "
+                           f"declaration's number keys are {sorted(names)}")
+    return t
+
+
 def build_model(experiment, comm: PETSc.Comm | None = None, *, project_spd: bool = False,
                 mesh=None, recording=None) -> Model:
     """Distribute the experiment's mesh and assemble its model (all ranks call).
@@ -148,5 +184,6 @@ def build_model(experiment, comm: PETSc.Comm | None = None, *, project_spd: bool
     dirichlet = DirichletConditions(dmesh, conditions)
     nodal = [build_support(experiment, dmesh, resolver, dirichlet),
              build_contact(experiment, dmesh, rho, E)]
+    nodal += package_terms(experiment, dmesh, resolver, dirichlet)
     potential = ModelPotential(elastic, [t for t in nodal if t is not None])
     return Model(experiment, dmesh, resolver, potential, rho[local], external, dirichlet)

@@ -86,4 +86,8 @@ class ParametricTerm(Protocol):
     def add_parameter_derivative(self, name: str, u_local: np.ndarray,
                                  out: np.ndarray) -> None:
         """Add d(dW/du)/dp at ``u_local``, p the parameter ``name``, into the local (nv, 3)
-        array ``out`` (for a term linear in u, pass y = u + w + beta v for d(K y)/dp)."""
+        array ``out`` (for a term linear in u, pass y = u + w + beta v for d(K y)/dp).
+
+        A term of another package (:data:`petsoft.terms.PLUGINS`) takes a fourth argument,
+        ``w_local`` (local (nv, 3) or None): it adds d/dp (dW/du + d2W/du2 w) at ``u_local``
+        (the semi-implicit step's derivative needs the Hessian's part; None: w = 0)."""

@@ -68,8 +68,9 @@ class ReducedMesh:
 def _elastic(system):
     potential = system.elastic
     if potential.nodal_terms:
-        raise ExperimentError("ECSW: the model has nodal potential terms (elastic supports or "
-                              "contact), which are not sampled; use the full forces")
+        raise ExperimentError("ECSW: the model has nodal potential terms (elastic supports, "
+                              "contact or a package's term), which are not sampled; use the "
+                              "full forces")
     return potential.term
 
 

@@ -12,18 +12,41 @@ order is the diagnosis' tie-break, so a new term goes at the end). Adding a term
 here plus its line in :data:`_MODULES`: the report's vocabulary, formats.md's check and the
 experiment reader (for keys of the tables terms own) follow, and diagnose proposes a term of
 values from its declaration alone (a switch or a region still needs its placement rule in
-:mod:`petsoft.diagnosis.candidates`). What builds its force or energy is not declared here yet:
-that is still physics/, dynamics/velocity.py and the experiment's dataclasses.
+:mod:`petsoft.diagnosis.candidates`). What builds a built-in term's force or energy is not
+declared here yet: that is still physics/, dynamics/velocity.py and the experiment's dataclasses.
+
+**Terms from the user's own package** (formats.md section 1, "Terms from other packages"): an
+installed distribution that declares an entry point in the group ``petsoft.terms``::
+
+    [project.entry-points."petsoft.terms"]
+    foundation = "petsoft_foundation.term"
+
+names a module that holds ``TERM`` (a :class:`Term`, like a built-in one) and ``build(experiment,
+dmesh, resolver, dirichlet)``: the term's force, a :class:`~petsoft.physics.term.NodalTerm` and
+:class:`~petsoft.physics.term.ParametricTerm` (or None when the experiment does not use it).
+Its values live in its own top-level tables, declared by its keys (``section = "table"`` only):
+the reader validates them, ``[calibrate]`` and diagnose name its numbers ``table.key``. The
+entry points are loaded once, when this package is first imported, and appended to
+:data:`TERMS` after the built-in terms; :data:`PLUGINS` holds them. A malformed module (no
+``TERM``, no ``build``, a key in another section, a table a built-in term reads) or a name that
+clashes with a built-in or with another package's term is an :class:`ImportError` naming the
+package.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from importlib import import_module
+from importlib.metadata import entry_points
 
 from petsoft.terms.declare import KINDS, RANKINGS, SCALES, Key, Parameter, Proposal, Term
 
-__all__ = ["KINDS", "RANKINGS", "SCALES", "TERMS", "Key", "Parameter", "Proposal", "Term",
-           "keys_of", "term"]
+__all__ = ["GROUP", "KINDS", "PLUGINS", "RANKINGS", "SCALES", "TERMS", "Key", "Parameter",
+           "Plugin", "Proposal", "Term", "keys_of", "load_plugin", "plugin_tables", "term"]
+
+#: The entry-point group of terms from other packages.
+GROUP = "petsoft.terms"
 
 #: The term modules, in the vocabulary's order.
 _MODULES = ("damping_mass", "damping_stiffness", "gravity", "material_nonlinear",
@@ -44,8 +67,103 @@ def _collect() -> dict[str, Term]:
     return out
 
 
-#: name -> Term, in the vocabulary's order.
-TERMS: dict[str, Term] = _collect()
+@dataclass(frozen=True)
+class Plugin:
+    """A term from another package (module docstring).
+
+    Attributes
+    ----------
+    term : Term
+        Its declaration (``TERM``).
+    build : callable
+        ``build(experiment, dmesh, resolver, dirichlet)``: its nodal term on this rank, or None.
+    package : str
+        The distribution that declares the entry point (what messages name).
+    module : str
+        The entry point's value (``package.module``).
+    """
+
+    term: Term
+    build: Callable
+    package: str
+    module: str
+
+    @property
+    def tables(self) -> tuple[str, ...]:
+        """The experiment tables its keys live in."""
+        return tuple(dict.fromkeys(k.table for k in self.term.keys))
+
+
+def load_plugin(ep, builtin: dict[str, Term], found: dict[str, Plugin]) -> Plugin:
+    """The :class:`Plugin` of the entry point ``ep`` (an :class:`importlib.metadata.EntryPoint`),
+    checked against the built-in terms ``builtin`` and the packages' terms ``found`` so far.
+
+    Raises
+    ------
+    ImportError
+        Naming the package: the module cannot be loaded, has no ``TERM`` or ``build``, its
+        term's name or a table of its keys is taken, a key is not of its own table, a
+        parameter is none of its number keys, or it is not proposed by its values.
+    """
+    package = ep.dist.name if getattr(ep, "dist", None) is not None else "?"
+    where = f"petsoft.terms entry point {ep.name!r} = {ep.value!r} of package {package!r}"
+    try:
+        module = ep.load()
+    except Exception as exc:   # whatever the user's module raises: say whose it is
+        raise ImportError(f"{where}: cannot be loaded: {type(exc).__name__}: {exc}") from exc
+    t, build = getattr(module, "TERM", None), getattr(module, "build", None)
+    if not isinstance(t, Term):
+        raise ImportError(f"{where}: the module has no TERM = petsoft.terms.Term(...) (got "
+                          f"{type(t).__name__})")
+    if not callable(build):
+        raise ImportError(f"{where}: the module has no build(experiment, dmesh, resolver, "
+                          "dirichlet) function (the term's force)")
+    if t.name in builtin:
+        raise ImportError(f"{where}: term {t.name!r} clashes with petsoft's built-in term of "
+                          "that name; rename it")
+    if t.name in found:
+        raise ImportError(f"{where}: term {t.name!r} is also declared by package "
+                          f"{found[t.name].package!r}")
+    if not t.keys or not t.proposal.parameters:
+        raise ImportError(f"{where}: term {t.name!r} declares no keys or no parameters")
+    taken = {k.table for b in builtin.values() for k in b.keys}
+    taken |= {table for p in found.values() for table in p.tables}
+    for k in t.keys:
+        if k.section != "table":
+            raise ImportError(f"{where}: key {k.dotted}: a package's term reads keys of its own "
+                              f'top-level table (section = "table"), not {k.section!r}')
+        if k.table in taken:
+            raise ImportError(f"{where}: key {k.dotted}: table [{k.table}] belongs to another "
+                              "term; a package's term reads a table of its own")
+    names = {f"{k.table}.{k.key}" for k in t.keys if k.type == "number"}
+    for q in t.proposal.parameters:
+        if q.name not in names:
+            raise ImportError(f"{where}: parameter {q.name!r} is none of its number keys "
+                              f"({', '.join(sorted(names))})")
+    if t.proposal.kind != "value":
+        raise ImportError(f"{where}: term {t.name!r}: a package's term is proposed by its "
+                          f'values (kind = "value"), not {t.proposal.kind!r}')
+    return Plugin(t, build, package, ep.value)
+
+
+def _plugins(builtin: dict[str, Term]) -> dict[str, Plugin]:
+    found: dict[str, Plugin] = {}
+    for ep in sorted(entry_points(group=GROUP), key=lambda e: (e.name, e.value)):
+        p = load_plugin(ep, builtin, found)
+        found[p.term.name] = p
+    return found
+
+
+_BUILTIN = _collect()
+#: name -> Plugin: the terms of other packages (module docstring), loaded once.
+PLUGINS: dict[str, Plugin] = _plugins(_BUILTIN)
+#: name -> Term, in the vocabulary's order (the built-in terms, then the packages' terms).
+TERMS: dict[str, Term] = {**_BUILTIN, **{n: p.term for n, p in PLUGINS.items()}}
+
+
+def plugin_tables() -> dict[str, Plugin]:
+    """table -> the package's term that owns the top-level table ``[table]``."""
+    return {table: p for p in PLUGINS.values() for table in p.tables}
 
 
 def term(name: str) -> Term:
