@@ -24,10 +24,12 @@ Methods (``method=``):
     TAO ``blmvm`` (limited-memory BFGS with bounds; without bounds it is plain L-BFGS).
 ``"gauss-newton"``
     Own projected Levenberg-Marquardt (Gauss-Newton steps J^T J d = -J^T r damped by
-    mu diag(J^T J), Nielsen's update of mu from the ratio of actual to predicted decrease,
-    trial points clipped into the bounds), with NL2SOL's structured secant term for
-    large-residual fits (J^T J + S when that model predicted the last decrease better:
-    superlinear where plain Gauss-Newton is linear) and a statistical stop (``lm_dtol``).
+    mu diag(J^T J), Nielsen's update of mu from the ratio of actual to predicted decrease;
+    a parameter the step would carry past a bound is held there and the others solved
+    again; positive parameters step along straight lines in log p), with NL2SOL's structured
+    secant term for large-residual fits (J^T J + S when that model predicted the last
+    decrease better: superlinear where plain Gauss-Newton is linear) and a statistical stop
+    (``lm_dtol``).
     Only accepted points pay for a Jacobian; a rejected trial costs one residual. TAO brgn
     (below) evaluated the forward model outside the bounds and oscillated on a 4-parameter
     elastodynamic fit, where this converged.
