@@ -21,6 +21,14 @@ In round 1 of the damping-5k case (5,007 tets, concealed mass damping) the visco
 41 iterations, following the valley ratio * relaxation_time ~ constant towards the Kelvin-Voigt
 limit (issue 40).
 
+Measured (2 ranks, linear tets, ``damping --base-E 1.33989e7``, the base fit's value): the
+viscoelastic candidate took 43 iterations and 76 simulations to chi2 1.744673e5 when
+Levenberg-Marquardt stepped the ratio (affine, from 0) in p and the relaxation time in log p
+(the valley curved in those variables: each step ~8 % of each parameter, and 15 runs for the last
+5 iterations, whose steps were clipped at the time's lower bound); along straight lines in log p
+and held at the bound (:func:`petsoft.calibration.optimize._trial_point`), 18 iterations and 27
+simulations to the same chi2 1.744673e5 and the same parameters (4 digits).
+
 Run (two ranks; the 711-tet ``damping`` case on linear tets is the cheap one)::
 
     mpiexec -n 2 .venv/bin/python scripts/benchmarks/bench_candidate_fit.py damping
