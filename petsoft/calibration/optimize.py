@@ -697,8 +697,7 @@ def _pin_to_bounds(d: np.ndarray, z, lo, hi, free, M, g, is_log, from_zero):
     others as much: off a narrow valley that a bound ends (the viscoelastic branch's
     relaxation time at its lower bound, the ratio still growing along ratio * time ~ const)
     trials failed and the damping was raised until the step was tiny (the damping-5k case's
-    fit, issue 40: 18 runs for its last 5 iterations). A ``from_zero`` parameter whose
-    relative change is -1 or below (the model takes it to zero) is held at zero."""
+    fit, issue 40: 18 runs for its last 5 iterations)."""
     d = d.copy()
     pinned = np.zeros_like(free)
     bound = np.zeros_like(z)
@@ -707,8 +706,7 @@ def _pin_to_bounds(d: np.ndarray, z, lo, hi, free, M, g, is_log, from_zero):
     # others' growth (_path), which the solve for the others changes (slightly)
     for _ in range(int(free.sum()) + 3):
         zr, _, t = _path(d, z, lo, is_log, from_zero, pinned)
-        rel, on = _relative(d, z, lo, is_log, from_zero)
-        low = free & ~pinned & ((zr < lo) | (from_zero & ~is_log & on & (rel <= -1.0)))
+        low = free & ~pinned & (zr < lo)
         high = free & ~pinned & (zr > hi)
         if not (low.any() or high.any()) and (not pinned.any()
                                               or abs(t - t_used) <= 1e-12 * t):
@@ -730,9 +728,10 @@ def _trial_point(d: np.ndarray, z, lo, hi, is_log, from_zero,
     """The trial point of a model step ``d``, and the step along which the model predicts it
     (the path's tangent at z).
 
-    A positive parameter (log-scaled, or ``from_zero`` and off zero) moves along a straight
+    A log-scaled parameter, and a growing ``from_zero`` one off zero, move along a straight
     line in log p: ``p exp(t dp/p)``; the others, and those held at a bound
-    (:func:`_pin_to_bounds`), ``z + t d``.
+    (:func:`_pin_to_bounds`), ``z + t d``. (A ``from_zero`` parameter that falls does so in p:
+    to zero in one step where the model says so, where exp(dp/p) would only approach it.)
     Physical parameters combine by products and powers, so the valleys of a misfit are
     straight in log p: the viscoelastic branch's ratio * relaxation time ~ const near the
     Kelvin-Voigt limit. Taken in p for the (affine) ratio and in log p for the time, that
@@ -760,7 +759,7 @@ def _path(d, z, lo, is_log, from_zero, pinned) -> tuple[np.ndarray, np.ndarray, 
     if grow.any():
         r = float(np.max(rel[grow]))
         t = float(np.log1p(r) / r)
-    relative = on & ~is_log & ~pinned
+    relative = on & ~is_log & ~pinned & (rel > 0.0)
     base = np.where(relative, lo, 0.0)     # (lo is -inf where it is not used)
     with np.errstate(over="ignore"):
         zt = np.where(relative, base + (z - base) * np.exp(t * rel), z + t * d)
