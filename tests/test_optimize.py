@@ -552,3 +552,59 @@ def test_gauss_newton_grows_a_log_parameter_by_the_models_factor_not_its_exponen
     np.testing.assert_allclose(res.p, truth, rtol=1e-6)
     # measured: 6 iterations, 7 runs (taking exp(d): 10 iterations, 12 runs)
     assert res.evaluations <= 8, res.evaluations
+
+
+def _product_valley(p):
+    """Residuals and Jacobian of the viscoelastic candidate's valley (issue 40): a narrow one
+    along ratio * relaxation_time = c, over which the misfit falls slowly as the time goes to
+    zero (the Kelvin-Voigt limit, here its lower bound); and a residual no parameter moves."""
+    x, t = p
+    tau0, c = 0.0117, 2.5e-4
+    r = np.array([800.0 * (x * t / c - 1.0), 42.0 * t / tau0, 3.0])
+    J = np.array([[800.0 * t / c, 800.0 * x / c], [0.0, 42.0 / tau0], [0.0, 0.0]])
+    return r, J
+
+
+@pytest.mark.serial_only  # rank-local analytic problem
+def test_gauss_newton_follows_a_product_valley_to_its_bound():
+    """The ratio (affine, from 0: it starts off) times the relaxation time (log-scaled) is what
+    the data fix; the fit must follow that valley to the time's lower bound, where the
+    minimum is (ratio = c / bound). Stepping the ratio in p and the time in log p bends the
+    valley: Levenberg-Marquardt crept along it (measured: 49 iterations, 67 runs, like the
+    41 iterations of the damping-5k case's fit), and clipping the steps at the bound cost
+    ~20 runs more; along log p for both and held at the bound, 10 iterations, 11 runs."""
+    tau0, c = 0.0117, 2.5e-4
+    sc = ParameterScaling(["viscoelastic.ratio", "viscoelastic.relaxation_time"], [0.0, tau0],
+                          [0.0, tau0 / 30.0], [2.0, 30.0 * tau0])
+    prob = LeastSquares(lambda p: _product_valley(p)[0], 2, lambda p: _product_valley(p)[1],
+                        scaling=sc, comm=MPI.COMM_SELF)
+    res = minimize(prob, np.zeros(2), "gauss-newton", bounds=sc.bounds(), scaling=sc,
+                   options={"lm_dtol": 1e-6})
+    assert res.converged, res.reason
+    np.testing.assert_allclose(res.p, [c / (tau0 / 30.0), tau0 / 30.0], rtol=1e-6)
+    # the minimum: the valley's residual zero, the time's residual at its bound, the constant
+    assert res.f == pytest.approx(0.5 * (42.0 / 30.0) ** 2 + 4.5, rel=1e-6)
+    assert res.evaluations <= 14, (res.iterations, res.evaluations)
+
+
+@pytest.mark.serial_only  # rank-local analytic problem
+@pytest.mark.parametrize("target", [0.01, -0.5])
+def test_gauss_newton_lowers_a_coefficient_from_zero_in_p(target):
+    """A coefficient bounded below by zero (affine) that the data want lower, its residual
+    linear in it: the step takes it where the model says in one go, and to the bound when the
+    model says below it. Stepping it in log p as well (as when it grows) only approached the
+    target by a factor exp(dp/p) an iteration (measured: 6 iterations instead of 2 to 0.01)."""
+
+    def residual(p):
+        return np.array([10.0 * (p[0] - target), 5.0 * (p[1] / 2.0 - 1.0), 1.0])
+
+    def jacobian(p):
+        return np.array([[10.0, 0.0], [0.0, 2.5], [0.0, 0.0]])
+
+    sc = ParameterScaling(["damping", "modulus"], [0.3, 1.0], [0.0, 0.1], [2.0, 10.0])
+    prob = LeastSquares(residual, 2, jacobian, scaling=sc, comm=MPI.COMM_SELF)
+    res = minimize(prob, np.zeros(2), "gauss-newton", bounds=sc.bounds(), scaling=sc)
+    assert res.converged, res.reason
+    assert res.p[0] == pytest.approx(max(target, 0.0), abs=1e-4)
+    assert res.p[1] == pytest.approx(2.0, rel=1e-3)
+    assert res.evaluations <= 3, (res.iterations, res.evaluations)
