@@ -71,9 +71,12 @@ integrator = "be"
 """
 
 
-def write_mesh(path: Path, mesh) -> None:
+def write_mesh(path: Path, mesh, comm=PETSc.COMM_WORLD) -> None:
+    """Write ``mesh`` on the first rank of ``comm`` (every rank has it); the others wait."""
     import meshio
-    meshio.write(path, meshio.Mesh(mesh.points, [("tetra", mesh.tets)]))
+    if comm.getRank() == 0:
+        meshio.write(path, meshio.Mesh(mesh.points, [("tetra", mesh.tets)]))
+    comm.tompi4py().Barrier()
 
 
 def synthetic_case(case: str, work: Path, comm=PETSc.COMM_WORLD, noise_pct: float = 0.5,
@@ -83,9 +86,9 @@ def synthetic_case(case: str, work: Path, comm=PETSc.COMM_WORLD, noise_pct: floa
     size, cells, *_ = CASES[case]
     E_true = CASES[case][4]
     rest = box_mesh(list(size), list(cells))
-    write_mesh(work / f"{case}_rest.vtu", rest)
+    write_mesh(work / f"{case}_rest.vtu", rest, comm)
     exp_true = load_experiment_text(work / f"{case}_true.toml",
-                                    experiment_text(case, f"{case}_rest.vtu", E_true))
+                                    experiment_text(case, f"{case}_rest.vtu", E_true), comm)
     model = build_model(exp_true, comm, mesh=rest)
     solver = StaticSolver(model, load_steps=2)
     u = solver.solve().displacement
@@ -93,9 +96,9 @@ def synthetic_case(case: str, work: Path, comm=PETSc.COMM_WORLD, noise_pct: floa
     solver.destroy()
     captured = comm.tompi4py().bcast(model.dmesh.gather(x_local), root=0)
     captured = dataclasses.replace(rest, points=captured)
-    write_mesh(work / f"{case}_captured.vtu", captured)
+    write_mesh(work / f"{case}_captured.vtu", captured, comm)
     exp = load_experiment_text(work / f"{case}.toml",
-                               experiment_text(case, f"{case}_captured.vtu", E_true))
+                               experiment_text(case, f"{case}_captured.vtu", E_true), comm)
     # markers: the nodes of the boundary faces away from the support, every other one
     far = np.flatnonzero(np.isin(np.arange(len(rest.points)), np.unique(rest.tets)))
     free = far[np.linalg.norm(rest.points[far] - rest.points[far].min(axis=0), axis=1) > 0.03]
@@ -117,8 +120,14 @@ def synthetic_case(case: str, work: Path, comm=PETSc.COMM_WORLD, noise_pct: floa
             E_true)
 
 
-def load_experiment_text(path: Path, text: str):
-    path.write_text(text)
+def load_experiment_text(path: Path, text: str, comm=PETSc.COMM_WORLD):
+    """The experiment of ``text``, written to ``path`` on the first rank of ``comm`` and read on
+    every rank once it is there (every rank writing the same file raced: a rank read it while
+    another had just truncated it, "mesh is missing", and the other ranks then waited in the
+    next collective call for good)."""
+    if comm.getRank() == 0:
+        path.write_text(text)
+    comm.tompi4py().Barrier()
     return load_experiment(path)
 
 
