@@ -126,7 +126,7 @@ def check_package_term(plugin, t):
         # the parameter derivatives add no beta dK0/dp v (petsoft.dynamics.parameters)
         raise PetsoftError(f"{what}: in_reference = True is not supported for a package's "
                            "term yet (its Hessian would enter K0 and the stiffness damping)")
-    names = {f"{k.table}.{k.key}" for k in plugin.term.keys if k.type == "number"}
+    names = plugin.parameter_names
     if set(t.parameters()) != names:
         raise PetsoftError(f"{what}: parameters() gives {sorted(t.parameters())}, its "
                            f"declaration's number keys are {sorted(names)}")

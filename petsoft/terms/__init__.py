@@ -93,6 +93,16 @@ class Plugin:
         """The experiment tables its keys live in."""
         return tuple(dict.fromkeys(k.table for k in self.term.keys))
 
+    @property
+    def parameter_names(self) -> set[str]:
+        """``table.key`` of its number keys: the parameters it may have."""
+        return number_keys(self.term)
+
+
+def number_keys(t: Term) -> set[str]:
+    """``table.key`` of term ``t``'s number keys (a package's term's possible parameters)."""
+    return {f"{k.table}.{k.key}" for k in t.keys if k.type == "number"}
+
 
 def load_plugin(ep, builtin: dict[str, Term], found: dict[str, Plugin]) -> Plugin:
     """The :class:`Plugin` of the entry point ``ep`` (an :class:`importlib.metadata.EntryPoint`),
@@ -135,7 +145,7 @@ def load_plugin(ep, builtin: dict[str, Term], found: dict[str, Plugin]) -> Plugi
         if k.table in taken:
             raise ImportError(f"{where}: key {k.dotted}: table [{k.table}] belongs to another "
                               "term; a package's term reads a table of its own")
-    names = {f"{k.table}.{k.key}" for k in t.keys if k.type == "number"}
+    names = number_keys(t)
     for q in t.proposal.parameters:
         if q.name not in names:
             raise ImportError(f"{where}: parameter {q.name!r} is none of its number keys "
