@@ -14,12 +14,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _taper import CALIBRATE, taper, write_taper_mesh
+from _taper import CALIBRATE, taper, taper_diagnosis, write_taper_mesh
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.calibration.refinement import refinement
+from petsoft.calibration.refinement import MESH_AND_STEP_HALVED, refinement
 from petsoft.calibration.synth import SynthOptions, synth
+from petsoft.diagnosis import numerics
 from petsoft.diagnosis.context import Diagnosis
 from petsoft.diagnosis.numerics import measurable, measure_untried
 from petsoft.diagnosis.numerics_findings import numerics_findings
@@ -90,4 +91,47 @@ def test_one_run_of_a_mesh_too_large_to_fit_measures_what_a_refit_would_leave(tm
     assert said["recommendation"].startswith(
         f"Refine the mesh (192 tets): one run of the split mesh measured an error of {x}x the "
         "noise on the final model."), said
+    MPI.COMM_WORLD.Barrier()
+
+
+def test_the_split_mesh_alone_and_at_half_the_step_are_simulated_side_by_side(
+        tmp_path_factory, monkeypatch):
+    """On two ranks the split mesh's measuring run and the split mesh's at half the step are
+    made side by side (one rank each, the runs measure_refinement would make one after the
+    other: the same numbers), and the second is booked only when the rule asks for it (the
+    step and the split mesh alone both no closer to the data). On one rank nothing is run
+    ahead. The P1 taper (192 tets, 50 steps) with the fitting limit lowered below its split
+    mesh (1536 tets), so that the runs take seconds."""
+    d = Path(MPI.COMM_WORLD.bcast(str(tmp_path_factory.mktemp("side"))))
+    diag, exp = taper_diagnosis(d, taper(2.0e7), taper(1.8e7, calibrate=CALIBRATE), seed=5)
+    fit = diag.calibrate(exp)
+    monkeypatch.setattr(numerics, "MESH_CELLS", 1000)
+    split, both = refinement("mesh x2"), MESH_AND_STEP_HALVED
+    assert measurable(split, fit.experiment) and measurable(both, fit.experiment)
+    made = numerics._simulated_side_by_side(diag, fit, [split, both])
+    if MPI.COMM_WORLD.size == 1:
+        assert made == {}                     # one rank: each run when (if) it is needed
+    else:
+        assert sorted(made) == ["mesh x2", "mesh x2 + step/2"]
+        for r in (split, both):
+            alone = diag.simulate_identification(r.make(fit.experiment))
+            assert made[r.label].ok
+            # the same one-rank run, bit for bit
+            np.testing.assert_array_equal(made[r.label].value, alone)
+    # measured only once per model: nothing is run ahead for a model measured before
+    rounds = [{"options": {"step/2": {"gain": -1.0}}}]      # the step/2 refit: no closer
+    assert measure_untried(diag, fit, rounds)
+    options = rounds[-1]["options"]
+    assert options["mesh x2"]["measured_only"]
+    # the combined refinement is booked iff the split mesh alone came no closer
+    assert ("mesh x2 + step/2" in options) == (options["mesh x2"]["gain"] <= 0.0)
+    booked = {key[0] for key in diag.measured_meshes if isinstance(key[0], str)}
+    assert ("mesh x2 + step/2" in booked) == ("mesh x2 + step/2" in options)
+    # asked again (the final recheck), nothing is run ahead: what is needed was measured
+    assert numerics._simulated_side_by_side(diag, fit, [split, both]) == {}
+    # with the step/2 refit closer to the data, the combined run is neither made nor booked
+    fresh = [{"options": {"step/2": {"gain": 1.0}}}]
+    diag.measured_meshes.clear()
+    assert measure_untried(diag, fit, fresh)
+    assert "mesh x2 + step/2" not in fresh[-1]["options"]
     MPI.COMM_WORLD.Barrier()

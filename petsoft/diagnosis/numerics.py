@@ -190,7 +190,7 @@ def _mesh_key(experiment) -> tuple:
     return (str(m.file), m.refine, m.order, tuple(m.box.cells) if m.box is not None else None)
 
 
-def measure_refinement(diag: Diagnosis, fit: Fit, r) -> dict:
+def measure_refinement(diag: Diagnosis, fit: Fit, r, moved: np.ndarray | None = None) -> dict:
     """The error ``fit``'s mesh leaves, measured by one run of the refined mesh (not fitted).
 
     The refined model is simulated at ``fit``'s parameters; its re-calibration is linearised:
@@ -201,17 +201,21 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r) -> dict:
     when the refined simulation is closer to the data (the linearised refit lowers chi2), as
     for a refinement that is fitted but does not matter.
 
+    ``moved``: the refined model's identification-window simulation when it was already made
+    (:func:`_simulated_side_by_side`); else it is simulated here.
+
     Returns the round entry of the refinement (``measured_only``: True), in the keys of a
     fitted one.
     """
     exp = fit.experiment
-    diag.tell(f"numerics: {r.label} ({r.describe(exp)}) is over diagnose's fitting limit; "
-              "simulating it once to measure the error of the current mesh")
-    # (one rank solves it directly up to the default's 100,000 dofs, a direct solve's limit
-    # that once had to be raised here from 6000)
-    with doing(f"numerics {r.label} (one run)"):
-        moved = diag.simulate_identification(r.make(exp))
-    gc.collect()
+    if moved is None:
+        diag.tell(f"numerics: {r.label} ({r.describe(exp)}) is over diagnose's fitting limit; "
+                  "simulating it once to measure the error of the current mesh")
+        # (one rank solves it directly up to the default's 100,000 dofs, a direct solve's
+        # limit that once had to be raised here from 6000)
+        with doing(f"numerics {r.label} (one run)"):
+            moved = diag.simulate_identification(r.make(exp))
+        gc.collect()
     cols = None if diag.all_differenced(exp) else model_sensitivities(diag, fit)
     o = linearised_refit(diag, fit, r, moved, cols)
     current = r.error_factors(exp, diag.integrator)[0]
@@ -542,29 +546,74 @@ def measure_untried(diag: Diagnosis, fit: Fit, rounds: list[dict]) -> bool:
                  "tets": mesh_cells(exp), "measured_only": True,
                  "parameters": dict(zip(fit.names, map(float, fit.values), strict=True))}
         rounds.append(entry)
-    for r in todo:
-        _measure_into(diag, fit, r, entry)
     # Each refinement alone moved the fit away from the data (the step's refit and the
     # split mesh's linearised one): a step error and a mesh error of opposite signs can offset
     # each other, so that neither shows alone; refined together they do.
     both = MESH_AND_STEP_HALVED
-    step, mesh = entry["options"].get("step/2", {}), entry["options"].get("mesh x2", {})
-    if (mesh.get("measured_only") and mesh.get("gain", 1.0) <= 0.0
-            and step.get("gain", 1.0) <= 0.0 and measurable(both, exp)):
-        _measure_into(diag, fit, both, entry)
+    step = entry["options"].get("step/2", {})
+    maybe_both = step.get("gain", 1.0) <= 0.0 and measurable(both, exp)
+    made = _simulated_side_by_side(diag, fit, todo + ([both] if maybe_both else []))
+    for r in todo:
+        _measure_into(diag, fit, r, entry, made.get(r.label))
+    mesh = entry["options"].get("mesh x2", {})
+    if maybe_both and mesh.get("measured_only") and mesh.get("gain", 1.0) <= 0.0:
+        _measure_into(diag, fit, both, entry, made.get(both.label))
     return True
 
 
-def _measure_into(diag: Diagnosis, fit: Fit, r, entry: dict) -> None:
+def _measuring_key(r, experiment) -> tuple:
+    """What a measurement of refinement ``r`` of ``experiment`` is kept under
+    (``diag.measured_meshes``): one per refinement, mesh and step."""
+    return (r.label, _mesh_key(experiment), experiment.time.step)
+
+
+def _simulated_side_by_side(diag: Diagnosis, fit: Fit, wanted: list) -> dict:
+    """The measuring runs of the refinements ``wanted`` not measured yet, made side by side
+    on one rank each when there are two or more and every model is small enough
+    (:meth:`~petsoft.diagnosis.placement.Placement.one_rank_each`); else none (``{}``: each
+    is simulated when measured, as before).
+
+    The split mesh at half the step is measured only when the split mesh alone came no closer
+    to the data (:func:`measure_untried`), which its own run says; made one after the other,
+    the payload taper's two runs took 61 s and 95 s on one rank while the other waited. Made
+    together, the second is thrown away when the first says it is not needed. Each run is
+    the one :func:`measure_refinement` makes (one rank, the same solver), so what is
+    concluded is the same either way.
+
+    Returns label -> the identification-window simulation (a
+    :class:`~petsoft.calibration.groups.TaskResult`, failed ones with their error).
+    """
+    exp = fit.experiment
+    todo = [r for r in wanted if _measuring_key(r, exp) not in diag.measured_meshes]
+    if len(todo) < 2:
+        return {}
+    models = [r.make(exp) for r in todo]
+    if not diag.placement.one_rank_each(*models):
+        return {}
+    diag.tell("numerics: " + " and ".join(f"{r.label} ({r.describe(exp)})" for r in todo)
+              + " are over diagnose's fitting limit; simulating each once, side by side, to "
+                "measure the error of the current mesh")
+    with doing("numerics " + ", ".join(r.label for r in todo) + " (one run each)"):
+        runs = diag.placement.on_groups(
+            lambda item, sub: diag.simulate_identification(item, comm=sub), models, *models)
+    gc.collect()
+    return {r.label: res for r, res in zip(todo, runs, strict=True)}
+
+
+def _measure_into(diag: Diagnosis, fit: Fit, r, entry: dict, made=None) -> None:
     """:func:`measure_refinement` of ``r`` into ``entry``'s options, once per model (a model
     measured before keeps its measurement), and its error in (or out of) the verdict's
-    budget."""
+    budget. ``made``: its measuring run's result when already made
+    (:func:`_simulated_side_by_side`)."""
     exp = fit.experiment
-    key = (r.label, _mesh_key(exp), exp.time.step)
+    key = _measuring_key(r, exp)
     done = diag.measured_meshes
     if key not in done:
         try:
-            done[key] = measure_refinement(diag, fit, r)
+            if made is not None and not made.ok:
+                raise PetsoftError(made.error)
+            done[key] = measure_refinement(diag, fit, r,
+                                           None if made is None else made.value)
         except PetsoftError as err:   # collective, as the fits
             done[key] = {"error": f"the refined simulation failed ({err})"}
     o = done[key]
