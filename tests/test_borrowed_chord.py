@@ -189,7 +189,8 @@ def test_a_sensitivity_run_keeps_its_factors_across_steps(method):
 
 
 def test_a_chord_failing_on_kept_factors_renews_them(monkeypatch):
-    """With the refactoring threshold out of reach (``REFACTOR_ITERATIONS = MAX_IT``) the kept
+    """With the refactoring thresholds out of reach (``REFACTOR_ITERATIONS = MAX_IT``, no
+    amortisation: ``FACTOR_IN_ITERATIONS`` huge) the kept
     factors age until a borrowed chord fails on them (backward Euler on this bar: chord
     iterations 5 -> 25 over 36 steps, then a failure); that step renews them, so the failure
     does not repeat at every later step (it did, 4 times in a row, before the renewal): one
@@ -204,6 +205,7 @@ def test_a_chord_failing_on_kept_factors_renews_them(monkeypatch):
     sim0, dsim0 = fm.jacobian(p)
     fm.lags_factors = True
     monkeypatch.setattr(lf, "REFACTOR_ITERATIONS", lf.MAX_IT)
+    monkeypatch.setattr(lf, "FACTOR_IN_ITERATIONS", 10 ** 9)
     sim, dsim = fm.jacobian(p)
     stats = fm.stats["tangent_solves"]
     if PETSc.COMM_WORLD.getRank() == 0:

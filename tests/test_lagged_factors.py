@@ -4,7 +4,9 @@
    iterations on the old factors, to the tolerance, with no new factorisation; a solve needing
    more than ``REFACTOR_ITERATIONS`` has the next matrix factored; a solve that fails is
    repeated at once on fresh factors and is right; the lent ``preonly`` KSP applies the kept
-   factors (the old matrix's inverse), not the current matrix's.
+   factors (the old matrix's inverse), not the current matrix's; on the current matrix's own
+   factors a solve is that lender's one substitution; several solves a step on kept factors
+   renew them once their iterations exceed a factorisation's cost (``FACTOR_IN_ITERATIONS``).
 2. :meth:`ForwardModel.jacobian` of be, si and alpha on small 4- and 10-node bars (12 steps):
    the sensitivities on kept factors equal those of the every-step factorisation
    (``lags_factors = False``) to 1e-8, both equal central differences of ``simulate`` to 1e-5,
@@ -84,7 +86,9 @@ def test_lagged_factors_iterate_refactor_and_lend(monkeypatch):
     solver.operator_changed()
     assert solver.factorisations == 1
     solver.solve(b, x)
-    assert ksp.getConvergedReason() > 0 and ksp.getIterationNumber() == 1
+    # on the current matrix's own factors: one substitution by the preonly lender, exact
+    assert solver.last_solver is solver.factors and solver.factors.getConvergedReason() > 0
+    assert _residual(A, x, b) < 1e2 * lf.RTOL
     # the factors of A, kept for the lender below
     old = _direct(_matrix(comm))
     # 1. a small change: a few iterations, to the tolerance, nothing factored
@@ -93,6 +97,7 @@ def test_lagged_factors_iterate_refactor_and_lend(monkeypatch):
     solver.operator_changed()
     solver.solve(b, x)
     its = ksp.getIterationNumber()
+    assert solver.last_solver is ksp
     assert ksp.getConvergedReason() > 0 and 1 < its <= lf.REFACTOR_ITERATIONS, its
     assert _residual(A, x, b) < 1e2 * lf.RTOL
     assert solver.factorisations == 1
@@ -113,7 +118,8 @@ def test_lagged_factors_iterate_refactor_and_lend(monkeypatch):
     solver.operator_changed()
     assert solver.factorisations == 2
     solver.solve(b, x)
-    assert ksp.getIterationNumber() == 1      # on the current matrix's own factors
+    assert solver.last_solver is solver.factors      # on the current matrix's own factors
+    assert _residual(A, x, b) < 1e2 * lf.RTOL
     monkeypatch.undo()
     # 3. a change GMRES cannot follow within MAX_IT: refactored at once, solved right
     _set_diagonal(A, 10.0 * rng.uniform(size=N) ** 4)
@@ -124,6 +130,23 @@ def test_lagged_factors_iterate_refactor_and_lend(monkeypatch):
     assert solver.factorisations == 3
     assert ksp.getConvergedReason() > 0 and _residual(A, x, b) < 1e2 * lf.RTOL
     assert solver.stats()["solves"] == 5
+    # 4. many solves a step, each within the threshold: once the iterations made on the
+    # factors exceed a factorisation's cost, the next matrix is factored
+    monkeypatch.setattr(lf, "FACTOR_IN_ITERATIONS", 5)
+    made = solver.factorisations
+    for step in range(3):
+        _set_diagonal(A, 1e-3 * rng.uniform(size=N))
+        solver.operator_changed()
+        if step == 0:
+            assert solver.factorisations == made       # the factors of the last matrix
+        for _ in range(3):                              # three parameters
+            solver.solve(b, x)
+            assert _residual(A, x, b) < 1e2 * lf.RTOL
+        if step == 0:
+            assert solver.last_solver is ksp and ksp.getIterationNumber() > 1
+    assert solver.factorisations > made
+    monkeypatch.undo()
+    assert solver.stats()["solves"] == 5 + 9
     solver.destroy()
     for obj in (ksp, old, A, b, x, y, z):
         obj.destroy()

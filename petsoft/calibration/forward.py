@@ -548,7 +548,7 @@ class ForwardModel:
         # (with the options pushed: PETSc reads some when the solve sets the factors up)
         with self.grad_options.pushed():
             ksp.solve(rhs, out)
-        check_converged(ksp.ksp if isinstance(ksp, LaggedFactors) else ksp,
+        check_converged(ksp.last_solver if isinstance(ksp, LaggedFactors) else ksp,
                         f"{self.experiment.source}: a sensitivity/adjoint linear solve",
                         hint=f"try -{GRAD_PREFIX}pc_type lu")
 

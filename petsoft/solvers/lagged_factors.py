@@ -7,9 +7,11 @@ cost. J_n moves little from one 2 ms step to the next (it is mostly stiffness an
 :class:`LaggedFactors` solves J_n x = b by GMRES preconditioned with the factors of an earlier
 J_m: the Krylov method corrects for the difference, and converges in a few iterations while
 J_m^-1 J_n is near the identity. The factors are renewed only when a solve needs more than
-:data:`REFACTOR_ITERATIONS` iterations (then at the next matrix, that solve has converged) or
-fails (then at once, and the solve is repeated on fresh factors), or when the caller asks
-(:meth:`LaggedFactors.renew`).
+:data:`REFACTOR_ITERATIONS` iterations or the iterations made on them since they were made
+exceed what a factorisation costs (:data:`FACTOR_IN_ITERATIONS`: a run with many parameters
+solves many times a step) -- then at the next matrix, that solve has converged -- or when a
+solve fails (then at once, and the solve is repeated on fresh factors), or when the caller asks
+(:meth:`LaggedFactors.renew`). On factors of the current matrix a solve is one substitution.
 
 Accuracy: GMRES is left-preconditioned, so the norm it reduces is that of the preconditioned
 residual J_m^-1 (b - J_n x) = (J_m^-1 J_n)(x* - x); with J_m^-1 J_n near the identity its
@@ -46,6 +48,15 @@ REFACTOR_ITERATIONS = 6
 RTOL = 1e-11
 #: A solve that has not converged after this many iterations is repeated on fresh factors.
 MAX_IT = 30
+#: What a factorisation costs in GMRES iterations on kept factors (each a forward and back
+#: substitution and a product with the matrix): when the iterations made on the factors since
+#: they were made exceed it, the next matrix is factored. One solve a step rarely gets there
+#: before :data:`REFACTOR_ITERATIONS` renews them; a run with many parameters does: the
+#: diagnosis' shared scoring run on the realistic taper's 10-node model (4641 dofs, ten
+#: columns) made ~45 GMRES iterations a step on factors renewed every ~3 steps, where a
+#: factorisation costs about 20 (MUMPS' LDL^T 18-20 ms against 0.6 ms a substitution and 0.4 ms
+#: a product, measured side by side in one process).
+FACTOR_IN_ITERATIONS = 20
 
 
 class LaggedFactors:
@@ -72,12 +83,18 @@ class LaggedFactors:
         ksp.setTolerances(rtol=RTOL, atol=0.0, max_it=MAX_IT)
         # (GMRES' default: left preconditioning, the preconditioned residual norm; see above)
         self._lender = None
+        self._last = ksp
         self._stale = True
+        #: whether the factors are of the matrix as it is now (made since its last change)
+        self._current = False
+        #: GMRES iterations made on the factors since they were made
+        self._since = 0
         self.factorisations = self.solves = self.iterations = self.max_iterations = 0
 
     def operator_changed(self) -> None:
         """The matrix has new values (a new step): factor them if the last solves asked for it
         (or nothing was factored yet)."""
+        self._current = False
         if self._stale:
             self._factor()
 
@@ -95,22 +112,41 @@ class LaggedFactors:
         pc.setReusePreconditioner(True)
         self.factorisations += 1
         self._stale = False
+        self._current = True
+        self._since = 0
 
     def solve(self, rhs: PETSc.Vec, out: PETSc.Vec) -> None:
         """out = A^-1 rhs to :data:`RTOL`; a solve that fails is repeated on fresh factors (the
-        caller checks the result's :func:`~petsoft.solvers.convergence.outcome`)."""
-        ksp = self.ksp
+        caller checks the result's :func:`~petsoft.solvers.convergence.outcome` on
+        :attr:`last_solver`). On factors of the matrix as it is now the solve is one
+        substitution (the ``preonly`` :attr:`factors`: GMRES would add a product and an
+        orthogonalisation to reach the same answer)."""
+        if self._current:
+            self.factors.solve(rhs, out)
+            self._last = self.factors
+            self.solves += 1
+            self.iterations += 1
+            self.max_iterations = max(self.max_iterations, 1)
+            return
+        ksp = self._last = self.ksp
         ksp.solve(rhs, out)
         its = ksp.getIterationNumber()
         if not outcome(ksp).converged:
             self._factor()
             ksp.solve(rhs, out)
             its += ksp.getIterationNumber()
-        elif ksp.getIterationNumber() > REFACTOR_ITERATIONS:
-            self._stale = True
+        else:
+            self._since += its
+            if its > REFACTOR_ITERATIONS or self._since > FACTOR_IN_ITERATIONS:
+                self._stale = True
         self.solves += 1
         self.iterations += its
         self.max_iterations = max(self.max_iterations, its)
+
+    @property
+    def last_solver(self) -> PETSc.KSP:
+        """The KSP that made the last :meth:`solve` (its outcome is that solve's)."""
+        return self._last
 
     @property
     def factors(self) -> PETSc.KSP:
