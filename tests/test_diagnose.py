@@ -459,7 +459,8 @@ def test_sensitivity_maps_beside_the_shared_run_equal_them_in_turn(case):
     together = [c for c in cands if scored_together(c, diag.exact_columns(c, exp))]
     in_turn = diag.sensitivity_regions(base), diag.score_together(base, together)
     centroids, diag.centroids = diag.centroids, None
-    maps, entries = diag.regions_and_shared_scores(base, together)
+    maps, entries, early = diag.regions_and_shared_scores(base, together)
+    assert early == {}
     assert np.array_equal(diag.centroids, centroids)
     for kind in ("stiffness", "density"):
         assert (maps[kind] is None) == (in_turn[0][kind] is None), kind
@@ -472,6 +473,29 @@ def test_sensitivity_maps_beside_the_shared_run_equal_them_in_turn(case):
     for mine, theirs in zip(entries, in_turn[1], strict=True):
         assert mine["score"] == pytest.approx(theirs["score"], rel=1e-7), mine["physics"]
     assert diag._scored is not None and diag._scored[0] is base
+    # each group scoring what its job allows right after it (the spatial candidates after the
+    # maps, the rest after the shared run) gives the scores made after both, one by one
+    import functools
+
+    from petsoft.diagnosis.diagnose import _candidate_key, _round_candidates, _score_early
+    from petsoft.diagnosis.selection import escape_plane
+
+    ev = evidence_of(diag, base)
+    plane = escape_plane(diag.data[diag.ident], base.sim[diag.ident], diag.sigma)
+    maps, entries, early = diag.regions_and_shared_scores(
+        base, together, then=functools.partial(_score_early, diag, base, ev, plane))
+    cands = _round_candidates(diag, base, ev, plane, maps)[0]
+    spatial = [c for c in cands if c.region is not None]
+    assert spatial and all(_candidate_key(c) in early for c in spatial)
+    assert not any(_candidate_key(c) in early for c in together)
+    for c in cands:
+        if _candidate_key(c) in early:
+            res = early[_candidate_key(c)]
+            assert res.ok, res.error
+            # as the round scores it otherwise: on one rank of a group
+            alone = diag.placement.on_groups(lambda cand, sub: diag.score(base, cand, comm=sub),
+                                             [c], base.experiment)[0]
+            assert res.value["score"] == pytest.approx(alone.value["score"], rel=1e-9), c.physics
 
 
 def test_the_shared_run_is_kept_beside_a_forward_only_simulation(case):

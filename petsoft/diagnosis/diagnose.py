@@ -40,7 +40,9 @@ data (:func:`petsoft.diagnosis.noise.noise_summary`) before the base fit and kep
 
 from __future__ import annotations
 
+import functools
 import gc
+import pickle
 import time
 from pathlib import Path
 
@@ -86,6 +88,7 @@ from petsoft.diagnosis.selection import (
 )
 from petsoft.diagnosis.story import skipped_numerics
 from petsoft.dynamics.factory import system_class
+from petsoft.errors import PetsoftError
 from petsoft.io.progress import heartbeat
 
 
@@ -251,8 +254,13 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         diag.tell(f"round {rnd}: the misfit's sensitivity maps"
                   + (f" beside one scoring run of {', '.join(c.physics for c in together)}"
                      if len(together) > 1 else ""))
-        maps, shared = diag.regions_and_shared_scores(
-            current, together, regions=system_class(current.experiment).volume_cells)
+        # each group scores what its own job allows while the other's still runs (one rank a
+        # group: the runs the scoring below would make, on the same ranks)
+        early_scores = (functools.partial(_score_early, diag, current, ev, plane)
+                        if diag.placement.one_rank_each(current.experiment) else None)
+        maps, shared, early = diag.regions_and_shared_scores(
+            current, together, regions=system_class(current.experiment).volume_cells,
+            then=early_scores)
         cands, not_modelled = _round_candidates(diag, current, ev, plane, maps)
         diag.tell(f"round {rnd}: ranking {len(cands)} candidates "
                   f"({', '.join(c.physics for c in cands)})")
@@ -261,6 +269,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                     if shared is not None else {})
         ranked = {i: TaskResult(i, 0, entry_of[c.physics]) for i, c in enumerate(cands)
                   if c.physics in entry_of and _shareable(diag, current, [c])}
+        ranked.update({i: early[_candidate_key(c)] for i, c in enumerate(cands)
+                       if i not in ranked and _candidate_key(c) in early})
         alone = [i for i in range(len(cands)) if i not in ranked]
         ranked.update(zip(alone, diag.placement.on_groups(
             lambda c, sub, cur=current: diag.score(cur, c, comm=sub),
@@ -407,6 +417,33 @@ def _round_candidates(diag, current, ev: dict, plane, maps: dict) -> tuple[list,
         current.experiment, evidence_region=ev["region"], stiffness_region=maps["stiffness"],
         density_region=maps["density"], centroids=diag.centroids, scales=diag.scales,
         plane=plane)
+
+
+def _candidate_key(candidate) -> bytes:
+    """What identifies a candidate across ranks: its pickled fields (candidates built from
+    the same values on different ranks are equal; a region's centre is an array)."""
+    return pickle.dumps(candidate)
+
+
+def _score_early(diag, current, ev: dict, plane, kind: str, maps: dict, sub) -> dict:
+    """The scores one group makes right after its job of
+    :meth:`~petsoft.diagnosis.context.Diagnosis.regions_and_shared_scores` (``kind``): after
+    the sensitivity maps the spatial candidates (placed by them), after the shared scoring run
+    the others it did not score (a compliant support, switches, whose current columns that
+    run gave). ``{candidate key: TaskResult}``, a failed score with its error as the scoring's
+    own groups give it."""
+    cands = _round_candidates(diag, current, ev, plane, maps)[0]
+    if kind == "regions":
+        chosen = [c for c in cands if c.region is not None]
+    else:
+        chosen = [c for c in cands if c.region is None and not _shareable(diag, current, [c])]
+    out = {}
+    for i, c in enumerate(chosen):
+        try:
+            out[_candidate_key(c)] = TaskResult(i, 0, diag.score(current, c, comm=sub))
+        except PetsoftError as err:     # (every rank of the group raised it)
+            out[_candidate_key(c)] = TaskResult(i, 0, None, str(err) or type(err).__name__)
+    return out
 
 
 def _shareable(diag, current, candidates: list) -> list:
