@@ -129,6 +129,15 @@ def test_the_split_mesh_alone_and_at_half_the_step_are_simulated_side_by_side(
     assert ("mesh x2 + step/2" in booked) == ("mesh x2 + step/2" in options)
     # asked again (the final recheck), nothing is run ahead: what is needed was measured
     assert numerics._simulated_side_by_side(diag, fit, [split, both]) == {}
+    # a split mesh that came closer to the data (its measurement kept from before, gain > 0):
+    # the combined refinement is not booked, though the step/2 refit was no closer
+    diag.measured_meshes.clear()
+    closer = {**options["mesh x2"], "gain": 1.0}
+    diag.measured_meshes[numerics._measuring_key(split, fit.experiment)] = closer
+    kept = [{"options": {"step/2": {"gain": -1.0}}}]
+    assert measure_untried(diag, fit, kept)
+    assert kept[-1]["options"]["mesh x2"] is closer
+    assert "mesh x2 + step/2" not in kept[-1]["options"]
     # with the step/2 refit closer to the data, the combined run is neither made nor booked
     fresh = [{"options": {"step/2": {"gain": 1.0}}}]
     diag.measured_meshes.clear()

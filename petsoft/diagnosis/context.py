@@ -622,9 +622,9 @@ class Diagnosis:
         place on the group's ranks (:attr:`centroids`, :attr:`_scored`): it scores the
         round's candidates that need only that job while the other group still runs -- the
         spatial ones after the maps, the rest after the shared run -- instead of all of them
-        after both (on the realistic
-        damping case the maps took 22 s beside the shared run's 45 s, then three scores 29 s
-        on the two ranks). It returns ``{key: TaskResult}``; the groups' dicts are merged.
+        after both (on the realistic damping case the maps took 22 s beside the shared run's
+        45 s, then three scores 29 s on the two ranks). It returns ``{key: TaskResult}``; the
+        groups' dicts are merged.
 
         Returns
         -------

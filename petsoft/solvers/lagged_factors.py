@@ -51,9 +51,9 @@ MAX_IT = 30
 #: What a factorisation costs in GMRES iterations on kept factors (each a forward and back
 #: substitution and a product with the matrix): when the iterations made on the factors since
 #: they were made exceed it, the next matrix is factored. One solve a step rarely gets there
-#: before :data:`REFACTOR_ITERATIONS` renews them; a run with many parameters does: the
-#: diagnosis' shared scoring run on the realistic taper's 10-node model (4641 dofs, ten
-#: columns) made ~45 GMRES iterations a step on factors renewed every ~3 steps, where a
+#: before :data:`REFACTOR_ITERATIONS` renews them; a run with many parameters does: a
+#: scoring run of 8 parameters on the realistic damping taper's 10-node model (4641 dofs, 350
+#: steps) made ~34 GMRES iterations a step on factors renewed every ~2.5 steps, where a
 #: factorisation costs about 20 (MUMPS' LDL^T 18-20 ms against 0.6 ms a substitution and 0.4 ms
 #: a product, measured side by side in one process).
 FACTOR_IN_ITERATIONS = 20
@@ -122,23 +122,21 @@ class LaggedFactors:
         substitution (the ``preonly`` :attr:`factors`: GMRES would add a product and an
         orthogonalisation to reach the same answer)."""
         if self._current:
-            self.factors.solve(rhs, out)
             self._last = self.factors
-            self.solves += 1
-            self.iterations += 1
-            self.max_iterations = max(self.max_iterations, 1)
-            return
-        ksp = self._last = self.ksp
-        ksp.solve(rhs, out)
-        its = ksp.getIterationNumber()
-        if not outcome(ksp).converged:
-            self._factor()
-            ksp.solve(rhs, out)
-            its += ksp.getIterationNumber()
+            self.factors.solve(rhs, out)
+            its = 1
         else:
-            self._since += its
-            if its > REFACTOR_ITERATIONS or self._since > FACTOR_IN_ITERATIONS:
-                self._stale = True
+            ksp = self._last = self.ksp
+            ksp.solve(rhs, out)
+            its = ksp.getIterationNumber()
+            if not outcome(ksp).converged:
+                self._factor()
+                ksp.solve(rhs, out)
+                its += ksp.getIterationNumber()
+            else:
+                self._since += its
+                if its > REFACTOR_ITERATIONS or self._since > FACTOR_IN_ITERATIONS:
+                    self._stale = True
         self.solves += 1
         self.iterations += its
         self.max_iterations = max(self.max_iterations, its)
