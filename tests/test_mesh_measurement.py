@@ -32,7 +32,8 @@ TRUE_E, NOISE = 2.0e7, 2e-6
 
 
 @pytest.mark.serial_only      # ~1 min: run once (on 2 ranks the split model uses CG + GAMG)
-def test_one_run_of_a_mesh_too_large_to_fit_measures_what_a_refit_would_leave(tmp_path):
+def test_one_run_of_a_mesh_too_large_to_fit_measures_what_a_refit_would_leave(tmp_path,
+                                                                             monkeypatch):
     d = Path(tmp_path)
     assert write_taper_mesh(d / "taper.msh") == 192
     (d / "truth.toml").write_text(taper(TRUE_E, order=2))
@@ -84,6 +85,27 @@ def test_one_run_of_a_mesh_too_large_to_fit_measures_what_a_refit_would_leave(tm
     assert diag.sigma_verdict > diag.sigma
     # the words: what the one run found, and a mesh to use since the error exceeds the noise
     said = numerics_findings(diag, {}, rounds, fit, fit)
+    words_and_recommendation(said, entry)
+
+    # Where the linearisation is not trusted (numerics.linearisation_trusted: made so here), the
+    # split mesh is refitted by forward runs of its own (chord Gauss-Newton from the current
+    # model's sensitivities): it finds the calibration's minimum, closer than the linearisation
+    monkeypatch.setattr(numerics, "linearisation_trusted", lambda o, sigma: False)
+    with direct_solve_up_to(60000):
+        chord = numerics.measure_refinement(diag, fit, split)
+    assert chord["refit"].startswith("chord refit (") and chord["measured_only"]
+    e_chord = chord["parameters"]["material.youngs_modulus"]
+    assert abs(e_chord - e_ref) < 0.2 * refit.std[0]
+    assert chord["chi2"] == pytest.approx(refit.chi2, abs=max(1.0, 1e-3 * diag.dof(1)))
+    assert chord["change_rms"] == pytest.approx(actual, rel=0.02)
+    assert chord["change_same_parameters"] == pytest.approx(entry["change_same_parameters"])
+    assert chord["gain"] == pytest.approx(fit.chi2 - chord["chi2"])
+    assert chord["error_estimate"] == pytest.approx(chord["change_rms"] * 8.0 / 7.0)
+    MPI.COMM_WORLD.Barrier()
+
+
+def words_and_recommendation(said: dict, entry: dict) -> None:
+    """The findings of a measured split mesh name its counted error and recommend a mesh."""
     x = f"{entry['error_estimate'] / NOISE:.2g}"
     assert any("simulated once (over diagnose's fitting limit)" in f
                and f"counted as a mesh error of {x}x the noise" in f
@@ -91,7 +113,17 @@ def test_one_run_of_a_mesh_too_large_to_fit_measures_what_a_refit_would_leave(tm
     assert said["recommendation"].startswith(
         f"Refine the mesh (192 tets): one run of the split mesh measured an error of {x}x the "
         "noise on the final model."), said
-    MPI.COMM_WORLD.Barrier()
+
+
+def test_a_linearised_refit_is_trusted_unless_a_large_change_comes_no_closer():
+    """numerics.linearisation_trusted: only "no closer" after a change over SCREEN_BELOW x
+    the noise is refitted (that verdict keeps a mesh error out of the noise budget)."""
+    s, k = 1e-4, numerics.SCREEN_BELOW
+    assert numerics.linearisation_trusted({"gain": 5.0, "change_same_parameters": 10 * k * s}, s)
+    assert numerics.linearisation_trusted({"gain": -5.0, "change_same_parameters": k * s}, s)
+    assert not numerics.linearisation_trusted({"gain": -5.0,
+                                               "change_same_parameters": 1.01 * k * s}, s)
+    assert not numerics.linearisation_trusted({"gain": 0.0, "change_same_parameters": 10 * s}, s)
 
 
 def test_the_split_mesh_alone_and_at_half_the_step_are_simulated_side_by_side(
