@@ -32,8 +32,7 @@ TRUE_E, NOISE = 2.0e7, 2e-6
 
 
 @pytest.mark.serial_only      # ~1 min: run once (on 2 ranks the split model uses CG + GAMG)
-def test_one_run_of_a_mesh_too_large_to_fit_measures_what_a_refit_would_leave(tmp_path,
-                                                                             monkeypatch):
+def test_one_run_of_a_mesh_too_large_to_fit_measures_what_a_refit_would_leave(tmp_path):
     d = Path(tmp_path)
     assert write_taper_mesh(d / "taper.msh") == 192
     (d / "truth.toml").write_text(taper(TRUE_E, order=2))
@@ -87,20 +86,6 @@ def test_one_run_of_a_mesh_too_large_to_fit_measures_what_a_refit_would_leave(tm
     said = numerics_findings(diag, {}, rounds, fit, fit)
     words_and_recommendation(said, entry)
 
-    # Where the linearisation is not trusted (numerics.linearisation_trusted: made so here), the
-    # split mesh is refitted by forward runs of its own (chord Gauss-Newton from the current
-    # model's sensitivities): it finds the calibration's minimum, closer than the linearisation
-    monkeypatch.setattr(numerics, "linearisation_trusted", lambda o, sigma: False)
-    with direct_solve_up_to(60000):
-        chord = numerics.measure_refinement(diag, fit, split)
-    assert chord["refit"].startswith("chord refit (") and chord["measured_only"]
-    e_chord = chord["parameters"]["material.youngs_modulus"]
-    assert abs(e_chord - e_ref) < 0.2 * refit.std[0]
-    assert chord["chi2"] == pytest.approx(refit.chi2, abs=max(1.0, 1e-3 * diag.dof(1)))
-    assert chord["change_rms"] == pytest.approx(actual, rel=0.02)
-    assert chord["change_same_parameters"] == pytest.approx(entry["change_same_parameters"])
-    assert chord["gain"] == pytest.approx(fit.chi2 - chord["chi2"])
-    assert chord["error_estimate"] == pytest.approx(chord["change_rms"] * 8.0 / 7.0)
     MPI.COMM_WORLD.Barrier()
 
 
@@ -113,6 +98,50 @@ def words_and_recommendation(said: dict, entry: dict) -> None:
     assert said["recommendation"].startswith(
         f"Refine the mesh (192 tets): one run of the split mesh measured an error of {x}x the "
         "noise on the final model."), said
+
+
+def test_a_mesh_far_off_is_refitted_from_a_frequency_matched_start(tmp_path):
+    """A coarse 4-node mesh's error is a stiffness error: over a record of many periods a phase
+    drift, far from linear in E. The 192-tet 4-node taper fitted to a recording of its split
+    mesh (at half the step) has E 48 % low; its split mesh moves the simulation by some 40x
+    the noise at the fitted E, and the linearised refit finds it no closer to the data, while
+    a calibration of the split mesh fits the data (it is the truth). The measurement refits it
+    from a frequency-matched start instead (numerics.refit_measured), finds it closer, and
+    counts its error; the refitted change is within 15 % of the calibration's."""
+    d = Path(MPI.COMM_WORLD.bcast(str(tmp_path)))
+    if MPI.COMM_WORLD.rank == 0:
+        write_taper_mesh(d / "taper.msh")
+        (d / "truth.toml").write_text(taper(TRUE_E, end=0.6, step=0.002))
+        (d / "user.toml").write_text(taper(1.8e7, end=0.6, step=0.002, calibrate=CALIBRATE))
+    MPI.COMM_WORLD.Barrier()
+    synth(load_experiment(d / "truth.toml"),
+          SynthOptions(out=d / "rec.h5", noise=2e-5, markers=8, dropout=0.1, refine=2, seed=7))
+    exp = load_experiment(d / "user.toml")
+    diag = Diagnosis(exp, read_recording(d / "rec.h5"), fraction=0.7, alpha=0.01,
+                     method="gauss-newton", gradient="sensitivity", integrator=None, noise=None,
+                     comm=PETSc.COMM_WORLD, say=None)
+    fit = diag.calibrate(diag.frequency_matched(exp))
+    split = refinement("mesh x2")
+    moved = diag.simulate_identification(split.make(fit.experiment))
+    cols = numerics.model_sensitivities(diag, fit)
+    lin = numerics.linearised_refit(diag, fit, split, moved, cols)
+    assert not numerics.linearisation_trusted(lin, diag.sigma)     # no closer, 40x the noise
+    entry = numerics.measure_refinement(diag, fit, split, moved)
+    assert entry["refit"].startswith("linearised refit from a frequency-matched start")
+    calibrated = diag.calibrate(diag.frequency_matched(split.make(fit.experiment),
+                                                       target=diag.frequency_ratio(fit.sim)))
+    seen = np.isfinite(diag.data[diag.ident])
+    actual = float(np.sqrt(np.mean((calibrated.sim[diag.ident][seen]
+                                    - fit.sim[diag.ident][seen]) ** 2)))
+    assert calibrated.chi2 < fit.chi2 and entry["gain"] > 0.0       # closer, as it is
+    # (measured: 7.93x vs 7.17x the noise; E 19.7 vs 20.1 MPa from 10.4)
+    assert entry["change_rms"] == pytest.approx(actual, rel=0.15)
+    e = entry["parameters"]["material.youngs_modulus"]
+    assert abs(e - calibrated.values[0]) < 0.1 * abs(calibrated.values[0] - fit.values[0])
+    assert entry["change_same_parameters"] == lin["change_same_parameters"]
+    # counted: the 4-node mesh's error, Richardson's k / (k - 1) = 4 / 3 of the change
+    assert entry["error_estimate"] == pytest.approx(entry["change_rms"] * 4.0 / 3.0)
+    MPI.COMM_WORLD.Barrier()
 
 
 def test_a_linearised_refit_is_trusted_unless_a_large_change_comes_no_closer():

@@ -36,7 +36,6 @@ calibration took 4 sensitivity runs.
 
 from __future__ import annotations
 
-import dataclasses
 import gc
 import time
 
@@ -93,98 +92,6 @@ def parameter_std(cols: np.ndarray, residual: np.ndarray, sigma: float) -> np.nd
     return np.asarray(uncertainty(cols / sigma, residual / sigma, noise_std=1.0).std)
 
 
-@dataclasses.dataclass
-class ChordIteration:
-    """Where :func:`chord_iterate` stopped: the parameters ``p``; their identification-window
-    simulation ``sim`` (None when the last step was taken unchecked: ``before`` holds the
-    point before it and its chi2); chi2 ``f`` of the last run; the standard deviations
-    ``std`` from the updated columns; forward ``runs`` and accepted ``iterations``."""
-
-    p: np.ndarray
-    sim: np.ndarray | None
-    f: float
-    std: np.ndarray
-    runs: int
-    iterations: int
-    before: tuple | None
-
-
-def chord_iterate(diag: Diagnosis, experiment, cols: np.ndarray, moved: np.ndarray, comm,
-                  label: str, unchecked_last: bool = True) -> ChordIteration | None:
-    """Gauss-Newton on ``cols`` (updated by Broyden after every run) for ``experiment`` from its
-    own parameter values, at which its identification-window simulation is ``moved``; one
-    forward run of the identification window an iteration (:func:`chord_refit` says more).
-
-    ``unchecked_last``: a last small step (:data:`CHECKED_BY_FINAL_RUN`) is taken without a run,
-    for a caller whose run of the whole record checks it; False: every step is run.
-
-    Returns None when the iteration does not converge (the module docstring)."""
-    started = time.perf_counter()
-    ident = diag.ident
-    data = diag.data[ident]
-    seen = np.isfinite(data)
-    c = cols[seen]
-    names, p, bounds = calibration_parameters(experiment)
-    if c.shape[-1] != len(names):
-        return None
-    lo, hi = np.array(bounds, dtype=float).T
-    p = np.asarray(p, dtype=float)
-    sim = moved[ident]
-    r = (sim - data)[seen]
-    f = float(np.sum((r / diag.sigma) ** 2))
-    fm = build_forward(experiment, names, diag.recording, diag.times[ident], comm,
-                       diag.integrator)
-    runs = iterations = 0
-    before = None                   # (p, f) before a step the final run checks
-    try:
-        with doing(label):
-            while True:
-                try:
-                    std = parameter_std(c, r, diag.sigma)
-                except PetsoftError:              # dependent columns: let the calibration say
-                    return None
-                step = refit_step(c, r)
-                if np.all(np.abs(step) <= np.sqrt(FIT_DTOL) * std):
-                    break                                # converged: the calibration's rule
-                trial = p + step
-                predicted = float(np.sum((c @ step / diag.sigma) ** 2))
-                if (unchecked_last and iterations > 0 and predicted <= CHECKED_BY_FINAL_RUN
-                        and np.all(trial >= lo) and np.all(trial <= hi)):
-                    before, p, sim = (p, f), trial, None
-                    break
-                for _ in range(MAX_HALVINGS + 1):
-                    trial = p + step
-                    if np.any(trial < lo) or np.any(trial > hi) or runs >= MAX_RUNS:
-                        return None
-                    try:
-                        sim_trial = fm.simulate(trial)
-                    except PetsoftError:      # (the group's ranks alike: the run is collective)
-                        return None
-                    runs += 1
-                    r_trial = (sim_trial - data)[seen]
-                    f_trial = float(np.sum((r_trial / diag.sigma) ** 2))
-                    if not np.isfinite(f_trial):
-                        return None
-                    # what the run showed along the step, accepted or not: the secant
-                    c = broyden_update(c, step, r_trial - r)
-                    if f_trial <= f:
-                        break
-                    step = 0.5 * step
-                else:
-                    return None
-                p, r, f, sim = trial, r_trial, f_trial, sim_trial
-                iterations += 1
-                diag.group_says(comm, f"{label}: it {iterations:3d}  chi2 {f:.6e}  "
-                                + ", ".join(f"{n}={v:.6g}"
-                                            for n, v in zip(names, p, strict=True))
-                                + f"  ({runs} run(s), {time.perf_counter() - started:.0f} s)")
-    finally:
-        fm.destroy()
-        gc.collect()
-    return ChordIteration(p=p, sim=sim, f=f, std=std, runs=runs, iterations=iterations,
-                          before=before)
-
-
 def chord_refit(diag: Diagnosis, experiment, cols: np.ndarray, moved: np.ndarray,
                 comm=None, label: str = "chord refit") -> Fit | None:
     """Calibrate ``experiment`` (a refinement of a fitted model, from its own parameter values,
@@ -198,12 +105,65 @@ def chord_refit(diag: Diagnosis, experiment, cols: np.ndarray, moved: np.ndarray
     started = time.perf_counter()
     ident = diag.ident
     data = diag.data[ident]
-    comm = diag.comm if comm is None else petsc_comm(comm)
-    it = chord_iterate(diag, experiment, cols, moved, comm, label)
-    if it is None:
+    seen = np.isfinite(data)
+    c = cols[seen]
+    names, p, bounds = calibration_parameters(experiment)
+    if c.shape[-1] != len(names):
         return None
-    names = calibration_parameters(experiment)[0]
-    p, before, runs = it.p, it.before, it.runs
+    lo, hi = np.array(bounds, dtype=float).T
+    p = np.asarray(p, dtype=float)
+    r = (moved[ident] - data)[seen]
+    f = float(np.sum((r / diag.sigma) ** 2))
+    comm = diag.comm if comm is None else petsc_comm(comm)
+    fm = build_forward(experiment, names, diag.recording, diag.times[ident], comm,
+                       diag.integrator)
+    runs = iterations = 0
+    before = None                   # (p, r, f) before a step the final run checks
+    try:
+        with doing(label):
+            while True:
+                try:
+                    std = parameter_std(c, r, diag.sigma)
+                except PetsoftError:              # dependent columns: let the calibration say
+                    return None
+                step = refit_step(c, r)
+                if np.all(np.abs(step) <= np.sqrt(FIT_DTOL) * std):
+                    break                                # converged: the calibration's rule
+                trial = p + step
+                predicted = float(np.sum((c @ step / diag.sigma) ** 2))
+                if (iterations > 0 and predicted <= CHECKED_BY_FINAL_RUN
+                        and np.all(trial >= lo) and np.all(trial <= hi)):
+                    before, p = (p, f), trial
+                    break
+                for _ in range(MAX_HALVINGS + 1):
+                    trial = p + step
+                    if np.any(trial < lo) or np.any(trial > hi) or runs >= MAX_RUNS:
+                        return None
+                    try:
+                        sim = fm.simulate(trial)
+                    except PetsoftError:      # (the group's ranks alike: the run is collective)
+                        return None
+                    runs += 1
+                    r_trial = (sim - data)[seen]
+                    f_trial = float(np.sum((r_trial / diag.sigma) ** 2))
+                    if not np.isfinite(f_trial):
+                        return None
+                    # what the run showed along the step, accepted or not: the secant
+                    c = broyden_update(c, step, r_trial - r)
+                    if f_trial <= f:
+                        break
+                    step = 0.5 * step
+                else:
+                    return None
+                p, r, f = trial, r_trial, f_trial
+                iterations += 1
+                diag.group_says(comm, f"{label}: it {iterations:3d}  chi2 {f:.6e}  "
+                                + ", ".join(f"{n}={v:.6g}"
+                                            for n, v in zip(names, p, strict=True))
+                                + f"  ({runs} run(s), {time.perf_counter() - started:.0f} s)")
+    finally:
+        fm.destroy()
+        gc.collect()
     calibrated = with_parameters(experiment, dict(zip(names, map(float, p), strict=True)))
     sim = diag.simulate(calibrated, comm=comm)
     final_runs = 1
@@ -215,10 +175,10 @@ def chord_refit(diag: Diagnosis, experiment, cols: np.ndarray, moved: np.ndarray
         sim = diag.simulate(calibrated, comm=comm)
         final_runs = 2
     diag.fit_seconds.append(time.perf_counter() - started)
-    return Fit(experiment=calibrated, names=list(names), values=p, std=it.std,
+    return Fit(experiment=calibrated, names=list(names), values=p, std=std,
                chi2=chi2(sim[ident], data, diag.sigma), rms=rms(sim[ident], data) or 0.0,
                heldout_rms=rms(sim[diag.held], diag.data[diag.held]) if diag.held.any()
-               else None, sim=sim, iterations=it.iterations, evaluations=runs + final_runs,
+               else None, sim=sim, iterations=iterations, evaluations=runs + final_runs,
                by=f"chord Gauss-Newton on the current model's sensitivities ({runs} forward "
                   f"run(s), no sensitivity run"
                   + (", its last step checked by the run of the whole record"

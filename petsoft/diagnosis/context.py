@@ -298,7 +298,7 @@ class Diagnosis:
 
     # -- fitting ----------------------------------------------------------------------------
     def frequency_matched(self, experiment, sim: np.ndarray | None = None, comm=None,
-                          label: str = "fit", target: float = 1.0):
+                          label: str = "fit", target: float = 1.0, with_sim: bool = False):
         """``experiment`` with its Young's modulus rescaled so that the dominant oscillation of
         the simulated markers has the data's frequency, when that lowers the misfit; else as it
         is. The misfit of a swinging body is not convex in E: a start off by a fraction of a
@@ -309,10 +309,11 @@ class Diagnosis:
         simulated at ``experiment``'s values, if already made. ``target``: the ratio data /
         simulated to aim at (a refinement aims at its current fit's, which other physics may
         keep off 1: aiming at 1 there cost a run rejected as "kept the start" in most numerics
-        refits of the independent suite)."""
+        refits of the independent suite). ``with_sim`` (with ``comm``): returns (experiment,
+        its identification-window simulation)."""
         name = "material.youngs_modulus"
         if name not in (experiment.calibrate or {}):
-            return experiment
+            return (experiment, sim) if with_sim else experiment
         if comm is None:
             # None for "as it is", so that an unchanged experiment comes back as itself
             moved = self.placement.alone(
@@ -351,7 +352,7 @@ class Diagnosis:
             if after >= misfit:
                 break
             current, sim, misfit = moved, moved_sim, after
-        return current
+        return (current, sim) if with_sim else current
 
     def frequency_ratio(self, sim: np.ndarray) -> float | None:
         """The data's dominant oscillation frequency over the simulation's (identification
