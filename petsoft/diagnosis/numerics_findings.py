@@ -139,15 +139,16 @@ def _adopted_setting(label: str, final) -> str:
     return f"the refined mesh ({mesh_cells(final.experiment)} tets)"
 
 
-def numerics_summary(num: dict, rounds: list[dict], final) -> tuple[list[str], list[str],
-                                                                     dict[str, str]]:
+def numerics_summary(num: dict, rounds: list[dict], final, sigma: float
+                     ) -> tuple[list[str], list[str], dict[str, str]]:
     """(one sentence per refinement, the labels adopted, {label: why} of the refinements never
     made): what a reader needs of the numerics.
 
     Each sentence quotes one number, the change of the simulation in units of the noise when
     the refinement is made on the model the diagnosis ended with (its last check; the first
     rounds' changes, on other models, stay in ``findings``). A refinement is said to be fine
-    only when that change is below the noise.
+    only when that change is below the noise; one whose refit came closer to the data and whose
+    error is counted in the verdict's noise budget (``sigma``: the noise) is said to be counted.
     """
     adopted = [r["adopted"] for r in rounds if r.get("adopted")]
     last: dict[str, tuple[dict, bool]] = {}      # label -> (its last measurement, refitted?)
@@ -164,7 +165,9 @@ def numerics_summary(num: dict, rounds: list[dict], final) -> tuple[list[str], l
             # further refinement of the adopted model
             last[label] = ({"x": o.get("change_same_parameters_over_noise",
                                        o["change_over_noise"]), "how": o["how"],
-                            "adopting": r.get("adopted") == label}, refitted)
+                            "adopting": r.get("adopted") == label,
+                            "refitted_x": o["change_over_noise"],
+                            "counted": o.get("error_estimate", 0.0) / sigma}, refitted)
             closer[label] = closer.get(label, False) or bool(o.get("matters"))
             largest[label] = max(largest.get(label, 0.0), last[label][0]["x"])
         for label, why in r.get("not_tried", {}).items():
@@ -212,6 +215,11 @@ def numerics_summary(num: dict, rounds: list[dict], final) -> tuple[list[str], l
             # more than the noise on an earlier model (in ``findings``), less on the final one
             out.append(f"{name}: refining it ({m['how']}) changes the final model by {x}: "
                        f"the {noun} does not limit this diagnosis.")
+        elif m.get("counted", 0.0) > 0.0:
+            out.append(f"{name}: refining it ({m['how']}) changes the simulation by {x}, "
+                       f"{_x(m['refitted_x'])}x after a refit that brought it closer to the "
+                       f"data: the {noun}'s error, estimated at {_x(m['counted'])}x the noise, "
+                       "is counted in the verdict's noise budget.")
         elif refitted or label in closer:
             out.append(f"{name}: refining it ({m['how']}) changes the simulation by {x}, but "
                        f"refitted it came no closer to the data: the {noun} is not what the "
@@ -295,7 +303,7 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
             findings.append(f"On the final model, the simulation changes by "
                             f"{_x(v['change_over_noise'])}x the noise when {action} "
                             f"({v['how']}){limits}.")
-    summary, adopted, unchecked = numerics_summary(num, rounds, final)
+    summary, adopted, unchecked = numerics_summary(num, rounds, final, sigma)
     out = {"findings": findings, "recommendation": None, "summary": summary,
            "adopted": adopted, "unchecked": unchecked}
     if not system_class(base.experiment).volume_cells:
