@@ -277,10 +277,11 @@ def _gravity_candidate(experiment, cal: set, sc: dict, offer, skipped: dict,
     if cal.intersection(names):
         skipped["gravity"] = skipped["gravity.direction"] = "already calibrated"
     elif not stated.any() or not continuum:
+        # (a model without a continuum material: gravity.direction is continuum_only, said
+        # with the others by build_candidates)
         offer(propose("gravity", experiment, sc))
-        skipped["gravity.direction"] = ("the model states no gravity to turn" if continuum
-                                        else f"{NOT_APPLICABLE}: a model without a continuum "
-                                        "material")
+        if continuum:
+            skipped["gravity.direction"] = "the model states no gravity to turn"
     else:
         skipped["gravity"] = (f"the model states gravity (|g| = {np.linalg.norm(stated):.4g} "
                               "m/s^2): its direction is tried at that size "

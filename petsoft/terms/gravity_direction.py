@@ -13,6 +13,7 @@ TERM = Term(
     # the tangents of the tilt towards the two directions across the stated one, from 0, up to
     # 45 degrees (petsoft.experiment.gravity_tilt); proposed only where gravity is stated
     proposal=Proposal(kind="value", parameters=tuple(
-        Parameter(f"gravity.tilt_{c}", "", lower="-1", upper="1") for c in "ab")),
+        Parameter(f"gravity.tilt_{c}", "", lower="-1", upper="1") for c in "ab"),
+        continuum_only=True),
     hints=(("offset", "the residual has a common offset along {axis} ({offset:.3g} m)"),),
 )
