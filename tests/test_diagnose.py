@@ -153,7 +153,7 @@ def test_candidates_extend_the_experiment_at_the_zero_value(case):
     region = {"center": [0.275, 0.02, 0.02], "radius": 0.03}
     cands, skipped = build_candidates(exp, evidence_region=region, stiffness_region=region)
     by = {c.physics: c for c in cands}
-    assert {"damping.mass", "damping.stiffness", "gravity", "material.heterogeneous",
+    assert {"damping.mass", "damping.stiffness", "gravity.direction", "material.heterogeneous",
             "mass.added", "material.nonlinear"} <= set(by)
     # every vocabulary term is either a candidate or skipped with its reason, never silently
     assert set(by) | set(skipped) == set(PHYSICS)

@@ -24,6 +24,7 @@ from petsoft.diagnosis.diagnose import run_diagnose
 from petsoft.diagnosis.report import read_report
 from petsoft.diagnosis.story import quoted_conflicts
 from petsoft.experiment import load_experiment
+from petsoft.experiment.gravity_tilt import tilted
 
 TRUE_E, NOISE = 2.0e7, 5e-5
 
@@ -40,7 +41,9 @@ def case(tmp_path_factory):
     if MPI.COMM_WORLD.rank == 0:
         assert write_taper_mesh(d / "taper.msh") == 192
         (d / "plain.toml").write_text(taper(TRUE_E, order=2))
-        (d / "tilted.toml").write_text(taper(TRUE_E, gravity=(0.0, -3.0, -9.81), order=2))
+        # turned sideways at its size (tilt_b = 0.3 towards -y: 16.7 degrees)
+        (d / "tilted.toml").write_text(taper(TRUE_E, gravity=tuple(tilted((0.0, 0.0, -9.81),
+                                                                          0.0, 0.3)), order=2))
         (d / "user.toml").write_text(taper(1.8e7, calibrate=CALIBRATE))
     MPI.COMM_WORLD.Barrier()
     recordings = {}
@@ -130,8 +133,9 @@ def test_a_concealed_effect_is_still_found_on_a_coarse_mesh_file(case):
     res = _diagnose(case, "tilted", max_tries=1)    # the best-scored only: a quick test
     assert res.verdict == "missing-physics"
     assert res.numerics["refinements"][0]["adopted"] == "P2"
-    assert [a["physics"] for a in res.added] == ["gravity"], res.added
+    assert [a["physics"] for a in res.added] == ["gravity.direction"], res.added
     g = res.added[0]["parameters"]
-    assert g["gravity.acceleration.y"] == pytest.approx(-3.0, abs=0.15), g
+    assert g["gravity.tilt_b"] == pytest.approx(0.3, abs=0.015), g
+    assert g["gravity.tilt_a"] == pytest.approx(0.0, abs=0.015), g
     assert res.final_verdict == "consistent"
     assert res.report["fit"]["validation"]["final_rms"] < 1.5 * NOISE

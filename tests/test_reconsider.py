@@ -3,10 +3,11 @@
 The independent L-bracket with a mass damping and an added mass: round 1 chose quadratic drag,
 which absorbed part of the missing mass, and round 2 the added mass
 (petsoft.diagnosis.reconsider). Here the tapered cantilever (tests/_taper.py) is recorded with
-a mass damping and gravity tilted sideways; the history is made to hold the wrong first term
-(stiffness damping, the mass damping its runner-up) and the gravity, and the reconsideration
-must put the mass damping back, at its true value (measured: held-out rms 1.07 -> 1.00x the
-noise, chi2 935 -> 757, mass damping 19.8 +- 0.25 1/s against 20).
+a mass damping and gravity turned sideways at its size (the user's model has it straight down);
+the history is made to hold the wrong first term (stiffness damping, the mass damping its
+runner-up) and the gravity's direction, and the reconsideration must put the mass damping back,
+at its true value (measured: held-out rms 1.07 -> 1.00x the noise, chi2 923 -> 758, mass damping
+19.8 +- 0.26 1/s against 20; 935 -> 757 with the 3-component gravity of a 10.3 m/s^2 truth).
 """
 
 from pathlib import Path
@@ -18,16 +19,19 @@ from mpi4py import MPI
 from petsoft.diagnosis.candidates import build_candidates
 from petsoft.diagnosis.reconsider import Added, better_replacement, reconsider
 from petsoft.experiment import get_parameter, with_parameters
+from petsoft.experiment.gravity_tilt import tilted
 
 NOISE = 2e-5
 TRUE_ALPHA = 20.0
+#: the truth's gravity: the user's, straight down, turned towards x by tilt_a = 0.3 (16.7 deg)
+TILTED = tuple(float(g) for g in tilted((0.0, 0.0, -9.81), 0.3, 0.0))
 
 
 @pytest.fixture(scope="module")
 def diag_exp(tmp_path_factory):
     d = Path(MPI.COMM_WORLD.bcast(str(tmp_path_factory.mktemp("reconsider"))))
     return taper_diagnosis(d, taper(2.0e7, extra=f"[damping]\nmass = {TRUE_ALPHA}\n",
-                                    gravity=(3.0, 0.0, -9.81)),
+                                    gravity=TILTED),
                            taper(2.0e7, calibrate=CALIBRATE), seed=5, noise=NOISE)
 
 
@@ -47,7 +51,7 @@ def _two_rounds(diag, exp, first_physics, runner_up, untried=False):
     out as a repeat of a drag's first-order change) and gravity in round 2."""
     first_c, runner = _candidate(exp, first_physics), _candidate(exp, runner_up)
     first = diag.calibrate(first_c.extend(exp))
-    grav = _candidate(first.experiment, "gravity")
+    grav = _candidate(first.experiment, "gravity.direction")
     current = diag.calibrate(grav.extend(first.experiment))
     other = ([({"score": 2.0, "_repeats": "drag.quadratic"}, runner)] if untried
              else [({"score": 2.0}, runner)])
@@ -58,7 +62,7 @@ def _two_rounds(diag, exp, first_physics, runner_up, untried=False):
 
 def test_retract_takes_a_term_out_again(diag_exp):
     _, exp = diag_exp
-    for physics in ("damping.mass", "drag.linear", "gravity"):
+    for physics in ("damping.mass", "drag.linear", "gravity.direction"):
         c = _candidate(exp, physics)
         assert c.retractable
         zeros = c.zero_values(exp)
@@ -77,7 +81,7 @@ def test_a_wrong_first_term_is_replaced_once_the_second_is_in(diag_exp, untried)
     current, history = _two_rounds(diag, exp, "damping.stiffness", "damping.mass", untried)
     rejected = []
     final = reconsider(diag, current, history, rejected)
-    assert [h.candidate.physics for h in history] == ["damping.mass", "gravity"]
+    assert [h.candidate.physics for h in history] == ["damping.mass", "gravity.direction"]
     assert ("not fitted there (its first-order change repeated drag.quadratic's)"
             in history[0].entry["evidence"]) == untried
     assert final.heldout_rms < current.heldout_rms
@@ -113,28 +117,29 @@ def test_a_runner_up_that_fits_as_well_is_reported_as_ambiguous(diag_exp, monkey
     rejected = []
     final = reconsider(diag, current, history, rejected)
     assert final is current and rejected == []
-    assert [h.candidate.physics for h in history] == ["damping.mass", "gravity"]
+    assert [h.candidate.physics for h in history] == ["damping.mass", "gravity.direction"]
     evidence = history[0].entry["evidence"]
-    assert "ambiguous: with gravity in, damping.stiffness in its place" in evidence
+    assert "ambiguous: with gravity.direction in, damping.stiffness in its place" in evidence
     assert "do not tell the two apart" in evidence
 
 
 def test_a_first_term_a_later_one_made_useless_is_taken_out(tmp_path_factory):
     """The independent bracket with an added mass only: round 1 took a quadratic drag for it,
     round 2 the added mass, which left the drag at zero. Here the taper recorded with a tilted
-    gravity only: a stiffness damping put in first is taken out once the gravity is in."""
+    gravity only: a stiffness damping put in first is taken out once the gravity's direction
+    is in."""
     d = Path(MPI.COMM_WORLD.bcast(str(tmp_path_factory.mktemp("reconsider_drop"))))
-    diag, exp = taper_diagnosis(d, taper(2.0e7, gravity=(3.0, 0.0, -9.81)),
+    diag, exp = taper_diagnosis(d, taper(2.0e7, gravity=TILTED),
                                 taper(2.0e7, calibrate=CALIBRATE), seed=5, noise=NOISE)
     wrong = _candidate(exp, "damping.stiffness")
     first = diag.calibrate(wrong.extend(exp))
-    grav = _candidate(first.experiment, "gravity")
+    grav = _candidate(first.experiment, "gravity.direction")
     current = diag.calibrate(grav.extend(first.experiment))
     history = [Added(_entry(wrong, first), wrong, [], wrong.zero_values(exp)),
                Added(_entry(grav, current), grav, [], grav.zero_values(first.experiment))]
     rejected = []
     final = reconsider(diag, current, history, rejected)
-    assert [h.candidate.physics for h in history] == ["gravity"]
+    assert [h.candidate.physics for h in history] == ["gravity.direction"]
     assert "damping.stiffness" not in final.names
     assert rejected and "taken out" in rejected[0]["reason"]
     assert final.heldout_rms <= 1.02 * current.heldout_rms

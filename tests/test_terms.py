@@ -48,8 +48,11 @@ def _base() -> dict:
             "time": {"end": 0.1, "step": 0.01}}
 
 
-def _candidates():
-    exp = experiment_from_dict(_base(), source="terms-test", base_dir=Path.cwd())
+def _candidates(gravity=(0.0, 0.0, -9.81)):
+    """The candidates of :func:`_base` with ``gravity`` stated: every term but one of gravity's
+    two (``gravity.direction`` where gravity is stated, ``gravity`` where it is not)."""
+    exp = experiment_from_dict({**_base(), "gravity": {"acceleration": list(gravity)}},
+                               source="terms-test", base_dir=Path.cwd())
     sphere = {"center": [0.3, 0.02, 0.02], "radius": 0.05}
     plane = {"point": [0.0, 0.0, -0.01], "normal": [0.0, 0.0, 1.0], "excess": 0.003}
     return exp, *build_candidates(exp, evidence_region=sphere, stiffness_region=sphere,
@@ -124,18 +127,21 @@ def mismatches() -> list[str]:
         if name in shown and shown[name] != _term_row(t):
             out.append(f"formats.md's table of terms says {name}: {shown[name]}, the registry "
                        f"{_term_row(t)}")
-    # the candidates: on a model where every term applies, each is built, as declared
+    # the candidates: on a model where every term applies (gravity stated, and once not: its
+    # two terms exclude each other), each is built, as declared
     try:
         _exp, cands, skipped = _candidates()
+        _exp, free, free_skipped = _candidates(gravity=(0.0, 0.0, 0.0))
     except Exception as exc:   # noqa: BLE001 - a registry the code cannot use is the finding
         out.append(f"build_candidates fails: {exc!r}")
     else:
-        if skipped:
-            out.append(f"terms not proposed on the all-terms model: {skipped}")
-        built = {c.physics for c in cands}
+        if set(skipped) != {"gravity"} or "gravity.direction" not in free_skipped:
+            out.append(f"terms not proposed on the all-terms model: {skipped}, without "
+                       f"gravity: {free_skipped}")
+        built = {c.physics for c in cands} | {c.physics for c in free}
         if built != names:
             out.append(f"candidates build {sorted(built ^ names)} differently from the registry")
-        for c in cands:
+        for c in cands + [c for c in free if c.physics == "gravity"]:
             if c.physics not in TERMS:
                 continue
             p = TERMS[c.physics].proposal
@@ -272,13 +278,16 @@ def test_a_new_term_of_values_is_proposed_from_its_declaration_alone(registry):
 def test_declared_bounds_are_the_closed_forms_their_comments_state():
     exp, cands, _ = _candidates()
     by = {c.physics: c for c in cands}
+    by["gravity"] = next(c for c in _candidates(gravity=(0.0, 0.0, 0.0))[1]
+                         if c.physics == "gravity")
     E, rate = 1.0e6, 100.0
     tau = 1.0 / (2.0 * 3.141592653589793 * SCALES["frequency"])
     c0 = 1e-3 * SCALES["cell"] / E
     expect = {
         "damping.mass": [(0.0, 100.0)],
         "damping.stiffness": [(0.0, 0.05)],
-        "gravity": [(-20.0, 20.0), (-20.0, 20.0), (-29.81, 10.19)],
+        "gravity": [(-20.0, 20.0), (-20.0, 20.0), (-20.0, 20.0)],     # from no gravity
+        "gravity.direction": [(-1.0, 1.0), (-1.0, 1.0)],               # 45 degrees
         "drag.linear": [(0.0, rate * 2.0 / 0.5)],
         "drag.quadratic": [(0.0, rate * 2.0 / (0.5 * 0.2))],
         "friction.dry": [(0.0, rate * 0.03)],

@@ -59,6 +59,7 @@ from petsc4py import PETSc
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, key_part
+from petsoft.experiment.gravity_tilt import tilt_derivatives, tilted
 from petsoft.experiment.ranges import key_range
 from petsoft.fem.element import cell_integrals
 from petsoft.fem.kernels.scatter import scatter_add_vector
@@ -135,7 +136,11 @@ class ParameterMap:
         for name, value in system.velocity_terms.coef.items():
             self.values[name] = float(value)
         for i, c in enumerate("xyz"):
-            self.values[f"gravity.acceleration.{c}"] = float(exp.gravity.acceleration[i])
+            self.values[f"gravity.acceleration.{c}"] = float(exp.gravity.as_stated[i])
+        if any(exp.gravity.as_stated):
+            # the stated gravity's direction at its size (petsoft.experiment.gravity_tilt)
+            self.values["gravity.tilt_a"] = float(exp.gravity.tilt_a)
+            self.values["gravity.tilt_b"] = float(exp.gravity.tilt_b)
         # elastic supports and collider planes (petsoft.physics.support / contact)
         self.support = system.elastic.support
         self.contact = system.elastic.contact
@@ -250,6 +255,35 @@ class ParameterMap:
                 raise ExperimentError(f'parameter "{name}" = {v!r} is invalid: it must be '
                                       f"{valid}")
 
+    # -- gravity -------------------------------------------------------------------------------
+    def _stated_gravity(self) -> np.ndarray:
+        return np.asarray([self.values[f"gravity.acceleration.{c}"] for c in "xyz"])
+
+    def _tilt(self) -> tuple[float, float]:
+        return self.values.get("gravity.tilt_a", 0.0), self.values.get("gravity.tilt_b", 0.0)
+
+    def gravity(self) -> np.ndarray:
+        """The acceleration the system uses: the stated one turned by the tilt (m/s^2)."""
+        return tilted(self._stated_gravity(), *self._tilt())
+
+    def gravity_derivative(self, name: str) -> np.ndarray:
+        """d (the acceleration the system uses) / d ``name`` (a ``gravity.*`` parameter).
+
+        Raises
+        ------
+        ExperimentError
+            For a stated component under a tilt (calibrate the one or the other)."""
+        a, b = self._tilt()
+        if name.startswith("gravity.tilt_"):
+            return tilt_derivatives(self._stated_gravity(), a, b)["ab".index(name[-1])]
+        if a != 0.0 or b != 0.0:
+            raise ExperimentError(
+                f'"{name}" is not differentiable while gravity is tilted (tilt_a = {a:g}, '
+                f"tilt_b = {b:g}): calibrate the tilt or the stated components, not both")
+        unit = np.zeros(3)
+        unit["xyz".index(name[-1])] = 1.0
+        return unit
+
     # -- per-cell coefficients -----------------------------------------------------------------
     def E(self) -> np.ndarray:
         return self.E_base * self.E_mult
@@ -356,7 +390,7 @@ class ParameterDerivatives:
         unit = cell_integrals(dm)
         y = (al + s.alpha * vl)[dm.cells]                       # (n, k, 3)
         Em = np.einsum("nab,nbi->nai", unit.mass, y)
-        g = np.asarray([pm.values[f"gravity.acceleration.{c}"] for c in "xyz"])
+        g = pm.gravity()
         Em -= unit.load[:, :, None] * g[None, None, :]
         vt = s.velocity_terms
         if vt.coef["friction.dry"] != 0.0:
@@ -401,11 +435,11 @@ class ParameterDerivatives:
             out.getArray().reshape(-1, 3)[:] = s.velocity_terms.unit_linearised(
                 name, self.v.getArray(readonly=True).reshape(-1, 3), lin)
         else:
-            # gravity.acceleration.<c>: minus the body-force load of a unit acceleration (the
-            # consistent load int rho N_a dV: the lumped mass only for 4-node tetrahedra)
-            unit = np.zeros(3)
-            unit["xyz".index(name[-1])] = 1.0
-            s.dmesh.add_to_global(-gravity_forces(s.dmesh, s.model.density, unit), out)
+            # gravity.acceleration.<c>, gravity.tilt_<a|b>: minus the body-force load of the
+            # acceleration's derivative (the consistent load int rho N_a dV: the lumped mass
+            # only for 4-node tetrahedra)
+            s.dmesh.add_to_global(-gravity_forces(s.dmesh, s.model.density,
+                                                  s.parameters.gravity_derivative(name)), out)
 
     def vectors(self, names) -> list[PETSc.Vec]:
         refuse_viscoelastic(names)

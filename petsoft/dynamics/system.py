@@ -428,7 +428,7 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
             group.lam[:] = lam[group.cells]
         dm, model = self.dmesh, self.model
         model.density[:] = pm.rho
-        acc = [pm.values[f"gravity.acceleration.{c}"] for c in "xyz"]
+        acc = pm.gravity()
         self.assembler.begin()
         mass_e = consistent_mass_matrices(dm, model.density)
         for group in self.elastic.groups:

@@ -44,7 +44,7 @@ def with_parameters(experiment: Experiment, values: Mapping[str, float]) -> Expe
         if parts[0] == "collider":
             data["collider"][int(parts[1])]["offset"] = float(value)
             continue
-        if parts[0] == "gravity":
+        if parts[:2] == ["gravity", "acceleration"]:
             acc = list(data.setdefault("gravity", {}).get("acceleration", [0.0, 0.0, 0.0]))
             acc[COMPONENTS.index(parts[2])] = float(value)
             data["gravity"]["acceleration"] = acc

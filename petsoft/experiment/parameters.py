@@ -61,7 +61,12 @@ def parameter_table(exp: Experiment) -> dict[str, tuple[float, Range]]:
     params["drag.quadratic"] = (exp.drag.quadratic, NONNEGATIVE)
     params["friction.dry"] = (exp.friction.dry, NONNEGATIVE)
     for i, c in enumerate(COMPONENTS):
-        params[f"gravity.acceleration.{c}"] = (exp.gravity.acceleration[i], ANY)
+        params[f"gravity.acceleration.{c}"] = (exp.gravity.as_stated[i], ANY)
+    if exp.material and any(exp.gravity.as_stated):
+        # the direction of a stated gravity at its own size (petsoft.experiment.gravity_tilt;
+        # continuum models: their systems take its derivative)
+        params["gravity.tilt_a"] = (exp.gravity.tilt_a, ANY)
+        params["gravity.tilt_b"] = (exp.gravity.tilt_b, ANY)
     compliant = [b.compliance for b in exp.boundaries if b.kind == "fixed" and b.compliance > 0]
     if compliant:
         # one value shared by every elastic support (with_parameters sets them all)
@@ -92,6 +97,7 @@ PARAMETER_UNITS = {
     **{k: unit for k, (_rng, unit) in MATERIAL_RANGES.items()},
     "damping.mass": "1/s", "damping.stiffness": "s", "drag.linear": "Pa s/m",
     "drag.quadratic": "kg/m^3", "friction.dry": "m/s^2", "gravity.acceleration": "m/s^2",
+    "gravity.tilt_a": "", "gravity.tilt_b": "",
     "boundary.compliance": "m/Pa", "offset": "m", "springs.stiffness": "N/m",
     "springs.damping": "N s/m", "springs.bending": "N/m", "springs.node_mass": "kg",
     "viscoelastic.ratio": "", "viscoelastic.relaxation_time": "s",
@@ -233,5 +239,12 @@ def read_calibrate(
                 f"{show_value(value)} (the starting point of the calibration) is outside the bounds"
             )
         result[name] = (lo, hi)
+    both = [n for n in result if n.startswith("gravity.")]
+    if any(n.startswith("gravity.tilt") for n in both) and any(
+            n.startswith("gravity.acceleration") for n in both):
+        raise ExperimentError(
+            f"{source}: [calibrate] has both {' and '.join(both)}: calibrate gravity's "
+            "components (its size and direction) or its tilt (its direction at the stated "
+            "size), not both")
     return result
 

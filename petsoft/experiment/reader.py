@@ -75,6 +75,7 @@ from typing import Any
 
 from petsoft.errors import ExperimentError
 from petsoft.experiment.expressions import FUNCTIONS, Expression, parse_expression
+from petsoft.experiment.gravity_tilt import tilted
 from petsoft.experiment.messages import show_value, suggest, type_name
 from petsoft.experiment.parameters import get_parameter, key_part, read_calibrate
 from petsoft.experiment.ranges import (
@@ -583,7 +584,18 @@ def _read_gravity(r: TableReader | None) -> GravitySpec:
     if r is None:
         return GravitySpec()
     r.check_keys(_term_keys("gravity"))
-    return GravitySpec(**_term_values(r, "gravity"))
+    values = _term_values(r, "gravity")
+    spec = GravitySpec(**values)
+    if not spec.tilted:
+        return spec
+    if not any(spec.acceleration):
+        key = "tilt_a" if spec.tilt_a != 0.0 else "tilt_b"
+        r.fail(key, " turns the acceleration's direction at its own size, but the acceleration "
+               "is zero: state it (e.g. acceleration = [0, 0, -9.81]) or leave the tilt out")
+    return GravitySpec(**{**values, "stated": spec.acceleration,
+                          "acceleration": tuple(map(float, tilted(spec.acceleration,
+                                                                  spec.tilt_a,
+                                                                  spec.tilt_b)))})
 
 
 def _is_region_name(text: str) -> bool:

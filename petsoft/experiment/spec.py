@@ -155,9 +155,26 @@ class FrictionSpec:
 
 @dataclass(frozen=True)
 class GravitySpec:
-    """``[gravity]``: body acceleration in m/s^2 (default none)."""
+    """``[gravity]``: body acceleration in m/s^2 (default none).
+
+    ``acceleration`` is the one the model uses: the stated one (``stated``; None: the same)
+    turned at its own size by the tangents ``tilt_a``, ``tilt_b``
+    (:mod:`petsoft.experiment.gravity_tilt`) when they are not zero."""
 
     acceleration: Vec3 = (0.0, 0.0, 0.0)
+    tilt_a: float = 0.0
+    tilt_b: float = 0.0
+    stated: Vec3 | None = None
+
+    @property
+    def as_stated(self) -> Vec3:
+        """The acceleration as the file states it (before the tilt)."""
+        return self.stated if self.stated is not None else self.acceleration
+
+    @property
+    def tilted(self) -> bool:
+        """Whether a tilt turns the stated acceleration."""
+        return self.tilt_a != 0.0 or self.tilt_b != 0.0
 
 
 @dataclass(frozen=True)
@@ -459,7 +476,9 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
     if exp.regions:
         d["region"] = {name: {"where": r.where.literal} for name, r in exp.regions.items()}
     d["damping"] = {"mass": exp.damping.mass, "stiffness": exp.damping.stiffness}
-    d["gravity"] = {"acceleration": list(exp.gravity.acceleration)}
+    d["gravity"] = {"acceleration": list(exp.gravity.as_stated)}
+    if exp.gravity.tilted:
+        d["gravity"].update(tilt_a=exp.gravity.tilt_a, tilt_b=exp.gravity.tilt_b)
     if exp.viscoelastic != ViscoelasticSpec():
         d["viscoelastic"] = dataclasses.asdict(exp.viscoelastic)
     if exp.drag != DragSpec():

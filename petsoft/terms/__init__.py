@@ -51,7 +51,8 @@ GROUP = "petsoft.terms"
 #: The term modules, in the vocabulary's order.
 _MODULES = ("damping_mass", "damping_stiffness", "gravity", "material_nonlinear",
             "material_heterogeneous", "material_viscoelastic", "boundary_compliance",
-            "mass_added", "drag_linear", "drag_quadratic", "friction_dry", "contact_plane")
+            "mass_added", "drag_linear", "drag_quadratic", "friction_dry", "contact_plane",
+            "gravity_direction")
 
 
 def _collect() -> dict[str, Term]:
