@@ -29,6 +29,7 @@ from petsoft.calibration.rest_shape import calibrate_rest_shape as _calibrate_re
 from petsoft.calibration.rest_shape import compute_rest_shape, write_rest_mesh
 from petsoft.calibration.synth import SynthOptions, SynthResult
 from petsoft.calibration.synth import synth as _synth
+from petsoft.diagnosis.budget import DEFAULT_BUDGET
 from petsoft.diagnosis.diagnose import DiagnoseResult, run_diagnose
 from petsoft.diagnosis.placement import ONE_RANK_DOFS
 from petsoft.dynamics.run_simulation import SimulationRun, simulate_experiment
@@ -470,7 +471,8 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
              max_additions: int = 3, max_tries: int = 4, method: str = "gauss-newton",
              gradient: str = "sensitivity", integrator: str | None = None,
              noise: float | None = None, numerics: bool = True, spelled_out: bool = False,
-             one_rank_dofs: int = ONE_RANK_DOFS, say=_quiet) -> DiagnoseResult:
+             one_rank_dofs: int = ONE_RANK_DOFS, budget: float | None = DEFAULT_BUDGET,
+             say=_quiet) -> DiagnoseResult:
     """Find, model and verify the physics ``experiment`` lacks (``petsoft diagnose``).
 
     Calibrates the model on the first ``fraction`` of the record, tests the residual against
@@ -506,6 +508,9 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
         Under mpiexec, a model of at most this many unknowns runs on one rank (faster: one
         rank solves it directly, several iteratively or each factoring the whole matrix
         anyway); 0 spreads every model over all the ranks.
+    budget : float or None
+        Wall seconds after which no new piece of work starts; the report then says what was
+        left out. None: no budget.
     say : callable(str)
         Progress lines (rank 0); default silent.
 
@@ -518,4 +523,5 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
                         fraction=fraction, alpha=alpha, max_additions=max_additions,
                         max_tries=max_tries, method=method, gradient=gradient,
                         integrator=integrator, noise=noise, numerics=numerics, say=say,
-                        spelled_out=spelled_out, one_rank_dofs=one_rank_dofs)
+                        spelled_out=spelled_out, one_rank_dofs=one_rank_dofs,
+                        budget=budget)

@@ -732,3 +732,102 @@ def test_a_candidate_fit_that_cannot_win_is_stopped_and_not_added(case, monkeypa
     assert stopped.iterations <= free["fit"].iterations
     verdict = judge(diag, base, raced, damping)
     assert not verdict["added"] and "could not have been preferred" in verdict["reason"]
+
+
+# -- the time budget ----------------------------------------------------------------------------
+class _SpentAfter:
+    """A TimeBudget spent from its ``n``-th check on (the clock's part replaced by a count, so
+    where the run stops does not depend on the machine's speed)."""
+
+    def __new__(cls, n: int):
+        from petsoft.diagnosis.budget import TimeBudget
+
+        class Counted(TimeBudget):
+            checks = 0
+
+            def elapsed(self):
+                return self.seconds * (Counted.checks >= n) + 1e-3
+
+            def spent(self):
+                Counted.checks += 1
+                return super().spent()
+
+        return Counted
+
+
+def test_a_spent_budget_stops_new_work_and_says_what_was_left_out(case, capsys):
+    """`petsoft diagnose --budget` spent at once (after the base fit, the one piece always
+    made): nothing is added, every piece not started is a skipped check with its risk, the
+    report is complete and says so, and the console's last lines name them. On 2 ranks the
+    ranks take the first rank's decision (a rank deciding alone would hang the other)."""
+    from petsoft.cli.main import main
+
+    out = case["dir"] / "out_budget"
+    assert main(["diagnose", str(case["user"]), str(case["damped"]), "--budget", "1e-6",
+                 "--out", str(out)]) == 0
+    lines = capsys.readouterr().out.rstrip("\n").splitlines()
+    MPI.COMM_WORLD.Barrier()                        # the first rank writes the files
+    rep = read_report(out / "report.json")          # validated: complete, in the format
+    assert rep["added"] == [] and rep["final_verdict"] == "missing-physics"
+    left = [k["check"] for k in rep["skipped"]]
+    assert left == ["numerics check before the first round", "round 1 of candidate physics",
+                    "numerics check of the final model"], left
+    assert all("time budget (1e-06 s" in k["why"] for k in rep["skipped"])
+    assert "may be missing" in rep["skipped"][1]["risk"]
+    assert rep["budget"]["spent"] and rep["budget"]["left_out"] == left
+    assert rep["budget"]["seconds"] == pytest.approx(1e-6)
+    if MPI.COMM_WORLD.rank == 0:                    # the console is the first rank's
+        start = max(i for i, line in enumerate(lines) if line.startswith("verdict: "))
+        assert any(line.startswith("NOT CHECKED: round 1 of candidate physics")
+                   for line in lines[start:]), lines[start:]
+    box = (out / "report.md").read_text().split("\n\n")[1]
+    assert "Not checked: round 1 of candidate physics" in box, box
+
+
+def test_a_budget_spent_mid_run_keeps_the_work_done(case, monkeypatch):
+    """A budget spent after round 1 (its third check): the term round 1 added is kept and
+    reported, the final numerics check is the piece left out; with no budget the same run
+    makes that check (the budget, not the case, is what stopped it)."""
+    from petsoft.diagnosis import diagnose as diagnose_module
+
+    full = _damped_result(case)
+    monkeypatch.setattr(diagnose_module, "TimeBudget", _SpentAfter(3))
+    res = run_diagnose(load_experiment(case["user"]), case["damped"], comm=PETSc.COMM_WORLD,
+                       budget=60.0)
+    assert [a["physics"] for a in res.added] == ["damping.mass"]
+    assert res.report["budget"]["spent"]
+    assert res.report["budget"]["left_out"][-1] == "numerics check of the final model"
+    assert res.numerics.get("step/2") is None
+    assert full.report["budget"] == {"seconds": 900.0, "spent": False, "spent_at": None,
+                                     "left_out": []}
+    assert isinstance(full.numerics.get("step/2"), dict)
+
+
+def test_budget_values():
+    """The budget's bounds, and the CLI's default tied to the library's."""
+    import argparse
+    import time as _time
+
+    from petsoft.cli.main import BUDGET_DEFAULT, _budget
+    from petsoft.diagnosis.budget import DEFAULT_BUDGET, TimeBudget
+
+    assert BUDGET_DEFAULT == DEFAULT_BUDGET
+    assert _budget("0") is None and _budget("120") == 120.0
+    for bad in ("-1", "inf", "nan", "ten"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            _budget(bad)
+    for bad in (0.0, -5.0, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="seconds > 0"):
+            TimeBudget(bad, 0.0, PETSc.COMM_WORLD)
+    unlimited = TimeBudget(None, _time.perf_counter() - 1e6, PETSc.COMM_WORLD)
+    assert not unlimited.spent() and unlimited.summary()["seconds"] is None
+    long_ago = TimeBudget(10.0, _time.perf_counter() - 11.0, PETSc.COMM_WORLD)
+    assert long_ago.spent() and long_ago.spent_at >= 11.0
+    fresh = TimeBudget(3600.0, _time.perf_counter(), PETSc.COMM_WORLD)
+    assert not fresh.spent()
+    # the ranks' clocks disagree (here by 1000 s): the first rank's decides on every rank
+    comm = MPI.COMM_WORLD
+    split = TimeBudget(10.0, _time.perf_counter() - (11.0 if comm.rank == 0 else -1000.0),
+                       PETSc.COMM_WORLD)
+    assert split.spent()
+    assert comm.allgather(split.spent()) == [True] * comm.size

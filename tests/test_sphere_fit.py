@@ -120,3 +120,24 @@ def test_no_sphere_search_without_exact_sensitivities(recording, monkeypatch):
     assert refit_added_sphere(diag, entry, fit, cand) == (entry, fit, cand)
     if MPI.COMM_WORLD.rank == 0:                # the first rank says the progress lines
         assert any("not fitted (no exact sensitivities" in line for line in said)
+
+
+def test_no_sphere_search_once_the_time_budget_is_spent(recording):
+    """A spent time budget: the misplaced sphere stays where it was placed (no trial is run),
+    the search is a skipped check of the report with what it risks, and the log says so."""
+    import time
+
+    from petsoft.diagnosis.budget import TimeBudget
+
+    diag, fit, cand = _start(recording, (0.225, 0.02, 0.02), "budget.toml")
+    said = []
+    diag.say = said.append
+    diag.budget = TimeBudget(5.0, time.perf_counter() - 6.0, PETSc.COMM_WORLD)
+    entry = {"evidence": "score test", "region": cand.region}
+    assert refit_added_sphere(diag, entry, fit, cand) == (entry, fit, cand)
+    [skipped] = diag.budget.skipped
+    assert skipped["check"] == "mass.added's sphere search 1 of 2"
+    assert "time budget (5 s" in skipped["why"] and "first guess" in skipped["risk"]
+    if MPI.COMM_WORLD.rank == 0:
+        assert any("time budget: mass.added's sphere search 1 of 2 not "
+                   "started" in line for line in said), said

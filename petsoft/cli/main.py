@@ -21,6 +21,9 @@ from petsoft.version import __version__
 #: ``diagnose --one-rank-dofs``'s default, said in its help without importing PETSc here
 #: (tests/test_api.py ties it to :data:`petsoft.diagnosis.placement.ONE_RANK_DOFS`).
 ONE_RANK_DOFS_DEFAULT = 100_000
+#: ``diagnose --budget``'s default (s), said without importing PETSc here (tests/test_budget.py
+#: ties it to :data:`petsoft.diagnosis.budget.DEFAULT_BUDGET`).
+BUDGET_DEFAULT = 900.0
 #: The user's reference of the experiment, recording and report formats (installed with petsoft).
 FORMATS = Path(__file__).resolve().parents[1] / "formats.md"
 
@@ -148,6 +151,18 @@ def _positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be >= 1, not {value}")
     return value
+
+
+def _budget(text: str) -> float | None:
+    """``diagnose --budget``: seconds > 0, or 0 for none (None)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
+    if not (value >= 0.0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a number of seconds >= 0 (0: no budget), "
+                                         f"not {text}")
+    return None if value == 0.0 else value
 
 
 def _count(text: str) -> int:
@@ -336,6 +351,11 @@ def _add_diagnose_parser(sub) -> None:
                                                 "has no /noise (default: estimated from it)")
     c.add_argument("--no-numerics", action="store_true",
                    help="skip the step/mesh refinement check")
+    c.add_argument("--budget", type=_budget, metavar="SECONDS", default=BUDGET_DEFAULT,
+                   help="wall seconds after which no new piece of work starts (a round of "
+                        "candidates, a sphere search, a numerics check); the report is then "
+                        "written from the model reached and says what was left out; 0: no "
+                        f"budget (default {BUDGET_DEFAULT:g})")
     c.add_argument("--one-rank-dofs", type=_count, metavar="N",
                    help="under mpiexec, a model of at most N unknowns runs on one rank (the "
                         "others wait, or run independent fits side by side): faster, since one "

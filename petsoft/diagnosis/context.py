@@ -25,6 +25,7 @@ from petsoft.calibration.calibrate import (
     run_calibration,
 )
 from petsoft.calibration.optimize import STOPPED, iteration_limit
+from petsoft.diagnosis.budget import TimeBudget
 from petsoft.diagnosis.pace import CannotWin
 from petsoft.diagnosis.placement import ONE_RANK_DOFS, Placement
 from petsoft.dynamics.factory import system_class
@@ -185,6 +186,8 @@ class Diagnosis:
         from petsoft.diagnosis.noise import NoiseError, noise_summary
 
         self.comm = petsc_comm(comm)
+        #: the run's time budget (run_diagnose sets the user's; none by default)
+        self.budget = TimeBudget(None, time.perf_counter(), self.comm)
         #: where each model runs: a small one on one rank (placement.py)
         self.placement = Placement(self.comm, one_rank_dofs)
         self.rank0 = self.comm.tompi4py().rank == 0

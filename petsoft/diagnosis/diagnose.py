@@ -49,6 +49,7 @@ from pathlib import Path
 from petsoft.calibration.calibrate import canonical_method
 from petsoft.calibration.forward import forward_defaults
 from petsoft.calibration.groups import TaskResult
+from petsoft.diagnosis.budget import DEFAULT_BUDGET, TimeBudget
 from petsoft.diagnosis.clock import PhaseClock
 
 # names the tests and scripts import from here
@@ -86,7 +87,7 @@ from petsoft.diagnosis.selection import (
     shortlist,
     worth_fitting,
 )
-from petsoft.diagnosis.story import skipped_numerics
+from petsoft.diagnosis.story import NUMERICS_RISK, skipped_numerics
 from petsoft.dynamics.factory import system_class
 from petsoft.errors import PetsoftError
 from petsoft.io.progress import heartbeat
@@ -97,8 +98,8 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
                  method: str = "gauss-newton", gradient: str = "sensitivity",
                  integrator: str | None = None, noise: float | None = None,
                  numerics: bool = True, comm=None, say=None,
-                 spelled_out: bool = False, one_rank_dofs: int = ONE_RANK_DOFS
-                 ) -> DiagnoseResult:
+                 spelled_out: bool = False, one_rank_dofs: int = ONE_RANK_DOFS,
+                 budget: float | None = DEFAULT_BUDGET) -> DiagnoseResult:
     """Diagnose ``experiment`` against a recording (module docstring). All ranks call.
 
     Parameters
@@ -143,6 +144,11 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
         on the first rank while the others wait; independent runs one per rank): faster, since
         one rank solves it directly (:mod:`petsoft.diagnosis.placement`).
         0 runs every model on all the ranks.
+    budget : float or None
+        Wall seconds after which no new piece of work starts (a round of candidates, a
+        sphere search, a numerics check, a reconsideration); the report is then written from
+        the model reached and says what was left out (:mod:`petsoft.diagnosis.budget`).
+        None: no budget.
 
     Returns
     -------
@@ -182,7 +188,7 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
                                  method=method, gradient=gradient, integrator=integrator,
                                  noise=noise, numerics=numerics, comm=comm, say=say,
                                  spelled_out=spelled_out, t0=t0,
-                                 one_rank_dofs=one_rank_dofs)
+                                 one_rank_dofs=one_rank_dofs, budget=budget)
     finally:
         gc.collect()
         if enabled:
@@ -191,13 +197,15 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
 
 def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions, max_tries,
                   method, gradient, integrator, noise, numerics, comm, say,
-                  spelled_out, t0: float, one_rank_dofs: int) -> DiagnoseResult:
+                  spelled_out, t0: float, one_rank_dofs: int,
+                  budget: float | None) -> DiagnoseResult:
     """The diagnosis of :func:`run_diagnose` (call that: it handles the garbage collector and
     the heartbeat); its log's times count from ``t0``."""
     diag = Diagnosis(experiment, recording, fraction=fraction, alpha=alpha, method=method,
                       gradient=gradient, integrator=integrator, noise=noise, comm=comm,
                       say=say, one_rank_dofs=one_rank_dofs)
     diag.t0 = t0
+    diag.budget = TimeBudget(budget, t0, diag.comm)
     clock = PhaseClock(start=t0)     # its total is the log's clock
     diag.tell(f"petsoft diagnose: {len(diag.times)} frames, identification t <= {diag.cut:.4g} s "
               f"({int(diag.ident.sum())} frames), held out {int(diag.held.sum())}; noise "
@@ -226,13 +234,17 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     checks = NumericsChecks(diag, numerics)
     reconsidered = None             # the fit the earlier terms were last reconsidered beside
 
-    with clock.phase("numerics"):
-        current, ev = checks.first(current, ev, len(added))
+    if not (numerics and over_budget(diag, "numerics check before the first round",
+                                     NUMERICS_RISK)):
+        with clock.phase("numerics"):
+            current, ev = checks.first(current, ev, len(added))
     diag.fix_scales(current, ev)
     rechecked = False
     while True:
         if ev["verdict"] == "consistent" or len(added) >= max_additions:
-            if rechecked:
+            if rechecked or over_budget(
+                    diag, "numerics check again on the final model", RECHECK_RISK,
+                    when=numerics and bool(diag.model_error) and ev["verdict"] == "consistent"):
                 break
             rechecked = True
             with clock.phase("numerics"):
@@ -240,6 +252,9 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             if not (ran and ev["verdict"] != "consistent" and len(added) < max_additions):
                 break
         rnd = len(added) + 1
+        if over_budget(diag, f"round {rnd} of candidate physics", ROUND_RISK.format(
+                verdict=ev["verdict"], chi2=ev["noise_test"].chi2_per_dof)):
+            break
         if rnd > 1:
             with clock.phase("numerics"):
                 current, ev = checks.first(current, ev, len(added))
@@ -341,7 +356,9 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             current, added, ev = _reconsidered(diag, current, history, rejected, added, ev)
             reconsidered = current
         clock.switch(None)
-    if len(history) > 1 and current is not reconsidered:
+    if (len(history) > 1 and current is not reconsidered
+            and not over_budget(diag, "reconsideration of the earlier terms beside the last",
+                                RECONSIDER_RISK)):
         with clock.phase("fits"):
             current, added, ev = _reconsidered(diag, current, history, rejected, added, ev)
     # a physics rejected in one round and added in a later one is reported as added only
@@ -352,8 +369,10 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         seen_r.setdefault(r["physics"], r)
     rejected = list(seen_r.values())
     clock.switch("final")
+    final_check = numerics and not over_budget(diag, "numerics check of the final model",
+                                               NUMERICS_RISK)
     num = (numerics_check(diag, current, final_estimates(diag, checks.refinements, current))
-           if numerics else {})
+           if final_check else {})
     if checks.refinements:
         num["refinements"] = checks.refinements
     if diag.model_error:
@@ -366,7 +385,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             if line:
                 diag.tell(f"numerics: {line}")
     # a check not made is said in the verdict box and on the console, with what it risks
-    skipped = [] if numerics else [skipped_numerics()]
+    skipped = ([] if numerics else [skipped_numerics()]) + diag.budget.skipped
     for label, why in num.get("unchecked", {}).items():
         noun = refinement_words(label)[1]
         skipped.append({"check": f"{noun} refinement", "why": why,
@@ -378,6 +397,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     # where the time went (report.json ``timings``): the report and figures are written after
     # this split is taken, so ``final`` leaves them out and ``total`` is the run up to here
     report["timings"] = clock.seconds()
+    report["budget"] = diag.budget.summary()
     result = DiagnoseResult(verdict=base_ev["verdict"], final_verdict=ev["verdict"],
                             report=report, base=base, final=current, added=added,
                             rejected=rejected, scores=all_scores,
@@ -393,6 +413,28 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         diag.tell(f"wrote {out}/ (report.html, report.md, report.json, figures, diagnosed.toml, "
                   "summary.json)")
     return result
+
+
+#: What a reader risks when a piece of work is left out for the time budget (report.json
+#: ``skipped``).
+ROUND_RISK = ("the model's verdict is {verdict} (chi2/dof {chi2:.3g}): physics the data still "
+              "show may be missing from it and is not named")
+RECHECK_RISK = ("the verdict counts a discretisation error estimated on an earlier model; "
+                "measured on the final one it may matter")
+RECONSIDER_RISK = ("an earlier term may be one a later term makes unnecessary; it is kept "
+                   "without that check")
+
+
+def over_budget(diag, what: str, risk: str, when: bool = True) -> bool:
+    """Whether the diagnosis' time budget is spent (collective); if so and ``when``, ``what``
+    is recorded as left out (with ``risk``) and said. ``when`` False: the piece would not run
+    anyway, so nothing is recorded."""
+    if not diag.budget.spent():
+        return False
+    if when:
+        entry = diag.budget.skip(what, risk)
+        diag.tell(f"time budget: {what} not started ({entry['why']})")
+    return True
 
 
 def _reconsidered(diag, current, history, rejected, added, ev):

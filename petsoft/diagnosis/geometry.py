@@ -269,7 +269,14 @@ def refit_added_sphere(diag: Diagnosis, entry: dict, fit: Fit, candidate,
                   "viscoelastic branch under this integrator)")
         return entry, fit, candidate
     said = []
-    for _ in range(searches):
+    for search in range(1, searches + 1):
+        if diag.budget.spent():
+            left = diag.budget.skip(
+                f"{candidate.physics}'s sphere search {search} of {searches}",
+                "the sphere stays where the last search left it (the map's placement if none "
+                "ran): its centre and size are a first guess")
+            diag.tell(f"time budget: {left['check']} not started ({left['why']})")
+            break
         moved = fit_sphere(diag, fit, candidate)
         if moved is None:
             break

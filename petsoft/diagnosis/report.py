@@ -241,9 +241,21 @@ def validate_report(report: Mapping) -> None:
            "parameters"}
     _keys(report, "(report)", top,
           frozenset({"numerics", "cause", "skipped", "parameters_std", "final_verdict",
-                     "timings"}))
+                     "timings", "budget"}))
     for k, v in report.get("timings", {}).items():
         _number(v, f"timings.{k}")
+    if "budget" in report:
+        b = report["budget"]
+        _keys(b, "budget", {"seconds", "spent", "spent_at", "left_out"})
+        if b["seconds"] is not None:
+            _number(b["seconds"], "budget.seconds", positive=True)
+        if not isinstance(b["spent"], bool):
+            _fail("budget.spent", f"must be true or false, got {b['spent']!r}")
+        if b["spent_at"] is not None:
+            _number(b["spent_at"], "budget.spent_at")
+        _list(b["left_out"], "budget.left_out")
+        for i, k in enumerate(b["left_out"]):
+            _string(k, f"budget.left_out[{i}]")
     if "numerics" in report:
         _keys(report["numerics"], "numerics", {"findings"},
               frozenset({"recommendation", "mesh", "summary", "adopted"}))
