@@ -91,6 +91,19 @@ def test_the_summary_says_a_counted_mesh_error_is_counted():
     mesh.update(error_estimate=0.0, gain=-5.0, matters=False)
     (said,) = [s for s in numerics_summary({}, rounds, final, SIGMA)[0] if s.startswith("Mesh")]
     assert "came no closer to the data" in said, said
+    # closer to the data but neither counted nor adopted (another refinement was adopted in
+    # its round): not said to have come no closer
+    mesh.update(gain=40.0, matters=True)
+    rounds[0]["adopted"] = "P2"
+    rounds[0]["options"]["P2"] = {"how": "4-node -> 10-node", "change_over_noise": 30.0,
+                                  "matters": True}
+    (said,) = [s for s in numerics_summary({}, rounds, final, SIGMA)[0] if s.startswith("Mesh")]
+    assert "brought it closer to the data, but it was not adopted" in said, said
+    assert "no closer" not in said
+    # an earlier round's closer refit does not speak for the last one, which came no closer
+    rounds.append({"options": {"mesh x2": {**mesh, "gain": -3.0, "matters": False}}})
+    (said,) = [s for s in numerics_summary({}, rounds, final, SIGMA)[0] if s.startswith("Mesh")]
+    assert "came no closer to the data" in said, said
 
 
 def test_a_small_remaining_step_error_is_counted_instead_of_halving_again():

@@ -152,7 +152,7 @@ def numerics_summary(num: dict, rounds: list[dict], final, sigma: float
     """
     adopted = [r["adopted"] for r in rounds if r.get("adopted")]
     last: dict[str, tuple[dict, bool]] = {}      # label -> (its last measurement, refitted?)
-    closer: dict[str, bool] = {}                 # label -> a refit came closer to the data
+    closer: dict[str, bool] = {}                 # label -> its last refit came closer
     largest: dict[str, float] = {}               # label -> its largest change on any model
     not_tried: dict[str, str] = {}
     covered: dict[str, bool] = {}
@@ -168,7 +168,8 @@ def numerics_summary(num: dict, rounds: list[dict], final, sigma: float
                             "adopting": r.get("adopted") == label,
                             "refitted_x": o["change_over_noise"],
                             "counted": o.get("error_estimate", 0.0) / sigma}, refitted)
-            closer[label] = closer.get(label, False) or bool(o.get("matters"))
+            # whether its last refit (a full or a linearised one) came closer to the data
+            closer[label] = bool(o.get("matters"))
             largest[label] = max(largest.get(label, 0.0), last[label][0]["x"])
         for label, why in r.get("not_tried", {}).items():
             not_tried[label] = why
@@ -220,7 +221,13 @@ def numerics_summary(num: dict, rounds: list[dict], final, sigma: float
                        f"{_x(m['refitted_x'])}x after a refit that brought it closer to the "
                        f"data: the {noun}'s error, estimated at {_x(m['counted'])}x the noise, "
                        "is counted in the verdict's noise budget.")
-        elif refitted or label in closer:
+        elif closer.get(label):
+            # closer to the data, yet neither adopted nor counted (another refinement was
+            # adopted in its round): it is part of what the model misses
+            out.append(f"{name}: refining it ({m['how']}) changes the simulation by {x} and, "
+                       f"refitted, brought it closer to the data, but it was not adopted: the "
+                       f"{noun} limits what this diagnosis can tell apart.")
+        elif label in closer:
             out.append(f"{name}: refining it ({m['how']}) changes the simulation by {x}, but "
                        f"refitted it came no closer to the data: the {noun} is not what the "
                        f"model misses, though the calibrated values are those of this {noun}.")
