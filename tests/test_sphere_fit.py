@@ -141,3 +141,26 @@ def test_no_sphere_search_once_the_time_budget_is_spent(recording):
     if MPI.COMM_WORLD.rank == 0:
         assert any("time budget: mass.added's sphere search 1 of 2 not "
                    "started" in line for line in said), said
+
+
+def test_a_sphere_search_stops_polling_once_the_budget_is_spent(recording):
+    """A search already under way when the budget is found spent (fit_sphere called directly:
+    refit_added_sphere would not start it): it stops after its first poll, says so, and keeps
+    what that poll found."""
+    import time
+
+    from petsoft.diagnosis.budget import TimeBudget
+
+    diag, fit, cand = _start(recording, (0.225, 0.02, 0.02), "polls.toml")
+    said = []
+    diag.say = said.append
+    diag.budget = TimeBudget(5.0, time.perf_counter() - 6.0, PETSc.COMM_WORLD)
+    moved = fit_sphere(diag, fit, cand)
+    if MPI.COMM_WORLD.rank == 0:
+        polls = [line for line in said if ": poll " in line]
+        assert len(polls) == 1 and ": poll 1:" in polls[0], said
+        assert any("stopped after poll 1 of at most 8: the time budget is spent" in line
+                   for line in said), said
+    # the first poll already moved the sphere along the bar, towards the truth
+    assert moved is not None
+    assert abs(moved.region["center"][0] - TRUE_CENTRE[0]) < abs(0.225 - TRUE_CENTRE[0])

@@ -199,6 +199,11 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS
     for poll in range(1, max_polls + 1):
         if h < min_h:
             break
+        if poll > 1 and diag.budget.spent():
+            # the search so far is kept (its best sphere calibrated below): a poll is ~8 runs
+            diag.tell(f"  {label}: stopped after poll {poll - 1} of at most {max_polls}: the "
+                      "time budget is spent")
+            break
         trials = []
         for region in _polls(best, h, f):
             cells = search.cells(region)
