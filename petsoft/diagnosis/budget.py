@@ -6,9 +6,10 @@ fitting its added mass's sphere and a second round of physics, and gave no repor
 stopped. The budget bounds that: once it is spent, the diagnosis starts no new piece of work
 (a round of candidates, a sphere search, a numerics check, a reconsideration); the work under
 way is finished, the report is written from the model reached so far, and every piece left out
-is said in the report's ``skipped`` list with what it risks. The budget is checked only
-between pieces of work, so a run ends after it by at most one piece (a round's fits, one
-sphere search: minutes on such a case).
+is said in the report's ``skipped`` list with what it risks. The budget is checked between
+pieces of work, and between the polls of a sphere search (which then keeps its best sphere so
+far), so a run ends after it by at most one piece: a round's candidate fits, or a poll and the
+calibration that ends a search (a minute or two on such a case).
 
 Every rank of the diagnosis must take the same decision at the same point (the pieces are
 collective), so the first rank's clock decides and the decision is broadcast; once spent, a
