@@ -164,3 +164,6 @@ def test_a_sphere_search_stops_polling_once_the_budget_is_spent(recording):
     # the first poll already moved the sphere along the bar, towards the truth
     assert moved is not None
     assert abs(moved.region["center"][0] - TRUE_CENTRE[0]) < abs(0.225 - TRUE_CENTRE[0])
+    # the report names the polls left out
+    [left] = diag.budget.skipped
+    assert left["check"] == "mass.added sphere's polls 2-8" and "best of the polls" in left["risk"]

@@ -21,7 +21,7 @@ from petsoft.version import __version__
 #: ``diagnose --one-rank-dofs``'s default, said in its help without importing PETSc here
 #: (tests/test_api.py ties it to :data:`petsoft.diagnosis.placement.ONE_RANK_DOFS`).
 ONE_RANK_DOFS_DEFAULT = 100_000
-#: ``diagnose --budget``'s default (s), said without importing PETSc here (tests/test_budget.py
+#: ``diagnose --budget``'s default (s), said without importing PETSc here (tests/test_diagnose.py
 #: ties it to :data:`petsoft.diagnosis.budget.DEFAULT_BUDGET`).
 BUDGET_DEFAULT = 900.0
 #: The user's reference of the experiment, recording and report formats (installed with petsoft).

@@ -201,6 +201,9 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS
             break
         if poll > 1 and diag.budget.spent():
             # the search so far is kept (its best sphere calibrated below): a poll is ~8 runs
+            diag.budget.skip(f"{label}'s polls {poll}-{max_polls}",
+                             "the sphere is the best of the polls made: its centre and size "
+                             "may be further from the data's than a full search would find")
             diag.tell(f"  {label}: stopped after poll {poll - 1} of at most {max_polls}: the "
                       "time budget is spent")
             break
