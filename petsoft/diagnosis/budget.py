@@ -68,6 +68,19 @@ class TimeBudget:
             self.spent_at = self.elapsed()
         return self._spent
 
+    def stops(self, check: str, risk: str, tell=None, when: bool = True) -> bool:
+        """Whether the budget is spent (collective, as :meth:`spent`); if so and ``when``,
+        ``check`` is recorded as left out with ``risk`` (:meth:`skip`) and, with ``tell``, said
+        (``time budget: <check> not started (<why>)``). ``when`` False: the piece would not
+        run anyway, so nothing is recorded."""
+        if not self.spent():
+            return False
+        if when:
+            entry = self.skip(check, risk)
+            if tell is not None:
+                tell(f"time budget: {check} not started ({entry['why']})")
+        return True
+
     def skip(self, check: str, risk: str) -> dict:
         """Record ``check`` as left out for the budget (report.json ``skipped``), with the
         ``risk`` a reader takes by it; returns the entry."""

@@ -426,15 +426,9 @@ RECONSIDER_RISK = ("an earlier term may be one a later term makes unnecessary; i
 
 
 def over_budget(diag, what: str, risk: str, when: bool = True) -> bool:
-    """Whether the diagnosis' time budget is spent (collective); if so and ``when``, ``what``
-    is recorded as left out (with ``risk``) and said. ``when`` False: the piece would not run
-    anyway, so nothing is recorded."""
-    if not diag.budget.spent():
-        return False
-    if when:
-        entry = diag.budget.skip(what, risk)
-        diag.tell(f"time budget: {what} not started ({entry['why']})")
-    return True
+    """:meth:`TimeBudget.stops <petsoft.diagnosis.budget.TimeBudget.stops>` of the diagnosis'
+    budget, said on its log (collective)."""
+    return diag.budget.stops(what, risk, diag.tell, when)
 
 
 def _reconsidered(diag, current, history, rejected, added, ev):

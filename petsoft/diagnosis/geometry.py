@@ -199,11 +199,11 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS
     for poll in range(1, max_polls + 1):
         if h < min_h:
             break
-        if poll > 1 and diag.budget.spent():
+        if poll > 1 and diag.budget.stops(
+                f"{label}'s polls {poll}-{max_polls}",
+                "the sphere is the best of the polls made: its centre and size may be further "
+                "from the data's than a full search would find"):
             # the search so far is kept (its best sphere calibrated below): a poll is ~8 runs
-            diag.budget.skip(f"{label}'s polls {poll}-{max_polls}",
-                             "the sphere is the best of the polls made: its centre and size "
-                             "may be further from the data's than a full search would find")
             diag.tell(f"  {label}: stopped after poll {poll - 1} of at most {max_polls}: the "
                       "time budget is spent")
             break
@@ -278,12 +278,10 @@ def refit_added_sphere(diag: Diagnosis, entry: dict, fit: Fit, candidate,
         return entry, fit, candidate
     said = []
     for search in range(1, searches + 1):
-        if diag.budget.spent():
-            left = diag.budget.skip(
+        if diag.budget.stops(
                 f"{candidate.physics}'s sphere search {search} of {searches}",
                 "the sphere stays where the last search left it (the map's placement if none "
-                "ran): its centre and size are a first guess")
-            diag.tell(f"time budget: {left['check']} not started ({left['why']})")
+                "ran): its centre and size are a first guess", diag.tell):
             break
         moved = fit_sphere(diag, fit, candidate)
         if moved is None:
