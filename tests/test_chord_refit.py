@@ -135,12 +135,32 @@ def test_a_chord_that_leaves_the_bounds_gives_up(case):
     assert chord_refit(diag, tight, cols, moved) is None
 
 
-def test_the_numerics_check_refits_the_halved_step_by_the_chord(case):
-    diag, fit, _, _, _, said = case
+def test_the_numerics_check_refits_the_step_by_the_chord_at_a_quarter(case):
+    """Halving the 8 ms step moves the simulation by many times the noise, so half the step
+    would still leave an error to measure (Richardson: a third of that change): the step is
+    refitted at a quarter (2 ms) at once, by the chord, from Richardson's estimate of the
+    quarter step's run; the refit is the calibration's at 2 ms."""
+    diag, fit, half, moved, _, said = case
     _, _, rounds = resolve_numerics(diag, fit, evidence_of(diag, fit), max_rounds=1)
-    step = rounds[0]["options"]["step/2"]
+    options = rounds[0]["options"]
+    assert "step/2" not in options
+    step = options["step/4"]
     assert step["refit"].startswith("chord Gauss-Newton")
-    assert step["matters"]
+    assert step["matters"] and rounds[0]["adopted"] == "step/4"
+    assert step["same_parameters_from"] == "step/2"
+    assert step["how"] == "step 0.008 s -> 0.002 s"
     if MPI.COMM_WORLD.rank == 0:
-        assert any("numerics step/2: it" in line and "run(s)" in line for line in said), said
+        assert any("numerics step/4: it" in line and "run(s)" in line for line in said), said
+        assert any("refitting at a quarter of the step" in line for line in said), said
     MPI.COMM_WORLD.Barrier()
+    # the same point as the calibration of the model at 2 ms, to a fraction of E's deviation
+    quarter = refined(half, "step/2")
+    assert quarter.time.step == pytest.approx(0.002)
+    full = diag.calibrate(quarter)
+    assert abs(step["parameters"]["material.youngs_modulus"] - full.values[0]) \
+        < 0.2 * full.std[0]
+    # the estimated same-parameter change against the quarter step's real run at the fit's E
+    seen = np.isfinite(diag.data[diag.ident])
+    real = diag.simulate_identification(quarter)
+    actual = np.sqrt(np.mean((real[diag.ident][seen] - fit.sim[diag.ident][seen]) ** 2))
+    assert step["change_same_parameters"] == pytest.approx(actual, rel=0.1)

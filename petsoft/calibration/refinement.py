@@ -118,6 +118,12 @@ def _halve_step(experiment):
     return _with(experiment, change)
 
 
+def _quarter_step(experiment):
+    def change(d):
+        d["time"]["step"] = experiment.time.step / 4.0
+    return _with(experiment, change)
+
+
 def _refine_mesh(experiment):
     def change(d):
         if experiment.mesh.box is not None:
@@ -165,6 +171,16 @@ STEP_HALVED = Refinement(
     describe=lambda e: f"step {e.time.step:.4g} s -> {e.time.step / 2:.4g} s",
     order=_step_order)
 
+#: The step quartered: not tried on its own (not in :data:`REFINEMENTS`); the numerics check
+#: refits at a quarter of the step instead of half when the halved step's own run shows that
+#: half would still leave an error to measure (:func:`petsoft.diagnosis.numerics.step_jump`).
+STEP_QUARTERED = Refinement(
+    label="step/4", kind="step", make=_quarter_step, applies=lambda e: None,
+    cells=lambda e: None,
+    describe=lambda e: f"step {e.time.step:.4g} s -> {e.time.step / 4:.4g} s",
+    order=_step_order, ratio=4.0)
+
+
 def _nodes_factor(experiment) -> int:
     """Nodes of a model per node of the P1 model on its mesh (about 8 for 10-node tets)."""
     return 1 if not system_class(experiment).element_orders or experiment.mesh.order == 1 else 8
@@ -209,8 +225,9 @@ MESH_AND_STEP_HALVED = Refinement(
 
 
 def refinement(label: str) -> Refinement:
-    """The entry of :data:`REFINEMENTS` (or :data:`MESH_AND_STEP_HALVED`) called ``label``."""
-    known = REFINEMENTS + [MESH_AND_STEP_HALVED]
+    """The entry of :data:`REFINEMENTS` (or :data:`MESH_AND_STEP_HALVED`,
+    :data:`STEP_QUARTERED`) called ``label``."""
+    known = REFINEMENTS + [MESH_AND_STEP_HALVED, STEP_QUARTERED]
     for r in known:
         if r.label == label:
             return r

@@ -21,6 +21,8 @@ import numpy as np
 from petsoft.calibration.refinement import (
     MESH_AND_STEP_HALVED,
     REFINEMENTS,
+    STEP_HALVED,
+    STEP_QUARTERED,
     mesh_cells,
     refinement,
     why_not,
@@ -104,7 +106,9 @@ def final_estimates(diag: Diagnosis, rounds: list[dict], fit: Fit) -> dict[str, 
     if o.get("parameters") != dict(zip(fit.names, map(float, fit.values), strict=True)):
         return {}
     x = next_halving_estimate(o, diag.sigma)
-    return {label: x} if x < ESTIMATE_FINAL_BELOW else {}
+    # the final check's refinement is the halving of the final model's step, whichever
+    # step refinement (step/2, step/4) adopted it
+    return {STEP_HALVED.label: x} if x < ESTIMATE_FINAL_BELOW else {}
 
 
 def next_halving_estimate(o: dict, sigma: float) -> float:
@@ -132,6 +136,34 @@ def estimated_instead(o: dict, sigma: float) -> str | None:
         return None
     return (f"halving the step again would change the simulation by an estimated {x:.2g}x the "
             f"noise (Richardson, below {ESTIMATE_FINAL_BELOW:g}x): estimated, not simulated")
+
+
+def step_jump(experiment, integrator: str | None, change_same: float, sigma: float) -> bool:
+    """Whether a halved step that must be refitted is refitted at a quarter of the step
+    instead: when its run at the current parameters, which changed the simulation by
+    ``change_same`` (rms, m), says by Richardson that half the step would itself leave an error
+    of at least :data:`ESTIMATE_FINAL_BELOW` times the noise ``sigma`` (the change times
+    1 / (2^p - 1): a third for a second-order scheme), so that a later round would halve it
+    again (:func:`estimated_instead`).
+
+    Each halving refits the model and runs the whole record once more at twice the steps of
+    the last: on the realistic control and nonlinear tapers' final models the step went
+    2 -> 1 -> 0.5 ms, the 1 ms stage (its refit, its whole-record run, then the next round's
+    runs at the current parameters and its sensitivities) taking 30 s of a 116 s and about
+    60 s of a 218 s diagnosis, to be replaced by the 0.5 ms model whose halved-step change
+    Richardson had already put at 0.38x and 0.98x the noise."""
+    remaining = STEP_HALVED.error_factors(experiment, integrator)[1]
+    return bool(change_same * remaining >= ESTIMATE_FINAL_BELOW * sigma)
+
+
+def quartered_run(experiment, integrator: str | None, current: np.ndarray,
+                  halved: np.ndarray) -> np.ndarray:
+    """Richardson's estimate of the run at a quarter of the step from the runs at the step
+    (``current``) and at half of it (``halved``), same parameters: each halving changes a
+    scheme of order p by 2^-p of the change the one before made, so
+    u(h/4) = u(h/2) + (u(h/2) - u(h)) / 2^p."""
+    p = STEP_HALVED.order(experiment, integrator)
+    return halved + (halved - current) / 2.0 ** p
 
 
 def numerics_check(diag: Diagnosis, fit: Fit, estimated: dict[str, float] | None = None
@@ -480,7 +512,9 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
             if not (run.ok and res.ok):
                 entry["options"][what] = {"error": run.error if not run.ok else res.error}
                 continue
-            refit, moved, lin = res.value
+            refit, moved, lin, what = res.value
+            jumped = what != r.label      # refitted at a quarter of the step (step_jump)
+            r = refinement(what)
             if lin is not None:
                 closer = lin["gain"] > 0.0
                 # counted like a fitted refinement that does not matter: only when closer
@@ -530,8 +564,13 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
                 "remaining_estimate": change * remaining}
             if later:
                 entry["options"][what]["deferred"] = fit.rms / diag.sigma
+            if jumped:
+                # its same-parameter change is Richardson's, from the halved step's run
+                entry["options"][what]["same_parameters_from"] = STEP_HALVED.label
             diag.tell(f"numerics: {what} ({r.describe(exp)}): the simulation changes by "
-                      f"{fixed / diag.sigma:.3g}x the noise ({change / diag.sigma:.3g}x "
+                      f"{fixed / diag.sigma:.3g}x the noise"
+                      + (" (estimated from the step/2 run)" if jumped else "")
+                      + f" ({change / diag.sigma:.3g}x "
                       f"refitted); chi2 {fit.chi2:.5g} -> {refit.chi2:.5g} "
                       + ("(matters)" if matters else
                          f"(deferred: the fit misses the data by {fit.rms / diag.sigma:.3g}x "
@@ -611,7 +650,8 @@ def measure_untried(diag: Diagnosis, fit: Fit, rounds: list[dict]) -> bool:
     # split mesh's linearised one): a step error and a mesh error of opposite signs can offset
     # each other, so that neither shows alone; refined together they do.
     both = MESH_AND_STEP_HALVED
-    step = entry["options"].get("step/2", {})
+    step = next((o for label, o in entry["options"].items()
+                 if refinement(label).kind == "step"), {})
     maybe_both = step.get("gain", 1.0) <= 0.0 and measurable(both, exp)
     made = _simulated_side_by_side(diag, fit, todo + ([both] if maybe_both else []))
     for r in todo:
@@ -760,15 +800,17 @@ def _refit(diag: Diagnosis, fit: Fit, what: str, comm, cols: np.ndarray | None,
     """Refinement ``what`` of ``fit``'s model, whose simulation at the current parameters is
     ``moved``, calibrated; or only refitted linearised (:func:`linearised_refit`, given the
     current model's sensitivities ``cols``) when that shows a small change that brings the
-    model no closer to the data (:data:`SCREEN_BELOW`). Returns (the refit or None, the
-    refined simulation, the linearised entry or None)."""
+    model no closer to the data (:data:`SCREEN_BELOW`). A halved step refitted by the chord is
+    refitted at a quarter of the step instead where :func:`step_jump` says so. Returns (the
+    refit or None, the refined simulation (the quarter step's Richardson estimate when it
+    jumped), the linearised entry or None, the label of the refinement refitted)."""
     if moved is None:     # its run failed (said by the caller)
         raise PetsoftError(f"the {what} simulation failed")
     experiment = refined(fit.experiment, what)
     if cols is not None:
         o = linearised_refit(diag, fit, refinement(what), moved, cols)
         if screened(o, diag.excess(fit), diag.sigma):
-            return None, moved, {**o, "screened": True}
+            return None, moved, {**o, "screened": True}, what
         if o["matters"] and deferred(o["change_rms"], fit.rms, diag.sigma):
             # it would matter, but a refit would be deferred anyway (its change is small beside
             # the misfit): not refitted, counted from the linearised refit and checked again
@@ -776,17 +818,29 @@ def _refit(diag: Diagnosis, fit: Fit, what: str, comm, cols: np.ndarray | None,
             # concealed viscoelastic branch, 1.01x the noise refitted, deferred after a 236 s
             # refit at chi2/dof 49.
             return None, moved, {**o, "screened": True, "matters": False,
-                                 "deferred": fit.rms / diag.sigma}
+                                 "deferred": fit.rms / diag.sigma}, what
     label = f"numerics {what}"
     if cols is not None and refinement(what).kind == "step":
+        same = _change(diag, fit, moved, np.isfinite(diag.data[diag.ident]))
+        if what == STEP_HALVED.label and step_jump(fit.experiment, diag.integrator, same,
+                                                   diag.sigma):
+            # the chord refit's first residual from Richardson's estimate of the quarter
+            # step's run; every later one from a run of it
+            left = same * STEP_HALVED.error_factors(fit.experiment, diag.integrator)[1]
+            what, experiment = STEP_QUARTERED.label, STEP_QUARTERED.make(fit.experiment)
+            moved = quartered_run(fit.experiment, diag.integrator, fit.sim, moved)
+            label = f"numerics {what}"
+            diag.group_says(comm, f"{label}: half the step would leave an estimated "
+                                  f"{left / diag.sigma:.3g}x the noise (Richardson, from the "
+                                  "halved step's run): refitting at a quarter of the step")
         refit = chord_refit(diag, experiment, cols, moved, comm=comm, label=label)
         if refit is not None:
-            return refit, moved, None
+            return refit, moved, None, what
         diag.group_says(comm, f"{label}: the chord refit did not converge; calibrating")
     # the refinement's own frequency shift: the current fit's ratio to the data is the target
     target = diag.frequency_ratio(fit.sim) or 1.0
     start = diag.frequency_matched(experiment, moved, comm=comm, label=label, target=target)
-    return diag.calibrate(start, comm=comm, label=label), moved, None
+    return diag.calibrate(start, comm=comm, label=label), moved, None, what
 
 
 class NumericsChecks:

@@ -26,6 +26,15 @@ _WORDS = {"step": ("the time step is halved", "time step"),
           "mesh+step": ("the mesh is split and the step halved together", "discretisation")}
 
 
+def _slot(label: str) -> str:
+    """The summary's sentence a refinement ``label`` belongs to: one for the time step, whether
+    it was halved or quartered (``"step/4"``, :func:`petsoft.diagnosis.numerics.step_jump`)."""
+    try:
+        return _SUMMARY_ORDER[0] if refinement(label).kind == "step" else label
+    except KeyError:
+        return label
+
+
 def _x(v: float) -> str:
     return f"{v:.2g}" if v < 10 else f"{v:.0f}"
 
@@ -151,21 +160,23 @@ def numerics_summary(num: dict, rounds: list[dict], final, sigma: float
     error is counted in the verdict's noise budget (``sigma``: the noise) is said to be counted.
     """
     adopted = [r["adopted"] for r in rounds if r.get("adopted")]
+    slots = {_slot(a) for a in adopted}
     last: dict[str, tuple[dict, bool]] = {}      # label -> (its last measurement, refitted?)
     closer: dict[str, bool] = {}                 # label -> its last refit came closer
     largest: dict[str, float] = {}               # label -> its largest change on any model
     not_tried: dict[str, str] = {}
     covered: dict[str, bool] = {}
     for r in rounds:
-        for label, o in r["options"].items():
+        for raw, o in r["options"].items():
             if "error" in o:
                 continue
+            label = _slot(raw)
             refitted = not (o.get("screened") or o.get("measured_only"))
             # "adopting": the change is the one that made the refinement adopted, not a
             # further refinement of the adopted model
             last[label] = ({"x": o.get("change_same_parameters_over_noise",
                                        o["change_over_noise"]), "how": o["how"],
-                            "adopting": r.get("adopted") == label,
+                            "adopting": r.get("adopted") == raw,
                             "refitted_x": o["change_over_noise"],
                             "counted": o.get("error_estimate", 0.0) / sigma}, refitted)
             # whether its last refit (a full or a linearised one) came closer to the data
@@ -196,11 +207,11 @@ def numerics_summary(num: dict, rounds: list[dict], final, sigma: float
             continue
         m, refitted = last[label]
         x = f"{_x(m['x'])}x the noise"
-        if label in adopted and m["adopting"]:
+        if label in slots and m["adopting"]:
             out.append(f"{name}: part of the mismatch: refining it ({m['how']}) changed the "
                        f"simulation by {x} and brought it closer to the data; adopted: "
                        f"{_adopted_setting(label, final)}.")
-        elif label in adopted:
+        elif label in slots:
             again = (f"; refining once more ({m['how']}) would change the simulation by an "
                      f"estimated {x} (Richardson, from the last refinement; not simulated)"
                      if m.get("estimated") else
