@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from petsoft.diagnosis.context import Diagnosis, Fit
 from petsoft.diagnosis.figures import (
     plot_candidates,
@@ -20,6 +22,21 @@ from petsoft.experiment.writer import write_experiment_update
 from petsoft.io.summary import write_summary
 from petsoft.mesh.topology import boundary_facets
 from petsoft.physics.model import load_mesh
+
+
+def gravity_words(gravity) -> dict:
+    """What an added gravity term made of the model's gravity (report.json's ``added[i].gravity``):
+    the acceleration the final model uses (m/s^2) and, where a stated one was turned
+    (``gravity.direction``: its tangents are what was fitted, but a reader wants the vector), the
+    stated one and the angle between them (degrees)."""
+    g = np.asarray(gravity.acceleration, dtype=float)
+    out = {"acceleration": [float(x) for x in g]}
+    if gravity.tilted:
+        g0 = np.asarray(gravity.as_stated, dtype=float)
+        cos = float(g @ g0) / float(np.linalg.norm(g) * np.linalg.norm(g0))
+        out["stated"] = [float(x) for x in g0]
+        out["turned_degrees"] = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+    return out
 
 
 def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict, added,
@@ -45,9 +62,11 @@ def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict,
     final_added = []
     for a in added:
         values, std = term_values(final, list(a["parameters"]))
-        final_added.append({**a, "parameters": {**a["parameters"], **values},
-                            "std": {**{k: v for k, v in a["std"].items() if k not in values},
-                                    **std}})
+        entry = {**a, "parameters": {**a["parameters"], **values},
+                 "std": {**{k: v for k, v in a["std"].items() if k not in values}, **std}}
+        if a["physics"] in ("gravity", "gravity.direction"):
+            entry["gravity"] = gravity_words(final.experiment.gravity)
+        final_added.append(entry)
     _, std_all = term_values(final, final.names)
     adopted = (numerics or {}).get("adopted", [])
     return build_report(

@@ -154,7 +154,9 @@ def build_report(*, verdict: str, noise_std: float, base: Mapping, final: Mappin
                    "parameters": {str(k): _num(v) for k, v in a["parameters"].items()},
                    "std": {str(k): _num(v) for k, v in a.get("std", {}).items()},
                    "score": _num(a["score"]), "rms_after": _num(a["rms_after"]),
-                   "evidence": a["evidence"]} for a in added],
+                   "evidence": a["evidence"],
+                   **({"gravity": _gravity_entry(a["gravity"])} if "gravity" in a else {})}
+                  for a in added],
         "rejected": [{"physics": r["physics"], "score": _num(r["score"]),
                       "reason": r["reason"]} for r in rejected],
         "parameters": {str(k): _num(v) for k, v in parameters.items()},
@@ -174,8 +176,35 @@ def build_report(*, verdict: str, noise_std: float, base: Mapping, final: Mappin
     return report
 
 
+def _gravity_entry(g: Mapping) -> dict:
+    """An added gravity term's ``gravity`` entry (outputs.gravity_words), numbers made plain."""
+    out = {"acceleration": [_num(x) for x in g["acceleration"]]}
+    if "stated" in g:
+        out["stated"] = [_num(x) for x in g["stated"]]
+        out["turned_degrees"] = _num(g["turned_degrees"])
+    return out
+
+
 # ---------------------------------------------------------------------------------------------
 # validation
+
+
+def _check_gravity(g, key: str) -> None:
+    _keys(g, key, {"acceleration"}, frozenset({"stated", "turned_degrees"}))
+    for part in ("acceleration", "stated"):
+        if part not in g:
+            continue
+        v = g[part]
+        if not isinstance(v, list) or len(v) != 3:
+            _fail(f"{key}.{part}", f"must be [x, y, z] in m/s^2, got {v!r}")
+        for i, x in enumerate(v):
+            _number(x, f"{key}.{part}[{i}]")
+    if ("stated" in g) != ("turned_degrees" in g):
+        _fail(key, "stated and turned_degrees come together (a turned gravity) or not at all")
+    if "turned_degrees" in g:
+        _number(g["turned_degrees"], f"{key}.turned_degrees", 0.0)
+        if g["turned_degrees"] > 180.0:
+            _fail(f"{key}.turned_degrees", f"is an angle in [0, 180], got {g['turned_degrees']}")
 
 
 def _fail(key: str, message: str):
@@ -322,7 +351,8 @@ def validate_report(report: Mapping) -> None:
     _list(report["added"], "added")
     for i, a in enumerate(report["added"]):
         key = f"added[{i}]"
-        _keys(a, key, {"physics", "parameters", "std", "score", "rms_after", "evidence"})
+        _keys(a, key, {"physics", "parameters", "std", "score", "rms_after", "evidence"},
+              frozenset({"gravity"}))
         _physics(a["physics"], key + ".physics")
         _param_map(a["parameters"], key + ".parameters")
         _param_map(a["std"], key + ".std", 0.0)
@@ -332,6 +362,8 @@ def validate_report(report: Mapping) -> None:
         _number(a["score"], key + ".score")
         _number(a["rms_after"], key + ".rms_after", 0.0)
         _string(a["evidence"], key + ".evidence")
+        if "gravity" in a:
+            _check_gravity(a["gravity"], key + ".gravity")
     _list(report["rejected"], "rejected")
     for i, r in enumerate(report["rejected"]):
         key = f"rejected[{i}]"

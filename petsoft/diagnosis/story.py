@@ -21,6 +21,8 @@ import math
 import re
 from collections.abc import Mapping
 
+import numpy as np
+
 from petsoft.diagnosis.report import PHYSICS
 
 __all__ = ["Story", "mismatch_cause", "pm", "quoted_conflicts", "skipped_numerics", "ties"]
@@ -86,6 +88,21 @@ def ties(report: Mapping) -> dict[str, list[str]]:
     return out
 
 
+def _vector(v) -> str:
+    return "(" + ", ".join(f"{x:.3g}" for x in v) + ")"
+
+
+def gravity_said(g: Mapping) -> str:
+    """An added gravity term's vector in words (report.json ``added[i].gravity``): the turn a
+    fitted tilt made of the stated gravity, or the size of a fitted acceleration (a size far
+    from the Earth's 9.81 m/s^2 says it stands in for something else)."""
+    a = g["acceleration"]
+    if "stated" in g:
+        return (f"gravity turned by {g['turned_degrees']:.3g} degrees: {_vector(a)} m/s^2, "
+                f"stated {_vector(g['stated'])}")
+    return f"{_vector(a)} m/s^2, |g| = {float(np.linalg.norm(a)):.3g} m/s^2"
+
+
 def _mm(x: float) -> str:
     return f"{1e3 * x:.3g} mm"
 
@@ -108,8 +125,13 @@ class Story:
         #: "name = value +- std unit" of every final parameter
         self.values = {n: f"{n} = {pm(v, std.get(n))}" + (f" {_unit(n)}" if _unit(n) else "")
                        for n, v in params.items()}
-        added_names = [n for a in report["added"] for n in a["parameters"]]
-        self.added_values = [self.values[n] for n in added_names if n in self.values]
+        self.added_values = []
+        for a in report["added"]:
+            said = [self.values[n] for n in a["parameters"] if n in self.values]
+            if said and "gravity" in a:
+                said[-1] += f" ({gravity_said(a['gravity'])})"
+            self.added_values += said
+        added_names = {n for a in report["added"] for n in a["parameters"]}
         self.recalibrated = [t for n, t in self.values.items() if n not in added_names]
         self.cause = report.get("cause") or mismatch_cause(
             report["verdict"], self.added, (report.get("numerics") or {}).get("adopted", []))
