@@ -515,11 +515,13 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
             refit, moved, lin, what = res.value
             jumped = what != r.label      # refitted at a quarter of the step (step_jump)
             r = refinement(what)
-            if jumped:
-                # the quarter step measures the step's error afresh: an estimate an earlier
-                # round booked for the halved step is superseded (it would stay in the
-                # verdict's noise budget beside the quarter step's own)
-                diag.model_error.pop(STEP_HALVED.label, None)
+            if r.kind == "step":
+                # this measures the step's error afresh: an estimate an earlier round booked
+                # under the other step refinement (step/2, step/4) is superseded, else it would
+                # stay in the verdict's noise budget beside this one
+                for other in (STEP_HALVED.label, STEP_QUARTERED.label):
+                    if other != what:
+                        diag.model_error.pop(other, None)
             if lin is not None:
                 closer = lin["gain"] > 0.0
                 # counted like a fitted refinement that does not matter: only when closer
