@@ -40,6 +40,19 @@ def test_the_jump_is_where_half_the_step_leaves_the_final_checks_threshold(integ
     assert step_jump(_experiment(other), integrator, 1.001 * at, SIGMA)
 
 
+def test_no_jump_with_colliders():
+    """A penalty contact's default stiffness follows the step (k = 4 m / h^2): halving the step
+    changes the model, and Richardson's h^p does not hold."""
+    plain = _experiment()
+    data = plain.to_dict()
+    data["collider"] = [{"kind": "plane", "point": [0.0, 0.0, -0.05], "normal": [0.0, 0.0, 1.0]}]
+    touching = experiment_from_dict(data, source="test")
+    assert touching.colliders
+    large = 100.0 * SIGMA
+    assert step_jump(plain, "alpha", large, SIGMA)
+    assert not step_jump(touching, "alpha", large, SIGMA)
+
+
 @pytest.mark.parametrize("order", [1, 2])
 def test_the_quarter_steps_run_is_richardsons_extrapolation(order):
     rng = np.random.default_rng(order)
