@@ -160,8 +160,14 @@ def step_jump(experiment, integrator: str | None, change_same: float, sigma: flo
     in a calibration from the extrapolated run's frequency, 5x that case's time)."""
     if experiment.colliders:
         return False
-    remaining = STEP_HALVED.error_factors(experiment, integrator)[1]
-    return bool(change_same * remaining >= ESTIMATE_FINAL_BELOW * sigma)
+    return bool(half_step_leaves(experiment, integrator, change_same)
+                >= ESTIMATE_FINAL_BELOW * sigma)
+
+
+def half_step_leaves(experiment, integrator: str | None, change_same: float) -> float:
+    """Richardson's estimate of the error the halved step leaves (m): its change at the same
+    parameters, ``change_same``, times 1 / (2^p - 1)."""
+    return change_same * STEP_HALVED.error_factors(experiment, integrator)[1]
 
 
 def quartered_run(experiment, integrator: str | None, current: np.ndarray,
@@ -841,7 +847,7 @@ def _refit(diag: Diagnosis, fit: Fit, what: str, comm, cols: np.ndarray | None,
         seen = np.isfinite(diag.data[diag.ident])
         same = _change(diag, fit, moved, seen)
         if step_jump(fit.experiment, diag.integrator, same, diag.sigma):
-            left = same * STEP_HALVED.error_factors(fit.experiment, diag.integrator)[1]
+            left = half_step_leaves(fit.experiment, diag.integrator, same)
             quarter = STEP_QUARTERED.label
             diag.group_says(comm, f"numerics {quarter}: half the step would leave an estimated "
                                   f"{left / diag.sigma:.3g}x the noise (Richardson, from the "

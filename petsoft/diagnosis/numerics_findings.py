@@ -10,7 +10,7 @@ report.md says ``summary`` and ``recommendation`` in "In short", ``findings`` in
 
 from __future__ import annotations
 
-from petsoft.calibration.refinement import levels_needed, mesh_cells, refinement
+from petsoft.calibration.refinement import STEP_HALVED, levels_needed, mesh_cells, refinement
 from petsoft.dynamics.factory import system_class
 
 #: The keys of :func:`numerics_findings` that go to report.json's ``numerics``.
@@ -30,7 +30,7 @@ def _slot(label: str) -> str:
     """The summary's sentence a refinement ``label`` belongs to: one for the time step, whether
     it was halved or quartered (``"step/4"``, :func:`petsoft.diagnosis.numerics.step_jump`)."""
     try:
-        return _SUMMARY_ORDER[0] if refinement(label).kind == "step" else label
+        return STEP_HALVED.label if refinement(label).kind == "step" else label
     except KeyError:
         return label
 
