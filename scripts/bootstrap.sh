@@ -5,8 +5,8 @@
 #
 # 1. Debian packages: PETSc 3.18 with petsc4py/slepc4py (real scalars, MUMPS, hypre, HDF5),
 #    mpi4py, Debian's MPI-enabled h5py, OpenMPI, a C compiler, the Python headers,
-#    chromium (the test suite renders report.html in it) and DOLFINx 0.5 (the benchmarks'
-#    cross-checks against it, run by the test suite).
+#    chromium (the test suite renders report.html in it), DOLFINx 0.5 (the benchmarks'
+#    cross-checks against it, run by the test suite) and gmsh (the independent cases' meshes).
 #    (Installed only when missing; needs root, or sudo.)
 # 2. A virtual environment at .venv made from /usr/bin/python3 with the system site packages,
 #    so Debian's petsc4py/mpi4py/h5py are used (PyPI's would compile PETSc for half an hour or
@@ -20,7 +20,8 @@ PACKAGES=(python3-petsc4py-real python3-slepc4py-real python3-mpi4py python3-h5p
           python3-matplotlib python3-numpy python3-scipy python3-sympy python3-tomlkit python3-venv python3-dev python3-pip
           openmpi-bin libopenmpi-dev build-essential
           chromium              # renders report.html headless in the test suite (tests/test_report_html.py)
-          python3-dolfinx-real) # the benchmarks' DOLFINx cross-checks (tests/test_bench_scripts.py)
+          python3-dolfinx-real  # the benchmarks' DOLFINx cross-checks (tests/test_bench_scripts.py)
+          python3-gmsh)         # the independent cases' shapes (scripts/benchmarks/independent, tests/test_truth_mesh_grading.py)
 
 log() { echo "[bootstrap] $*"; }
 

@@ -301,6 +301,38 @@ def test_draw_and_run_refuses_what_the_protocol_forbids(tmp_path):
     assert not (tmp_path / "new").exists()
 
 
+def test_split_test_draw_refuses_another_commits_folder_and_pending_cases(tmp_path):
+    """The test draw made over several sittings (draw_and_run.sh test-cases / test-diagnose):
+    its folder is bound to the commit it was started at, N may not shrink, and it is not
+    diagnosed while a case is pending or before it has a protocol."""
+    import json
+    import subprocess
+
+    script = m.__file__.replace("measures.py", "draw_and_run.sh")
+    head = rates.resolve_commit("HEAD")
+
+    def run(*args):
+        return subprocess.run(["bash", script, *map(str, args)], capture_output=True,
+                              text=True, timeout=120)
+
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "protocol.json").write_text(json.dumps({"commit": "0" * 40, "N": 4}))
+    mine = tmp_path / "mine"
+    (mine / "cases").mkdir(parents=True)
+    (mine / "protocol.json").write_text(json.dumps({"commit": head, "N": 8, "seed": 1,
+                                                    "size": "small"}))
+    (mine / "cases" / "draw.json").write_text(json.dumps({"status": {"pending": 3}}))
+    for args, said in [(("test-cases", 4, other), "worktree at that commit"),
+                       (("test-diagnose", other), "worktree at that commit"),
+                       (("test-cases", 4, mine), "never shrink"),
+                       (("test-diagnose", mine), "3 cases are still pending"),
+                       (("test-diagnose", tmp_path / "none"), "protocol.json is missing")]:
+        out = run(*args)
+        assert out.returncode == 2 and said in out.stderr, (args, out.stderr)
+    assert not (mine / "diagnoses").exists() and not (mine / "job.log").exists()
+
+
 def test_the_random_generators_truth_format_is_read():
     """random_cases.py writes the combined effect as ``effect_size_over_noise: {"rms", "max"}``
     and names its off-vocabulary effects without the prefix: both are understood."""
