@@ -373,6 +373,7 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
     truth = case["truth"]
     sphere = truth.get("sphere")
     ball = sphere["where"] if sphere and sphere.get("conforming") else None
+    tagged: dict = {}
     if body is None:
         sh = SHAPES[shape]
         mesh_shape(gmsh, shape, h_fine or sh["h_fine"], graded=True, ball=ball,
@@ -385,7 +386,8 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
     else:
         if ball:
             raise ValueError(f"{name}: a conforming ball needs the suite's shapes, not a body")
-        body["mesh"](gmsh, h_fine or body["h_fine"])
+        # a mesh conforming to the regions says which physical groups hold each one
+        tagged = body["mesh"](gmsh, h_fine or body["h_fine"]) or {}
         velocity, clamp = body["velocity"], body["clamp"]
         mat = body["material"]
         E0, nu, rho0 = mat["youngs_modulus"], mat["poisson_ratio"], mat["density"]
@@ -398,11 +400,16 @@ def simulate_truth(gmsh, name: str, case: dict, markers: np.ndarray, say, *,
     Ef, rhof = fem.Function(Q), fem.Function(Q)
     Ef.x.array[:] = E0
     rhof.x.array[:] = rho0
-    # regions (random cases): a cell belongs when its centroid (DG0's dof) is inside
+    # regions (random cases): a cell belongs when it is in the region's conforming parts
+    # (random_shapes.conform), else when its centroid (DG0's dof) is inside
     centroids = Q.tabulate_dof_coordinates()
-    for reg in truth.get("regions", []):
+    for i, reg in enumerate(truth.get("regions", [])):
         rel = centroids - np.asarray(reg["center"])
-        if reg["kind"] == "sphere":
+        if i in tagged:
+            inside = np.zeros(len(centroids), dtype=bool)
+            for tag in tagged[i]:
+                inside[fem.locate_dofs_topological(Q, 3, cell_tags.find(tag))] = True
+        elif reg["kind"] == "sphere":
             inside = np.sum(rel ** 2, axis=1) < reg["radius"] ** 2
         elif reg["kind"] == "slab":
             inside = np.abs(rel @ np.asarray(reg["normal"])) < reg["thickness"] / 2
