@@ -123,9 +123,8 @@ def test_the_meshed_cells_fill_the_parts(model):
     def meshed(tag):
         total = 0.0
         for ent in gmsh.model.getEntitiesForPhysicalGroup(3, tag):
-            types, elems, _ = gmsh.model.mesh.getElements(3, ent)
-            for typ, tags in zip(types, elems):
-                _, _, _, n_int, *_ = gmsh.model.mesh.getElementProperties(typ)
+            types, _, _ = gmsh.model.mesh.getElements(3, ent)
+            for typ in types:
                 pts, w = gmsh.model.mesh.getIntegrationPoints(typ, "Gauss4")
                 _, dets, _ = gmsh.model.mesh.getJacobians(typ, pts, tag=ent)
                 total += float(np.sum(dets.reshape(-1, len(w)) * w))
