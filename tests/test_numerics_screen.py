@@ -172,3 +172,47 @@ def test_a_run_compared_on_the_identification_window_stops_at_its_cut(checked):
     np.testing.assert_array_equal(cut[diag.ident], whole[diag.ident])
     assert diag.held.any() and np.isnan(cut[diag.held]).all()
     MPI.COMM_WORLD.Barrier()
+
+
+def test_the_final_recheck_is_not_made_again_on_the_fit_the_last_check_measured(checked):
+    """recheck_final measures a counted discretisation error again on the final model; when the
+    last check measured every counted error on that very fit (it adopted nothing and started
+    from it), the same runs would give the same numbers: it says so and does not run them
+    (:func:`~petsoft.diagnosis.numerics.measured_on`). Another fit, an adoption, a label the
+    round did not measure or one whose run failed make it measure again."""
+    import dataclasses
+
+    from petsoft.diagnosis.numerics import NumericsChecks, measured_on
+
+    diag, fit, rounds, _ = checked
+    last = rounds[-1]
+    assert "adopted" not in last
+    booked = {label: 1e-6 for label in last["options"]}
+    assert measured_on(last, fit, booked)
+    assert measured_on(last, fit, {})
+    moved = dataclasses.replace(fit, chi2=fit.chi2 * (1 + 1e-9))
+    assert not measured_on(last, moved, booked)
+    other = dataclasses.replace(fit, values=fit.values * (1 + 1e-9))
+    assert not measured_on(last, other, booked)
+    assert not measured_on({**last, "adopted": "P2"}, fit, booked)
+    assert not measured_on(last, fit, {**booked, "mesh x2": 1e-6})
+    label = next(iter(last["options"]))
+    failed = {**last, "options": {**last["options"], label: {"error": "the run failed"}}}
+    assert not measured_on(failed, fit, booked)
+
+    checks = NumericsChecks(diag, True)
+    checks.refinements = [last]
+    said = []
+    saved_error, saved_tell = dict(diag.model_error), diag.tell
+    diag.model_error.clear()
+    diag.model_error.update(booked)
+    diag.tell = said.append
+    try:
+        ev = {**evidence_of(diag, fit), "verdict": "consistent"}
+        out, _, ran = checks.recheck_final(fit, ev, 0)
+    finally:
+        diag.model_error.clear()
+        diag.model_error.update(saved_error)
+        diag.tell = saved_tell
+    assert not ran and out is fit and checks.refinements == [last]
+    assert len(said) == 1 and "by the last check: not measured again" in said[0]
