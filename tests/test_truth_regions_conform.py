@@ -90,6 +90,20 @@ def test_a_tilted_slab_across_the_box(model):
     assert body_volume() == pytest.approx(L * W * H - W * H * t / math.cos(tilt), rel=1e-9)
 
 
+def test_a_thin_slab_is_turned_to_its_normal_not_its_mirror(model):
+    """The slab's thin direction is its normal: the part's inertia is largest about the axis
+    along n (its mass lies close to the plane normal to n), not about n mirrored."""
+    n = np.array([math.cos(math.radians(30.0)), 0.0, math.sin(math.radians(30.0))])
+    tagged = rs.conform(gmsh, [{"kind": "slab", "center": [0.15, 0.03, 0.025],
+                                "normal": list(n), "thickness": 0.008}])
+    (tag,) = tagged[0]
+    inertia = np.array(gmsh.model.occ.getMatrixOfInertia(3, tag - 100)).reshape(3, 3)
+    values, vectors = np.linalg.eigh(inertia)
+    axis = vectors[:, -1]
+    assert abs(axis @ n) > 0.99
+    assert abs(axis @ (n * [1.0, 1.0, -1.0])) < 0.6
+
+
 def test_two_overlapping_spheres_share_their_lens(model):
     r, d = 0.02, 0.02                          # centres 0.02 apart along x
     regions = [{"kind": "sphere", "center": [0.14, 0.03, 0.025], "radius": r},

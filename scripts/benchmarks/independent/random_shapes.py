@@ -89,10 +89,8 @@ def region_tool(gmsh, reg: dict) -> tuple[int, int]:
     n = np.asarray(reg["normal"], dtype=float)
     n /= np.linalg.norm(n)
     axis = np.cross([0.0, 0.0, 1.0], n)
-    if np.linalg.norm(axis) > 1e-12:
+    if np.linalg.norm(axis) > 1e-12:   # (n = -z: the slab is symmetric about its plane)
         occ.rotate([box], 0.0, 0.0, 0.0, *axis, math.acos(float(np.clip(n[2], -1, 1))))
-    elif n[2] < 0:
-        pass                        # the slab is symmetric about its plane
     occ.translate([box], *c)
     return box
 
