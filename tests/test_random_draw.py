@@ -213,3 +213,16 @@ def test_bad_input_is_refused():
         rd.draw_case(-1, 0)
     with pytest.raises(ValueError, match="family"):
         rd.draw_geometry(np.random.default_rng(0), "sphere")
+
+
+def test_a_plates_thinnest_section_is_its_thickness_or_a_ligament_beside_the_hole():
+    """The truth puts three P2 cells across ``section``: for a plate with a hole, the thinner of
+    the thickness and the ligament (width / 2 - hole radius) beside the hole; the hole is kept
+    to 15-25 % of the width, so a ligament is never under a quarter of the width."""
+    plates = [c["geometry"] for c in CASES if c["family"] == "plate"]
+    assert len(plates) >= 20
+    ligaments = [g["width"] / 2 - g["hole_radius"] for g in plates]
+    assert all(g["section"] == pytest.approx(min(g["thickness"], lig))
+               for g, lig in zip(plates, ligaments, strict=True))
+    assert all(0.15 <= g["hole_radius"] / g["width"] <= 0.25 for g in plates)
+    assert any(lig < g["thickness"] for g, lig in zip(plates, ligaments, strict=True))
