@@ -1,0 +1,128 @@
+"""The convergence of a drawn case's truth at its surface: three meshes, one variant.
+
+Runs generate.py's ``simulate_truth`` for case NAME of the random draw SEED (random_draw.py) at
+h x 1.96, h x 1.4 and h, h the generator's truth size (random_shapes.truth_h), over the first
+END seconds, at 20 surface nodes of a coarse mesh of the body, and prints the rms differences
+D(1.96h, 1.4h), D(1.4h, h), the observed order log(D2 / D1) / log 1.4 and the eight markers with
+the largest D(1.4h, h). A variant changes one thing of the truth's mesh::
+
+    generator      as the generator makes it
+    flat           no second-order (curved) cells
+    grade:K        the clamp's edges graded to h / K over 6 h (the generator: h / 4 over 4 h)
+    thickness      a plate's h from its thickness alone (the rule before 01f283b)
+
+Run with the system python (DOLFINx, gmsh), one process per variant::
+
+    /usr/bin/python3 scripts/benchmarks/independent/truth_convergence.py --seed 604960342 \\
+        --case r000-plate --end 0.25 --variant generator
+
+Measured (README.md, "A plate's thinnest section"): the test draw 604960342's r000-plate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import generate as indep  # noqa: E402
+import random_cases as rc  # noqa: E402
+import random_draw as rd  # noqa: E402
+import random_shapes as rs  # noqa: E402
+
+LEVELS = (1.96, 1.4, 1.0)
+
+
+def apply_variant(variant: str) -> None:
+    """Change the truth's meshing as ``variant`` says (module docstring)."""
+    if variant == "generator":
+        return
+    if variant == "flat":
+        rs.CURVED = ()
+        return
+    if variant.startswith("grade:"):
+        k = float(variant.split(":", 1)[1])
+
+        def grade(gmsh, curves, h, field_only=False):
+            field = gmsh.model.mesh.field
+            dist = field.add("Distance")
+            field.setNumbers(dist, "CurvesList", curves)
+            field.setNumber(dist, "NumPointsPerCurve", 100)
+            thr = field.add("Threshold")
+            field.setNumber(thr, "InField", dist)
+            field.setNumber(thr, "SizeMin", h / k)
+            field.setNumber(thr, "SizeMax", h)
+            field.setNumber(thr, "DistMin", h / k)
+            field.setNumber(thr, "DistMax", 6 * h)
+            field.setAsBackgroundMesh(thr)
+            if field_only:
+                indep.size_options(gmsh, 0)
+        indep.grade_towards = grade
+        return
+    if variant == "thickness":
+        generator_h = rs.truth_h
+
+        def truth_h(g):
+            return generator_h({**g, "section": g.get("thickness", g["section"])})
+        rs.truth_h = truth_h
+        return
+    raise SystemExit(f"unknown variant {variant!r}: generator, flat, grade:K or thickness")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seed", type=int, required=True)
+    ap.add_argument("--case", required=True, help="e.g. r000-plate")
+    ap.add_argument("--end", type=float, default=0.25, help="seconds simulated (default 0.25)")
+    ap.add_argument("--variant", default="generator")
+    ap.add_argument("--draw", type=int, default=40, help="cases drawn to find CASE in")
+    args = ap.parse_args(argv)
+    apply_variant(args.variant)
+    import gmsh
+
+    gmsh.initialize()
+    gmsh.option.setNumber("General.Terminal", 0)
+    found = [c for c in rd.draw(args.seed, args.draw, "realistic") if c["name"] == args.case]
+    if not found:
+        raise SystemExit(f"no case {args.case!r} among the first {args.draw} of seed {args.seed}")
+    case = found[0]
+    g = case["geometry"]
+    rs.mesh(gmsh, case["family"], g, 0.015)
+    points, tets = rs._nodes_tets(gmsh)
+    gmsh.model.remove()
+    surface = np.unique(indep.surface_nodes(tets))
+    markers = points[np.random.default_rng(0).choice(surface, 20, replace=False)]
+    runs = {}
+    for f in LEVELS:
+        t0 = time.perf_counter()
+        res = indep.simulate_truth(gmsh, case["name"], {"shape": case["family"],
+                                                        "truth": case["truth"]},
+                                   markers, lambda line: None, h_fine=rs.truth_h(g) * f,
+                                   end=args.end, newton_tol=rc.NEWTON_TOL, body=rc.body(case))
+        runs[f] = res["displacements"]
+        print(f"{args.variant} {case['name']} h x{f} ({rs.truth_h(g) * f * 1e3:.2f} mm): "
+              f"{res['fine_tets']} P2 tets, {time.perf_counter() - t0:.0f} s", flush=True)
+    d2 = float(np.sqrt(np.mean((runs[1.4] - runs[1.96]) ** 2)))
+    d1 = float(np.sqrt(np.mean((runs[1.0] - runs[1.4]) ** 2)))
+    order = np.log(d2 / d1) / np.log(1.4)
+    print(f"{args.variant} {case['name']}: D(1.96h,1.4h) {d2:.3e} m, D(1.4h,h) {d1:.3e} m, "
+          f"observed order {order:.2f}; largest displacement {np.abs(runs[1.0]).max():.3e} m")
+    per = np.sqrt(np.mean((runs[1.0] - runs[1.4]) ** 2, axis=(0, 2)))
+    axis = "xyz".index(g["axis"])
+    for i in np.argsort(-per)[:8]:
+        print(f"  marker at {np.round(markers[i], 4)} ({markers[i][axis]:.3f} of "
+              f"{g['length']:.3f} along the axis): D(1.4h,h) {per[i]:.2e} m, largest "
+              f"displacement {np.abs(runs[1.0][:, i]).max():.2e} m")
+    gmsh.finalize()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
