@@ -10,30 +10,19 @@ apart where the uniform mesh's are about h apart; the families with curved faces
 (second-order) cells with a positive Jacobian everywhere.
 """
 
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from _independent import load
 
 gmsh = pytest.importorskip("gmsh")
 
 #: rank-local (gmsh in each process): once, serially
 pytestmark = pytest.mark.serial_only
 
-HERE = Path(__file__).resolve().parents[1] / "scripts/benchmarks/independent"
 
 
-def _load(name):
-    sys.path.insert(0, str(HERE))
-    spec = importlib.util.spec_from_file_location(name, HERE / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-rd, rs = _load("random_draw"), _load("random_shapes")
+rd, rs = load("random_draw"), load("random_shapes")
 indep = rs.indep        # the generate.py random_shapes uses
 
 

@@ -11,31 +11,20 @@ tagged for a region sum to its volume inside the solid, the untagged parts to th
 the meshed cells' volumes to the same within the mesh's (curved, second-order) accuracy.
 """
 
-import importlib.util
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from _independent import load
 
 gmsh = pytest.importorskip("gmsh")
 
 #: rank-local (gmsh in each process): once, serially
 pytestmark = pytest.mark.serial_only
 
-HERE = Path(__file__).resolve().parents[1] / "scripts/benchmarks/independent"
 
 
-def _load(name):
-    sys.path.insert(0, str(HERE))
-    spec = importlib.util.spec_from_file_location(name, HERE / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-rs = _load("random_shapes")
+rs = load("random_shapes")
 L, W, H = 0.3, 0.06, 0.05          # the box: x in [0, L], y in [0, W], z in [0, H]
 
 
@@ -127,7 +116,7 @@ def test_the_meshed_cells_fill_the_parts(model):
     region's cells sum to its part's volume within 1e-3 (measured 5e-5; flat cells left the
     suite's conforming ball 1.3 % short at 11 mm, generate.mesh_shape, and cells assigned by
     their centroids miss by a share of the cells the surface crosses)."""
-    rd = _load("random_draw")
+    rd = load("random_draw")
     case = next(c for c in rd.draw(5, 16, "realistic") if c["name"] == "r001-bar")
     g, regs = case["geometry"], case["truth"]["regions"]
     gmsh.model.remove()

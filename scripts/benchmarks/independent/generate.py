@@ -184,24 +184,26 @@ def build_geometry(gmsh, shape: str, ball: dict | None = None) -> None:
 REENTRANT = {"bracket": ((0.04, 0.0, 0.16), (0.04, 0.04, 0.16))}
 
 
-def grade_towards(gmsh, curves: list[int], h: float, field_only: bool = False) -> None:
-    """Element size h / 4 at ``curves`` (a re-entrant edge or the clamped face's edges, where
-    the stress is singular), growing to h over 4 h: a threshold on the distance to them, as the
-    background field. ``field_only``: the size comes from the field alone, not also extended
-    from the sizes on the boundary's curves into the faces and the volume (gmsh's default,
-    which the suite's bracket keeps: 4,483 instead of 3,487 tets on the finger graded at its
-    clamp at h 11 mm, for no measured gain). gmsh's options are global: restore them with
+def grade_towards(gmsh, curves: list[int], h: float, field_only: bool = False,
+                  finest: float = 4.0, over: float = 4.0, points: int = 50) -> None:
+    """Element size h / ``finest`` (4) at ``curves`` (a re-entrant edge or the clamped face's
+    edges, where the stress is singular), growing to h over ``over`` (4) h: a threshold on the
+    distance to them (sampled at ``points`` a curve), as the background field.
+    ``field_only``: the size comes from the field alone, not also extended from the sizes on
+    the boundary's curves into the faces and the volume (gmsh's default, which the suite's
+    bracket keeps: 4,483 instead of 3,487 tets on the finger graded at its clamp at h 11 mm,
+    for no measured gain). gmsh's options are global: restore them with
     :func:`size_options` after meshing."""
     field = gmsh.model.mesh.field
     dist = field.add("Distance")
     field.setNumbers(dist, "CurvesList", curves)
-    field.setNumber(dist, "NumPointsPerCurve", 50)
+    field.setNumber(dist, "NumPointsPerCurve", points)
     thr = field.add("Threshold")
     field.setNumber(thr, "InField", dist)
-    field.setNumber(thr, "SizeMin", h / 4)
+    field.setNumber(thr, "SizeMin", h / finest)
     field.setNumber(thr, "SizeMax", h)
-    field.setNumber(thr, "DistMin", h / 4)
-    field.setNumber(thr, "DistMax", 4 * h)
+    field.setNumber(thr, "DistMin", h / finest)
+    field.setNumber(thr, "DistMax", over * h)
     field.setAsBackgroundMesh(thr)
     if field_only:
         size_options(gmsh, 0)

@@ -49,21 +49,10 @@ def apply_variant(variant: str) -> None:
         return
     if variant.startswith("grade:"):
         k = float(variant.split(":", 1)[1])
+        generator_grading = indep.grade_towards
 
         def grade(gmsh, curves, h, field_only=False):
-            field = gmsh.model.mesh.field
-            dist = field.add("Distance")
-            field.setNumbers(dist, "CurvesList", curves)
-            field.setNumber(dist, "NumPointsPerCurve", 100)
-            thr = field.add("Threshold")
-            field.setNumber(thr, "InField", dist)
-            field.setNumber(thr, "SizeMin", h / k)
-            field.setNumber(thr, "SizeMax", h)
-            field.setNumber(thr, "DistMin", h / k)
-            field.setNumber(thr, "DistMax", 6 * h)
-            field.setAsBackgroundMesh(thr)
-            if field_only:
-                indep.size_options(gmsh, 0)
+            generator_grading(gmsh, curves, h, field_only, finest=k, over=6.0, points=100)
         indep.grade_towards = grade
         return
     if variant == "thickness":
