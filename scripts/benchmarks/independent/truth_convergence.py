@@ -10,6 +10,7 @@ the largest D(1.4h, h). A variant changes one thing of the truth's mesh::
     flat           no second-order (curved) cells
     grade:K        the clamp's edges graded to h / K over 6 h (the generator: h / 4 over 4 h)
     thickness      a plate's h from its thickness alone (the rule before 01f283b)
+    scale:F        the generator's h times F (the three meshes at F h x 1.96, 1.4, 1)
 
 Run with the system python (DOLFINx, gmsh), one process per variant::
 
@@ -62,7 +63,16 @@ def apply_variant(variant: str) -> None:
             return generator_h({**g, "section": g.get("thickness", g["section"])})
         rs.truth_h = truth_h
         return
-    raise SystemExit(f"unknown variant {variant!r}: generator, flat, grade:K or thickness")
+    if variant.startswith("scale:"):
+        factor = float(variant.split(":", 1)[1])
+        generator_h = rs.truth_h
+
+        def truth_h(g):
+            return generator_h(g) * factor
+        rs.truth_h = truth_h
+        return
+    raise SystemExit(f"unknown variant {variant!r}: generator, flat, grade:K, thickness or "
+                     "scale:F")
 
 
 def main(argv=None) -> int:
