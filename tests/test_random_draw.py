@@ -226,3 +226,14 @@ def test_a_plates_thinnest_section_is_its_thickness_or_a_ligament_beside_the_hol
                for g, lig in zip(plates, ligaments, strict=True))
     assert all(0.15 <= g["hole_radius"] / g["width"] <= 0.25 for g in plates)
     assert any(lig < g["thickness"] for g, lig in zip(plates, ligaments, strict=True))
+
+
+def test_a_fillets_section_resolves_its_radius():
+    """An L with a fillet: the truth's h (a third of ``section``) is at most 2/3 of the fillet's
+    radius, so a small fillet's curved face gets cells of its own size."""
+    fillets = [c["geometry"] for c in CASES if c["family"] == "fillet"]
+    assert len(fillets) >= 20
+    assert all(g["section"] == pytest.approx(min(g["thickness"], 2 * g["fillet_radius"]))
+               for g in fillets)
+    assert any(2 * g["fillet_radius"] < g["thickness"] for g in fillets)
+    assert any(2 * g["fillet_radius"] > g["thickness"] for g in fillets)
