@@ -966,17 +966,16 @@ class NumericsChecks:
         diag = self.diag
         if not (self.enabled and diag.model_error and ev["verdict"] == "consistent"):
             return fit, ev, False
+        counted = ("numerics: the verdict counts an estimated discretisation error ("
+                   + ", ".join(f"{k} {v:.3g} m" for k, v in diag.model_error.items()) + ")")
         if self.refinements and measured_on(self.refinements[-1], fit, diag.model_error):
             # the last check measured every counted error on this very model and fit: again,
             # it would repeat the same runs to the same numbers (seen: training draw seed 5's
             # r001-bar, the 10-node model at 1 ms, its step/2 measured twice, 35 s each)
-            diag.tell("numerics: the verdict counts an estimated discretisation error ("
-                      + ", ".join(f"{k} {v:.3g} m" for k, v in diag.model_error.items())
-                      + ") measured on this final model by the last check: not measured again")
+            diag.tell(f"{counted} measured on this final model by the last check: not "
+                      "measured again")
             return fit, ev, False
-        diag.tell("numerics: the verdict counts an estimated discretisation error ("
-                  + ", ".join(f"{k} {v:.3g} m" for k, v in diag.model_error.items())
-                  + "); measuring it again on the final model")
+        diag.tell(f"{counted}; measuring it again on the final model")
         fit, ev = self.refine(fit, ev, "again on the final model: its consistent verdict "
                               "counted an estimated discretisation error", added, final=True)
         return fit, ev, True
