@@ -331,6 +331,18 @@ def test_split_test_draw_refuses_another_commits_folder_and_pending_cases(tmp_pa
         out = run(*args)
         assert out.returncode == 2 and said in out.stderr, (args, out.stderr)
     assert not (mine / "diagnoses").exists() and not (mine / "job.log").exists()
+    # diagnosed already: a finished job, or a folder no job of this protocol started, is
+    # never run again (only a job cut short, with its sittings recorded, is resumed)
+    (mine / "cases" / "draw.json").write_text(json.dumps({"status": {"pending": 0}}))
+    (mine / "diagnoses").mkdir()
+    for protocol, said in [({"ended": None}, "without a recorded start"),
+                           ({"ended": "2026-11-29T10:00:00Z", "sittings": ["x"]},
+                            "was finished")]:
+        (mine / "protocol.json").write_text(json.dumps({"commit": head, "N": 8, "seed": 1,
+                                                        "size": "small", **protocol}))
+        out = run("test-diagnose", mine)
+        assert out.returncode == 2 and said in out.stderr, (protocol, out.stderr)
+    assert not (mine / "job.log").exists()
 
 
 def test_the_random_generators_truth_format_is_read():

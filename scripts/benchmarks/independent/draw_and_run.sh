@@ -16,7 +16,9 @@
 #       cases ONLY (generate.py --only, default all) of HEAD's test seed into OUT/cases and may
 #       be re-run in the same OUT at the same commit until none is pending (it refuses an OUT
 #       whose protocol.json names another commit); test-diagnose diagnoses and scores them all,
-#       as one job, refusing unless HEAD is that commit and no case is pending
+#       as one job, refusing unless HEAD is that commit and no case is pending; a job cut
+#       short (the sitting ended) is resumed by running it again: the cases with a row.json
+#       are kept, the one it was in is diagnosed again from its start
 #
 # OUT must not exist yet (a new draw for every report: a draw is never re-run in part or
 # topped up). Environment: SIZE (generate.py --size, default realistic), TIMEOUT (seconds per
@@ -28,7 +30,7 @@
 # and the whole job's output in OUT/job.log.
 set -euo pipefail
 
-usage() { sed -n '2,28p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
+usage() { sed -n '2,30p' "$0" | sed 's/^# \{0,1\}//'; exit 2; }
 [ $# -ge 1 ] || usage
 kind=$1
 only=""
@@ -53,7 +55,7 @@ test_seed=$("$py" "$here/rates.py" --seed-from-commit "$rev")
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 \
        OMPI_MCA_rmaps_base_oversubscribe=1 MPLBACKEND=Agg OPENBLAS_NUM_THREADS=1
 # a split test draw: OUT/protocol.json's commit must be HEAD (the rules the seed came from)
-json_field() { "$py" -c "import json, sys; print(json.load(open(sys.argv[1]))[sys.argv[2]])" "$@"; }
+json_field() { "$py" -c "import json, sys; print(json.load(open(sys.argv[1])).get(sys.argv[2]))" "$@"; }
 if [ "$kind" = test-cases ] || [ "$kind" = test-diagnose ]; then
   if [ -n "$(git -C "$root" status --porcelain --untracked-files=no -- petsoft)" ]; then
     echo "uncommitted changes under petsoft/: a test draw runs the rules commit as committed" >&2
@@ -109,15 +111,33 @@ if [ "$kind" = test-diagnose ]; then
   pending=$("$py" -c "import json, sys; print(json.load(open(sys.argv[1]))['status']['pending'])" \
       "$out/cases/draw.json")
   [ "$pending" = 0 ] || { echo "$pending cases are still pending: test-cases first" >&2; exit 2; }
+  # a job cut short by the end of a sitting is resumed (its finished cases kept, the case it
+  # was in made again from its start); a finished one is never run again
+  resume=""
   if [ -e "$out/diagnoses" ]; then
-    echo "$out/diagnoses exists: a draw is diagnosed once" >&2
-    exit 2
+    if [ "$(json_field "$out/protocol.json" ended)" != None ]; then
+      echo "$out/diagnoses exists and was finished: a draw is diagnosed once" >&2
+      exit 2
+    fi
+    if [ "$("$py" -c "import json, sys; print('sittings' in json.load(open(sys.argv[1])))" \
+          "$out/protocol.json")" != True ]; then
+      echo "$out/diagnoses exists without a recorded start: a draw is diagnosed once" >&2
+      exit 2
+    fi
+    resume=--resume
   fi
   exec > >(tee -a "$out/job.log") 2>&1
   started=$(date -u +%Y-%m-%dT%H:%M:%SZ)
-  echo "[draw] diagnosing the test draw: commit $rev, seed $seed, N $n"
+  "$py" - "$out/protocol.json" "$started" <<'EOF'
+import json, sys
+path, started = sys.argv[1:]
+p = json.load(open(path))
+p.setdefault("sittings", []).append(started)
+json.dump(p, open(path, "w"), indent=1)
+EOF
+  echo "[draw] diagnosing the test draw: commit $rev, seed $seed, N $n${resume:+ (resumed)}"
   "$py" "$here/run.py" --cases-dir "$out/cases" --out "$out/diagnoses" --np "$np_" \
-      --timeout "$timeout"
+      --timeout "$timeout" $resume
   "$py" "$here/rates.py" "$out/cases" --reports "$out/diagnoses" --figures "$out" \
       --label "test draw: commit ${rev:0:10}, seed $seed, N $n"
   if [ "$(git -C "$root" rev-parse HEAD)" != "$rev" ]; then
@@ -128,7 +148,7 @@ if [ "$kind" = test-diagnose ]; then
 import json, sys
 path, started, ended, timeout, np_ = sys.argv[1:]
 p = json.load(open(path))
-p.update(started=started, ended=ended, timeout_s=float(timeout), ranks=int(np_))
+p.update(started=p["sittings"][0], ended=ended, timeout_s=float(timeout), ranks=int(np_))
 json.dump(p, open(path, "w"), indent=1)
 EOF
   echo "[draw] done: $out/rates.md"

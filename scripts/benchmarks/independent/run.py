@@ -24,6 +24,7 @@ import argparse
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -263,6 +264,10 @@ def main() -> int:
                          "draw's folder from generate.py --random)")
     ap.add_argument("--collect", action="store_true",
                     help="run nothing: tabulate the case folders already in --out")
+    ap.add_argument("--resume", action="store_true",
+                    help="keep the cases already diagnosed in --out (their row.json) and "
+                         "diagnose the rest; a case folder without row.json was interrupted "
+                         "and is diagnosed again from its start")
     args = ap.parse_args()
     cases_dir = args.cases_dir.resolve()
     names = chosen_cases(args.cases, cases_dir)
@@ -278,6 +283,15 @@ def main() -> int:
                 old = json.loads((d / "row.json").read_text())
                 rows.append(score_case(name, d, old["wall_s"], old["status"], cases_dir))
             continue
+        if args.resume and (d / "row.json").exists():
+            old = json.loads((d / "row.json").read_text())
+            rows.append(score_case(name, d, old["wall_s"], old["status"], cases_dir))
+            print(f"[{i}/{len(names)}] {name}: diagnosed in an earlier sitting ({old['status']}, "
+                  f"{old['wall_s']:.0f} s)", flush=True)
+            continue
+        if args.resume and d.exists():
+            # interrupted mid-case: nothing of it was scored, so it starts again clean
+            shutil.rmtree(d)
         d.mkdir(parents=True, exist_ok=True)
         truth = json.loads((cases_dir / name / "truth.json").read_text())
         print(f"[{i}/{len(names)}] {name}: {truth.get('shape', truth.get('family'))}, concealed "
