@@ -679,7 +679,7 @@ def test_explicit_refuses_a_step_above_the_friction_limit():
     s = DynamicSystem(model)
     vt = s.velocity_terms
     rate = s.comm.tompi4py().allreduce(vt.rate_bound(), op=MPI.MAX)
-    area = np.einsum("pii->p", vt.S)
+    area = np.einsum("pii->p", vt.laws["drag.linear"].S)
     expected = 2e4 * s.comm.tompi4py().allreduce(float(np.max(area / vt.node_mass)),
                                                  op=MPI.MAX)
     assert rate == pytest.approx(expected) and rate > 0

@@ -43,7 +43,7 @@ from petsc4py import PETSc
 from petsoft.dynamics.initial import initial_from_expressions
 from petsoft.dynamics.interfaces import SystemDefaults
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
-from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
+from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms, coefficients_of
 from petsoft.errors import ExperimentError
 from petsoft.fem.regions import RegionResolver
 from petsoft.io.recording import read_input_series
@@ -448,8 +448,7 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
             self._friction_mask = self.model.resolver.vertex_mask(exp.friction.where,
                                                                   "friction.where")
         self.velocity_terms = VelocityTerms(hi - lo, pairs, self._friction_masses(),
-                                            exp.drag.linear, exp.drag.quadratic,
-                                            exp.friction.dry, exp.friction.speed,
+                                            coefficients_of(exp), exp.friction.speed,
                                             node_mass=self.masses[lo:hi].copy())
 
     def _friction_masses(self) -> np.ndarray:
@@ -855,7 +854,7 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
                 if vt.coef["friction.dry"] != 0.0:
                     # the friction is proportional to the node masses
                     unit = VelocityTerms(hi - lo, None, self._friction_mask[lo:hi].astype(float),
-                                         dry=1.0, speed=vt.speed)
+                                         {"friction.dry": 1.0}, speed=vt.speed)
                     arr += vt.coef["friction.dry"] * unit.unit_linearised("friction.dry", vl,
                                                                           vlin)
             elif name in VELOCITY_NAMES:

@@ -65,7 +65,7 @@ from petsoft.fem.element import cell_integrals
 from petsoft.fem.kernels.scatter import scatter_add_vector
 from petsoft.mesh.ordering import cell_morton_order
 from petsoft.physics.loads import gravity_forces
-from petsoft.physics.model import cell_materials
+from petsoft.physics.materials import cell_materials
 from petsoft.physics.support import shared_compliance
 from petsoft.terms import PLUGINS, keys_of
 

@@ -37,7 +37,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.initial import initial_from_expressions
 from petsoft.dynamics.interfaces import SystemDefaults
-from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms
+from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms, coefficients_of
 from petsoft.errors import InvertedElementError
 from petsoft.experiment import get_parameter
 from petsoft.fem.assembly import MatrixAssembler
@@ -148,8 +148,7 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
             self._friction_mask[self._own_pos] = mask[dm.vertex_ids[self._own_local]]
             self._friction_mask_local = mask[dm.vertex_ids]
         self.velocity_terms = VelocityTerms(nown, pairs, self._friction_masses(),
-                                            exp.drag.linear, exp.drag.quadratic,
-                                            exp.friction.dry, exp.friction.speed,
+                                            coefficients_of(exp), exp.friction.speed,
                                             node_mass=self._node_masses())
         self._v_last = np.zeros((nown, 3))
 

@@ -21,14 +21,29 @@ from __future__ import annotations
 
 import numpy as np
 
-from petsoft.physics import drag, friction
+from petsoft.physics.velocity_law import VelocitySupport
+from petsoft.terms import builders, term
 
+#: The velocity terms' laws, from their declarations (petsoft.terms, contributes "velocity"):
+#: name -> law class (petsoft.physics.velocity_law), in the registry's order.
+LAWS = {t.name: law for t, law in builders("velocity")}
 #: Parameter names of the velocity terms (calibratable; all >= 0).
-NAMES = ("drag.linear", "drag.quadratic", "friction.dry")
+NAMES = tuple(LAWS)
+
+
+def coefficients_of(experiment) -> dict[str, float]:
+    """name -> the experiment's coefficient of each velocity term: the value of its first key
+    (``[drag] linear``, ``[drag] quadratic``, ``[friction] dry``)."""
+    out = {}
+    for name in NAMES:
+        key = term(name).keys[0]
+        out[name] = float(getattr(getattr(experiment, key.table), key.key))
+    return out
 
 
 class VelocityTerms:
-    """Drag and dry friction on the nodes a rank owns.
+    """The velocity laws (drag, dry friction) on the nodes a rank owns, each times its
+    coefficient.
 
     Parameters
     ----------
@@ -38,26 +53,43 @@ class VelocityTerms:
         Surface pairs from :func:`petsoft.physics.drag.face_pairs` (owned rows); None: no surface.
     friction_mass : ndarray (nnodes,)
         Lumped mass of each owned node where friction acts, 0 elsewhere.
-    linear, quadratic, dry, speed : float
-        ``[drag] linear``, ``quadratic``, ``[friction] dry``, ``speed``.
+    coefficients : mapping, optional
+        name (:data:`NAMES`) -> coefficient (``[drag] linear``, ...; :func:`coefficients_of`);
+        the terms not named are 0.
+    speed : float
+        ``[friction] speed``.
     node_mass : ndarray (nnodes,), optional
         Lumped mass of every owned node (for :meth:`rate_bound`; the system keeps it current).
     """
 
-    def __init__(self, nnodes: int, pairs, friction_mass: np.ndarray, linear: float = 0.0,
-                 quadratic: float = 0.0, dry: float = 0.0, speed: float = 1e-3,
+    def __init__(self, nnodes: int, pairs, friction_mass: np.ndarray,
+                 coefficients: dict[str, float] | None = None, speed: float = 1e-3,
                  node_mass: np.ndarray | None = None):
+        coefficients = dict(coefficients or {})
+        unknown = sorted(set(coefficients) - set(NAMES))
+        if unknown:
+            raise ValueError(f"no velocity term {unknown} (known: {', '.join(NAMES)})")
         self.node_mass = node_mass
         self.nnodes = int(nnodes)
         self.has_surface = pairs is not None
-        if pairs is None:
-            pairs = (np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)))
-        self.node, self.weight, self.normal = pairs
-        self.S = drag.linear_blocks(self.node, self.weight, self.normal, self.nnodes)
-        self.friction_mass = np.asarray(friction_mass, dtype=float)
         self.speed = float(speed)
-        self.coef = {"drag.linear": float(linear), "drag.quadratic": float(quadratic),
-                     "friction.dry": float(dry)}
+        self._pairs = pairs
+        self.friction_mass = friction_mass
+        self.coef = {name: float(coefficients.get(name, 0.0)) for name in NAMES}
+
+    @property
+    def friction_mass(self) -> np.ndarray:
+        """(nnodes,) the lumped mass where friction acts; set when the masses change (the
+        density calibrated), which rebuilds the laws on the new support."""
+        return self._support.friction_mass
+
+    @friction_mass.setter
+    def friction_mass(self, value: np.ndarray) -> None:
+        self._support = VelocitySupport.of(self.nnodes, self._pairs, value, self.speed)
+        self.laws = {name: law(self._support) for name, law in LAWS.items()}
+
+    def _acting(self):
+        return [(c, self.laws[name]) for name, c in self.coef.items() if c != 0.0]
 
     @property
     def active(self) -> bool:
@@ -66,24 +98,16 @@ class VelocityTerms:
 
     @property
     def nonlinear(self) -> bool:
-        return self.coef["drag.quadratic"] != 0.0 or self.coef["friction.dry"] != 0.0
+        return any(not law.linear for _, law in self._acting())
 
     # -- unit terms (coefficient 1): the parameter derivatives ------------------------------------
     def unit_damping(self, name: str, v: np.ndarray) -> np.ndarray:
         """(nnodes, 3) G of term ``name`` per unit coefficient at velocity v."""
-        if name == "drag.linear":
-            return np.einsum("pij,pj->pi", self.S, v)
-        if name == "drag.quadratic":
-            return drag.quadratic_damping(v, self.node, self.weight, self.normal)
-        return friction.damping(v, self.friction_mass, self.speed)
+        return self.laws[name].damping(v)
 
     def unit_blocks(self, name: str, v: np.ndarray) -> np.ndarray:
         """(nnodes, 3, 3) dG/dv of term ``name`` per unit coefficient."""
-        if name == "drag.linear":
-            return self.S
-        if name == "drag.quadratic":
-            return drag.quadratic_damping_blocks(v, self.node, self.weight, self.normal)
-        return friction.damping_blocks(v, self.friction_mass, self.speed)
+        return self.laws[name].blocks(v)
 
     def unit_linearised(self, name: str, v: np.ndarray, v_lin: np.ndarray | None) -> np.ndarray:
         """G(v_lin) + dG/dv(v_lin) (v - v_lin) per unit coefficient (v_lin None: G(v)): the
@@ -97,17 +121,15 @@ class VelocityTerms:
     def damping(self, v: np.ndarray) -> np.ndarray:
         """(nnodes, 3) G(v) = minus the velocity forces."""
         out = np.zeros((self.nnodes, 3))
-        for name, c in self.coef.items():
-            if c != 0.0:
-                out += c * self.unit_damping(name, v)
+        for c, law in self._acting():
+            out += c * law.damping(v)
         return out
 
     def blocks(self, v: np.ndarray) -> np.ndarray:
         """(nnodes, 3, 3) dG/dv (symmetric PSD)."""
         out = np.zeros((self.nnodes, 3, 3))
-        for name, c in self.coef.items():
-            if c != 0.0:
-                out += c * self.unit_blocks(name, v)
+        for c, law in self._acting():
+            out += c * law.blocks(v)
         return out
 
     def tangent(self, v: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -115,42 +137,24 @@ class VelocityTerms:
         return np.einsum("pij,pj->pi", self.blocks(v), x)
 
     def second(self, v: np.ndarray, w: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """(nnodes, 3) d/dv [dG/dv x] along w (linear drag: zero)."""
+        """(nnodes, 3) d/dv [dG/dv x] along w (the linear laws: zero)."""
         out = np.zeros((self.nnodes, 3))
-        cq, cf = self.coef["drag.quadratic"], self.coef["friction.dry"]
-        if cq != 0.0:
-            out += cq * drag.quadratic_damping_second(v, w, x, self.node, self.weight,
-                                                      self.normal)
-        if cf != 0.0:
-            out += cf * friction.damping_second(v, w, x, self.friction_mass, self.speed)
+        for c, law in self._acting():
+            if not law.linear:
+                out += c * law.second(v, w, x)
         return out
 
     def potential(self, v: np.ndarray) -> float:
         """Local part of the dissipation potential psi(v) with grad psi = G."""
-        out = 0.5 * self.coef["drag.linear"] * float(np.einsum("pi,pij,pj->", v, self.S, v))
-        if self.coef["drag.quadratic"] != 0.0:
-            out += self.coef["drag.quadratic"] * drag.quadratic_potential(
-                v, self.node, self.weight, self.normal)
-        if self.coef["friction.dry"] != 0.0:
-            out += self.coef["friction.dry"] * friction.potential(v, self.friction_mass,
-                                                                  self.speed)
-        return out
+        return float(sum(c * law.potential(v) for c, law in self._acting()))
 
     def rate_bound(self) -> float:
-        """An upper bound (this rank's nodes) of the largest eigenvalue of M^-1 dG/dv of the
-        linear drag (c_l trace S_i / m_i, the lumped area over the mass) and the friction
-        (dry / speed, its viscous regime): the explicit schemes' damping rate. The quadratic
-        drag's rate 2 c_q (A_i/m_i) |v.n| grows with the speed and is not bounded here."""
-        rate = 0.0
-        if self.coef["friction.dry"] != 0.0 and np.any(self.friction_mass > 0.0):
-            rate = self.coef["friction.dry"] / self.speed
-        m = self.node_mass
-        if self.coef["drag.linear"] != 0.0 and m is not None and len(m):
-            trace = np.einsum("pii->p", self.S)
-            free = m > 0.0
-            if np.any(free):
-                rate = max(rate, self.coef["drag.linear"] * float(np.max(trace[free] / m[free])))
-        return rate
+        """An upper bound (this rank's nodes) of the largest eigenvalue of M^-1 dG/dv: each
+        acting law's ``rate`` times its coefficient (the linear drag: c_l trace S_i / m_i, the
+        lumped area over the mass; the friction: dry / speed, its viscous regime): the explicit
+        schemes' damping rate. The quadratic drag's rate 2 c_q (A_i/m_i) |v.n| grows with the
+        speed and is not bounded here."""
+        return max([c * law.rate(self.node_mass) for c, law in self._acting()], default=0.0)
 
 
 class VelocityDamping:

@@ -38,6 +38,7 @@ from petsoft.fem.element import integrals_of
 from petsoft.mesh.quadratic import face_nodes
 from petsoft.mesh.topology import exterior_faces
 from petsoft.physics.colliders import DEFAULT_STEP_FACTOR, Collider
+from petsoft.physics.materials import cell_materials
 
 #: Without a time step: k = this x E_max x mean exterior edge length.
 DEFAULT_STATIC_FACTOR = 1000.0
@@ -163,13 +164,16 @@ class SurfaceContact:
         out[self.nodes] += self.offset_derivative(self._plane_index(name), u_local)
 
 
-def build_contact(experiment, dmesh, density_file: np.ndarray, youngs_file: np.ndarray):
-    """The contact of the experiment's colliders with the body (None without colliders).
+def build_contact(experiment, dmesh, resolver, dirichlet):
+    """The contact of the experiment's colliders with the body (None without colliders):
+    ``contact.plane``'s builder (petsoft.terms; the call of a nodal term's builder, whose
+    ``dirichlet`` it does not need).
 
     Called on every rank (replicated mesh): errors are raised everywhere.
     """
     if not experiment.colliders:
         return None
+    _, youngs_file, _, density_file = cell_materials(experiment, resolver)
     for i, spec in enumerate(experiment.colliders):
         if spec.friction > 0.0:
             raise ExperimentError(

@@ -107,3 +107,60 @@ def quadratic_potential(v: np.ndarray, node, weight, normal) -> float:
     """sum_f (A_f/3) |u|^3 / 3 per unit c_q: the dissipation potential whose gradient is G."""
     u = np.einsum("pi,pi->p", v[node], normal)
     return float(np.sum(weight * np.abs(u) ** 3) / 3.0)
+
+
+class LinearDrag:
+    """``drag.linear``'s law (:mod:`petsoft.physics.velocity_law`): G_i = S_i v_i per unit
+    c_l, S_i = :func:`linear_blocks` (constant)."""
+
+    linear = True
+
+    def __init__(self, support):
+        self.S = linear_blocks(support.node, support.weight, support.normal, support.nnodes)
+
+    def damping(self, v: np.ndarray) -> np.ndarray:
+        return np.einsum("pij,pj->pi", self.S, v)
+
+    def blocks(self, v: np.ndarray) -> np.ndarray:
+        return self.S
+
+    def second(self, v: np.ndarray, w: np.ndarray, x: np.ndarray) -> np.ndarray:
+        return np.zeros_like(v)
+
+    def potential(self, v: np.ndarray) -> float:
+        return 0.5 * float(np.einsum("pi,pij,pj->", v, self.S, v))
+
+    def rate(self, node_mass: np.ndarray | None) -> float:
+        """max_i trace S_i / m_i over the nodes with mass (the lumped area over the mass)."""
+        if node_mass is None or not len(node_mass):
+            return 0.0
+        free = node_mass > 0.0
+        if not np.any(free):
+            return 0.0
+        return float(np.max(np.einsum("pii->p", self.S)[free] / node_mass[free]))
+
+
+class QuadraticDrag:
+    """``drag.quadratic``'s law (:mod:`petsoft.physics.velocity_law`): per unit c_q,
+    G_i = sum_f (A_f/3) |u| u n_f. Its rate 2 c_q (A_i/m_i) |v.n| grows with the speed and is
+    not bounded (``rate`` 0)."""
+
+    linear = False
+
+    def __init__(self, support):
+        self.pairs = (support.node, support.weight, support.normal)
+
+    def damping(self, v: np.ndarray) -> np.ndarray:
+        return quadratic_damping(v, *self.pairs)
+
+    def blocks(self, v: np.ndarray) -> np.ndarray:
+        return quadratic_damping_blocks(v, *self.pairs)
+
+    def second(self, v: np.ndarray, w: np.ndarray, x: np.ndarray) -> np.ndarray:
+        return quadratic_damping_second(v, w, x, *self.pairs)
+
+    def potential(self, v: np.ndarray) -> float:
+        return quadratic_potential(v, *self.pairs)
+
+    def rate(self, node_mass: np.ndarray | None) -> float:
+        return 0.0

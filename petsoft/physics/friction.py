@@ -52,3 +52,30 @@ def damping_second(v: np.ndarray, w: np.ndarray, x: np.ndarray, mass: np.ndarray
 def potential(v: np.ndarray, mass: np.ndarray, eps: float) -> float:
     """sum m (s - eps) per unit mu_g: the dissipation potential whose gradient is G."""
     return float(np.sum(mass * (_speed(v, eps) - eps)))
+
+
+class DryFriction:
+    """``friction.dry``'s law (:mod:`petsoft.physics.velocity_law`): per unit mu_g,
+    G_i = m_i v_i / s_i on the nodes of ``support.friction_mass``, regularised below
+    ``support.speed``."""
+
+    linear = False
+
+    def __init__(self, support):
+        self.mass, self.speed = support.friction_mass, support.speed
+
+    def damping(self, v: np.ndarray) -> np.ndarray:
+        return damping(v, self.mass, self.speed)
+
+    def blocks(self, v: np.ndarray) -> np.ndarray:
+        return damping_blocks(v, self.mass, self.speed)
+
+    def second(self, v: np.ndarray, w: np.ndarray, x: np.ndarray) -> np.ndarray:
+        return damping_second(v, w, x, self.mass, self.speed)
+
+    def potential(self, v: np.ndarray) -> float:
+        return potential(v, self.mass, self.speed)
+
+    def rate(self, node_mass: np.ndarray | None) -> float:
+        """1 / speed (its viscous regime) where it acts anywhere on this rank."""
+        return 1.0 / self.speed if np.any(self.mass > 0.0) else 0.0

@@ -15,13 +15,12 @@ from petsoft.mesh.distributed import DistributedMesh
 from petsoft.mesh.quadratic import with_order
 from petsoft.mesh.refine import refine_mesh
 from petsoft.mesh.serial import box_mesh, read_mesh
-from petsoft.physics.contact import build_contact
 from petsoft.physics.elastic import ElasticTerm
 from petsoft.physics.loads import gravity_forces, traction_forces
+from petsoft.physics.materials import cell_materials
 from petsoft.physics.potential import ModelPotential
-from petsoft.physics.support import build_support
 from petsoft.physics.term import NodalTerm, ParametricTerm
-from petsoft.terms import plugin_tables
+from petsoft.terms import builders, plugin_tables
 
 
 def on_root(comm: PETSc.Comm, fn, *args):
@@ -77,26 +76,6 @@ class Model:
     density: np.ndarray
     external: PETSc.Vec
     dirichlet: DirichletConditions
-
-
-def cell_materials(experiment, resolver: RegionResolver):
-    """Per-cell (file numbering) model, E, nu, density: the default, then region overrides."""
-    ncell = len(resolver.mesh.tets)
-    default = experiment.material_for(None)
-    model = np.full(ncell, default.model, dtype=object)
-    E = np.full(ncell, default.youngs_modulus)
-    nu = np.full(ncell, default.poisson_ratio)
-    rho = np.full(ncell, default.density)
-    for name, spec in experiment.material.items():
-        if name == "default":
-            continue
-        cells = resolver.cell_mask(name, key=f"material.{name}")
-        if not cells.any():
-            raise ExperimentError(f"{experiment.source}: material.{name}: region {name!r} "
-                                  "contains no cell of the mesh")
-        model[cells], E[cells], nu[cells], rho[cells] = (
-            spec.model, spec.youngs_modulus, spec.poisson_ratio, spec.density)
-    return model, E, nu, rho
 
 
 def package_terms(experiment, dmesh, resolver, dirichlet) -> list:
@@ -176,14 +155,16 @@ def build_model(experiment, comm: PETSc.Comm | None = None, *, project_spd: bool
         if not mask.any():
             raise ExperimentError(f"{experiment.source}: {key}: selects no vertex of the mesh")
         if b.kind == "fixed" and b.compliance > 0.0:
-            continue   # an elastic support: penalty springs (build_support), no Dirichlet rows
+            continue   # an elastic support: penalty springs (boundary.compliance's builder)
         conditions.append((mask, b.component_indices, displacement))
     external = dmesh.create_global_vec()
     external.zeroEntries()
     dmesh.add_to_global(forces, external)
     dirichlet = DirichletConditions(dmesh, conditions)
-    nodal = [build_support(experiment, dmesh, resolver, dirichlet),
-             build_contact(experiment, dmesh, rho, E)]
+    # the built-in nodal energy terms from their declarations (petsoft.terms), then the
+    # packages' terms: the same call
+    nodal = [build(experiment, dmesh, resolver, dirichlet)
+             for _, build in builders("potential")]
     nodal += package_terms(experiment, dmesh, resolver, dirichlet)
     potential = ModelPotential(elastic, [t for t in nodal if t is not None])
     return Model(experiment, dmesh, resolver, potential, rho[local], external, dirichlet)

@@ -12,8 +12,12 @@ order is the diagnosis' tie-break, so a new term goes at the end). Adding a term
 here plus its line in :data:`_MODULES`: the report's vocabulary, formats.md's check and the
 experiment reader (for keys of the tables terms own) follow, and diagnose proposes a term of
 values from its declaration alone (a switch or a region still needs its placement rule in
-:mod:`petsoft.diagnosis.candidates`). What builds a built-in term's force or energy is not
-declared here yet: that is still physics/, dynamics/velocity.py and the experiment's dataclasses.
+:mod:`petsoft.diagnosis.candidates`). What builds a term's contribution is declared by name
+(``Term.builds``, imported by :func:`builders` when the model is built): the nodal energy terms
+(``boundary.compliance``, ``contact.plane``) and the velocity laws (``drag.*``,
+``friction.dry``) are made from their declarations alone; the elastic law's materials, the
+mass, the loads and the Rayleigh damping are still made by name where their kind of
+contribution is assembled (physics/model.py, dynamics/).
 
 **Terms from the user's own package** (formats.md section 1, "Terms from other packages"): an
 installed distribution that declares an entry point in the group ``petsoft.terms``::
@@ -40,10 +44,20 @@ from dataclasses import dataclass
 from importlib import import_module
 from importlib.metadata import entry_points
 
-from petsoft.terms.declare import KINDS, RANKINGS, SCALES, Key, Parameter, Proposal, Term
+from petsoft.terms.declare import (
+    CONTRIBUTIONS,
+    KINDS,
+    RANKINGS,
+    SCALES,
+    Key,
+    Parameter,
+    Proposal,
+    Term,
+)
 
-__all__ = ["GROUP", "KINDS", "PLUGINS", "RANKINGS", "SCALES", "TERMS", "Key", "Parameter",
-           "Plugin", "Proposal", "Term", "keys_of", "load_plugin", "plugin_tables", "term"]
+__all__ = ["CONTRIBUTIONS", "GROUP", "KINDS", "PLUGINS", "RANKINGS", "SCALES", "TERMS", "Key",
+           "Parameter", "Plugin", "Proposal", "Term", "builders", "keys_of", "load_plugin",
+           "plugin_tables", "term"]
 
 #: The entry-point group of terms from other packages.
 GROUP = "petsoft.terms"
@@ -151,6 +165,9 @@ def load_plugin(ep, builtin: dict[str, Term], found: dict[str, Plugin]) -> Plugi
         if q.name not in names:
             raise ImportError(f"{where}: parameter {q.name!r} is none of its number keys "
                               f"({', '.join(sorted(names))})")
+    if t.builds or t.contributes:
+        raise ImportError(f"{where}: term {t.name!r}: a package's term is built by its module's "
+                          "build(), not by Term.builds / contributes")
     if t.proposal.kind != "value":
         raise ImportError(f"{where}: term {t.name!r}: a package's term is proposed by its "
                           f'values (kind = "value"), not {t.proposal.kind!r}')
@@ -183,6 +200,20 @@ def term(name: str) -> Term:
         return TERMS[name]
     except KeyError:
         raise KeyError(f"{name!r} is no physics term (known: {', '.join(TERMS)})") from None
+
+
+def builders(contribution: str) -> list[tuple[Term, Callable]]:
+    """The built-in terms that contribute ``contribution`` (:data:`CONTRIBUTIONS`), in the
+    registry's order, each with its builder (``Term.builds``) imported: called by the layer
+    that makes that kind of contribution, so this package imports no other at its import."""
+    if contribution not in CONTRIBUTIONS:
+        raise ValueError(f"contribution {contribution!r} is none of {CONTRIBUTIONS}")
+    out = []
+    for t in _BUILTIN.values():
+        if t.contributes == contribution:
+            module, name = t.builds.split(":")
+            out.append((t, getattr(import_module(module), name)))
+    return out
 
 
 def keys_of(table: str) -> tuple[Key, ...]:

@@ -19,4 +19,6 @@ TERM = Term(
         note=" (support springs, starting numerically rigid at {start:.3g} m/Pa)",
         continuum_only=True),
     hints=(("lower frequencies", "{shift}: a softer support lowers them"),),
+    contributes="potential",
+    builds="petsoft.physics.support:build_support",
 )

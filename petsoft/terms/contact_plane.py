@@ -21,4 +21,6 @@ TERM = Term(
         note=": the simulation passes the data's extent by {depth:.3g} m along {normal}"),
     hints=(("intermittent", "the mismatch is intermittent ({count} window(s), {covered:.3g} s "
                             "of {duration:.3g} s)"),),
+    contributes="potential",
+    builds="petsoft.physics.contact:build_contact",
 )

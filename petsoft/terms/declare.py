@@ -32,6 +32,15 @@ KINDS = ("value", "switch", "region")
 #: How a proposed term is ranked (:mod:`petsoft.diagnosis.candidates`): the score test from the
 #: exact sensitivities, the same with finite-difference columns, or the whole change of a switch.
 RANKINGS = ("score", "score-fd", "switch")
+#: What a term's builder (``Term.builds``) makes: ``"potential"``, a nodal energy term of the
+#: model's potential (``build(experiment, dmesh, resolver, dirichlet)`` -> a
+#: :class:`~petsoft.physics.term.NodalTerm` or None, as a package's term:
+#: :func:`petsoft.physics.model.build_model`); ``"velocity"``, a velocity law's class
+#: (:mod:`petsoft.physics.velocity_law`, summed by
+#: :class:`petsoft.dynamics.velocity.VelocityTerms`).
+#: The other terms are still built by name where their kind of contribution is made (the
+#: elastic law's materials, the mass matrix, the loads, the Rayleigh damping).
+CONTRIBUTIONS = ("potential", "velocity")
 
 
 @dataclass(frozen=True)
@@ -170,6 +179,11 @@ class Term:
         ``(evidence, words)``: what the hints (:func:`petsoft.diagnosis.evidence.suggest_physics`)
         say when that evidence points at the term, a :meth:`str.format` template of the
         evidence's numbers (:meth:`hint`).
+    contributes : str
+        What its builder makes (:data:`CONTRIBUTIONS`), ``""`` when it has none declared.
+    builds : str
+        ``"module:name"`` of its builder, imported by the layer that builds it (this package
+        imports nothing else of petsoft: a name, not the object).
     """
 
     name: str
@@ -177,6 +191,8 @@ class Term:
     keys: tuple[Key, ...]
     proposal: Proposal
     hints: tuple[tuple[str, str], ...] = ()
+    contributes: str = ""
+    builds: str = ""
 
     def hint(self, evidence: str, **values) -> str:
         """The hint's words for ``evidence`` with ``values`` filled in; a KeyError names the
@@ -201,5 +217,11 @@ class Term:
             if q.scale not in SCALES:
                 raise ValueError(f"{self.name}: parameter {q.name}: scale {q.scale!r} not in "
                                  f"{SCALES}")
+        if bool(self.contributes) != bool(self.builds) or (
+                self.contributes and (self.contributes not in CONTRIBUTIONS
+                                      or self.builds.count(":") != 1)):
+            raise ValueError(f"{self.name}: contributes {self.contributes!r} (one of "
+                             f"{CONTRIBUTIONS}) and builds {self.builds!r} ('module:name') "
+                             "are given together")
         if (p.kind == "region") != bool(p.region):
             raise ValueError(f"{self.name}: a region proposal, and only one, names its region")

@@ -13,4 +13,6 @@ TERM = Term(
         Parameter("drag.linear", "Pa s/m", lower="0", upper="100 * mass / area"),),
         settings=(("drag.linear", "0"),), note=" (on the body's surface)"),
     hints=(("viscous envelope", "exponential amplitude decay (linear drag on the body)"),),
+    contributes="velocity",
+    builds="petsoft.physics.drag:LinearDrag",
 )

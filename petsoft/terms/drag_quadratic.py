@@ -16,4 +16,6 @@ TERM = Term(
     hints=(("quadratic envelope", "the amplitude's decay rate grows with the amplitude squared "
                                   "(velocity-squared drag; {share:.0%} of it beyond the "
                                   "model's)"),),
+    contributes="velocity",
+    builds="petsoft.physics.drag:QuadraticDrag",
 )

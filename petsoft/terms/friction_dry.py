@@ -19,4 +19,6 @@ TERM = Term(
     hints=(("constant envelope", "the oscillation amplitude decays at a rate that stays finite "
                                  "as it shrinks (a constant term, {share:.0%} of its decay "
                                  "rate, beyond the model's; envelope law: {law})"),),
+    contributes="velocity",
+    builds="petsoft.physics.friction:DryFriction",
 )
