@@ -97,3 +97,31 @@ def test_a_failed_level_refines_what_its_error_says(rc):
     # a level that passed has nothing to refine
     with pytest.raises(ValueError, match="passed"):
         rc.refine_what(rc.truth_error(runs(3.0, 0.01, 0.01)[0]))
+
+
+@pytest.mark.parametrize("rho", [0.02, 0.1, 0.3])
+def test_newtons_estimated_stop_leaves_less_than_the_tolerance(rho):
+    """generate.newton_done on a linearly contracting iteration (the modified Newton of the
+    truths: x_k - x* = rho^k e0): with the estimate it stops no later than the increment rule,
+    one iteration sooner when the contraction allows, and the error left is below the
+    tolerance; the first increment never stops it (no contraction seen yet)."""
+    from _independent import load
+
+    gen = load("generate")
+    tol, e0 = 1e-9, 3e-5
+
+    def stop_after(estimate: bool) -> tuple[int, float]:
+        last = np.inf
+        for k in range(1, 60):
+            size = e0 * rho ** (k - 1) * (1 - rho)         # |x_k - x_{k-1}|
+            if gen.newton_done(size, last, tol, estimate):
+                return k, e0 * rho ** k                     # the error left at x_k
+            last = size
+        raise AssertionError("never stopped")
+
+    k_inc, left_inc = stop_after(False)
+    k_est, left_est = stop_after(True)
+    assert left_inc < tol and left_est < tol
+    assert k_est == k_inc - 1 and k_est >= 2
+    assert gen.newton_done(1e-12, np.inf, tol, True)
+    assert not gen.newton_done(5e-9, np.inf, tol, True)      # one increment: no estimate yet
