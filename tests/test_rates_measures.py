@@ -271,6 +271,21 @@ def test_the_command_line_writes_the_table_and_refuses_a_malformed_report(tmp_pa
     saved = json.loads((out / "rates.json").read_text())
     assert saved["false_add"]["k"] == 0 and saved["power"]["gravity"][0]["k"] == 1
     assert (out / "rates.md").read_text() == printed.rstrip("\n") + "\n"
+    # the same draw beside another (a training draw's rates.json): both rates and the gap
+    train = dict(saved, false_add={**saved["false_add"], "k": 1, "n": 4, "rate": 0.25},
+                 wall_s={"median": 100.0, "max": 100.0, "n": 3})
+    (tmp_path / "train.json").write_text(json.dumps(train))
+    assert rates.main([str(draw), "--figures", str(out), "--label", "test",
+                       "--beside", str(tmp_path / "train.json"), "training"]) == 0
+    printed = capsys.readouterr().out
+    assert "| measure | test | training | gap |" in printed
+    assert "| false add on controls | 0/1 = 0% [0%, 79%] | 1/4 = 25% " in printed
+    assert printed.split("| false add on controls |")[1].split("\n")[0].endswith("| -25% |")
+    assert "| exact name, single | 1/1 = 100% [21%, 100%] | 1/1 = 100% [21%, 100%] | +0% |" \
+        in printed
+    wall = json.loads((out / "rates.json").read_text())["wall_s"]["median"]
+    assert f"| wall time per case, median (s) | {wall:.0f} (3 cases) | 100 (3 cases) | " \
+           f"{wall - 100:+.0f} |" in printed
     bad = report()
     del bad["fit"]
     (draw / "c0" / "report.json").write_text(json.dumps(bad))

@@ -269,6 +269,31 @@ def table(s: dict, label: str = "") -> str:
     return "\n".join(L) + "\n"
 
 
+def beside(s: dict, other: dict, label: str, other_label: str) -> str:
+    """The headline rates of this draw ``s`` beside another draw's summary ``other`` (its
+    rates.json), e.g. the test draw beside the training draw the rules were shaped on, with
+    the gap: issue 37 asks that it be visible."""
+    def rate(d):
+        return d["rate"] if d.get("n") else None
+
+    rows = [(f"exact name, {k}", rate(v), rate(other["exact"].get(k, {})), _r(v),
+             _r(other["exact"][k]) if k in other["exact"] else "-")
+            for k, v in s["exact"].items()]
+    rows.append(("false add on controls", rate(s["false_add"]), rate(other["false_add"]),
+                 _r(s["false_add"]), _r(other["false_add"])))
+    L = [f"| measure | {label} | {other_label} | gap |", "|---|---|---|---|"]
+    for name, a, b, ta, tb in rows:
+        gap = "-" if a is None or b is None else f"{a - b:+.0%}"
+        L.append(f"| {name} | {ta} | {tb} | {gap} |")
+    for key, what, fmt in (("wall_s", "wall time per case, median (s)", ".0f"),
+                           ("E_abs_rel_err", "|E error|, median", ".1%")):
+        a, b = s[key]["median"], other[key]["median"]
+        gap = "-" if a is None or b is None else format(a - b, "+" + fmt)
+        L.append(f"| {what} | {_f(a, fmt)} ({s[key]['n']} cases) | {_f(b, fmt)} "
+                 f"({other[key]['n']} cases) | {gap} |")
+    return "\n".join(L) + "\n"
+
+
 def power_figure(path: Path, curves: dict) -> dict:
     """Detection rate against effect size / noise per term (log x, Wilson intervals as error
     bars); returns what the axes show, per term: ``{"xy": (x, rate) points, "bars": (lo, hi)
@@ -340,6 +365,9 @@ def main(argv=None) -> int:
     ap.add_argument("--label", default="", help="the table's title (e.g. test draw, seed ...)")
     ap.add_argument("--alpha", type=float, default=0.01,
                     help="the significance level diagnose ran with (its --alpha)")
+    ap.add_argument("--beside", nargs=2, metavar=("RATES_JSON", "LABEL"), default=None,
+                    help="another draw's rates.json (e.g. the training draw's) and its label: "
+                         "the headline rates side by side, with the gap, in rates.md")
     ap.add_argument("--seed-from-commit", metavar="REV", default=None,
                     help="print the protocol's test seed of commit REV and stop")
     args = ap.parse_args(argv)
@@ -353,6 +381,10 @@ def main(argv=None) -> int:
     out = args.figures or reports
     out.mkdir(parents=True, exist_ok=True)
     md = table(s, args.label)
+    if args.beside:
+        other = json.loads(Path(args.beside[0]).read_text())
+        md += ("\n### Beside " + args.beside[1] + "\n\n"
+               + beside(s, other, args.label or "this draw", args.beside[1]))
     if s["power"]:
         power_figure(out / "power.png", s["power"])
     confusion_figure(out / "confusion.png", s["confusion"])
