@@ -67,6 +67,7 @@ from petsoft.mesh.ordering import cell_morton_order
 from petsoft.physics.loads import gravity_forces
 from petsoft.physics.materials import cell_materials
 from petsoft.physics.support import shared_compliance
+from petsoft.physics.term import ParametricTerm
 from petsoft.terms import PLUGINS, keys_of
 
 MATERIAL_KEYS = ("youngs_modulus", "poisson_ratio", "density")
@@ -142,22 +143,24 @@ class ParameterMap:
             self.values["gravity.tilt_a"] = float(exp.gravity.tilt_a)
             self.values["gravity.tilt_b"] = float(exp.gravity.tilt_b)
         # elastic supports and collider planes (petsoft.physics.support / contact)
-        self.support = system.elastic.support
-        self.contact = system.elastic.contact
+        support, contact = system.elastic.support, system.elastic.contact
         self._compliance_error = None
-        if self.support is not None:
+        if support is not None:
             try:
                 shared_compliance(exp)
-                self.values["boundary.compliance"] = self.support.compliance
+                self.values["boundary.compliance"] = support.compliance
             except ExperimentError as exc:
                 self._compliance_error = str(exc)
-        if self.contact is not None:
-            for i, c in enumerate(self.contact.colliders):
-                if c.kind == "plane":
-                    self.values[f"collider.{i}.offset"] = self.contact.offsets[i]
-        # packages' terms (petsoft.terms.PLUGINS): parameter name -> its nodal term
-        self.package = {n: t for t in system.elastic.nodal_terms if t.kind in PLUGINS
-                        for n in t.parameters()}
+        if contact is not None:
+            self.values.update(contact.parameters())    # the planes' offsets
+        # the nodal terms' parameters (petsoft.physics.term.ParametricTerm: the supports'
+        # compliance when shared, the planes' offsets, the packages' terms' numbers):
+        # name -> its term, which sets it and gives its derivative
+        self.nodal = {n: t for t in system.elastic.nodal_terms
+                      if isinstance(t, ParametricTerm) for n in t.parameters()
+                      if n in self.values or t.kind in PLUGINS}
+        #: the packages' terms (petsoft.terms.PLUGINS): their ranges are their keys'
+        self.package = {n: t for n, t in self.nodal.items() if t.kind in PLUGINS}
         for name, t in self.package.items():
             self.values[name] = float(t.parameters()[name])
         # the Maxwell branch: settable in place, not differentiable (see VISCOELASTIC)
@@ -333,12 +336,8 @@ class ParameterMap:
             m = GROUP_PATTERN.match(name)
             if m:
                 self.E_mult[self.group == int(m.group(1))] = value
-            elif name == "boundary.compliance":
-                self.support.set_compliance(value)
-            elif name.startswith("collider."):
-                self.contact.set_offset(int(name.split(".")[1]), value)
-            elif name in self.package:
-                self.package[name].set_parameter(name, value)
+            elif name in self.nodal:
+                self.nodal[name].set_parameter(name, value)
             elif name.startswith("material."):
                 key = name.rsplit(".", 1)[1]
                 arr = {"youngs_modulus": self.E_base, "poisson_ratio": self.nu,
@@ -413,20 +412,18 @@ class ParameterDerivatives:
             s.M.mult(self.v, out)
         elif name == "damping.stiffness":
             s.K0_matrix().mult(self.v, out)
-        elif name == "boundary.compliance":
-            support = s.parameters.support
+        elif name in s.parameters.nodal:
+            # a nodal term's parameter, on its nodes: a package's term d/dp (grad W(u) + H(u) w)
+            # (outside K0: no beta v); a term of the reference stiffness (the supports),
+            # linear in u, d/dp K_t (u + w + beta v); any other (the planes) d/dp grad W(u)
+            t = s.parameters.nodal[name]
             local = np.zeros((s.dmesh.nvertices, 3))
-            local[support.nodes] = support.compliance_derivative(self.support_state)
-            s.dmesh.add_to_global(local, out)
-        elif name.startswith("collider."):
-            contact = s.parameters.contact
-            local = np.zeros((s.dmesh.nvertices, 3))
-            local[contact.nodes] = contact.offset_derivative(int(name.split(".")[1]), self.u)
-            s.dmesh.add_to_global(local, out)
-        elif name in s.parameters.package:
-            # a package's term: d/dp (grad W(u) + H(u) w) on its nodes (outside K0: no beta v)
-            local = np.zeros((s.dmesh.nvertices, 3))
-            s.parameters.package[name].add_parameter_derivative(name, self.u, local, self.w)
+            if t.kind in PLUGINS:
+                t.add_parameter_derivative(name, self.u, local, self.w)
+            elif t.in_reference:
+                t.add_parameter_derivative(name, self.support_state, local)
+            else:
+                t.add_parameter_derivative(name, self.u, local)
             s.dmesh.add_to_global(local, out)
         elif name in VELOCITY_NAMES:
             lin = None
