@@ -1,5 +1,6 @@
 """The random cases' truth meshes conform to their regions (issue 37;
-scripts/benchmarks/independent/random_shapes.py ``conform``).
+scripts/benchmarks/independent/generate.py ``conform``, random_shapes.py and the fixed
+suite's conforming ball).
 
 A truth assigned its sphere's or slab's material to the cells whose centroid lies inside, so the
 material's jump sat inside cells and refining the mesh moved it: seed 5's bar with a stiff
@@ -24,6 +25,7 @@ pytestmark = pytest.mark.serial_only
 
 
 
+gen = load("generate")
 rs = load("random_shapes")
 L, W, H = 0.3, 0.06, 0.05          # the box: x in [0, L], y in [0, W], z in [0, H]
 
@@ -54,7 +56,7 @@ def cap(r: float, depth: float) -> float:
 
 def test_a_sphere_inside_is_cut_out_whole(model):
     r = 0.02
-    tagged = rs.conform(gmsh, [{"kind": "sphere", "center": [0.15, 0.03, 0.025], "radius": r}])
+    tagged = gen.conform(gmsh, [{"kind": "sphere", "center": [0.15, 0.03, 0.025], "radius": r}])
     ball = 4 / 3 * math.pi * r ** 3
     assert volumes(tagged[0]) == pytest.approx(ball, rel=1e-9)
     assert body_volume() == pytest.approx(L * W * H - ball, rel=1e-9)
@@ -62,7 +64,7 @@ def test_a_sphere_inside_is_cut_out_whole(model):
 
 def test_a_sphere_crossing_a_face_keeps_only_its_part_inside(model):
     r, c = 0.03, [0.2, 0.03, 0.04]            # 0.02 of it above z = H: a cap of height 0.02
-    tagged = rs.conform(gmsh, [{"kind": "sphere", "center": c, "radius": r}])
+    tagged = gen.conform(gmsh, [{"kind": "sphere", "center": c, "radius": r}])
     inside = 4 / 3 * math.pi * r ** 3 - cap(r, 0.02)
     assert volumes(tagged[0]) == pytest.approx(inside, rel=1e-9)
     assert body_volume() == pytest.approx(L * W * H - inside, rel=1e-9)
@@ -71,7 +73,7 @@ def test_a_sphere_crossing_a_face_keeps_only_its_part_inside(model):
 def test_a_tilted_slab_across_the_box(model):
     t, tilt = 0.04, math.radians(20.0)        # normal in the x-y plane, 20 degrees off x
     n = [math.cos(tilt), math.sin(tilt), 0.0]
-    tagged = rs.conform(gmsh, [{"kind": "slab", "center": [0.15, 0.03, 0.025], "normal": n,
+    tagged = gen.conform(gmsh, [{"kind": "slab", "center": [0.15, 0.03, 0.025], "normal": n,
                                 "thickness": t}])
     # a band of width t / cos(tilt) along x through the whole y-z section (its ends stay
     # inside x in [0, L]): the section's area times that width
@@ -83,7 +85,7 @@ def test_a_thin_slab_is_turned_to_its_normal_not_its_mirror(model):
     """The slab's thin direction is its normal: the part's inertia is largest about the axis
     along n (its mass lies close to the plane normal to n), not about n mirrored."""
     n = np.array([math.cos(math.radians(30.0)), 0.0, math.sin(math.radians(30.0))])
-    tagged = rs.conform(gmsh, [{"kind": "slab", "center": [0.15, 0.03, 0.025],
+    tagged = gen.conform(gmsh, [{"kind": "slab", "center": [0.15, 0.03, 0.025],
                                 "normal": list(n), "thickness": 0.008}])
     (tag,) = tagged[0]
     inertia = np.array(gmsh.model.occ.getMatrixOfInertia(3, tag - 100)).reshape(3, 3)
@@ -97,7 +99,7 @@ def test_two_overlapping_spheres_share_their_lens(model):
     r, d = 0.02, 0.02                          # centres 0.02 apart along x
     regions = [{"kind": "sphere", "center": [0.14, 0.03, 0.025], "radius": r},
                {"kind": "sphere", "center": [0.14 + d, 0.03, 0.025], "radius": r}]
-    tagged = rs.conform(gmsh, regions)
+    tagged = gen.conform(gmsh, regions)
     ball = 4 / 3 * math.pi * r ** 3
     lens = math.pi * (4 * r + d) * (2 * r - d) ** 2 / 12
     assert volumes(tagged[0]) == pytest.approx(ball, rel=1e-9)
@@ -108,7 +110,7 @@ def test_two_overlapping_spheres_share_their_lens(model):
 
 def test_a_region_that_misses_the_solid_is_refused(model):
     with pytest.raises(RuntimeError, match="region 0 .* does not meet the solid"):
-        rs.conform(gmsh, [{"kind": "sphere", "center": [1.0, 1.0, 1.0], "radius": 0.01}])
+        gen.conform(gmsh, [{"kind": "sphere", "center": [1.0, 1.0, 1.0], "radius": 0.01}])
 
 
 def test_the_meshed_cells_fill_the_parts(model):
@@ -133,3 +135,29 @@ def test_the_meshed_cells_fill_the_parts(model):
                 total += float(np.sum(dets.reshape(-1, len(w)) * w))
         return total
     assert sum(meshed(t) for t in tagged[0]) == pytest.approx(part, rel=1e-3)
+
+
+def test_the_fixed_suites_ball_is_its_conforming_part():
+    """generate.build_geometry's conforming ball (the fixed suite's payload truths) is
+    ``conform``'s sphere part: its groups hold the shape's volume inside the ball (OCC's
+    intersection, measured in another model) and the body the rest."""
+    ball = {"center": [0.24, 0.0, 0.0], "radius": 0.03}
+    gmsh.initialize()
+    gmsh.option.setNumber("General.Terminal", 0)
+    try:
+        gmsh.model.add("plain")
+        gen.build_geometry(gmsh, "finger")
+        occ = gmsh.model.occ
+        whole = sum(occ.getMass(3, t) for _, t in gmsh.model.getEntities(3))
+        inside, _ = occ.intersect(gmsh.model.getEntities(3),
+                                  [(3, occ.addSphere(*ball["center"], ball["radius"]))])
+        occ.synchronize()
+        expected = sum(occ.getMass(3, t) for _, t in inside)
+        gmsh.model.add("with ball")
+        groups = gen.build_geometry(gmsh, "finger", ball)
+        assert groups and 0.0 < expected < whole
+        # (OCC's volumes of the curved parts agree to ~1e-7)
+        assert volumes(groups) == pytest.approx(expected, rel=1e-6)
+        assert body_volume() == pytest.approx(whole - expected, rel=1e-6)
+    finally:
+        gmsh.finalize()

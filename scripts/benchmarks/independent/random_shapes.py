@@ -19,7 +19,7 @@ import generate as indep  # noqa: E402
 def build(gmsh, family: str, g: dict, regions: list | None = None) -> dict[int, list[int]]:
     """The solid of ``family`` with dimensions ``g`` in the current gmsh model (metres), as the
     physical volume ``body``; with ``regions`` (the truth's spheres and slabs, random_draw.py)
-    cut into parts that conform to them (:func:`conform`), whose physical groups it returns
+    cut into parts that conform to them (``generate.conform``), whose physical groups it returns
     by region index."""
     occ = gmsh.model.occ
     if family == "bar":
@@ -68,68 +68,11 @@ def build(gmsh, family: str, g: dict, regions: list | None = None) -> dict[int, 
         raise ValueError(family)
     occ.synchronize()
     if regions:
-        return conform(gmsh, regions)
+        return indep.conform(gmsh, regions)
     vols = gmsh.model.getEntities(3)
     gmsh.model.addPhysicalGroup(3, [v[1] for v in vols], 1)
     gmsh.model.setPhysicalName(3, 1, "body")
     return {}
-
-
-def region_tool(gmsh, reg: dict) -> tuple[int, int]:
-    """A gmsh solid holding region ``reg``: its sphere, or its slab (|(x - center) . normal|
-    < thickness / 2) as a box 2 m wide in its plane, turned from z to its normal."""
-    occ = gmsh.model.occ
-    c = np.asarray(reg["center"], dtype=float)
-    if reg["kind"] == "sphere":
-        return (3, occ.addSphere(*c, float(reg["radius"])))
-    if reg["kind"] != "slab":
-        raise ValueError(f"region kind {reg['kind']!r}")
-    t = float(reg["thickness"])
-    box = (3, occ.addBox(-1.0, -1.0, -t / 2, 2.0, 2.0, t))
-    n = np.asarray(reg["normal"], dtype=float)
-    n /= np.linalg.norm(n)
-    axis = np.cross([0.0, 0.0, 1.0], n)
-    if np.linalg.norm(axis) > 1e-12:   # (n = -z: the slab is symmetric about its plane)
-        occ.rotate([box], 0.0, 0.0, 0.0, *axis, math.acos(float(np.clip(n[2], -1, 1))))
-    occ.translate([box], *c)
-    return box
-
-
-def conform(gmsh, regions: list) -> dict[int, list[int]]:
-    """Cut the current model's solid into parts that conform to ``regions`` (each region's part
-    inside the solid, OCC intersect then fragment, so the truth's cells do not straddle a
-    region's surface: assigned by their centroids, the material jump sat inside cells, and
-    seed 5's bar with a stiff sphere converged at order 1.5, its truth discarded). The parts
-    outside every region are the physical volume 1 ``body``; each part inside one is a
-    physical volume of its own (tag 100 + its entity tag; a cell is in one group only, as
-    DOLFINx's gmshio reads them). Returns region index -> the physical tags of its parts."""
-    occ = gmsh.model.occ
-    solid = gmsh.model.getEntities(3)
-    pieces = []
-    for i, reg in enumerate(regions):
-        copy = occ.copy(solid)
-        part, _ = occ.intersect(copy, [region_tool(gmsh, reg)], removeObject=True,
-                                removeTool=True)
-        if not part:
-            raise RuntimeError(f"region {i} ({reg['kind']}) does not meet the solid")
-        pieces.append(part)
-    _, parts = occ.fragment(solid, [p for part in pieces for p in part])
-    occ.synchronize()
-    # parts[k] are the pieces made of input k: the solid's, then each region's in order
-    sizes = [len(p) for p in pieces]
-    inside: dict[int, set[int]] = {}
-    k = len(solid)
-    for i, n in enumerate(sizes):
-        inside[i] = {t for piece in parts[k:k + n] for _, t in piece}
-        k += n
-    in_any = set().union(*inside.values())
-    body = [t for _, t in gmsh.model.getEntities(3) if t not in in_any]
-    if body:
-        gmsh.model.addPhysicalGroup(3, body, 1)
-        gmsh.model.setPhysicalName(3, 1, "body")
-    for t in sorted(in_any):
-        gmsh.model.addPhysicalGroup(3, [t], 100 + t)
-    return {i: sorted(100 + t for t in tags) for i, tags in inside.items()}
 
 
 def reentrant_edges(gmsh, g: dict) -> list[int]:
@@ -150,7 +93,7 @@ def mesh(gmsh, family: str, g: dict, h: float, graded: bool = False,
     the field only), with curved (second-order) cells for the :data:`CURVED` families. Uniform
     P2 meshes of the realistic cases' clamped bar converged at ~h^1-1.6 at the markers and
     ~h^1.1-1.8 in the first frequencies: the clamp's edges (../realistic/README.md).
-    ``regions``: the cells conform to them, curved (:func:`conform`; returned as there)."""
+    ``regions``: the cells conform to them, curved (``generate.conform``; returned as there)."""
     gmsh.model.add(f"{family}-{h}")
     tagged = build(gmsh, family, g, regions)
     gmsh.option.setNumber("Mesh.CharacteristicLengthMin", h / 4 if graded else h)
