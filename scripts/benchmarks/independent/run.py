@@ -232,6 +232,10 @@ def run_logged(cmd: list[str], log_path: Path, cwd: Path, timeout: float | None
         # alone would leave its ranks running)
         proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env,
                                 cwd=str(cwd), start_new_session=True)
+        # run.py itself stopped (a sitting's end, ^C): its case's group goes with it, else
+        # the ranks of an interrupted case would run on beside the resumed job
+        previous = {sig: signal.signal(sig, _stop_group_then(proc))
+                    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)}
         try:
             code = proc.wait(timeout=timeout)
             if code < 0:
@@ -240,16 +244,32 @@ def run_logged(cmd: list[str], log_path: Path, cwd: Path, timeout: float | None
                 status = f"failed (exit {code})"
         except subprocess.TimeoutExpired:
             status = "timeout"
-            for sig, grace in ((signal.SIGTERM, 15), (signal.SIGKILL, 15)):
-                try:
-                    os.killpg(proc.pid, sig)
-                    proc.wait(timeout=grace)
-                    break
-                except ProcessLookupError:
-                    break
-                except subprocess.TimeoutExpired:
-                    continue
+            _stop_group(proc)
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
     return time.perf_counter() - t0, status
+
+
+def _stop_group(proc: subprocess.Popen) -> None:
+    """Stop ``proc``'s process group: SIGTERM, then SIGKILL after 15 s."""
+    for sig, grace in ((signal.SIGTERM, 15), (signal.SIGKILL, 15)):
+        try:
+            os.killpg(proc.pid, sig)
+            proc.wait(timeout=grace)
+            break
+        except ProcessLookupError:
+            break
+        except subprocess.TimeoutExpired:
+            continue
+
+
+def _stop_group_then(proc: subprocess.Popen):
+    """A signal handler: stop ``proc``'s group, then exit as the signal would."""
+    def handler(signum, frame):
+        _stop_group(proc)
+        raise SystemExit(128 + signum)
+    return handler
 
 
 def main() -> int:
