@@ -8,6 +8,8 @@ the largest D(1.4h, h). A variant changes one thing of the truth's mesh (``a+b``
 
     generator      as the generator makes it
     flat           no second-order (curved) cells
+    curved         second-order (curved) cells for the bars and brackets too
+    flatbar        the bars' cells flat (the generator's before the bars were curved)
     uniform        no grading towards the clamp's edges (or any other)
     nostall        Newton never accepts a slow contraction below 1e-7 m (generate.newton_done)
     grade:K        the clamp's edges graded to h / K over 6 h (the generator: h / 4 over 4 h)
@@ -49,6 +51,12 @@ def apply_variant(variant: str) -> None:
         return
     if variant == "flat":
         rs.CURVED = ()
+        return
+    if variant == "curved":
+        rs.CURVED = tuple(rs.CURVED) + ("bar", "bracket")
+        return
+    if variant == "flatbar":
+        rs.CURVED = tuple(f for f in rs.CURVED if f != "bar")
         return
     if variant == "nostall":
         def done(size, last, tol, estimate):
@@ -100,6 +108,10 @@ def main(argv=None) -> int:
     ap.add_argument("--end", type=float, default=0.25, help="seconds simulated (default 0.25)")
     ap.add_argument("--variant", default="generator")
     ap.add_argument("--draw", type=int, default=40, help="cases drawn to find CASE in")
+    ap.add_argument("--degree", type=int, default=2, help="the truth's element degree")
+    ap.add_argument("--inside", type=float, default=1.0,
+                    help="a bar's points moved towards its axis by this factor of their "
+                         "distance (default 1: on the surface)")
     ap.add_argument("--substeps", type=int, default=rc.SUBSTEPS,
                     help="truth steps a frame of the user's (default the generator's: the "
                          "three meshes at one step; twice it halves the step)")
@@ -120,6 +132,11 @@ def main(argv=None) -> int:
     gmsh.model.remove()
     surface = np.unique(indep.surface_nodes(tets))
     markers = points[np.random.default_rng(0).choice(surface, 20, replace=False)]
+    if args.inside != 1.0:
+        # the points moved into the body: a bar's section is centred on its axis (x)
+        if case["family"] != "bar":
+            raise SystemExit("--inside is for the bar family (its sections centred on x)")
+        markers[:, 1:] *= args.inside
     runs = {}
     for f in LEVELS:
         t0 = time.perf_counter()
@@ -127,7 +144,8 @@ def main(argv=None) -> int:
                                                         "truth": case["truth"]},
                                    markers, lambda line: None, h_fine=rs.truth_h(g) * f,
                                    end=args.end, newton_tol=rc.NEWTON_TOL, body=rc.body(case),
-                                   substeps=args.substeps, newton_estimate=True)
+                                   substeps=args.substeps, newton_estimate=True,
+                                   degree=args.degree)
         runs[f] = res["displacements"]
         found = res["found"] if f == LEVELS[0] else found & res["found"]
         print(f"{args.variant} {case['name']} h x{f} ({rs.truth_h(g) * f * 1e3:.2f} mm, "
