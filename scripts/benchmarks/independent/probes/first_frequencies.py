@@ -2,7 +2,7 @@
 rho; clamped as its truth; P2 on the generator's truth mesh, DOLFINx + SLEPc shift-invert at
 0) against the draw's estimate (random_draw.first_frequency) and a base drive's frequency:
 ``python3 first_frequencies.py SEED CASE N [FACTOR ...]`` (the truth's h times each FACTOR,
-default 1)."""
+default 1; GRADE=K: graded to h / K over 6 h instead of the generator's h / 4 over 4 h)."""
 
 import os
 import sys
@@ -23,6 +23,16 @@ from slepc4py import SLEPc
 
 seed, name, n = int(sys.argv[1]), sys.argv[2], int(sys.argv[3])
 factors = [float(f) for f in sys.argv[4:]] or [1.0]
+if os.environ.get("GRADE"):
+    # GRADE=K: the clamp's edges (and a bracket's inner edge) graded to h / K over 6 h
+    import generate as indep
+
+    finest, graded = float(os.environ["GRADE"]), indep.grade_towards
+
+    def grade(gmsh, curves, h, field_only=False):
+        graded(gmsh, curves, h, field_only, finest=finest, over=6.0, points=100)
+
+    indep.grade_towards = grade
 case = [c for c in rd.draw(seed, n, "realistic") if c["name"] == name][0]
 g, mat = case["geometry"], case["material"]
 gmsh.initialize()
