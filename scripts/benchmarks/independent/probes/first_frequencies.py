@@ -2,7 +2,8 @@
 rho; clamped as its truth; P2 on the generator's truth mesh, DOLFINx + SLEPc shift-invert at
 0) against the draw's estimate (random_draw.first_frequency) and a base drive's frequency:
 ``python3 first_frequencies.py SEED CASE N [FACTOR ...]`` (the truth's h times each FACTOR,
-default 1; GRADE=K: graded to h / K over 6 h instead of the generator's h / 4 over 4 h)."""
+default 1; GRADE=K: graded to h / K over 6 h instead of the generator's h / 4 over 4 h;
+UNGRADED=clamp or inner: that edge left ungraded)."""
 
 import os
 import sys
@@ -33,6 +34,12 @@ if os.environ.get("GRADE"):
         graded(gmsh, curves, h, field_only, finest=finest, over=6.0, points=100)
 
     indep.grade_towards = grade
+if os.environ.get("UNGRADED") == "clamp":      # only a bracket's inner edge graded
+    import generate as indep
+
+    indep.clamp_edges = lambda gmsh, axis: []
+elif os.environ.get("UNGRADED") == "inner":    # only the clamp's edges graded
+    rs.reentrant_edges = lambda gmsh, g: []
 case = [c for c in rd.draw(seed, n, "realistic") if c["name"] == name][0]
 g, mat = case["geometry"], case["material"]
 gmsh.initialize()
