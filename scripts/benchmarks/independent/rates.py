@@ -286,7 +286,7 @@ def beside(s: dict, other: dict, label: str, other_label: str) -> str:
         gap = "-" if a is None or b is None else f"{a - b:+.0%}"
         L.append(f"| {name} | {ta} | {tb} | {gap} |")
     for key, what, fmt in (("wall_s", "wall time per case, median (s)", ".0f"),
-                           ("E_abs_rel_err", "|E error|, median", ".1%")):
+                           ("E_abs_rel_err", "E error (absolute), median", ".1%")):
         a, b = s[key]["median"], other[key]["median"]
         gap = "-" if a is None or b is None else format(a - b, "+" + fmt)
         L.append(f"| {what} | {_f(a, fmt)} ({s[key]['n']} cases) | {_f(b, fmt)} "
