@@ -101,6 +101,27 @@ def apply_variant(variant: str) -> None:
                      "thickness or scale:F")
 
 
+def drawn_case_points(gmsh, seed: int, name: str, draw: int, inside: float = 1.0):
+    """Case ``name`` among the first ``draw`` of the realistic draw ``seed``, and 20 points on its
+    surface (nodes of a 15 mm mesh of the body, chosen by a fixed seed); ``inside`` < 1 moves a
+    bar's points towards its axis by that factor of their distance (its sections are centred
+    on x)."""
+    found = [c for c in rd.draw(seed, draw, "realistic") if c["name"] == name]
+    if not found:
+        raise SystemExit(f"no case {name!r} among the first {draw} of seed {seed}")
+    case = found[0]
+    rs.mesh(gmsh, case["family"], case["geometry"], 0.015)
+    points, tets = rs._nodes_tets(gmsh)
+    gmsh.model.remove()
+    surface = np.unique(indep.surface_nodes(tets))
+    markers = points[np.random.default_rng(0).choice(surface, 20, replace=False)]
+    if inside != 1.0:
+        if case["family"] != "bar":
+            raise SystemExit("--inside is for the bar family (its sections centred on x)")
+        markers[:, 1:] *= inside
+    return case, markers
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, required=True)
@@ -122,22 +143,9 @@ def main(argv=None) -> int:
 
     gmsh.initialize()
     gmsh.option.setNumber("General.Terminal", 0)
-    found = [c for c in rd.draw(args.seed, args.draw, "realistic") if c["name"] == args.case]
-    if not found:
-        raise SystemExit(f"no case {args.case!r} among the first {args.draw} of seed {args.seed}")
-    case = found[0]
+    case, markers = drawn_case_points(gmsh, args.seed, args.case, args.draw, args.inside)
     g = case["geometry"]
-    rs.mesh(gmsh, case["family"], g, 0.015)
-    points, tets = rs._nodes_tets(gmsh)
-    gmsh.model.remove()
-    surface = np.unique(indep.surface_nodes(tets))
-    markers = points[np.random.default_rng(0).choice(surface, 20, replace=False)]
-    if args.inside != 1.0:
-        # the points moved into the body: a bar's section is centred on its axis (x)
-        if case["family"] != "bar":
-            raise SystemExit("--inside is for the bar family (its sections centred on x)")
-        markers[:, 1:] *= args.inside
-    runs = {}
+    runs, found = {}, None
     for f in LEVELS:
         t0 = time.perf_counter()
         res = indep.simulate_truth(gmsh, case["name"], {"shape": case["family"],
@@ -147,7 +155,7 @@ def main(argv=None) -> int:
                                    substeps=args.substeps, newton_estimate=True,
                                    degree=args.degree)
         runs[f] = res["displacements"]
-        found = res["found"] if f == LEVELS[0] else found & res["found"]
+        found = res["found"] if found is None else found & res["found"]
         print(f"{args.variant} {case['name']} h x{f} ({rs.truth_h(g) * f * 1e3:.2f} mm, "
               f"{args.substeps} steps a frame): "
               f"{res['fine_tets']} P2 tets, {time.perf_counter() - t0:.0f} s", flush=True)

@@ -11,19 +11,14 @@ import generate as indep
 import gmsh
 import numpy as np
 import random_cases as rc
-import random_draw as rd
 import random_shapes as rs
+import truth_convergence as tc
 
 seed, name, n, end = int(sys.argv[1]), sys.argv[2], int(sys.argv[3]), float(sys.argv[4])
 gmsh.initialize()
 gmsh.option.setNumber("General.Terminal", 0)
-case = [c for c in rd.draw(seed, n, "realistic") if c["name"] == name][0]
+case, markers = tc.drawn_case_points(gmsh, seed, name, n, inside=1.0)
 g = case["geometry"]
-rs.mesh(gmsh, case["family"], g, 0.015)
-pts, tets = rs._nodes_tets(gmsh)
-gmsh.model.remove()
-surf = np.unique(indep.surface_nodes(tets))
-markers = pts[np.random.default_rng(0).choice(surf, 20, replace=False)]
 out = {}
 for est in (False, True):
     t0 = time.perf_counter()

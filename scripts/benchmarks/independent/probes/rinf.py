@@ -10,21 +10,16 @@ import generate as indep
 import gmsh
 import numpy as np
 import random_cases as rc
-import random_draw as rd
 import random_shapes as rs
+import truth_convergence as tc
 
 seed, name, n, end = int(sys.argv[1]), sys.argv[2], int(sys.argv[3]), float(sys.argv[4])
 gmsh.initialize()
 gmsh.option.setNumber("General.Terminal", 0)
-case = [c for c in rd.draw(seed, n, "realistic") if c["name"] == name][0]
+case, markers = tc.drawn_case_points(gmsh, seed, name, n)
 g = case["geometry"]
-rs.mesh(gmsh, case["family"], g, 0.015)
-pts, tets = rs._nodes_tets(gmsh)
-gmsh.model.remove()
-rng = np.random.default_rng(0)
-markers = pts[rng.choice(np.unique(indep.surface_nodes(tets)), 20, replace=False)]
 if case["family"] == "bar":
-    markers[:, 1:] *= 0.7
+    markers[:, 1:] *= 0.7          # inside every mesh (truth_convergence.py --inside)
 out = {}
 for rinf in (0.9, 0.5):
     indep.ALPHA_RADIUS = rinf
