@@ -10,8 +10,14 @@ random_draw.py draws each case's parameters from (S, index); here, for every cas
 ``DIR/<name>/``:
 
 * ``mesh.msh``: the user's P1 mesh (gmsh) with the drawn number of tets;
-* the truth: DOLFINx P2 on a finer gmsh mesh at a quarter of the user's step (generate.py's
-  :func:`simulate_truth`), sampled at markers that are surface nodes of the user's mesh;
+* the truth's level chosen first (frequency_screen.py): the body's first natural frequencies
+  on a ladder of graded meshes (seconds) predict each level's error; the cheapest level (mesh
+  size, 4-16 steps a frame) predicted within 0.6x the tolerance and an affordable cost is
+  taken, and a case no affordable level is predicted to pass is **discarded** before any time
+  run (it used to cost ~20-45 core-minutes to find out);
+* the truth: DOLFINx P2 on that finer gmsh mesh at that fraction of the user's step
+  (generate.py's :func:`simulate_truth`), sampled at markers that are surface nodes of the
+  user's mesh;
 * the effect-free run (cases with a concealed effect): the same truth without the concealed
   effect(s) -- the user's physics at the true parameters -- whose difference from the truth, rms
   over markers and frames in units of the noise, is the case's **effect size**, measured on the
@@ -50,6 +56,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+import frequency_screen as fs  # noqa: E402
 import generate as indep  # noqa: E402
 import random_draw as rd  # noqa: E402
 import random_shapes as rs  # noqa: E402
@@ -175,6 +182,12 @@ def predicted_bound(conv: dict, finer_h: bool, finer_step: bool) -> float | None
             + (time_ / 4 if finer_step else time_))
 
 
+def least_predicted(screen: dict) -> float | None:
+    """The smallest bound (x noise) :func:`frequency_screen.choose` predicted at any level."""
+    bounds = [lv["predicted"]["bound"] for lv in screen["levels"] if lv["predicted"]]
+    return min(bounds) if bounds else None
+
+
 def body(case: dict, effect_free: bool = False) -> dict:
     """generate.simulate_truth's ``body`` of the case: the truth's or (``effect_free``) the
     user's physics at the true parameters (the user's law and gravity)."""
@@ -247,10 +260,28 @@ def make_case(gmsh, case: dict, out: Path, refine: int = 1) -> dict:
         f"user mesh {len(tets)} tets (h {user_h:.3g} m), {case['end']:g} s, "
         f"noise {case['noise_fraction']:.3g} x the motion")
     cand = pick_candidates(case, points, tets)
-    h = rs.truth_h(case["geometry"])
+    # the truth's level from the body's natural frequencies (seconds), before any time run
+    screen = fs.choose(gmsh, case, TOLERANCE, say=say)
+    if screen["h"] is None:
+        why = ("the first natural frequencies predict no truth level within "
+               f"{fs.MARGIN * TOLERANCE:.3g} x noise at most {fs.MAX_TET_STEPS:.3g} P2 "
+               f"tet-steps (the least predicted: {_num(least_predicted(screen))} x noise)")
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "discarded.json").write_text(json.dumps(
+            {"case": name, "reason": why, "convergence": None, "screen": screen, "draw": case},
+            indent=1) + "\n")
+        for stale in ("truth.json", "recording.h5", "user.toml"):
+            (d / stale).unlink(missing_ok=True)
+        say(f"{name}: DISCARDED ({why})")
+        return {"index": case["index"], "name": name, "family": case["family"],
+                "category": case["category"], "concealed": case["concealed"],
+                "magnitudes": case["magnitudes"], "effect_size_over_noise": None,
+                "truth_error_bound_over_noise": None, "refinements": 0, "noise": None,
+                "user_tets": int(len(tets)), "simulation_seconds": 0.0,
+                "status": "discarded", "reason": why}
     noise = None
     levels, spent = [], {}
-    hl, sl, conv = h, SUBSTEPS, {}
+    hl, sl, conv = screen["h"], screen["substeps"], {}
     for level in range(refine + 1):
         # level L: h at sl steps a frame (finer than the last level's where its error was),
         # checked by two runs coarser in space (h x 1.4, h x 1.96: the observed order) and one
@@ -309,6 +340,7 @@ def make_case(gmsh, case: dict, out: Path, refine: int = 1) -> dict:
         if conv["converged"] or len(keep) < rd.MARKER_RANGE[0]:
             break
     conv["levels"] = levels
+    conv["screen"] = screen
     seconds = sum(spent.values())
     tr = runs["truth"]
     if len(keep) < rd.MARKER_RANGE[0]:

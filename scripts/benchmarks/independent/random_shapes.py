@@ -7,6 +7,7 @@ L-shapes): :func:`clamp_expression` is petsoft's ``where`` and :func:`clamp_mask
 from __future__ import annotations
 
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -88,21 +89,28 @@ def reentrant_edges(gmsh, g: dict) -> list[int]:
 def mesh(gmsh, family: str, g: dict, h: float, graded: bool = False,
          regions: list | None = None) -> dict[int, list[int]]:
     """Mesh the solid in a new gmsh model with element size ``h``; ``graded`` (the truth's
-    meshes): down to h / 4 at the clamped face's edges and at a sharp L's re-entrant edge, where
-    the stress is singular, growing to h over 4 h (``generate.grade_towards``, the sizes from
-    the field only), with curved (second-order) cells for the :data:`CURVED` families. Uniform
+    meshes): down to h / finest at the clamped face's edges and at a sharp L's re-entrant edge,
+    where the stress is singular, growing to h over ``over`` h (:data:`GRADING`: 4 and 4, a
+    bracket's 10 and 6; ``generate.grade_towards``, the sizes from the field only; the
+    environment's GRADE_FINEST, GRADE_OVER, GRADE_POINTS for probes), with curved
+    (second-order) cells for the :data:`CURVED` families. Uniform
     P2 meshes of the realistic cases' clamped bar converged at ~h^1-1.6 at the markers and
     ~h^1.1-1.8 in the first frequencies: the clamp's edges (../realistic/README.md).
     ``regions``: the cells conform to them, curved (``generate.conform``; returned as there)."""
     gmsh.model.add(f"{family}-{h}")
     tagged = build(gmsh, family, g, regions)
-    gmsh.option.setNumber("Mesh.CharacteristicLengthMin", h / 4 if graded else h)
+    finest, over = GRADING.get(family, GRADING["default"])
+    finest = float(os.environ.get("GRADE_FINEST", finest))      # probes: another grading
+    over = float(os.environ.get("GRADE_OVER", over))
+    # the size floor follows the grading: gmsh clips the field's sizes to it
+    gmsh.option.setNumber("Mesh.CharacteristicLengthMin", h / finest if graded else h)
     gmsh.option.setNumber("Mesh.CharacteristicLengthMax", h)
     if graded:
         curves = indep.clamp_edges(gmsh, "xyz".index(g["axis"]))
         if family == "bracket":
             curves += reentrant_edges(gmsh, g)
-        indep.grade_towards(gmsh, curves, h, field_only=True)
+        indep.grade_towards(gmsh, curves, h, field_only=True, finest=finest, over=over,
+                            points=int(os.environ.get("GRADE_POINTS", 50)))
     try:
         indep.generate_tets(gmsh)
     finally:
@@ -113,6 +121,15 @@ def mesh(gmsh, family: str, g: dict, h: float, graded: bool = False,
         # surface likewise (generate.mesh_shape's ball: its volume 1.3 % short with flat facets)
         gmsh.model.mesh.setOrder(2)
     return tagged
+
+
+#: the truth meshes' grading towards the singular edges, per family: (finest, over) -- the size
+#: h / finest at the edges, growing to h over ``over`` h (:func:`generate.grade_towards`)
+GRADING = {"default": (4.0, 4.0),
+           # the L's first frequency stalled at h / 4 over 4 h (test draw 59653812's
+           # r003-bracket: 10.4459, 10.4408, 10.4356 Hz at 1.96 h, 1.4 h, h; order ~0) and
+           # converged at h / 10 over 6 h (10.4344, 10.4326, 10.4321: order 3.8; ~5x the tets)
+           "bracket": (10.0, 6.0)}
 
 
 #: families with curved faces (a hole, a fillet, a shell's arcs, a twisted bar's ruled faces):
