@@ -19,10 +19,12 @@ from mpi4py import MPI
 from petsoft.diagnosis.context import evidence_of
 from petsoft.diagnosis.numerics import (
     SCREEN_BELOW,
+    gains_enough,
     refined,
     refinement_matters,
     resolve_numerics,
     screened,
+    too_small_to_adopt,
 )
 from petsoft.diagnosis.numerics_findings import numerics_findings
 
@@ -112,6 +114,32 @@ def test_a_refinement_closer_to_the_data_by_more_than_the_noise_matters():
     assert not refinement_matters(9.0, 10.0, 2.0 * sigma, sigma)           # chi2 barely moves
     assert refinement_matters(11.0, 10.0, 0.1 * sigma, sigma)
     assert not refinement_matters(-100.0, excess, 5.0 * sigma, sigma)     # further from data
+
+
+def test_a_refinement_changing_the_simulation_by_less_than_a_tenth_of_the_noise_never_matters():
+    """Issue 40: near a consistent fit the excess chi2 - dof is within chi2's own spread
+    (sqrt(2 dof), ~190 at 17,400 dof), and a halved step whose refit changed the simulation by
+    0.052x the noise was adopted for a gain over a tenth of it (training r000-shell: 139 s of a
+    396 s diagnosis, every later run twice as long). Below a tenth of the noise a refinement is
+    counted, not adopted, whatever its gain; the screen follows (twice the linearised change
+    under a tenth is not refitted). Made-up values either side of the floor."""
+    sigma, excess = 1e-4, 190.0
+    gain = 0.9 * excess                   # far over a tenth of the excess, and over 10
+    assert not refinement_matters(gain, excess, 0.05 * sigma, sigma)
+    assert refinement_matters(gain, excess, 0.2 * sigma, sigma)
+    assert not refinement_matters(100.0 * excess, excess, 0.099 * sigma, sigma)  # whatever gain
+    assert refinement_matters(100.0 * excess, excess, 0.101 * sigma, sigma)
+    # the gain arms still hold below the floor: it is the floor alone that says no
+    assert gains_enough(gain, excess, 0.05 * sigma, sigma)
+    assert too_small_to_adopt(gain, excess, 0.05 * sigma, sigma)
+    assert not too_small_to_adopt(gain, excess, 0.2 * sigma, sigma)
+    assert not too_small_to_adopt(5.0, excess, 0.05 * sigma, sigma)   # gains too little anyway
+
+    def lin(change):
+        return {"change_same_parameters": 0.5 * sigma, "gain": gain, "change_rms": change * sigma}
+
+    assert screened(lin(0.04), excess, sigma)        # twice 0.04 is under a tenth
+    assert not screened(lin(0.06), excess, sigma)    # twice 0.06 is over: refitted
 
 
 @pytest.fixture(scope="module")

@@ -68,6 +68,18 @@ SCREEN_BELOW = 3.0
 #: its 3000 s while checking the step again on the final model.
 DEFER_MISFIT_RMS = 3.0
 DEFER_CHANGE = 2.0
+#: A refinement whose refit changes the simulation by less than this many times the noise
+#: (rms over the identification window's seen samples) never matters, whatever it gains in
+#: chi2 (:func:`refinement_matters`): it is not adopted, and its error is counted in the
+#: verdict's noise budget like that of any refinement closer to the data by too little to
+#: matter. Near a consistent fit the excess chi2 - dof is itself within chi2's spread
+#: (sqrt(2 dof), ~190 at 17,400 dof), so a tenth of it is no bar, and a gain over it says only
+#: that the data see a change too small to move the verdict: training draw seed 5's r000-shell
+#: (17,400 dof) halved its step to 0.25 ms on the final model for a refitted change of 0.052x
+#: the noise (chi2 17510 -> 17415), 139 s of a 396 s diagnosis, and every later run would cost
+#: twice as much. Counted in quadrature, a change of 0.1x the noise (a halved step's error
+#: estimate 4/3 of it) widens the verdict's noise by under 1 %.
+ADOPT_CHANGE = 0.1
 
 
 def _why_not(r, experiment) -> str | None:
@@ -452,11 +464,13 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
     while the refined mesh has at most :data:`MESH_CELLS` tetrahedra; ``mesh_done`` skips the
     mesh), concurrently on groups of ranks. A refinement *matters* (:func:`refinement_matters`)
     when its fit lowers chi2 by more than 10 and either by more than 10 % of the residual's
-    excess over the noise (chi2 - dof) or while changing the simulation by more than the noise:
+    excess over the noise (chi2 - dof) or while changing the simulation by more than the noise,
+    and its refit changes the simulation by at least :data:`ADOPT_CHANGE` times the noise:
     part of the mismatch is then discretisation error (backward Euler's artificial damping
     looks exactly like physical damping; a coarse P1 mesh's bending stiffness like a stiffer
     material or support), so the best refined model replaces the current one and the check is
-    repeated, at most ``max_rounds`` times.
+    repeated, at most ``max_rounds`` times. One closer to the data that does not matter has
+    its error counted in the verdict's noise budget (``diag.model_error``).
 
     Error estimates (Richardson, from the change between the two models): a refinement that
     helps but does not matter leaves the current model's error, change k / (k - 1) with
@@ -551,7 +565,8 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
                           f"{lin['change_same_parameters_over_noise']:.3g}x the noise "
                           f"({lin['change_over_noise']:.3g}x after a linearised refit, {why}"
                           f"not refitted); chi2 {fit.chi2:.5g} -> {lin['chi2']:.5g} "
-                          + ("(deferred)" if lin.get("deferred") else "(resolved)"))
+                          + ("(deferred)" if lin.get("deferred") else
+                             "(counted)" if closer else "(resolved)"))
                 continue
             gain = fit.chi2 - refit.chi2
             change = _change(diag, fit, refit.sim, seen)
@@ -588,15 +603,23 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
             if jumped:
                 # its same-parameter change is Richardson's, from the halved step's run
                 entry["options"][what]["same_parameters_from"] = STEP_HALVED.label
+            if matters:
+                outcome = "(matters)"
+            elif later:
+                outcome = (f"(deferred: the fit misses the data by {fit.rms / diag.sigma:.3g}x "
+                           "the noise; counted, checked again when the misfit is smaller)")
+            elif too_small_to_adopt(gain, excess, change, diag.sigma):
+                outcome = (f"(closer to the data, but refitted it changes the simulation by "
+                           f"less than {ADOPT_CHANGE:g}x the noise: counted, not adopted)")
+            elif gain > 0.0:
+                outcome = "(closer to the data by too little to matter: counted)"
+            else:
+                outcome = "(resolved)"
             diag.tell(f"numerics: {what} ({r.describe(exp)}): the simulation changes by "
                       f"{fixed / diag.sigma:.3g}x the noise"
                       + (" (estimated from the step/2 run)" if jumped else "")
                       + f" ({change / diag.sigma:.3g}x "
-                      f"refitted); chi2 {fit.chi2:.5g} -> {refit.chi2:.5g} "
-                      + ("(matters)" if matters else
-                         f"(deferred: the fit misses the data by {fit.rms / diag.sigma:.3g}x "
-                         "the noise; counted, checked again when the misfit is smaller)"
-                         if later else "(resolved)"))
+                      f"refitted); chi2 {fit.chi2:.5g} -> {refit.chi2:.5g} {outcome}")
             if matters and (best is None or _better(r, gain, best[0], best[1])):
                 best = (r, gain, refit)
         rounds.append(entry)
@@ -770,17 +793,39 @@ def measured_on(entry: dict, fit: Fit, model_error: dict) -> bool:
 
 def refinement_matters(gain: float, excess: float, change: float, sigma: float) -> bool:
     """Whether a refinement whose refit lowers chi2 by ``gain`` and changes the simulation by
-    ``change`` (rms, refitted) matters: ``gain`` over 10 and either over 10 % of the current
-    fit's ``excess`` (chi2 - dof) or with ``change`` over the noise ``sigma``.
+    ``change`` (rms, refitted) matters (is adopted): it gains enough
+    (:func:`gains_enough`: ``gain`` over 10 and either over 10 % of the current fit's
+    ``excess`` (chi2 - dof) or with ``change`` over the noise ``sigma``) and ``change`` is at
+    least :data:`ADOPT_CHANGE` times the noise.
 
-    The second arm: a refinement closer to the data whose change exceeds the noise is an error
+    The change's arm: a refinement closer to the data whose change exceeds the noise is an error
     too large to be counted in the verdict's noise budget. Seen on the independent L-bracket
     with a concealed mass damping and added mass (chi2/dof 75 on the 4-node model): 10-node
     elements changed the refitted simulation by 4.1x the noise and lowered chi2 by 41,000, 9 %
     of the excess; they were not adopted, their error (4.1x the noise) and the split mesh's
     (3.3x) went into the budget, and a viscoelastic branch (not the truth) made the verdict
-    "consistent" at chi2/dof 0.37 of that inflated noise."""
+    "consistent" at chi2/dof 0.37 of that inflated noise.
+
+    The floor: one that changes the simulation by less than :data:`ADOPT_CHANGE` times the noise
+    is counted, not adopted, however much chi2 it gains (near a consistent fit a tenth of the
+    excess is within chi2's own spread)."""
+    return bool(change >= ADOPT_CHANGE * sigma and gains_enough(gain, excess, change, sigma))
+
+
+def gains_enough(gain: float, excess: float, change: float, sigma: float) -> bool:
+    """The gain arms of :func:`refinement_matters` (without its :data:`ADOPT_CHANGE` floor):
+    ``gain`` over 10 and either over 10 % of ``excess`` or with ``change`` over the noise
+    ``sigma``. What decides, as before the floor, whether a refit is made at all when it
+    would be deferred (:func:`_refit`) and whether a quarter-step refit is kept
+    (:func:`step_jump`): the floor changes only what is adopted."""
     return bool(gain > 10.0 and (gain > 0.1 * excess or change > sigma))
+
+
+def too_small_to_adopt(gain: float, excess: float, change: float, sigma: float) -> bool:
+    """Whether a refinement is not adopted for its :data:`ADOPT_CHANGE` floor alone: it gains
+    enough (:func:`gains_enough`) but its refit changes the simulation by less than that many
+    times the noise ``sigma`` (its error is counted instead)."""
+    return bool(change < ADOPT_CHANGE * sigma and gains_enough(gain, excess, change, sigma))
 
 
 def deferred(change: float, fit_rms: float, sigma: float) -> bool:
@@ -810,8 +855,9 @@ def screened(o: dict, excess: float, sigma: float) -> bool:
     """Whether a refinement whose linearised refit is ``o`` (:func:`linearised_refit`) is not
     refitted: it moves the simulation by at most :data:`SCREEN_BELOW` times the noise ``sigma``
     and its linearised refit is either no closer to the data or so little closer that twice its
-    gain and change would still not matter (:func:`refinement_matters`; its error is then
-    counted from the linearised change, as a measured mesh's). Seen: the independent L-bracket
+    gain and change would still not matter (:func:`refinement_matters`: twice its change under
+    :data:`ADOPT_CHANGE` times the noise is enough; its error is then counted from the
+    linearised change, as a measured mesh's). Seen: the independent L-bracket
     with damping and added mass, chi2/dof 75, where the halved step (0.51x the noise, 0.6 % of
     the excess) was refitted for 45 s to be called resolved."""
     if o["change_same_parameters"] > SCREEN_BELOW * sigma:
@@ -837,9 +883,10 @@ def _refit(diag: Diagnosis, fit: Fit, what: str, comm, cols: np.ndarray | None,
     ``moved``, calibrated; or only refitted linearised (:func:`linearised_refit`, given the
     current model's sensitivities ``cols``) when that shows a small change that brings the
     model no closer to the data (:data:`SCREEN_BELOW`). A halved step is refitted at a quarter
-    of the step instead where :func:`step_jump` says so, and kept there when that refit matters
-    (:func:`refinement_matters`) and fits the data at least as well as the halved step's
-    linearised refit; else at half the step as before. Returns (the
+    of the step instead where :func:`step_jump` says so, and kept there when that refit gains
+    enough (:func:`gains_enough`; whether it is adopted is :func:`refinement_matters`', by the
+    caller) and fits the data at least as well as the halved step's linearised refit; else at
+    half the step as before. Returns (the
     refit or None, the refined simulation (the quarter step's Richardson estimate when it
     jumped), the linearised entry or None, the label of the refinement refitted)."""
     if moved is None:     # its run failed (said by the caller)
@@ -850,12 +897,13 @@ def _refit(diag: Diagnosis, fit: Fit, what: str, comm, cols: np.ndarray | None,
         o = linearised_refit(diag, fit, refinement(what), moved, cols)
         if screened(o, diag.excess(fit), diag.sigma):
             return None, moved, {**o, "screened": True}, what
-        if o["matters"] and deferred(o["change_rms"], fit.rms, diag.sigma):
-            # it would matter, but a refit would be deferred anyway (its change is small beside
-            # the misfit): not refitted, counted from the linearised refit and checked again
-            # later. Seen: the independent L-bracket's halved step on the 10-node model with a
-            # concealed viscoelastic branch, 1.01x the noise refitted, deferred after a 236 s
-            # refit at chi2/dof 49.
+        if (gains_enough(o["gain"], diag.excess(fit), o["change_rms"], diag.sigma)
+                and deferred(o["change_rms"], fit.rms, diag.sigma)):
+            # it would gain enough to matter, but a refit would be deferred anyway (its change
+            # is small beside the misfit; or under ADOPT_CHANGE, never adopted): not refitted,
+            # counted from the linearised refit and checked again later. Seen: the independent
+            # L-bracket's halved step on the 10-node model with a concealed viscoelastic
+            # branch, 1.01x the noise refitted, deferred after a 236 s refit at chi2/dof 49.
             return None, moved, {**o, "screened": True, "matters": False,
                                  "deferred": fit.rms / diag.sigma}, what
     if cols is not None and what == STEP_HALVED.label:
@@ -872,11 +920,14 @@ def _refit(diag: Diagnosis, fit: Fit, what: str, comm, cols: np.ndarray | None,
             estimate = quartered_run(fit.experiment, diag.integrator, fit.sim, moved)
             refit = _refitted(diag, fit, quarter, refined(fit.experiment, quarter), comm, cols,
                               estimate)
-            if (refinement_matters(fit.chi2 - refit.chi2, diag.excess(fit),
-                                   _change(diag, fit, refit.sim, seen), diag.sigma)
+            if (gains_enough(fit.chi2 - refit.chi2, diag.excess(fit),
+                             _change(diag, fit, refit.sim, seen), diag.sigma)
                     and refit.chi2 <= o["chi2"]):
+                # kept, and judged by the caller: adopted when it matters, else (its refitted
+                # change under ADOPT_CHANGE: half the step's would be smaller still) counted
+                # from this refit, without another at half the step
                 return refit, estimate, None, quarter
-            # A quarter of the step that does not matter, or fits the data worse than half the
+            # A quarter of the step that gains too little, or fits the data worse than half the
             # step's linearised refit says half would: an error at half the step offsetting
             # another (a coarse mesh's, or a recording made at exactly that step), which the
             # halving measures as before. Seen: the example foundation package's bar (36 tets,

@@ -11,6 +11,7 @@ report.md says ``summary`` and ``recommendation`` in "In short", ``findings`` in
 from __future__ import annotations
 
 from petsoft.calibration.refinement import STEP_HALVED, levels_needed, mesh_cells, refinement
+from petsoft.diagnosis.numerics import ADOPT_CHANGE, too_small_to_adopt
 from petsoft.dynamics.factory import system_class
 
 #: The keys of :func:`numerics_findings` that go to report.json's ``numerics``.
@@ -79,6 +80,12 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
         head = head[0].upper() + head[1:]
         fit = f"chi2/dof {r['chi2'] / r['dof']:.3g} -> {o['chi2_per_dof']:.3g}"
         moved = _shifts(r["parameters"], o["parameters"])
+        # closer to the data by enough, but its refit changes the simulation by less than
+        # ADOPT_CHANGE x the noise: not adopted for that alone
+        small = too_small_to_adopt(o.get("gain", 0.0), max(r["chi2"] - r["dof"], 0.0),
+                                   o.get("change_rms", 0.0), sigma)
+        floor = (f"changes the simulation by only {_x(o['change_over_noise'])}x the noise "
+                 f"(a refinement is adopted from {ADOPT_CHANGE:g}x)")
         if o.get("measured_only"):
             out.append(_measured_sentence(head, o, sigma, noun))
         elif o.get("screened") and o.get("deferred"):
@@ -90,7 +97,9 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
                        "again once the misfit is smaller (not refitted).")
         elif o.get("screened") and o.get("error_estimate", 0.0) > 0.0:
             # not refitted: its linearised refit was closer to the data by too little to matter
-            out.append(f"{head}, and a linearised refit improves little ({fit}): counted as a "
+            improves = (f"comes closer to the data ({fit}) but {floor}" if small else
+                        f"improves little ({fit})")
+            out.append(f"{head}, and a linearised refit {improves}: counted as a "
                        f"{noun} error of {_x(o['error_estimate'] / sigma)}x the noise, not "
                        "blamed on physics (not refitted).")
         elif o.get("screened"):
@@ -116,7 +125,9 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
         elif x < 1.0:
             out.append(f"{head}: less than the noise on this model.")
         elif o.get("error_estimate", 0.0) > 0.0:
-            out.append(f"{head}, but refitted it improves little ({fit}{moved}): counted "
+            improves = (f"comes closer to the data ({fit}{moved}) but {floor}" if small else
+                        f"improves little ({fit}{moved})")
+            out.append(f"{head}, but refitted it {improves}: counted "
                        f"as a {noun} error of {_x(o['error_estimate'] / sigma)}x the noise, "
                        "not blamed on physics.")
         else:

@@ -111,6 +111,16 @@ def write_diagnosis_figures(out: Path, diag: Diagnosis, result: DiagnoseResult,
     return figs
 
 
+def _why_adopted(r: dict) -> str:
+    """Why numerics round ``r`` adopted its refinement, in the words of
+    :func:`~petsoft.diagnosis.numerics.refinement_matters`' arm that held."""
+    o = r["options"][r["adopted"]]
+    floor = f"changing the refitted simulation by {o['change_over_noise']:.2g}x the noise"
+    if o["gain"] > 0.1 * max(r["chi2"] - r["dof"], 0.0):
+        return f"it lowered chi2 by more than 10 % of the excess over the noise, {floor}"
+    return f"it lowered chi2 by more than 10, {floor}, more than the noise"
+
+
 def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: dict,
                   wall_time: float, spelled_out: bool = False) -> None:
     """report.json, report.md, figures, diagnosed.toml, summary.json (rank 0 writes)."""
@@ -146,8 +156,8 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
         notes.append(f"numerics before blaming physics (after {r.get('after_additions', 0)} "
                      f"additions; checked {r['why']}): chi2 {r['chi2']:.5g} at step "
                      f"{r['step']:.4g} s; refined: "
-                     f"{opts}; " + (f"adopted {r['adopted']} (it lowered chi2 by more than 10 % "
-                                    "of the excess over the noise)" if r.get("adopted")
+                     f"{opts}; " + (f"adopted {r['adopted']} ({_why_adopted(r)})"
+                                    if r.get("adopted")
                                     else "nothing adopted (refinement does not matter)"))
     if result.numerics.get("model_error"):
         notes.append("discretisation error estimated from the refinement check (Richardson): "
