@@ -26,30 +26,28 @@ def ladder(f0, c, p, hs):
 def test_a_power_law_frequency_error_is_recovered(p):
     h = 0.01
     f = ladder(10.0, 3e3, p, [h, 1.4 * h, 1.96 * h])
-    err = fs.frequency_error(f)
-    assert err == pytest.approx([3e3 * h ** p, 6e3 * h ** p], rel=1e-9)
+    assert fs.frequency_error(f[:, 0]) == pytest.approx(3e3 * h ** p, rel=1e-9)
+    assert fs.frequency_error(f[:, 1]) == pytest.approx(6e3 * h ** p, rel=1e-9)
 
 
 def test_an_order_above_four_is_capped_so_the_error_is_overestimated():
     h = 0.01
     f = ladder(10.0, 3e7, 6.0, [h, 1.4 * h, 1.96 * h])
-    err = fs.frequency_error(f)
-    assert np.all(err > np.array([3e7, 6e7]) * h ** 6)
+    assert fs.frequency_error(f[:, 0]) > 3e7 * h ** 6
 
 
 def test_a_mode_not_converging_is_no_estimate():
-    f = np.array([[10.0, 15.0], [10.1, 15.1], [10.15, 15.2]])  # mode 1: 0.1 then 0.05
-    assert fs.frequency_error(f) is None
+    assert fs.frequency_error([10.0, 10.1, 10.15]) is None     # 0.1 then 0.05
 
 
 def test_the_prediction_follows_record_noise_and_step():
     case = {"end": 0.5, "noise_fraction": 0.02, "excitation": {"kind": "velocity"}}
     k_space, k_time = fs.K["velocity"]
-    f, err = np.array([10.0, 12.0]), np.array([1e-3, 5e-4])
+    f, err = 12.0, 1e-3
     p4 = fs.predicted(case, f, err, 4)
     scale = 2 * math.pi * 0.5 / 0.02
     assert p4["space"] == pytest.approx(k_space * scale * 1e-3)
-    wdt = 2 * math.pi * 12.0 * rd.STEP / 4               # the second mode's: the worse
+    wdt = 2 * math.pi * 12.0 * rd.STEP / 4
     assert p4["time"] == pytest.approx(k_time * scale * 12.0 * wdt ** 2 / 12)
     p8 = fs.predicted(case, f, err, 8)
     assert p8["time"] == pytest.approx(p4["time"] / 4)   # second order in the step
@@ -80,8 +78,8 @@ def test_the_cheapest_level_predicted_within_the_margin_is_chosen(monkeypatch):
     for k in range(fs.FINEST, fs.COARSEST - 1):   # a level needs two coarser rungs
         h = 0.01 * fs.LADDER ** k
         tets = int(2e-3 / h ** 3)
-        f = ladder(10.0, 5.0, 2.0, [h])[0]
-        err = np.array([5.0, 10.0]) * h ** 2
+        f = ladder(10.0, 5.0, 2.0, [h])[0, 0]
+        err = 5.0 * h ** 2
         for s in fs.SUBSTEPS:
             cost = tets * case["end"] / rd.STEP * s
             bound = fs.predicted(case, f, err, s)["bound"]

@@ -15,8 +15,9 @@ error of a level (h, steps a frame) as
                                                     relative period error, generalized-alpha's
                                                     to leading order at rho_inf near 1
 
-(T the record, fraction the noise over the largest displacement, the worse of the first two
-modes). The constants were read off the three free-vibration cases of the test draw 59653812
+(T the record, fraction the noise over the largest displacement, f the first mode's: the
+excitations are transverse to the body, mostly in its first bending mode, and the constants
+were read off it; the second mode's is kept in the ladder for the record). The constants were read off the three free-vibration cases of the test draw 59653812
 that were discarded by the generator's own check, before any diagnosis (r001-fillet,
 r003-bracket, r005-fillet: the markers' difference between the h and 1.4 h runs over this
 prediction 0.113-0.133, between 1.4 h and 1.96 h 0.117-0.167; the step's difference 0.29-0.86):
@@ -45,12 +46,12 @@ import random_shapes as rs  # noqa: E402
 #: motion mostly follows the drive, and the test draw 59653812's two base-driven cases (r000-bar,
 #: r004-plate, written) had 0.16 and ~0.1 of the free vibrations' space error and 0.15 and
 #: 0.06 of their time error for the same prediction: the largest seen, rounded up
-K = {"velocity": (0.2, 1.0), "release": (0.2, 1.0), "base": (0.05, 0.25)}
+K = {"velocity": (0.17, 0.9), "release": (0.17, 0.9), "base": (0.05, 0.2)}
 #: a level is chosen when its predicted bound is below this fraction of the tolerance (the
 #: constants' spread: the ratios above vary by 1.5x in space and 3x in time)
-MARGIN = 0.6
+MARGIN = 0.8
 #: the mesh ladder: h x LADDER^k, k from COARSEST down to FINEST (the three-mesh check's ratio)
-LADDER, COARSEST, FINEST = 1.4, 2, -3
+LADDER, COARSEST, FINEST = 1.4, 4, -3
 #: the largest mesh the ladder meshes (P2 tets: the eigen solve's and a truth's memory)
 MAX_TETS = 40_000
 #: steps a frame tried (the truth's check halves them: at least 2)
@@ -58,7 +59,7 @@ SUBSTEPS = (4, 8, 16)
 #: the affordable truth run: P2 tets x steps (a 13,484-tet plate over 1,308 steps took 852 s
 #: of a core, 4.8e-5 s a tet-step; a case costs ~2.1 such runs: the check's coarser meshes,
 #: its halved step and the effect-free twin)
-MAX_TET_STEPS = 2.0e7
+MAX_TET_STEPS = 3.0e7
 
 
 def frequencies(gmsh, case: dict, h: float, modes: int = 2) -> tuple[np.ndarray, int]:
@@ -116,25 +117,25 @@ def frequencies(gmsh, case: dict, h: float, modes: int = 2) -> tuple[np.ndarray,
     return np.sqrt(np.maximum(lam_, 0.0)) / (2 * math.pi), tets
 
 
-def frequency_error(f: np.ndarray) -> np.ndarray | None:
-    """The extrapolated error of the frequencies ``f`` (3, modes) on meshes h, 1.4 h, 1.96 h
-    at h, per mode, from their observed order (at most 4, P2's for frequencies); None where a
-    mode does not converge (the coarser difference not larger: no order, no estimate)."""
-    d1, d2 = np.abs(f[0] - f[1]), np.abs(f[1] - f[2])
-    if np.any(d2 <= d1):
+def frequency_error(f: np.ndarray) -> float | None:
+    """The extrapolated error at h of a frequency ``f`` (3,) on meshes h, 1.4 h, 1.96 h, from
+    its observed order (at most 4, P2's for frequencies); None when it does not converge (the
+    coarser difference not larger: no order, no estimate)."""
+    d1, d2 = abs(f[0] - f[1]), abs(f[1] - f[2])
+    if d2 <= d1:
         return None
-    p = np.minimum(np.log(d2 / np.maximum(d1, 1e-300)) / math.log(LADDER), 4.0)
-    return d1 / (LADDER ** p - 1.0)
+    p = min(math.log(d2 / max(d1, 1e-300)) / math.log(LADDER), 4.0)
+    return float(d1 / (LADDER ** p - 1.0))
 
 
-def predicted(case: dict, f: np.ndarray, error_f: np.ndarray, substeps: int) -> dict:
-    """The marker error (x noise) the frequencies predict for a truth at a mesh whose
-    frequencies are ``f`` (modes,) with errors ``error_f``, at ``substeps`` steps a frame."""
+def predicted(case: dict, f: float, error_f: float, substeps: int) -> dict:
+    """The marker error (x noise) predicted for a truth at a mesh whose first frequency is
+    ``f`` with error ``error_f``, at ``substeps`` steps a frame."""
     k_space, k_time = K[case["excitation"]["kind"]]
     scale = 2 * math.pi * case["end"] / case["noise_fraction"]
-    space = float(np.max(k_space * scale * error_f))
+    space = k_space * scale * error_f
     wdt = 2 * math.pi * f * rd.STEP / substeps
-    time_ = float(np.max(k_time * scale * f * wdt ** 2 / 12.0))
+    time_ = k_time * scale * f * wdt ** 2 / 12.0
     return {"space": space, "time": time_, "bound": space + time_}
 
 
@@ -158,8 +159,8 @@ def choose(gmsh, case: dict, tolerance: float, say=print) -> dict:
     levels, best = [], None
     for i in range(2, len(ladder)):
         # level at ladder[i] (finest of three), checked by ladder[i-1] and ladder[i-2]
-        f = np.array([ladder[i]["frequencies"], ladder[i - 1]["frequencies"],
-                      ladder[i - 2]["frequencies"]])
+        f = [ladder[i]["frequencies"][0], ladder[i - 1]["frequencies"][0],
+             ladder[i - 2]["frequencies"][0]]
         err = frequency_error(f)
         for s in SUBSTEPS:
             cost = ladder[i]["tets"] * steps * s
@@ -169,7 +170,7 @@ def choose(gmsh, case: dict, tolerance: float, say=print) -> dict:
                 level["predicted"] = None
             else:
                 level["predicted"] = predicted(case, f[0], err, s)
-                level["frequency_error"] = err.tolist()
+                level["frequency_error"] = err
             levels.append(level)
             ok = (level["predicted"] is not None and cost <= MAX_TET_STEPS
                   and level["predicted"]["bound"] < MARGIN * tolerance)

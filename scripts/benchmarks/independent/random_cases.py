@@ -12,7 +12,7 @@ random_draw.py draws each case's parameters from (S, index); here, for every cas
 * ``mesh.msh``: the user's P1 mesh (gmsh) with the drawn number of tets;
 * the truth's level chosen first (frequency_screen.py): the body's first natural frequencies
   on a ladder of graded meshes (seconds) predict each level's error; the cheapest level (mesh
-  size, 4-16 steps a frame) predicted within 0.6x the tolerance and an affordable cost is
+  size, 4-16 steps a frame) predicted within 0.8x the tolerance and an affordable cost is
   taken, and a case no affordable level is predicted to pass is **discarded** before any time
   run (it used to cost ~20-45 core-minutes to find out);
 * the truth: DOLFINx P2 on that finer gmsh mesh at that fraction of the user's step
