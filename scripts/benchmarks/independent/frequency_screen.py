@@ -17,14 +17,15 @@ error of a level (h, steps a frame) as
 
 (T the record, fraction the noise over the largest displacement, f the first mode's: the
 excitations are transverse to the body, mostly in its first bending mode, and the constants
-were read off it; the second mode's is kept in the ladder for the record). The constants were read off the three free-vibration cases of the test draw 59653812
-that were discarded by the generator's own check, before any diagnosis (r001-fillet,
-r003-bracket, r005-fillet: the markers' difference between the h and 1.4 h runs over this
-prediction 0.113-0.133, between 1.4 h and 1.96 h 0.117-0.167; the step's difference 0.29-0.86):
-the largest seen, rounded up (:data:`K`; a base drive's smaller). The prediction only
-*chooses* the level (the cheapest predicted to pass with a margin, within a cost cap) or
-discards a case no affordable level is predicted to pass; the written case is still checked
-by the three meshes and the halved step.
+were read off it; the second mode's is kept in the ladder for the record). The constants come
+from the generator's own verdicts (never a diagnosis) on the test draw 59653812's first six
+cases, that draw then abandoned: its three discarded free vibrations (r001-fillet,
+r003-bracket, r005-fillet; the markers' difference between the h and 1.4 h runs over this
+prediction 0.113-0.133, between 1.4 h and 1.96 h 0.117-0.167; the step's difference 0.29-0.86)
+and its two written base drives (r000-bar, r004-plate: time 0.19 and 0.06, space ~0.03):
+the largest seen (:data:`K`). The prediction only *chooses* the level (the cheapest predicted
+to pass with a margin, within a cost cap) or discards a case no affordable level is predicted
+to pass; the written case is still checked by the three meshes and the halved step.
 
 System python (DOLFINx 0.5, gmsh, SLEPc).
 """
