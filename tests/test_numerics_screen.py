@@ -171,6 +171,44 @@ def test_a_small_refinement_is_screened_also_when_the_fit_is_far_from_the_data(d
     MPI.COMM_WORLD.Barrier()
 
 
+def test_a_refit_under_the_adoption_floor_is_counted_not_adopted(tmp_path_factory, monkeypatch):
+    """The fitted path of refinement_matters' floor (numerics.ADOPT_CHANGE): the taper recorded
+    with 10-node elements, its 4-node model refitted on 10-node ones, which is adopted at the
+    real floor. With the floor raised over that refit's change (monkeypatched), the same refit
+    is not adopted: its error, the change times Richardson's k / (k - 1), is booked in the
+    verdict's noise budget (``diag.model_error``), and the console and the findings say why."""
+    from petsoft.calibration.refinement import refinement
+    from petsoft.diagnosis import numerics
+
+    d = Path(MPI.COMM_WORLD.bcast(str(tmp_path_factory.mktemp("floor"))))
+    said = []
+    diag, exp = taper_diagnosis(d, taper(2.0e7, order=2), taper(1.8e7, calibrate=CALIBRATE),
+                                seed=7, noise=NOISE, say=said.append)
+    fit = diag.calibrate(exp)
+    _, _, rounds = resolve_numerics(diag, fit, evidence_of(diag, fit), max_rounds=1)
+    p2 = rounds[0]["options"]["P2"]
+    assert rounds[0].get("adopted") == "P2" and p2["matters"], rounds[0]
+    assert p2["gain"] > 10.0 and p2["change_over_noise"] >= 0.1
+
+    monkeypatch.setattr(numerics, "ADOPT_CHANGE", 2.0 * p2["change_over_noise"])
+    diag.model_error.clear()
+    said.clear()
+    _, _, rounds = resolve_numerics(diag, fit, evidence_of(diag, fit), max_rounds=1)
+    o = rounds[0]["options"]["P2"]
+    assert "adopted" not in rounds[0] and not o["matters"]
+    assert o["gain"] == pytest.approx(p2["gain"]) and o["change_rms"] == p2["change_rms"]
+    current = refinement("P2").error_factors(fit.experiment, diag.integrator)[0]
+    assert diag.model_error["P2"] == pytest.approx(o["change_rms"] * current)
+    assert o["error_estimate"] == diag.model_error["P2"]
+    if MPI.COMM_WORLD.rank == 0:
+        assert any("numerics: P2" in line and "counted, not adopted" in line
+                   for line in said), said
+    findings = numerics_findings(diag, {}, rounds, fit, fit)["findings"]
+    assert any("raised to order 2" in f and "a refinement is adopted from" in f
+               and "element order error of" in f for f in findings), findings
+    MPI.COMM_WORLD.Barrier()
+
+
 def test_a_small_refinement_closer_by_too_little_to_matter_is_not_refitted():
     """The screen's rule on made-up linearised refits either side of its levels: a refinement
     moving the simulation by at most SCREEN_BELOW x the noise is not refitted when its
