@@ -7,27 +7,16 @@ u(h, dt)) are printed in units of the case's noise, as they are and with their l
 component along the E sensitivity removed (what a refit of E takes up: diagnose's own
 "refitted change"), with the bound random_cases.truth_error makes of each."""
 
-import os
-import sys
-from pathlib import Path
-
-os.environ["OPENBLAS_NUM_THREADS"] = "1"
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import _cached  # first: one BLAS thread, the generator's folder on the path
 import gmsh
 import numpy as np
 import random_cases as rc
 import random_draw as rd
-import random_shapes as rs
 
-seed, n, folder = int(sys.argv[1]), int(sys.argv[2]), Path(sys.argv[3])
-cache = folder / ".runs"
 DELTA = 1e-3
-gmsh.initialize()
-gmsh.option.setNumber("General.Terminal", 0)
-cases = {c["name"]: c for c in rd.draw(seed, n, "realistic")}
-for name in sys.argv[4:]:
-    case = cases[name]
-    h = rs.truth_h(case["geometry"])
+cache, todo = _cached.cases_from_argv()
+for case, h in todo:
+    name = case["name"]
     runs = {key: np.load(cache / f"{name}-truth-h{h * k:.5g}-s{s}.npz")
             for key, k, s in (("truth", 1.0, 4), ("space", 1.4, 4), ("space2", 1.96, 4),
                               ("time", 1.0, 2))}

@@ -5,25 +5,14 @@ cached): ``python3 time_check_mesh.py SEED N DIR CASE [CASE ...]``. The time err
 error of the body's frequencies, which differ by ~0.1 % between the meshes, so the two
 differences should agree to a few per cent; the 1.96 h pair costs ~1/4 of the pair at h."""
 
-import os
-import sys
-from pathlib import Path
-
-os.environ["OPENBLAS_NUM_THREADS"] = "1"
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import _cached  # first: one BLAS thread, the generator's folder on the path
 import gmsh
 import numpy as np
 import random_cases as rc
-import random_draw as rd
-import random_shapes as rs
 
-seed, n, cache = int(sys.argv[1]), int(sys.argv[2]), Path(sys.argv[3]) / ".runs"
-gmsh.initialize()
-gmsh.option.setNumber("General.Terminal", 0)
-cases = {c["name"]: c for c in rd.draw(seed, n, "realistic")}
-for name in sys.argv[4:]:
-    case = cases[name]
-    h = rs.truth_h(case["geometry"])
+cache, todo = _cached.cases_from_argv()
+for case, h in todo:
+    name = case["name"]
     s = rc.SUBSTEPS
     fine = {k: np.load(cache / f"{name}-truth-h{h:.5g}-s{k}.npz") for k in (s, s // 2)}
     markers = fine[s]["markers"]

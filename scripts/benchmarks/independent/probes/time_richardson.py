@@ -5,26 +5,15 @@ steps a frame, the reference is Richardson's u(h, 8) + (u(h, 8) - u(h, 4)) / 3; 
 units of the case's noise (rms over markers and frames): the plain truth's time error
 |u(h, 4) - ref| and the corrected truth's |u(h, 4) + (u(1.96 h, 4) - u(1.96 h, 2)) / 3 - ref|."""
 
-import os
-import sys
-from pathlib import Path
-
-os.environ["OPENBLAS_NUM_THREADS"] = "1"
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import _cached  # first: one BLAS thread, the generator's folder on the path
 import gmsh
 import numpy as np
 import random_cases as rc
 import random_draw as rd
-import random_shapes as rs
 
-seed, n, folder = int(sys.argv[1]), int(sys.argv[2]), Path(sys.argv[3])
-cache = folder / ".runs"
-gmsh.initialize()
-gmsh.option.setNumber("General.Terminal", 0)
-cases = {c["name"]: c for c in rd.draw(seed, n, "realistic")}
-for name in sys.argv[4:]:
-    case = cases[name]
-    h = rs.truth_h(case["geometry"])
+cache, todo = _cached.cases_from_argv()
+for case, h in todo:
+    name = case["name"]
     markers = np.load(cache / f"{name}-truth-h{h:.5g}-s4.npz")["markers"]
     runs = {(k, s): rc.run(gmsh, case, markers, f"truth-h{h * k:.5g}-s{s}", cache,
                            h=h * k, substeps=s)
