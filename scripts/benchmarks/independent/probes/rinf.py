@@ -1,5 +1,6 @@
 """The truth's step effect D(dt, dt/2) at generalized-alpha rho_inf 0.9 and 0.5 on a drawn case
-(at 1.4 h; a bar's points 30 % inside): python3 rinf.py SEED CASE N END."""
+(at 1.4 h; a bar's points 30 % inside): python3 rinf.py SEED CASE N END (environment: RINFS,
+the two rho_inf compared, default "0.9,0.5"; HFACTOR, the mesh's h over the truth's, 1.4)."""
 
 import os
 import sys
@@ -21,7 +22,8 @@ g = case["geometry"]
 if case["family"] == "bar":
     markers[:, 1:] *= 0.7          # inside every mesh (truth_convergence.py --inside)
 out = {}
-for rinf in (0.9, 0.5):
+rinfs = tuple(float(r) for r in os.environ.get("RINFS", "0.9,0.5").split(","))
+for rinf in rinfs:
     indep.ALPHA_RADIUS = rinf
     for sub in (4, 8):
         res = indep.simulate_truth(
@@ -30,7 +32,7 @@ for rinf in (0.9, 0.5):
             {"shape": case["family"], "truth": case["truth"]},
             markers,
             lambda l: None,
-            h_fine=rs.truth_h(g) * 1.4,
+            h_fine=rs.truth_h(g) * float(os.environ.get("HFACTOR", 1.4)),
             end=end,
             substeps=sub,
             newton_tol=rc.NEWTON_TOL,
@@ -39,11 +41,11 @@ for rinf in (0.9, 0.5):
         )
         out[rinf, sub] = res["displacements"][:, res["found"]]
         print(rinf, sub, res["newton"], "iterations", flush=True)
-for rinf in (0.9, 0.5):
+for rinf in rinfs:
     d = out[rinf, 4] - out[rinf, 8]
     print(f"rho_inf {rinf}: D(dt, dt/2) rms {np.sqrt(np.mean(d**2)):.3e} m")
-d = out[0.9, 8] - out[0.5, 8]
+d = out[rinfs[0], 8] - out[rinfs[1], 8]
 print(
-    f"rho_inf 0.9 vs 0.5 at dt/2: rms {np.sqrt(np.mean(d**2)):.3e} m; largest displacement "
-    f"{np.abs(out[0.9, 8]).max():.3e}"
+    f"rho_inf {rinfs[0]} vs {rinfs[1]} at dt/2: rms {np.sqrt(np.mean(d**2)):.3e} m; largest "
+    f"displacement {np.abs(out[rinfs[0], 8]).max():.3e}"
 )
