@@ -10,6 +10,8 @@ import inspect
 import numpy as np
 import pytest
 
+from petsoft.dynamics.rayleigh import NAMES as RAYLEIGH
+from petsoft.dynamics.rayleigh import RayleighLaw
 from petsoft.dynamics.velocity import LAWS, NAMES, VelocityTerms
 from petsoft.physics.velocity_law import VelocitySupport
 from petsoft.terms import TERMS, Key, Parameter, Proposal, Term, builders
@@ -87,8 +89,11 @@ def test_declared_builders_resolve_to_what_their_callers_call():
         for method in ("damping", "blocks", "second", "potential", "rate"):
             assert callable(getattr(law, method))
         assert isinstance(law.linear, bool)
+    rayleigh = builders("rayleigh")
+    assert [t.name for t, _ in rayleigh] == list(RAYLEIGH)
+    assert all(isinstance(law, RayleighLaw) for _, law in rayleigh)
     declared = [t for t in TERMS.values() if t.builds]
-    assert len(declared) == len(nodal) + len(velocity)
+    assert len(declared) == len(nodal) + len(velocity) + len(rayleigh)
 
 
 def test_a_builder_is_declared_with_what_it_contributes():

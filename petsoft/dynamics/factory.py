@@ -24,6 +24,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.interfaces import System
 from petsoft.dynamics.mass_spring import MassSpringSystem, build_mass_spring_model
+from petsoft.dynamics.rayleigh import RayleighDamping
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError
 from petsoft.physics.model import build_model as build_continuum_model
@@ -77,11 +78,11 @@ def _spring_model(experiment, comm, inputs, mesh):
 #: Every kind of body the factory builds, by name.
 KINDS: dict[str, Kind] = {
     "continuum": Kind(DynamicSystem, _continuum_model,
-                      lambda model, e, spd: DynamicSystem(model, e.damping.mass,
-                                                          e.damping.stiffness)),
+                      lambda model, e, spd: DynamicSystem(
+                          model, rayleigh=RayleighDamping.of(e))),
     "mass-spring": Kind(MassSpringSystem, _spring_model,
-                        lambda model, e, spd: MassSpringSystem(model, e.damping.mass,
-                                                               e.damping.stiffness, clamp=spd)),
+                        lambda model, e, spd: MassSpringSystem(
+                            model, clamp=spd, rayleigh=RayleighDamping.of(e))),
 }
 
 

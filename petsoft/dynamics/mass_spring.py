@@ -42,6 +42,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.initial import initial_from_expressions
 from petsoft.dynamics.interfaces import SystemDefaults
+from petsoft.dynamics.rayleigh import RayleighDamping
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms, coefficients_of
 from petsoft.errors import ExperimentError
@@ -387,13 +388,17 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
     alpha, damping_stiffness : float
         Rayleigh coefficients; ``beta`` is 1 and ``K0`` = damping_stiffness K_ref + dashpots
         (see the module docstring).
+    rayleigh : RayleighDamping
+        The Rayleigh terms' coefficients (:mod:`petsoft.dynamics.rayleigh`), from
+        ``damping_mass`` and ``damping_stiffness`` unless given.
     """
 
     # a network of nodes and springs: no cells, no finite elements, no continuum material
     defined_by = "[springs]"
 
     def __init__(self, model: MassSpringModel, damping_mass: float = 0.0,
-                 damping_stiffness: float = 0.0, clamp: bool = False):
+                 damping_stiffness: float = 0.0, clamp: bool = False, *,
+                 rayleigh: RayleighDamping | None = None):
         self.model = model
         self.dmesh = lay = model.dmesh
         self.comm = lay.comm
@@ -409,8 +414,8 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         self.point_masses = model.point_masses
         self.node_mass = model.node_mass
         self.colliders = model.colliders
-        self.alpha = float(damping_mass)
-        self.damping_stiffness = float(damping_stiffness)
+        self.rayleigh = (rayleigh if rayleigh is not None
+                         else RayleighDamping.of_matrices(damping_mass, damping_stiffness))
         self.beta = 1.0  # D = alpha M + 1 * K0 with K0 = beta_user K_ref + dashpots (see module)
         self.acceleration = np.asarray(model.experiment.gravity.acceleration, float)
         self.lumped_kinetic = False
@@ -687,6 +692,29 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
             w += c.energy(x[lo:hi]).sum()
         return self.dmesh.allreduce_sum(w)
 
+    @property
+    def alpha(self) -> float:
+        """Rayleigh alpha: the coefficient of M in D (1/s)."""
+        return self.rayleigh.alpha
+
+    @property
+    def damping_stiffness(self) -> float:
+        """The user's Rayleigh beta: the coefficient of K_ref in K0 (s; :attr:`beta` is 1)."""
+        return self.rayleigh.beta
+
+    def rayleigh_unit(self, matrix: str, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = B v, B the ``matrix`` a Rayleigh term scales (:mod:`petsoft.dynamics.rayleigh`):
+        the lumped masses, or K_ref (the springs' stiffness at rest, without the dashpots)."""
+        arr = out.getArray().reshape(-1, 3)
+        if matrix == "mass":
+            lo, hi = self.node_range
+            arr[:] = self.masses[lo:hi, None] * v.getArray(readonly=True).reshape(-1, 3)
+        else:
+            p = self.get_parameters()
+            arr[:] = (p["springs.stiffness"] * self._unit_product("stiffness", v)
+                      + p["springs.bending"] * self._unit_product("bending", v))
+        return out
+
     def _linear_damping_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
         """out = D v = alpha M v + K0 v."""
         out.zeroEntries()
@@ -750,7 +778,7 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         names = ["springs.stiffness", "springs.damping"]
         if np.any(self.kind == KINDS.index("bending")):
             names.append("springs.bending")
-        names += ["springs.node_mass", "damping.mass", "damping.stiffness",
+        names += ["springs.node_mass", *self.rayleigh.coef,
                   "gravity.acceleration.x", "gravity.acceleration.y", "gravity.acceleration.z"]
         if self.velocity_terms.has_surface:
             names += ["drag.linear", "drag.quadratic"]
@@ -770,8 +798,7 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         return {"springs.stiffness": first(~bend, self.stiffness),
                 "springs.damping": first(~bend, self.damping_coefficients),
                 "springs.bending": first(bend, self.stiffness),
-                "springs.node_mass": self.node_mass, "damping.mass": self.alpha,
-                "damping.stiffness": self.damping_stiffness,
+                "springs.node_mass": self.node_mass, **self.rayleigh.coef,
                 **{f"gravity.acceleration.{c}": float(self.acceleration[i])
                    for i, c in enumerate("xyz")},
                 **self.velocity_terms.coef}
@@ -798,11 +825,10 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
             elif name == "springs.node_mass":
                 self.node_mass = value
                 mass_changed = True
-            elif name == "damping.mass":
-                self.alpha = value
-            elif name == "damping.stiffness":
-                self.damping_stiffness = value
-                ref_changed = True
+            elif name in self.rayleigh.coef:
+                self.rayleigh.coef[name] = value
+                # K0 holds beta K_ref (the module docstring)
+                ref_changed |= self.rayleigh.matrix_of(name) == "reference"
             elif name in VELOCITY_NAMES:
                 # negative values are accepted here (central differences at 0); the experiment
                 # file refuses them
@@ -859,12 +885,8 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
                                                                           vlin)
             elif name in VELOCITY_NAMES:
                 arr[:] = vt.unit_linearised(name, vl, vlin)
-            elif name == "damping.mass":
-                arr[:] = self.masses[lo:hi, None] * vl
-            elif name == "damping.stiffness":
-                p = self.get_parameters()
-                arr[:] = (p["springs.stiffness"] * self._unit_product("stiffness", v)
-                          + p["springs.bending"] * self._unit_product("bending", v))
+            elif name in self.rayleigh.coef:
+                self.rayleigh_unit(self.rayleigh.matrix_of(name), v, d)
             else:
                 arr[:] = 0.0
                 arr[:, "xyz".index(name[-1])] = -self.masses[lo:hi]

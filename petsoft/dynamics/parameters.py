@@ -22,7 +22,10 @@ Parameter names (see :meth:`ParameterMap.names`):
 * ``material.youngs_modulus``, ``material.poisson_ratio``, ``material.density`` and the same per
   region ``material.<region>.<key>``, with the meaning of :func:`petsoft.experiment.with_parameters`
   (a region material that does not override a key follows the default);
-* ``damping.mass``, ``damping.stiffness``, ``gravity.acceleration.x|y|z``;
+* the Rayleigh terms' coefficients (``damping.mass``, ``damping.stiffness``: the terms that
+  contribute ``"rayleigh"``, :mod:`petsoft.dynamics.rayleigh`): d r/dc = B v, B the matrix the
+  term's law names (the system's ``rayleigh_unit``);
+* ``gravity.acceleration.x|y|z``;
 * ``viscoelastic.ratio``, ``viscoelastic.relaxation_time`` (the Maxwell branch): set in place by
   :meth:`~petsoft.dynamics.system.DynamicSystem.set_parameters` but **not differentiable**
   (:class:`ParameterDerivatives` refuses them: use finite differences);
@@ -132,8 +135,8 @@ class ParameterMap:
                     mask = model.resolver.cell_mask(name, key=f"region.{name}")
                     self.cells[f"material.{key_part(name)}.{key}"] = mask[local]
         self.values = {n: float(self._current(n)) for n in self.cells}
-        self.values["damping.mass"] = system.alpha
-        self.values["damping.stiffness"] = system.beta
+        # the Rayleigh terms' coefficients (petsoft.dynamics.rayleigh)
+        self.values.update(system.rayleigh.coef)
         for name, value in system.velocity_terms.coef.items():
             self.values[name] = float(value)
         for i, c in enumerate("xyz"):
@@ -242,15 +245,15 @@ class ParameterMap:
                 ok, valid = -1.0 < v < 0.5, "in (-1, 0.5)"
             elif key in ("youngs_modulus", "density"):
                 ok, valid = v > 0.0, "> 0"
-            elif name.startswith("damping.") or name == "viscoelastic.ratio":
+            elif name == "viscoelastic.ratio":
                 ok, valid = v >= 0.0, ">= 0"
             elif name == "boundary.compliance":
                 ok, valid = v > 0.0, ("> 0 (m/Pa; a rigid support, compliance 0, is a Dirichlet "
                                       "condition and cannot be set in place)")
             elif name == "viscoelastic.relaxation_time":
                 ok, valid = v > 0.0, "> 0 (seconds)"
-            elif name in self.package:
-                rng = package_range(name)
+            elif name in self.package or name in self.system.rayleigh.coef:
+                rng = declared_range(name)
                 ok, valid = rng.contains(v), rng.text(key)
             else:
                 ok, valid = np.isfinite(v), "finite"
@@ -345,8 +348,9 @@ class ParameterMap:
                 arr[self.governed(name, values)] = value
 
 
-def package_range(name: str):
-    """The valid range of a package's term's parameter ``table.key`` (its key's declaration)."""
+def declared_range(name: str):
+    """The valid range of a term's parameter ``table.key`` (its key's declaration: a package's
+    term's number, a Rayleigh coefficient)."""
     table, key = name.split(".")
     return key_range(next(k for k in keys_of(table) if k.key == key))
 
@@ -408,10 +412,8 @@ class ParameterDerivatives:
     def _global_vector(self, name: str, out: PETSc.Vec) -> None:
         s = self.system
         out.zeroEntries()
-        if name == "damping.mass":
-            s.M.mult(self.v, out)
-        elif name == "damping.stiffness":
-            s.K0_matrix().mult(self.v, out)
+        if name in s.rayleigh.coef:
+            s.rayleigh_unit(s.rayleigh.matrix_of(name), self.v, out)
         elif name in s.parameters.nodal:
             # a nodal term's parameter, on its nodes: a package's term d/dp (grad W(u) + H(u) w)
             # (outside K0: no beta v); a term of the reference stiffness (the supports),

@@ -37,6 +37,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.initial import initial_from_expressions
 from petsoft.dynamics.interfaces import SystemDefaults
+from petsoft.dynamics.rayleigh import RayleighDamping
 from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms, coefficients_of
 from petsoft.errors import InvertedElementError
 from petsoft.experiment import get_parameter
@@ -77,7 +78,10 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
         loads are
         rebuilt here split into gravity and time-dependent tractions).
     damping_mass, damping_stiffness : float
-        Rayleigh alpha (1/s) and beta (s).
+        Rayleigh alpha (1/s) and beta (s), when ``rayleigh`` is not given.
+    rayleigh : RayleighDamping, optional
+        The Rayleigh terms' coefficients (:mod:`petsoft.dynamics.rayleigh`; an experiment's:
+        ``RayleighDamping.of(experiment)``).
     """
 
     defined_by = "[material]"
@@ -85,7 +89,8 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
     element_orders = (1, 2)
     continuum_material = True
 
-    def __init__(self, model, damping_mass: float = 0.0, damping_stiffness: float = 0.0):
+    def __init__(self, model, damping_mass: float = 0.0, damping_stiffness: float = 0.0, *,
+                 rayleigh: RayleighDamping | None = None):
         self.model = model
         self._parameter_version = 0     # set_parameters counts: a reused Jacobian's key
         self._parameters = None         # the ParameterMap, built on first use
@@ -97,7 +102,9 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
         self._linear_material = dm.allreduce_sum(
             sum(g.model != "linear" for g in self.elastic.groups)) == 0
         self.dirichlet = model.dirichlet
-        self.alpha, self.beta = float(damping_mass), float(damping_stiffness)
+        #: the Rayleigh terms (set_parameters sets their coefficients in place)
+        self.rayleigh = (rayleigh if rayleigh is not None
+                         else RayleighDamping.of_matrices(damping_mass, damping_stiffness))
         self.lumped_kinetic = False  # explicit integrators switch to the lumped mass
         conns = dict(self.elastic.connectivities())
         conns[NODE_SET] = np.arange(dm.nvertices, dtype=np.int64)[:, None]
@@ -236,6 +243,22 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
         if eliminate:
             self.dirichlet.eliminate(out)
         out.setAttr(_COMBINATION, key)
+        return out
+
+    @property
+    def alpha(self) -> float:
+        """Rayleigh alpha: the coefficient of M in D (1/s)."""
+        return self.rayleigh.alpha
+
+    @property
+    def beta(self) -> float:
+        """Rayleigh beta: the coefficient of K0 in D (s)."""
+        return self.rayleigh.beta
+
+    def rayleigh_unit(self, matrix: str, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
+        """out = B v, B the ``matrix`` a Rayleigh term scales (:mod:`petsoft.dynamics.rayleigh`):
+        M or K0 (the derivative of D v with respect to the term's coefficient)."""
+        (self.M if matrix == "mass" else self.K0_matrix()).mult(v, out)
         return out
 
     def _linear_damping_apply(self, v: PETSc.Vec, out: PETSc.Vec) -> PETSc.Vec:
@@ -416,8 +439,8 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
         pm = self.parameters
         pm.update(values)
         self._parameter_version += 1
-        self.alpha = pm.values["damping.mass"]
-        self.beta = pm.values["damping.stiffness"]
+        for name in self.rayleigh.coef:
+            self.rayleigh.coef[name] = pm.values[name]
         self._viscoelastic_parameters(pm.values)
         for name in self.velocity_terms.coef:
             self.velocity_terms.coef[name] = pm.values[name]

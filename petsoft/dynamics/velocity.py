@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from petsoft.physics.velocity_law import VelocitySupport
-from petsoft.terms import builders, term
+from petsoft.terms import builders, coefficients
 
 #: The velocity terms' laws, from their declarations (petsoft.terms, contributes "velocity"):
 #: name -> law class (petsoft.physics.velocity_law), in the registry's order.
@@ -34,11 +34,7 @@ NAMES = tuple(LAWS)
 def coefficients_of(experiment) -> dict[str, float]:
     """name -> the experiment's coefficient of each velocity term: the value of its first key
     (``[drag] linear``, ``[drag] quadratic``, ``[friction] dry``)."""
-    out = {}
-    for name in NAMES:
-        key = term(name).keys[0]
-        out[name] = float(getattr(getattr(experiment, key.table), key.key))
-    return out
+    return coefficients(experiment, NAMES)
 
 
 class VelocityTerms:

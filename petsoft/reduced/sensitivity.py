@@ -39,14 +39,14 @@ from petsc4py import PETSc
 from scipy.linalg import lu_factor, lu_solve
 
 from petsoft.dynamics.alpha import alpha_parameters
+from petsoft.dynamics.rayleigh import NAMES as RAYLEIGH
 from petsoft.errors import ExperimentError
 from petsoft.reduced.galerkin import ReducedModel, ReducedRun, at_frames, projected_derivatives
 
 #: The parameter names (prefixes) the reduced sensitivities cover: the terms the reduced model
 #: projects whose residual is affine in the velocity (quadratic drag and dry friction are not
 #: reduced; elastic supports and colliders are not differentiated here).
-DIFFERENTIATED = ("material.", "damping.mass", "damping.stiffness", "drag.linear",
-                  "gravity.acceleration.")
+DIFFERENTIATED = ("material.", *RAYLEIGH, "drag.linear", "gravity.acceleration.")
 
 
 @dataclass
@@ -105,7 +105,7 @@ def operator_derivatives(model: ReducedModel, names, v0: PETSc.Vec | None = None
     dens = [j for j, n in enumerate(names) if _is_density(n)]
     generic = [j for j, n in enumerate(names)
                if not (_is_density(n) or n.startswith("gravity.")
-                       or n in ("damping.mass", "damping.stiffness")
+                       or n in RAYLEIGH
                        or (_is_lame(n) and s.beta == 0.0))]
     if dens or generic:
         for j in range(r):
@@ -119,10 +119,10 @@ def operator_derivatives(model: ReducedModel, names, v0: PETSc.Vec | None = None
                 for k in dens:
                     Mp[k, :, j] = d[:, k]
     for k, name in enumerate(names):
-        if name == "damping.mass":
-            Dp[k] = model.Mr
-        elif name == "damping.stiffness":
-            Dp[k] = V.project_matrix(s.K0_matrix())
+        if name in RAYLEIGH:
+            # D_p = V^T B V, B the matrix the Rayleigh term scales (M_r is V^T M V)
+            Dp[k] = (model.Mr if s.rayleigh.matrix_of(name) == "mass"
+                     else V.project_matrix(s.K0_matrix()))
         elif k in dens:
             Dp[k] = s.alpha * Mp[k]
     dmv0 = np.zeros((r, P))

@@ -14,10 +14,10 @@ experiment reader (for keys of the tables terms own) follow, and diagnose propos
 values from its declaration alone (a switch or a region still needs its placement rule in
 :mod:`petsoft.diagnosis.candidates`). What builds a term's contribution is declared by name
 (``Term.builds``, imported by :func:`builders` when the model is built): the nodal energy terms
-(``boundary.compliance``, ``contact.plane``) and the velocity laws (``drag.*``,
-``friction.dry``) are made from their declarations alone; the elastic law's materials, the
-mass, the loads and the Rayleigh damping are still made by name where their kind of
-contribution is assembled (physics/model.py, dynamics/).
+(``boundary.compliance``, ``contact.plane``), the velocity laws (``drag.*``, ``friction.dry``)
+and the Rayleigh damping (``damping.*``) are made from their declarations alone; the elastic
+law's materials, the mass and the loads are still made where their kind of contribution is
+assembled (physics/model.py, dynamics/).
 
 **Terms from the user's own package** (formats.md section 1, "Terms from other packages"): an
 installed distribution that declares an entry point in the group ``petsoft.terms``::
@@ -56,8 +56,8 @@ from petsoft.terms.declare import (
 )
 
 __all__ = ["CONTRIBUTIONS", "GROUP", "KINDS", "PLUGINS", "RANKINGS", "SCALES", "TERMS", "Key",
-           "Parameter", "Plugin", "Proposal", "Term", "builders", "keys_of", "load_plugin",
-           "plugin_tables", "term"]
+           "Parameter", "Plugin", "Proposal", "Term", "builders", "coefficients", "keys_of",
+           "load_plugin", "plugin_tables", "term"]
 
 #: The entry-point group of terms from other packages.
 GROUP = "petsoft.terms"
@@ -213,6 +213,17 @@ def builders(contribution: str) -> list[tuple[Term, Callable]]:
         if t.contributes == contribution:
             module, name = t.builds.split(":")
             out.append((t, getattr(import_module(module), name)))
+    return out
+
+
+def coefficients(experiment, names) -> dict[str, float]:
+    """name -> the value ``experiment`` (a read experiment) gives the first key of each term of
+    ``names``: the coefficient of a term whose force is linear in one number (``[damping]
+    mass``, ``[drag] linear``, ...)."""
+    out = {}
+    for name in names:
+        key = term(name).keys[0]
+        out[name] = float(getattr(getattr(experiment, key.table), key.key))
     return out
 
 

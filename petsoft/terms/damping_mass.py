@@ -16,4 +16,6 @@ TERM = Term(
         ("partly", "the extra decay could also be partly mass-proportional"),
         ("viscous envelope", "exponential amplitude decay (viscous; {share:.0%} of the decay "
                              "rate beyond the model's)")),
+    contributes="rayleigh",
+    builds="petsoft.dynamics.rayleigh:MASS",
 )

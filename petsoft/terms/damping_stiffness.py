@@ -14,4 +14,6 @@ TERM = Term(
         ("faster modes", "{count} mode(s) decay faster in the data than in the model (e.g. "
                          "{data:.3g} vs {sim:.3g} 1/s)"),
         ("partly", "the extra decay could also be partly stiffness-proportional")),
+    contributes="rayleigh",
+    builds="petsoft.dynamics.rayleigh:REFERENCE",
 )

@@ -37,10 +37,9 @@ RANKINGS = ("score", "score-fd", "switch")
 #: :class:`~petsoft.physics.term.NodalTerm` or None, as a package's term:
 #: :func:`petsoft.physics.model.build_model`); ``"velocity"``, a velocity law's class
 #: (:mod:`petsoft.physics.velocity_law`, summed by
-#: :class:`petsoft.dynamics.velocity.VelocityTerms`).
-#: The other terms are still built by name where their kind of contribution is made (the
-#: elastic law's materials, the mass matrix, the loads, the Rayleigh damping).
-CONTRIBUTIONS = ("potential", "velocity")
+#: :class:`petsoft.dynamics.velocity.VelocityTerms`); ``"rayleigh"``, the matrix a Rayleigh
+#: term's coefficient scales in D (a :class:`petsoft.dynamics.rayleigh.RayleighLaw`).
+CONTRIBUTIONS = ("potential", "velocity", "rayleigh")
 
 
 @dataclass(frozen=True)
