@@ -49,6 +49,7 @@ from petsoft.errors import ExperimentError
 from petsoft.fem.regions import RegionResolver
 from petsoft.io.recording import read_input_series
 from petsoft.mesh.springs import SpringMesh, read_spring_mesh
+from petsoft.physics.body_force import BodyForce
 from petsoft.physics.colliders import Collider, default_stiffness
 from petsoft.physics.drag import face_pairs
 from petsoft.physics.model import on_root
@@ -417,7 +418,9 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         self.rayleigh = (rayleigh if rayleigh is not None
                          else RayleighDamping.of_matrices(damping_mass, damping_stiffness))
         self.beta = 1.0  # D = alpha M + 1 * K0 with K0 = beta_user K_ref + dashpots (see module)
-        self.acceleration = np.asarray(model.experiment.gravity.acceleration, float)
+        #: the body force (its stated acceleration, no tilt: petsoft.physics.body_force)
+        self.body = BodyForce(model.experiment.gravity.acceleration)
+        self.acceleration = self.body.acceleration()
         self.lumped_kinetic = False
         lo, hi = self.node_range = lay.node_range
         e = self.edges
@@ -778,8 +781,7 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         names = ["springs.stiffness", "springs.damping"]
         if np.any(self.kind == KINDS.index("bending")):
             names.append("springs.bending")
-        names += ["springs.node_mass", *self.rayleigh.coef,
-                  "gravity.acceleration.x", "gravity.acceleration.y", "gravity.acceleration.z"]
+        names += ["springs.node_mass", *self.rayleigh.coef, *self.body.values]
         if self.velocity_terms.has_surface:
             names += ["drag.linear", "drag.quadratic"]
         names.append("friction.dry")
@@ -799,8 +801,7 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
                 "springs.damping": first(~bend, self.damping_coefficients),
                 "springs.bending": first(bend, self.stiffness),
                 "springs.node_mass": self.node_mass, **self.rayleigh.coef,
-                **{f"gravity.acceleration.{c}": float(self.acceleration[i])
-                   for i, c in enumerate("xyz")},
+                **self.body.parameters(),
                 **self.velocity_terms.coef}
 
     def set_parameters(self, values: dict) -> None:
@@ -836,7 +837,8 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
                     raise ExperimentError(f'parameter "{name}" = {value!r} must be finite')
                 self.velocity_terms.coef[name] = value
             else:
-                self.acceleration["xyz".index(name[-1])] = value
+                self.body.set_parameter(name, value)
+                self.acceleration = self.body.acceleration()
                 mass_changed = True
         if mass_changed:
             self._update_mass()
@@ -888,8 +890,9 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
             elif name in self.rayleigh.coef:
                 self.rayleigh_unit(self.rayleigh.matrix_of(name), v, d)
             else:
+                # the body force's: minus the masses times the acceleration's derivative
                 arr[:] = 0.0
-                arr[:, "xyz".index(name[-1])] = -self.masses[lo:hi]
+                arr -= self.masses[lo:hi, None] * self.body.derivative(name)
             self.zero_prescribed(d)
             out.append(d)
         return out

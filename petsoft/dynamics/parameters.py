@@ -25,7 +25,9 @@ Parameter names (see :meth:`ParameterMap.names`):
 * the Rayleigh terms' coefficients (``damping.mass``, ``damping.stiffness``: the terms that
   contribute ``"rayleigh"``, :mod:`petsoft.dynamics.rayleigh`): d r/dc = B v, B the matrix the
   term's law names (the system's ``rayleigh_unit``);
-* ``gravity.acceleration.x|y|z``;
+* the body force's (the gravity terms, :class:`petsoft.physics.body_force.BodyForce`):
+  ``gravity.acceleration.x|y|z`` and, where gravity is stated, ``gravity.tilt_a|b``: minus the
+  load of the acceleration's derivative;
 * ``viscoelastic.ratio``, ``viscoelastic.relaxation_time`` (the Maxwell branch): set in place by
   :meth:`~petsoft.dynamics.system.DynamicSystem.set_parameters` but **not differentiable**
   (:class:`ParameterDerivatives` refuses them: use finite differences);
@@ -62,11 +64,11 @@ from petsc4py import PETSc
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, key_part
-from petsoft.experiment.gravity_tilt import tilt_derivatives, tilted
 from petsoft.experiment.ranges import key_range
 from petsoft.fem.element import cell_integrals
 from petsoft.fem.kernels.scatter import scatter_add_vector
 from petsoft.mesh.ordering import cell_morton_order
+from petsoft.physics.body_force import BodyForce
 from petsoft.physics.loads import gravity_forces
 from petsoft.physics.materials import cell_materials
 from petsoft.physics.support import shared_compliance
@@ -139,12 +141,9 @@ class ParameterMap:
         self.values.update(system.rayleigh.coef)
         for name, value in system.velocity_terms.coef.items():
             self.values[name] = float(value)
-        for i, c in enumerate("xyz"):
-            self.values[f"gravity.acceleration.{c}"] = float(exp.gravity.as_stated[i])
-        if any(exp.gravity.as_stated):
-            # the stated gravity's direction at its size (petsoft.experiment.gravity_tilt)
-            self.values["gravity.tilt_a"] = float(exp.gravity.tilt_a)
-            self.values["gravity.tilt_b"] = float(exp.gravity.tilt_b)
+        #: the body force's parameters (the gravity terms, petsoft.physics.body_force)
+        self.body = BodyForce.of(exp)
+        self.values.update(self.body.parameters())
         # elastic supports and collider planes (petsoft.physics.support / contact)
         support, contact = system.elastic.support, system.elastic.contact
         self._compliance_error = None
@@ -262,33 +261,9 @@ class ParameterMap:
                                       f"{valid}")
 
     # -- gravity -------------------------------------------------------------------------------
-    def _stated_gravity(self) -> np.ndarray:
-        return np.asarray([self.values[f"gravity.acceleration.{c}"] for c in "xyz"])
-
-    def _tilt(self) -> tuple[float, float]:
-        return self.values.get("gravity.tilt_a", 0.0), self.values.get("gravity.tilt_b", 0.0)
-
     def gravity(self) -> np.ndarray:
-        """The acceleration the system uses: the stated one turned by the tilt (m/s^2)."""
-        return tilted(self._stated_gravity(), *self._tilt())
-
-    def gravity_derivative(self, name: str) -> np.ndarray:
-        """d (the acceleration the system uses) / d ``name`` (a ``gravity.*`` parameter).
-
-        Raises
-        ------
-        ExperimentError
-            For a stated component under a tilt (calibrate the one or the other)."""
-        a, b = self._tilt()
-        if name.startswith("gravity.tilt_"):
-            return tilt_derivatives(self._stated_gravity(), a, b)["ab".index(name[-1])]
-        if a != 0.0 or b != 0.0:
-            raise ExperimentError(
-                f'"{name}" is not differentiable while gravity is tilted (tilt_a = {a:g}, '
-                f"tilt_b = {b:g}): calibrate the tilt or the stated components, not both")
-        unit = np.zeros(3)
-        unit["xyz".index(name[-1])] = 1.0
-        return unit
+        """The acceleration the system uses (:meth:`BodyForce.acceleration`, m/s^2)."""
+        return self.body.acceleration()
 
     # -- per-cell coefficients -----------------------------------------------------------------
     def E(self) -> np.ndarray:
@@ -341,6 +316,8 @@ class ParameterMap:
                 self.E_mult[self.group == int(m.group(1))] = value
             elif name in self.nodal:
                 self.nodal[name].set_parameter(name, value)
+            elif name in self.body.values:
+                self.body.set_parameter(name, value)
             elif name.startswith("material."):
                 key = name.rsplit(".", 1)[1]
                 arr = {"youngs_modulus": self.E_base, "poisson_ratio": self.nu,
@@ -434,11 +411,10 @@ class ParameterDerivatives:
             out.getArray().reshape(-1, 3)[:] = s.velocity_terms.unit_linearised(
                 name, self.v.getArray(readonly=True).reshape(-1, 3), lin)
         else:
-            # gravity.acceleration.<c>, gravity.tilt_<a|b>: minus the body-force load of the
-            # acceleration's derivative (the consistent load int rho N_a dV: the lumped mass
-            # only for 4-node tetrahedra)
+            # the body force's (gravity.*): minus the load of the acceleration's derivative
+            # (the consistent load int rho N_a dV: the lumped mass only for 4-node tetrahedra)
             s.dmesh.add_to_global(-gravity_forces(s.dmesh, s.model.density,
-                                                  s.parameters.gravity_derivative(name)), out)
+                                                  s.parameters.body.derivative(name)), out)
 
     def vectors(self, names) -> list[PETSc.Vec]:
         refuse_viscoelastic(names)

@@ -41,12 +41,13 @@ from scipy.linalg import lu_factor, lu_solve
 from petsoft.dynamics.alpha import alpha_parameters
 from petsoft.dynamics.rayleigh import NAMES as RAYLEIGH
 from petsoft.errors import ExperimentError
+from petsoft.physics.body_force import COMPONENTS, TILTS
 from petsoft.reduced.galerkin import ReducedModel, ReducedRun, at_frames, projected_derivatives
 
 #: The parameter names (prefixes) the reduced sensitivities cover: the terms the reduced model
 #: projects whose residual is affine in the velocity (quadratic drag and dry friction are not
 #: reduced; elastic supports and colliders are not differentiated here).
-DIFFERENTIATED = ("material.", *RAYLEIGH, "drag.linear", "gravity.acceleration.")
+DIFFERENTIATED = ("material.", *RAYLEIGH, "drag.linear", *COMPONENTS)
 
 
 @dataclass
@@ -104,7 +105,7 @@ def operator_derivatives(model: ReducedModel, names, v0: PETSc.Vec | None = None
     Mp = np.zeros((P, r, r))
     dens = [j for j, n in enumerate(names) if _is_density(n)]
     generic = [j for j, n in enumerate(names)
-               if not (_is_density(n) or n.startswith("gravity.")
+               if not (_is_density(n) or n in COMPONENTS + TILTS
                        or n in RAYLEIGH
                        or (_is_lame(n) and s.beta == 0.0))]
     if dens or generic:
