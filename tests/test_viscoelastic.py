@@ -481,3 +481,21 @@ def test_sensitivity_to_the_ratio_at_zero(method):
     print(f"one-sided difference errors {errors}, orders {orders}")
     assert errors[-1] < 0.05 and np.all(np.abs(orders - 1.0) < 0.2), orders
     fm.destroy()
+
+
+def test_the_branchs_parameters_are_its_terms_declared_ones():
+    """The branch's parameter names are its term's declared keys and proposal (a name changed
+    in the declaration but not in the branch, or the reverse, fails here); the system's
+    parameter map holds them at the branch's values and set_parameters reaches the branch."""
+    from petsoft.physics.viscoelastic import NAMES
+    from petsoft.terms import term
+
+    declared = term("material.viscoelastic")
+    assert NAMES == tuple(k.dotted for k in declared.keys)
+    assert NAMES == tuple(q.name for q in declared.proposal.parameters)
+    s = DynamicSystem(build_model(_bent("be")))
+    assert s.viscoelastic.parameters() == {n: s.parameters.values[n] for n in NAMES}
+    s.set_parameters(dict(zip(NAMES, (0.25, 0.04), strict=True)))
+    assert (s.viscoelastic.ratio, s.viscoelastic.tau) == (0.25, 0.04)
+    assert s.viscoelastic.parameters() == dict(zip(NAMES, (0.25, 0.04), strict=True))
+    s.destroy()

@@ -99,6 +99,7 @@ from petsoft.dynamics.step_derivatives import mass_solver, parameter_derivatives
 from petsoft.errors import ExperimentError, SolverError
 from petsoft.experiment import get_parameter
 from petsoft.io.progress import beat
+from petsoft.physics.viscoelastic import RATIO
 from petsoft.solvers.convergence import check_converged
 from petsoft.solvers.lagged_factors import LaggedFactors
 from petsoft.solvers.linear import is_direct, solver_chosen, symmetric_factorisation
@@ -259,7 +260,7 @@ class ForwardModel:
         if bad:
             raise ExperimentError(f'{exp.source}: "{bad[0]}" is not a differentiable parameter; '
                                   f"valid: {', '.join(pnames)} (and material.youngs_modulus#k)")
-        if any(n.startswith("viscoelastic.") for n in self.names):
+        if any(n in VISCOELASTIC for n in self.names):
             # z evolves also at ratio 0, so that d sim/d ratio exists there (be sensitivities)
             s.viscoelastic.track = True
         if s.parameters is not None:
@@ -322,9 +323,8 @@ class ForwardModel:
         asked = [n for n in self.names if n in VISCOELASTIC]
         branch = self.system.viscoelastic
         ratio = branch.ratio if branch is not None else 0.0
-        if "viscoelastic.ratio" in self.names:
-            ratio = float(np.asarray(p, dtype=float).reshape(-1)[
-                self.names.index("viscoelastic.ratio")])
+        if RATIO in self.names:
+            ratio = float(np.asarray(p, dtype=float).reshape(-1)[self.names.index(RATIO)])
         if asked or ratio > 0.0:
             what = (f'parameter "{asked[0]}" is requested' if asked
                     else f"[viscoelastic] ratio = {ratio:g} (the branch is on)")

@@ -73,12 +73,13 @@ from petsoft.physics.loads import gravity_forces
 from petsoft.physics.materials import cell_materials
 from petsoft.physics.support import shared_compliance
 from petsoft.physics.term import ParametricTerm
+from petsoft.physics.viscoelastic import NAMES as BRANCH_NAMES
 from petsoft.terms import PLUGINS, keys_of
 
 MATERIAL_KEYS = ("youngs_modulus", "poisson_ratio", "density")
 #: Parameters set_parameters changes but the residual derivatives do not cover: the Maxwell
 #: branch's internal variable z is not part of the differentiated state.
-VISCOELASTIC = ("viscoelastic.ratio", "viscoelastic.relaxation_time")
+VISCOELASTIC = BRANCH_NAMES
 _KIND = {"youngs_modulus": "E", "poisson_ratio": "nu", "density": "rho"}
 GROUP_PATTERN = re.compile(r"^material\.youngs_modulus#(\d+)$")
 
@@ -167,8 +168,7 @@ class ParameterMap:
             self.values[name] = float(t.parameters()[name])
         # the Maxwell branch: settable in place, not differentiable (see VISCOELASTIC)
         branch = system.viscoelastic
-        self.values["viscoelastic.ratio"] = branch.ratio
-        self.values["viscoelastic.relaxation_time"] = branch.tau
+        self.values.update(branch.parameters())
 
     def _current(self, name: str) -> float:
         key = name.rsplit(".", 1)[1]

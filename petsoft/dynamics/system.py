@@ -503,9 +503,8 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
         self.viscoelastic = MaxwellBranch(self, spec.ratio, spec.relaxation_time)
 
     def _viscoelastic_parameters(self, values: dict) -> None:
-        """Follow ``viscoelastic.ratio`` / ``relaxation_time`` (set_parameters)."""
-        self.viscoelastic.set(values["viscoelastic.ratio"],
-                              values["viscoelastic.relaxation_time"])
+        """Follow the branch's parameters (set_parameters)."""
+        self.viscoelastic.set_parameters(values)
 
     def viscoelastic_energy(self, q: PETSc.Vec) -> float:
         """The branch's stored energy 1/2 g (q - z)^T K0 (q - z) (0 without a branch)."""

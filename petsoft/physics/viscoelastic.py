@@ -49,6 +49,12 @@ import enum
 from petsc4py import PETSc
 
 from petsoft.errors import ExperimentError
+from petsoft.terms import term
+
+#: The branch's parameters: its term's keys (``[viscoelastic] ratio``, ``relaxation_time``),
+#: settable in place; the residual derivatives do not cover them (z is not part of that state).
+NAMES = tuple(k.dotted for k in term("material.viscoelastic").keys)
+RATIO, RELAXATION_TIME = NAMES
 
 
 class MaxwellRule(enum.Enum):
@@ -96,12 +102,20 @@ class MaxwellBranch:
         """Change g and tau (validated: ratio >= 0, relaxation_time > 0)."""
         ratio, tau = float(ratio), float(relaxation_time)
         if not (ratio >= 0.0 and ratio < float("inf")):
-            raise ExperimentError(f'parameter "viscoelastic.ratio" = {ratio!r} is invalid: it '
+            raise ExperimentError(f'parameter "{RATIO}" = {ratio!r} is invalid: it '
                                   "must be >= 0 and finite (E_M / E; 0 = no branch)")
         if not (tau > 0.0 and tau < float("inf")):
-            raise ExperimentError(f'parameter "viscoelastic.relaxation_time" = {tau!r} is '
+            raise ExperimentError(f'parameter "{RELAXATION_TIME}" = {tau!r} is '
                                   "invalid: it must be > 0 and finite (seconds)")
         self.ratio, self.tau = ratio, tau
+
+    def parameters(self) -> dict[str, float]:
+        """name (:data:`NAMES`) -> value: the ratio and the relaxation time."""
+        return dict(zip(NAMES, (self.ratio, self.tau), strict=True))
+
+    def set_parameters(self, values: dict) -> None:
+        """Take the branch's values from ``values`` (any mapping holding :data:`NAMES`)."""
+        self.set(*(values[n] for n in NAMES))
 
     @property
     def active(self) -> bool:
@@ -230,7 +244,7 @@ class MaxwellBranch:
         x = q1.copy()
         if self._rule is MaxwellRule.GENERALIZED_ALPHA:
             r2 = 0.5 * self._h / self.tau
-            if name == "viscoelastic.ratio":
+            if name == RATIO:
                 self.strain(q1).copy(x)
                 scale = 1.0
             else:
@@ -240,7 +254,7 @@ class MaxwellBranch:
         elif self._rule is MaxwellRule.BACKWARD_EULER:
             r = self._h / self.tau
             x.axpy(-1.0, self._z0)
-            scale = (1.0 / (1.0 + r) if name == "viscoelastic.ratio"
+            scale = (1.0 / (1.0 + r) if name == RATIO
                      else self.ratio * (r / self.tau) / (1.0 + r) ** 2)
         else:
             raise NotImplementedError(f"branch derivatives for the {self._rule.value} rule")
@@ -275,7 +289,7 @@ class MaxwellBranch:
             dz.axpy(r2, dq0)
             dz.axpy(r2, dq1)
             dz.scale(1.0 / (1.0 + r2))
-            if name == "viscoelastic.relaxation_time":
+            if name == RELAXATION_TIME:
                 c = -(r2 / self.tau) / (1.0 + r2) ** 2
                 dz.axpy(c, self._q0)
                 dz.axpy(c, q1)
@@ -283,7 +297,7 @@ class MaxwellBranch:
             return
         r = self._h / self.tau
         dz.axpy(r, dq1)
-        if name == "viscoelastic.relaxation_time":
+        if name == RELAXATION_TIME:
             dz.axpy(-r / self.tau, q1)
             dz.axpy(r / self.tau, self.z)
         dz.scale(1.0 / (1.0 + r))
