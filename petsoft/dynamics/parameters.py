@@ -74,6 +74,7 @@ from petsoft.physics.materials import cell_materials
 from petsoft.physics.support import shared_compliance
 from petsoft.physics.term import ParametricTerm
 from petsoft.physics.viscoelastic import NAMES as BRANCH_NAMES
+from petsoft.physics.viscoelastic import check as check_branch
 from petsoft.terms import PLUGINS, keys_of
 
 MATERIAL_KEYS = ("youngs_modulus", "poisson_ratio", "density")
@@ -238,19 +239,18 @@ class ParameterMap:
         for name, value in values.items():
             v = float(value)
             key = name.rsplit(".", 1)[-1]
+            if name in VISCOELASTIC:
+                check_branch(name, v)    # the branch's own ranges
+                continue
             if GROUP_PATTERN.match(name):
                 ok, valid = v > 0.0, "> 0 (a multiplier of Young's modulus)"
             elif key == "poisson_ratio":
                 ok, valid = -1.0 < v < 0.5, "in (-1, 0.5)"
             elif key in ("youngs_modulus", "density"):
                 ok, valid = v > 0.0, "> 0"
-            elif name == "viscoelastic.ratio":
-                ok, valid = v >= 0.0, ">= 0"
             elif name == "boundary.compliance":
                 ok, valid = v > 0.0, ("> 0 (m/Pa; a rigid support, compliance 0, is a Dirichlet "
                                       "condition and cannot be set in place)")
-            elif name == "viscoelastic.relaxation_time":
-                ok, valid = v > 0.0, "> 0 (seconds)"
             elif name in self.package or name in self.system.rayleigh.coef:
                 rng = declared_range(name)
                 ok, valid = rng.contains(v), rng.text(key)

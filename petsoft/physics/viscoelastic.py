@@ -69,6 +69,18 @@ class MaxwellRule(enum.Enum):
     GENERALIZED_ALPHA = "generalized-alpha"
 
 
+def check(name: str, value: float) -> None:
+    """Raise an ExperimentError saying the valid range when ``value`` is not valid for the
+    branch's parameter ``name`` (:data:`NAMES`: ratio >= 0, relaxation_time > 0, finite)."""
+    v = float(value)
+    if name == RATIO and not 0.0 <= v < float("inf"):
+        raise ExperimentError(f'parameter "{RATIO}" = {v!r} is invalid: it must be >= 0 and '
+                              "finite (E_M / E; 0 = no branch)")
+    if name == RELAXATION_TIME and not 0.0 < v < float("inf"):
+        raise ExperimentError(f'parameter "{RELAXATION_TIME}" = {v!r} is invalid: it must be '
+                              "> 0 and finite (seconds)")
+
+
 class MaxwellBranch:
     """The Maxwell branch of a :class:`~petsoft.dynamics.system.DynamicSystem`.
 
@@ -99,14 +111,10 @@ class MaxwellBranch:
 
     # -- parameters ---------------------------------------------------------------------------
     def set(self, ratio: float, relaxation_time: float) -> None:
-        """Change g and tau (validated: ratio >= 0, relaxation_time > 0)."""
+        """Change g and tau (validated by :func:`check`)."""
         ratio, tau = float(ratio), float(relaxation_time)
-        if not (ratio >= 0.0 and ratio < float("inf")):
-            raise ExperimentError(f'parameter "{RATIO}" = {ratio!r} is invalid: it '
-                                  "must be >= 0 and finite (E_M / E; 0 = no branch)")
-        if not (tau > 0.0 and tau < float("inf")):
-            raise ExperimentError(f'parameter "{RELAXATION_TIME}" = {tau!r} is '
-                                  "invalid: it must be > 0 and finite (seconds)")
+        check(RATIO, ratio)
+        check(RELAXATION_TIME, tau)
         self.ratio, self.tau = ratio, tau
 
     def parameters(self) -> dict[str, float]:
