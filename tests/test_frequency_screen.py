@@ -58,12 +58,13 @@ def test_the_prediction_follows_record_noise_and_step():
     assert base["bound"] < p4["bound"]       # a drive's motion does not drift as freely
 
 
-def synthetic(monkeypatch, f0=10.0, c=5.0, p=2.0, volume=2e-3, calls=None):
-    """frequency_screen.frequencies replaced by f0 + c h^p and volume / h^3 tets."""
-    def frequencies(gmsh, case, h, modes=2):
+def synthetic(monkeypatch, f0=10.0, c=5.0, p=2.0, volume=2e-3, calls=None, p3=None):
+    """frequency_screen.frequencies replaced by f0 + c h^p (P3: f0 + c h^p3) and volume / h^3
+    tets."""
+    def frequencies(gmsh, case, h, modes=2, degree=2):
         if calls is not None:
             calls.append(h)
-        return ladder(f0, c, p, [h])[0], int(volume / h ** 3)
+        return ladder(f0, c, p if degree == 2 else p3, [h])[0], int(volume / h ** 3)
     monkeypatch.setattr(fs, "frequencies", frequencies)
     monkeypatch.setattr(fs.rs, "truth_h", lambda g: 0.01)
 
@@ -101,6 +102,23 @@ def test_no_affordable_level_is_a_discard(monkeypatch):
     levels = [lv for lv in got["levels"] if lv["predicted"]]
     assert levels and all(lv["predicted"]["bound"] >= fs.MARGIN * 0.2
                           for lv in levels if lv["tet_steps"] <= fs.MAX_TET_STEPS)
+
+
+@pytest.mark.parametrize("p3, chosen", [(1.6, 2), (4.0, 3)])
+def test_a_degree_is_chosen_by_its_cost_weighted_tet_steps(monkeypatch, p3, chosen):
+    # P2 converging at order 1.5 (a clamped plate's) needs h at 16 steps a frame; P3 at
+    # order 1.6 passes at 1.4 h, cheaper per tet-step but not at COST[3] a tet (P2 chosen);
+    # at order 4 its coarsest level passes and is cheaper even at 4x a tet (P3 chosen)
+    synthetic(monkeypatch, p=1.5, p3=p3)
+    case = dict(CASE, noise_fraction=0.02)
+    got = fs.choose(None, case, 0.2, say=lambda s: None, degrees=(2, 3))
+    assert got["degree"] == chosen
+    ch = got["chosen"]
+    assert ch["tet_steps"] == pytest.approx(
+        ch["tets"] * case["end"] / rd.STEP * ch["substeps"] * fs.COST[chosen])
+    same = [lv for lv in got["levels"] if lv["degree"] != chosen and lv["predicted"]
+            and lv["predicted"]["bound"] < fs.MARGIN * 0.2 and lv["tet_steps"] <= fs.MAX_TET_STEPS]
+    assert all(lv["tet_steps"] >= ch["tet_steps"] for lv in same)
 
 
 @pytest.mark.parametrize("limit", ["tets", "cost"])

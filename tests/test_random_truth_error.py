@@ -58,6 +58,20 @@ def test_an_order_above_p2s_is_not_trusted(rc):
     assert out["space_error_estimate"] > 1.5 * rc.rms(err["space"])
 
 
+def test_a_p3_truth_trusts_order_four_not_more(rc):
+    # P3 at observed order 4 is taken as it is (P2's cap, 3, would overstate it); at 4.5 the
+    # estimate uses 4
+    d, err = runs(4.0, 0.2, 0.0)
+    out = rc.truth_error(d, degree=3)
+    assert out["space_order_used"] == pytest.approx(4.0)
+    assert out["space_error_estimate"] == pytest.approx(rc.rms(err["space"]), rel=1e-9)
+    assert rc.truth_error(d)["space_error_estimate"] > 1.3 * rc.rms(err["space"])
+    d, err = runs(4.5, 0.2, 0.0)
+    out = rc.truth_error(d, degree=3)
+    assert out["space_order_used"] == 4.0
+    assert out["space_error_estimate"] > rc.rms(err["space"])
+
+
 def test_no_convergence_seen_is_no_estimate(rc):
     d, _ = runs(2.0, 0.2, 0.0)
     d["space2"] = d["truth"] + 0.5 * (d["space"] - d["truth"])    # D2 < D1

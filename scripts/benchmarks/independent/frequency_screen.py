@@ -61,12 +61,19 @@ SUBSTEPS = (4, 8, 16)
 #: of a core, 4.8e-5 s a tet-step; a case costs ~2.1 such runs: the check's coarser meshes,
 #: its halved step and the effect-free twin)
 MAX_TET_STEPS = 3.0e7
+#: the truth's element degrees the screen weighs
+DEGREES = (2,)
+#: a degree's cost a tet-step over P2's: P3 (quadrature degree 6) took 0.488 and 0.245 s a
+#: step on 5,802 and 3,085 tets of the test draw 728634199's r001-plate, P2 0.237 s on 11,497
+#: (generate.simulate_truth, 8 steps a frame, one core): 4.1 and 3.9x a tet
+COST = {2: 1.0, 3: 4.0}
 
 
-def frequencies(gmsh, case: dict, h: float, modes: int = 2) -> tuple[np.ndarray, int]:
+def frequencies(gmsh, case: dict, h: float, modes: int = 2,
+                degree: int = 2) -> tuple[np.ndarray, int]:
     """The first ``modes`` natural frequencies (Hz) of ``case``'s body (its true E, nu, rho;
-    clamped as its truth) on the generator's graded truth mesh of size ``h``, P2; and the
-    mesh's tet count."""
+    clamped as its truth) on the generator's graded truth mesh of size ``h``, Lagrange elements
+    of ``degree``; and the mesh's tet count."""
     import ufl
     from dolfinx import fem
     from dolfinx.fem.petsc import assemble_matrix
@@ -79,7 +86,7 @@ def frequencies(gmsh, case: dict, h: float, modes: int = 2) -> tuple[np.ndarray,
     rs.mesh(gmsh, case["family"], g, h, graded=True, regions=case["truth"].get("regions"))
     msh, _, _ = gmshio.model_to_mesh(gmsh.model, MPI.COMM_SELF, 0, gdim=3)
     gmsh.model.remove()
-    V = fem.VectorFunctionSpace(msh, ("CG", 2))
+    V = fem.VectorFunctionSpace(msh, ("CG", degree))
     E, nu, rho = mat["youngs_modulus"], mat["poisson_ratio"], mat["density"]
     mu, lam = E / (2 * (1 + nu)), E * nu / ((1 + nu) * (1 - 2 * nu))
     u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
@@ -118,14 +125,14 @@ def frequencies(gmsh, case: dict, h: float, modes: int = 2) -> tuple[np.ndarray,
     return np.sqrt(np.maximum(lam_, 0.0)) / (2 * math.pi), tets
 
 
-def frequency_error(f: np.ndarray) -> float | None:
+def frequency_error(f: np.ndarray, max_order: float = 4.0) -> float | None:
     """The extrapolated error at h of a frequency ``f`` (3,) on meshes h, 1.4 h, 1.96 h, from
-    its observed order (at most 4, P2's for frequencies); None when it does not converge (the
-    coarser difference not larger: no order, no estimate)."""
+    its observed order (at most ``max_order``: 2 x the degree, P2's 4 for frequencies); None
+    when it does not converge (the coarser difference not larger: no order, no estimate)."""
     d1, d2 = abs(f[0] - f[1]), abs(f[1] - f[2])
     if d2 <= d1:
         return None
-    p = min(math.log(d2 / max(d1, 1e-300)) / math.log(LADDER), 4.0)
+    p = min(math.log(d2 / max(d1, 1e-300)) / math.log(LADDER), max_order)
     return float(d1 / (LADDER ** p - 1.0))
 
 
@@ -140,51 +147,59 @@ def predicted(case: dict, f: float, error_f: float, substeps: int) -> dict:
     return {"space": space, "time": time_, "bound": space + time_}
 
 
-def choose(gmsh, case: dict, tolerance: float, say=print) -> dict:
-    """The cheapest truth level (h, steps a frame) predicted below ``MARGIN`` x ``tolerance``
-    within :data:`MAX_TET_STEPS`, from the frequencies on the ladder h_truth x 1.4^k; its
-    ``"h"`` is None when no affordable level is (the case is to be discarded). Returns the
-    ladder (h, tets, frequencies), the levels predicted and the choice."""
+def choose(gmsh, case: dict, tolerance: float, say=print, degrees: tuple = None) -> dict:
+    """The cheapest truth level (degree, h, steps a frame) predicted below ``MARGIN`` x
+    ``tolerance`` within :data:`MAX_TET_STEPS` (P2-equivalent: :data:`COST` per degree), from
+    the frequencies on the ladder h_truth x 1.4^k at each of ``degrees`` (default
+    :data:`DEGREES`); its ``"h"`` is None when no affordable level is (the case is to be
+    discarded). Returns the ladders (h, tets, frequencies), the levels predicted and the
+    choice."""
+    degrees = DEGREES if degrees is None else degrees
     h0 = rs.truth_h(case["geometry"])
     steps = case["end"] / rd.STEP
-    # no rung finer than the dearest affordable level (its eigen solve alone took ~6 GB and
-    # minutes at 60,000 P2 tets): the next rung's tets are predicted from the last's (x 1.4^3)
-    affordable = min(MAX_TETS, MAX_TET_STEPS / (steps * SUBSTEPS[0]))
-    ladder = []
-    for k in range(COARSEST, FINEST - 1, -1):
-        if ladder and ladder[-1]["tets"] * LADDER ** 3 > 1.25 * affordable:
-            break
-        h = h0 * LADDER ** k
-        f, tets = frequencies(gmsh, case, h)
-        ladder.append({"k": k, "h": h, "tets": tets, "frequencies": f.tolist()})
-    levels, best = [], None
-    for i in range(2, len(ladder)):
-        # level at ladder[i] (finest of three), checked by ladder[i-1] and ladder[i-2]
-        f = [ladder[i]["frequencies"][0], ladder[i - 1]["frequencies"][0],
-             ladder[i - 2]["frequencies"][0]]
-        err = frequency_error(f)
-        for s in SUBSTEPS:
-            cost = ladder[i]["tets"] * steps * s
-            level = {"h": ladder[i]["h"], "tets": ladder[i]["tets"], "substeps": s,
-                     "tet_steps": cost}
-            if err is None:
-                level["predicted"] = None
-            else:
-                level["predicted"] = predicted(case, f[0], err, s)
-                level["frequency_error"] = err
-            levels.append(level)
-            ok = (level["predicted"] is not None and cost <= MAX_TET_STEPS
-                  and level["predicted"]["bound"] < MARGIN * tolerance)
-            if ok and (best is None or cost < best["tet_steps"]):
-                best = level
+    ladders, levels, best = {}, [], None
+    for degree in degrees:
+        # no rung finer than the dearest affordable level (its eigen solve alone took ~6 GB
+        # and minutes at 60,000 P2 tets): the next rung's tets are predicted from the last's
+        affordable = min(MAX_TETS / COST[degree],
+                         MAX_TET_STEPS / (steps * SUBSTEPS[0] * COST[degree]))
+        ladder = ladders.setdefault(degree, [])
+        for k in range(COARSEST, FINEST - 1, -1):
+            if ladder and ladder[-1]["tets"] * LADDER ** 3 > 1.25 * affordable:
+                break
+            h = h0 * LADDER ** k
+            f, tets = frequencies(gmsh, case, h, degree=degree)
+            ladder.append({"k": k, "h": h, "tets": tets, "frequencies": f.tolist()})
+        for i in range(2, len(ladder)):
+            # level at ladder[i] (finest of three), checked by ladder[i-1] and ladder[i-2]
+            f = [ladder[i]["frequencies"][0], ladder[i - 1]["frequencies"][0],
+                 ladder[i - 2]["frequencies"][0]]
+            err = frequency_error(f, max_order=2.0 * degree)
+            for s in SUBSTEPS:
+                cost = ladder[i]["tets"] * steps * s * COST[degree]
+                level = {"degree": degree, "h": ladder[i]["h"], "tets": ladder[i]["tets"],
+                         "substeps": s, "tet_steps": cost}
+                if err is None:
+                    level["predicted"] = None
+                else:
+                    level["predicted"] = predicted(case, f[0], err, s)
+                    level["frequency_error"] = err
+                levels.append(level)
+                ok = (level["predicted"] is not None and cost <= MAX_TET_STEPS
+                      and level["predicted"]["bound"] < MARGIN * tolerance)
+                if ok and (best is None or cost < best["tet_steps"]):
+                    best = level
     for lv in levels:
         p = lv["predicted"]
-        say(f"  screen h {lv['h']:.4g} ({lv['tets']} tets) x{lv['substeps']}: "
+        say(f"  screen P{lv['degree']} h {lv['h']:.4g} ({lv['tets']} tets) x{lv['substeps']}: "
             + ("no convergence seen" if p is None else
                f"space {p['space']:.3g} + time {p['time']:.3g} = {p['bound']:.3g} x noise")
-            + f", {lv['tet_steps']:.3g} tet-steps")
+            + f", {lv['tet_steps']:.3g} P2 tet-steps")
     k_space, k_time = K[case["excitation"]["kind"]]
-    return {"ladder": ladder, "levels": levels, "margin": MARGIN, "constants":
-            {"space": k_space, "time": k_time}, "max_tet_steps": MAX_TET_STEPS,
+    return {"ladder": ladders[degrees[0]], "ladders": {str(d): v for d, v in ladders.items()},
+            "levels": levels, "margin": MARGIN,
+            "constants": {"space": k_space, "time": k_time}, "max_tet_steps": MAX_TET_STEPS,
+            "cost_per_degree": {str(d): COST[d] for d in degrees},
             "h": None if best is None else best["h"],
+            "degree": None if best is None else best["degree"],
             "substeps": None if best is None else best["substeps"], "chosen": best}

@@ -235,7 +235,8 @@ REENTRANT = {"bracket": ((0.04, 0.0, 0.16), (0.04, 0.04, 0.16))}
 
 
 def grade_towards(gmsh, curves: list[int], h: float, field_only: bool = False,
-                  finest: float = 4.0, over: float = 4.0, points: int = 50) -> None:
+                  finest: float = 4.0, over: float = 4.0, points: int = 50,
+                  power: float | None = None, radius: float | None = None) -> None:
     """Element size h / ``finest`` (4) at ``curves`` (a re-entrant edge or the clamped face's
     edges, where the stress is singular), growing to h over ``over`` (4) h: a threshold on the
     distance to them (sampled at ``points`` a curve), as the background field.
@@ -248,12 +249,18 @@ def grade_towards(gmsh, curves: list[int], h: float, field_only: bool = False,
     dist = field.add("Distance")
     field.setNumbers(dist, "CurvesList", curves)
     field.setNumber(dist, "NumPointsPerCurve", points)
-    thr = field.add("Threshold")
-    field.setNumber(thr, "InField", dist)
-    field.setNumber(thr, "SizeMin", h / finest)
-    field.setNumber(thr, "SizeMax", h)
-    field.setNumber(thr, "DistMin", h / finest)
-    field.setNumber(thr, "DistMax", over * h)
+    if power is not None:
+        # a graded zone of fixed size ``radius`` (not shrinking with h): h (d / radius)^power,
+        # floored at h / finest, so that refining h refines near the edge faster than h
+        thr = field.add("MathEval")
+        field.setString(thr, "F", f"{h}*Min(1, Max({1.0 / finest}, (F{dist}/{radius})^{power}))")
+    else:
+        thr = field.add("Threshold")
+        field.setNumber(thr, "InField", dist)
+        field.setNumber(thr, "SizeMin", h / finest)
+        field.setNumber(thr, "SizeMax", h)
+        field.setNumber(thr, "DistMin", h / finest)
+        field.setNumber(thr, "DistMax", over * h)
     field.setAsBackgroundMesh(thr)
     if field_only:
         size_options(gmsh, 0)

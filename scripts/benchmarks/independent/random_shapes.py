@@ -109,8 +109,11 @@ def mesh(gmsh, family: str, g: dict, h: float, graded: bool = False,
         curves = indep.clamp_edges(gmsh, "xyz".index(g["axis"]))
         if family == "bracket":
             curves += reentrant_edges(gmsh, g)
+        power = os.environ.get("GRADE_POWER")
         indep.grade_towards(gmsh, curves, h, field_only=True, finest=finest, over=over,
-                            points=int(os.environ.get("GRADE_POINTS", 50)))
+                            points=int(os.environ.get("GRADE_POINTS", 50)),
+                            power=None if power is None else float(power),
+                            radius=float(os.environ.get("GRADE_RADIUS", 4.0)) * truth_h(g))
     try:
         indep.generate_tets(gmsh)
     finally:
