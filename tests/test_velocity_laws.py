@@ -5,6 +5,7 @@ alone is checked here too; and the declared builders resolve to what their calle
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 
 import numpy as np
@@ -58,6 +59,54 @@ def test_each_laws_derivatives_are_those_of_its_damping(name):
         assert np.abs(second).max() == 0.0
     # grad psi = G
     assert_derivative(lambda u: np.array([law.potential(u)]), np.array([np.sum(G * w)]), v, w)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_each_laws_declared_support_is_the_one_it_reads(name):
+    """``on_surface``: the law's damping vanishes on a support without surface pairs exactly
+    when it says it acts on the surface; ``mass_proportional``: twice the support's masses give
+    twice its damping when it says so, the same damping otherwise. The systems read these two
+    flags (a body's parameter names, the density and node-mass derivatives)."""
+    rng = np.random.default_rng(11)
+    sup = support(rng)
+    law = LAWS[name]
+    assert isinstance(law.on_surface, bool) and isinstance(law.mass_proportional, bool)
+    v = rng.standard_normal((sup.nnodes, 3))
+    G = law(sup).damping(v)
+    bare = VelocitySupport.of(sup.nnodes, None, sup.friction_mass, sup.speed)
+    assert (np.abs(law(bare).damping(v)).max() == 0.0) == law.on_surface
+    heavy = law(dataclasses.replace(sup, friction_mass=2.0 * sup.friction_mass)).damping(v)
+    if law.mass_proportional:
+        np.testing.assert_allclose(heavy, 2.0 * G, rtol=1e-14)
+    else:
+        np.testing.assert_array_equal(heavy, G)
+
+
+def test_the_flags_choose_the_names_and_the_mass_share():
+    """A body without a surface offers the laws that do not act on it; the mass share is the
+    mass-proportional laws' damping per unit mass times their coefficients, linearised as the
+    coefficient derivatives are, and None when none of them acts."""
+    rng = np.random.default_rng(13)
+    sup = support(rng)
+    pairs = (sup.node, sup.weight, sup.normal)
+    assert VelocityTerms(sup.nnodes, pairs, sup.friction_mass).parameter_names == list(NAMES)
+    assert VelocityTerms(sup.nnodes, None, sup.friction_mass).parameter_names == [
+        n for n in NAMES if not LAWS[n].on_surface]
+    coef = {n: float(c) for n, c in zip(NAMES, rng.uniform(0.5, 2.0, len(NAMES)), strict=True)}
+    vt = VelocityTerms(sup.nnodes, pairs, sup.friction_mass, coef, sup.speed)
+    v, v_lin = rng.standard_normal((2, sup.nnodes, 3))
+    unit = (sup.friction_mass > 0).astype(float)
+    for lin in (None, v_lin):
+        want = np.zeros_like(v)
+        for n, c in coef.items():
+            # a law's share of d/dm: G at m + 1 minus G at m (G is affine in its masses)
+            more = dataclasses.replace(sup, friction_mass=sup.friction_mass + unit)
+            d = VelocityTerms(sup.nnodes, pairs, more.friction_mass, {n: c}, sup.speed)
+            want += d.unit_linearised(n, v, lin) * c - vt.unit_linearised(n, v, lin) * c
+        np.testing.assert_allclose(vt.mass_linearised(v, lin, unit), want, atol=1e-12)
+    nothing = {n: (0.0 if LAWS[n].mass_proportional else 1.0) for n in NAMES}
+    assert VelocityTerms(sup.nnodes, pairs, sup.friction_mass, nothing,
+                         sup.speed).mass_linearised(v, None, unit) is None
 
 
 def test_the_sum_is_each_law_times_its_coefficient():

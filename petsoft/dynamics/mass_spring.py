@@ -43,6 +43,7 @@ from petsc4py import PETSc
 from petsoft.dynamics.initial import initial_from_expressions
 from petsoft.dynamics.interfaces import SystemDefaults
 from petsoft.dynamics.rayleigh import RayleighDamping
+from petsoft.dynamics.velocity import LAWS as VELOCITY_LAWS
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms, coefficients_of
 from petsoft.errors import ExperimentError
@@ -64,6 +65,7 @@ from petsoft.physics.springs import (
     spring_gradient,
     spring_hessian_blocks,
 )
+from petsoft.terms import term
 
 #: A ``[[mass]] at`` point closer than this (relative to the mesh's size) to a node sits on it.
 NODE_TOLERANCE = 1e-9
@@ -308,12 +310,16 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
         if not mask.any():
             raise ExperimentError(f"{src}: {key}.where: selects no node of the mesh")
         conditions.append((mask, b.component_indices, displacement))
-    if (experiment.drag.linear or experiment.drag.quadratic) and len(mesh.triangles) == 0:
+    surface = {n: c for n, c in coefficients_of(experiment).items()
+               if c != 0.0 and VELOCITY_LAWS[n].on_surface}
+    if surface and len(mesh.triangles) == 0:
+        name = next(iter(surface))
+        nodal = [n for n, law in VELOCITY_LAWS.items() if not law.on_surface]
         raise ExperimentError(
-            f"{src}: drag: linear = {experiment.drag.linear:g}, quadratic = "
-            f"{experiment.drag.quadratic:g}, but the mesh {mesh.source} has no triangles: drag "
-            "needs a surface (triangle cells); use [friction] dry or [damping] mass for a "
-            "line-only spring network")
+            f"{src}: {', '.join(f'{n} = {c:g}' for n, c in surface.items())}, but the mesh "
+            f"{mesh.source} has no triangles: {term(name).keys[0].table} needs a surface "
+            f"(triangle cells); use {' or '.join(nodal)} or a Rayleigh damping for a line-only "
+            "spring network")
     if experiment.initial.from_ == "static":
         raise ExperimentError(f"{src}: initial.from = \"static\" is not available for mass-spring "
                               "models; give initial displacement/velocity expressions")
@@ -782,10 +788,7 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         if np.any(self.kind == KINDS.index("bending")):
             names.append("springs.bending")
         names += ["springs.node_mass", *self.rayleigh.coef, *self.body.values]
-        if self.velocity_terms.has_surface:
-            names += ["drag.linear", "drag.quadratic"]
-        names.append("friction.dry")
-        return names
+        return names + self.velocity_terms.parameter_names
 
     def _check_names(self, names) -> None:
         valid = self.parameter_names()
@@ -879,12 +882,10 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
                 arr[:] = self._unit_product("damping", v)
             elif name == "springs.node_mass":
                 arr[:] = al + self.alpha * vl - self.acceleration
-                if vt.coef["friction.dry"] != 0.0:
-                    # the friction is proportional to the node masses
-                    unit = VelocityTerms(hi - lo, None, self._friction_mask[lo:hi].astype(float),
-                                         {"friction.dry": 1.0}, speed=vt.speed)
-                    arr += vt.coef["friction.dry"] * unit.unit_linearised("friction.dry", vl,
-                                                                          vlin)
+                # a velocity law proportional to the node masses (the dry friction)
+                share = vt.mass_linearised(vl, vlin, self._friction_mask[lo:hi].astype(float))
+                if share is not None:
+                    arr += share
             elif name in VELOCITY_NAMES:
                 arr[:] = vt.unit_linearised(name, vl, vlin)
             elif name in self.rayleigh.coef:

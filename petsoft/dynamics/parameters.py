@@ -372,11 +372,9 @@ class ParameterDerivatives:
         Em = np.einsum("nab,nbi->nai", unit.mass, y)
         g = pm.gravity()
         Em -= unit.load[:, :, None] * g[None, None, :]
-        vt = s.velocity_terms
-        if vt.coef["friction.dry"] != 0.0:
-            # the friction force is proportional to the lumped mass
-            vll = dm.to_local(v_lin) if v_lin is not None else None
-            yf = vt.coef["friction.dry"] * s.friction_unit_mass_local(vl, vll)
+        # a velocity law proportional to the lumped mass (the dry friction) scales with rho
+        yf = s.velocity_mass_local(vl, dm.to_local(v_lin) if v_lin is not None else None)
+        if yf is not None:
             Em += unit.lumped[:, :, None] * yf[dm.cells]
         self.E_rho = Em.reshape(n, -1)
         self.v = v.copy()   # the caller may destroy its state vectors

@@ -47,7 +47,6 @@ from petsoft.fem.kernels.materials import lame_parameters
 from petsoft.mesh.probes import embed
 from petsoft.mesh.quadratic import face_nodes
 from petsoft.mesh.topology import exterior_faces
-from petsoft.physics import friction
 from petsoft.physics.drag import face_pairs
 from petsoft.physics.loads import (
     consistent_mass_matrices,
@@ -159,16 +158,12 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
                                             node_mass=self._node_masses())
         self._v_last = np.zeros((nown, 3))
 
-    def friction_unit_mass_local(self, v_local: np.ndarray, v_lin_local=None) -> np.ndarray:
-        """(nv, 3) the friction's damping per unit mass and unit ``dry`` at the local vertices
-        (linearised at v_lin like :meth:`VelocityTerms.unit_linearised`): its density
-        derivative."""
-        m, eps = self._friction_mask_local.astype(float), self.velocity_terms.speed
-        if v_lin_local is None:
-            return friction.damping(v_local, m, eps)
-        return (friction.damping(v_lin_local, m, eps)
-                + np.einsum("pij,pj->pi", friction.damping_blocks(v_lin_local, m, eps),
-                            v_local - v_lin_local))
+    def velocity_mass_local(self, v_local: np.ndarray, v_lin_local=None) -> np.ndarray | None:
+        """(nv, 3) the mass-proportional velocity laws' damping per unit mass at the local
+        vertices (:meth:`VelocityTerms.mass_linearised`; None when none acts): their share of
+        the density derivative."""
+        return self.velocity_terms.mass_linearised(
+            v_local, v_lin_local, self._friction_mask_local.astype(float))
 
     def _node_masses(self) -> np.ndarray:
         return self.lumped.getArray(readonly=True).reshape(-1, 3)[:, 0].copy()

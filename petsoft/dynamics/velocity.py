@@ -37,6 +37,13 @@ def coefficients_of(experiment) -> dict[str, float]:
     return coefficients(experiment, NAMES)
 
 
+def _linearised(law, v: np.ndarray, v_lin: np.ndarray | None) -> np.ndarray:
+    """G(v_lin) + dG/dv(v_lin) (v - v_lin) of one ``law`` (v_lin None: G(v))."""
+    if v_lin is None:
+        return law.damping(v)
+    return law.damping(v_lin) + np.einsum("pij,pj->pi", law.blocks(v_lin), v - v_lin)
+
+
 class VelocityTerms:
     """The velocity laws (drag, dry friction) on the nodes a rank owns, each times its
     coefficient.
@@ -96,6 +103,12 @@ class VelocityTerms:
     def nonlinear(self) -> bool:
         return any(not law.linear for _, law in self._acting())
 
+    @property
+    def parameter_names(self) -> list[str]:
+        """The velocity terms this body can carry, in the registry's order: every law, but
+        those that act on the surface only where there is one (``on_surface``)."""
+        return [name for name, law in LAWS.items() if self.has_surface or not law.on_surface]
+
     # -- unit terms (coefficient 1): the parameter derivatives ------------------------------------
     def unit_damping(self, name: str, v: np.ndarray) -> np.ndarray:
         """(nnodes, 3) G of term ``name`` per unit coefficient at velocity v."""
@@ -108,10 +121,25 @@ class VelocityTerms:
     def unit_linearised(self, name: str, v: np.ndarray, v_lin: np.ndarray | None) -> np.ndarray:
         """G(v_lin) + dG/dv(v_lin) (v - v_lin) per unit coefficient (v_lin None: G(v)): the
         parameter derivative of a step whose damping term is linearised at v_lin (SI)."""
-        if v_lin is None:
-            return self.unit_damping(name, v)
-        return (self.unit_damping(name, v_lin)
-                + np.einsum("pij,pj->pi", self.unit_blocks(name, v_lin), v - v_lin))
+        return _linearised(self.laws[name], v, v_lin)
+
+    def mass_linearised(self, v: np.ndarray, v_lin: np.ndarray | None,
+                        unit_mass: np.ndarray) -> np.ndarray | None:
+        """(n, 3) the acting mass-proportional laws' G (``mass_proportional``), each times its
+        coefficient, per unit node mass on the nodes of ``unit_mass`` (n,) (1 where they act,
+        0 elsewhere), linearised at v_lin as :meth:`unit_linearised`; None when none acts.
+
+        A law proportional to the node masses adds this to a derivative with respect to the
+        density or the node mass (the nodes need not be this object's: a FEM system passes its
+        local vertices, whose share is integrated per cell)."""
+        out = None
+        for name, c in self.coef.items():
+            if c == 0.0 or not LAWS[name].mass_proportional:
+                continue
+            law = LAWS[name](VelocitySupport.of(len(unit_mass), None, unit_mass, self.speed))
+            y = c * _linearised(law, v, v_lin)
+            out = y if out is None else out + y
+        return out
 
     # -- the total term ------------------------------------------------------------------------
     def damping(self, v: np.ndarray) -> np.ndarray:

@@ -114,6 +114,8 @@ class LinearDrag:
     c_l, S_i = :func:`linear_blocks` (constant)."""
 
     linear = True
+    on_surface = True
+    mass_proportional = False
 
     def __init__(self, support):
         self.S = linear_blocks(support.node, support.weight, support.normal, support.nnodes)
@@ -146,6 +148,8 @@ class QuadraticDrag:
     not bounded (``rate`` 0)."""
 
     linear = False
+    on_surface = True
+    mass_proportional = False
 
     def __init__(self, support):
         self.pairs = (support.node, support.weight, support.normal)

@@ -60,6 +60,8 @@ class DryFriction:
     ``support.speed``."""
 
     linear = False
+    on_surface = False
+    mass_proportional = True
 
     def __init__(self, support):
         self.mass, self.speed = support.friction_mass, support.speed

@@ -12,6 +12,11 @@ A term whose force depends on the velocity (``drag.linear``, ``drag.quadratic``,
 ``rate(node_mass)``  a bound of the largest eigenvalue of M^-1 dG/dv (the explicit schemes'
                      damping rate; 0 where the law has none independent of the speed)
 ``linear``           whether G is linear in v (then ``second`` is zero)
+``on_surface``       whether it acts through the body's surface pairs only (a body without
+                     surface triangles, a mass-spring model of edges, cannot carry it)
+``mass_proportional`` whether G is proportional to the support's node masses
+                     (``VelocitySupport.friction_mass``): then a derivative with respect to the
+                     density or the node mass has the law's share, its G per unit mass
 
 :class:`petsoft.dynamics.velocity.VelocityTerms` sums the laws the registry declares, each
 times its coefficient; adding a velocity law is its term module and its class.
