@@ -333,3 +333,8 @@ def test_a_malformed_declaration_fails_at_import_time():
     with pytest.raises(ValueError, match="scale 'cubic'"):
         Term("x.y", "?", (), Proposal(kind="value", parameters=(
             Parameter("x.y", "", "0", "1", scale="cubic"),)))
+    for bad in (Key("x", "y", minimum=0.0, open=True, at_minimum="off"),
+                Key("x", "y", minimum=None, at_minimum="off"),
+                Key("x", "y", type="vector", minimum=0.0, at_minimum="off")):
+        with pytest.raises(ValueError, match="at_minimum describes"):
+            Term("x.y", "?", (bad,), Proposal(kind="value"))

@@ -64,14 +64,14 @@ from petsc4py import PETSc
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.errors import ExperimentError
 from petsoft.experiment import get_parameter, key_part
-from petsoft.experiment.ranges import key_range
+from petsoft.experiment.ranges import format_number, key_range
 from petsoft.fem.element import cell_integrals
 from petsoft.fem.kernels.scatter import scatter_add_vector
 from petsoft.mesh.ordering import cell_morton_order
 from petsoft.physics.body_force import BodyForce
 from petsoft.physics.loads import gravity_forces
 from petsoft.physics.materials import cell_materials
-from petsoft.physics.support import shared_compliance
+from petsoft.physics.support import COMPLIANCE, shared_compliance
 from petsoft.physics.term import ParametricTerm
 from petsoft.physics.viscoelastic import NAMES as BRANCH_NAMES
 from petsoft.physics.viscoelastic import check as check_branch
@@ -148,13 +148,14 @@ class ParameterMap:
         self.values.update(self.body.parameters())
         # elastic supports and collider planes (petsoft.physics.support / contact)
         support, contact = system.elastic.support, system.elastic.contact
-        self._compliance_error = None
+        #: parameter -> why it is not one of this system although its term is there
+        self._unshared: dict[str, str] = {}
         if support is not None:
             try:
                 shared_compliance(exp)
-                self.values["boundary.compliance"] = support.compliance
+                self.values[COMPLIANCE] = support.compliance
             except ExperimentError as exc:
-                self._compliance_error = str(exc)
+                self._unshared[COMPLIANCE] = str(exc)
         if contact is not None:
             self.values.update(contact.parameters())    # the planes' offsets
         # the nodal terms' parameters (petsoft.physics.term.ParametricTerm: the supports'
@@ -216,13 +217,15 @@ class ParameterMap:
         else:
             refuse_viscoelastic(names)
         for n in names:
-            if n == "boundary.compliance" and n not in valid:
-                if self._compliance_error is not None:
-                    raise ExperimentError(self._compliance_error)
+            k = minimum_model(n)
+            if k is not None and n not in valid:
+                if n in self._unshared:
+                    raise ExperimentError(self._unshared[n])
+                m = format_number(k.minimum)
                 raise ExperimentError(
-                    f'"{n}": every support of this system was built rigid (no [[boundary]] kind = '
-                    '"fixed" has compliance > 0); a rigid support cannot be made elastic in '
-                    "place: set compliance > 0 in the experiment (its starting value)")
+                    f'"{n}": this system was built with every {k.key} = {m} ({k.at_minimum}), '
+                    f"another model, which cannot be changed in place: set {k.key} > {m} in the "
+                    "experiment (its starting value)")
             if n not in valid:
                 m = GROUP_PATTERN.match(n)
                 extra = (f" (stiffness field: call define_groups with more than {m.group(1)} "
@@ -248,9 +251,10 @@ class ParameterMap:
                 ok, valid = -1.0 < v < 0.5, "in (-1, 0.5)"
             elif key in ("youngs_modulus", "density"):
                 ok, valid = v > 0.0, "> 0"
-            elif name == "boundary.compliance":
-                ok, valid = v > 0.0, ("> 0 (m/Pa; a rigid support, compliance 0, is a Dirichlet "
-                                      "condition and cannot be set in place)")
+            elif (k := minimum_model(name)) is not None:
+                m = format_number(k.minimum)
+                ok, valid = v > k.minimum, (f"> {m} ({k.unit}; {k.key} = {m} is {k.at_minimum}, "
+                                            "another model, and cannot be set in place)")
             elif name in self.package or name in self.system.rayleigh.coef:
                 rng = declared_range(name)
                 ok, valid = rng.contains(v), rng.text(key)
@@ -330,6 +334,15 @@ def declared_range(name: str):
     term's number, a Rayleigh coefficient)."""
     table, key = name.split(".")
     return key_range(next(k for k in keys_of(table) if k.key == key))
+
+
+def minimum_model(name: str):
+    """The key of a term's parameter ``table.key`` whose minimum is another model
+    (:attr:`petsoft.terms.Key.at_minimum`: the supports' compliance, 0 = rigid), else None: its
+    value set in place must exceed the minimum, and a system built at the minimum has no such
+    parameter."""
+    table, _, key = name.partition(".")
+    return next((k for k in keys_of(table) if k.key == key and k.at_minimum), None)
 
 
 def get_default(system, name: str) -> float:

@@ -8,7 +8,7 @@ TERM = Term(
     name="boundary.compliance",
     meaning="the support is elastic, not rigid",
     keys=(Key("boundary", "compliance", unit="m/Pa", minimum=0.0, section="array",
-              only="fixed"),),
+              only="fixed", at_minimum="a rigid support, a Dirichlet condition"),),
     # from a support displacement a thousandth of a cell's strain (numerically rigid)
     proposal=Proposal(
         kind="value", start="1e-3 * cell / youngs_modulus",

@@ -71,6 +71,11 @@ class Key:
         The valid values of a ``"choice"`` key.
     text : str
         How messages say the unit when it is more than ``unit`` (``"E_M / E"``), else ``""``.
+    at_minimum : str
+        What the term is at ``minimum`` when that is another model, built otherwise (a rigid
+        support is a Dirichlet condition, not a spring), in words for messages; ``""`` when the
+        minimum is a value like any other. A model cannot be changed into the other in place,
+        so a parameter set in place (``set_parameters``) must then exceed the minimum.
     """
 
     table: str
@@ -84,6 +89,7 @@ class Key:
     only: str = ""
     choices: tuple[str, ...] = ()
     text: str = ""
+    at_minimum: str = ""
 
     @property
     def dotted(self) -> str:
@@ -208,6 +214,9 @@ class Term:
             if k.type not in TYPES or k.section not in SECTIONS:
                 raise ValueError(f"{self.name}: key {k.dotted}: type {k.type!r} / section "
                                  f"{k.section!r} not in {TYPES} / {SECTIONS}")
+            if k.at_minimum and (k.type != "number" or k.minimum is None or k.open):
+                raise ValueError(f"{self.name}: key {k.dotted}: at_minimum describes a number's "
+                                 "closed minimum (minimum given, open False)")
         p = self.proposal
         if p.kind not in KINDS or p.ranking not in RANKINGS:
             raise ValueError(f"{self.name}: proposal kind {p.kind!r} / ranking {p.ranking!r} "
