@@ -3,7 +3,9 @@ rho; clamped as its truth; P2 on the generator's truth mesh, frequency_screen.fr
 against the draw's estimate (random_draw.first_frequency) and a base drive's frequency:
 ``python3 first_frequencies.py SEED CASE N [FACTOR ...]`` (the truth's h times each FACTOR,
 default 1; GRADE_FINEST=K GRADE_OVER=L: graded to h / K over L h instead of the family's
-random_shapes.GRADING; UNGRADED=clamp or inner: that edge left ungraded)."""
+random_shapes.GRADING; GRADE_POWER=P GRADE_RADIUS=R: h (d / (R h_truth))^P instead, floored at
+h / GRADE_FINEST; UNGRADED=clamp or inner: that edge left ungraded; DEGREE=3: P3 elements;
+NOHOLE=1: a plate without its hole)."""
 
 import os
 import sys
@@ -26,8 +28,12 @@ elif os.environ.get("UNGRADED") == "inner":    # only the clamp's edges graded
 case = [c for c in rd.draw(seed, n, "realistic") if c["name"] == name][0]
 gmsh.initialize()
 gmsh.option.setNumber("General.Terminal", 0)
+if os.environ.get("NOHOLE"):            # the plate's hole cut away from nothing
+    gmsh.model.occ.cut = lambda obj, tool, **k: gmsh.model.occ.remove(tool, recursive=True)
+
 for factor in factors:
-    freqs, tets = fs.frequencies(gmsh, case, rs.truth_h(case["geometry"]) * factor, modes=4)
+    freqs, tets = fs.frequencies(gmsh, case, rs.truth_h(case["geometry"]) * factor, modes=4,
+                                 degree=int(os.environ.get("DEGREE", 2)))
     est = rd.first_frequency(case["family"], case["geometry"], case["material"])
     base = case["excitation"].get("base")
     drive = f", base drive {base['omega'] / (2 * np.pi):.3g} Hz" if base else ""
