@@ -59,6 +59,7 @@ from __future__ import annotations
 import re
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
@@ -67,6 +68,7 @@ from petsoft.experiment import get_parameter, key_part
 from petsoft.experiment.ranges import format_number, key_range
 from petsoft.fem.element import cell_integrals
 from petsoft.fem.kernels.scatter import scatter_add_vector
+from petsoft.fem.regions import RegionResolver
 from petsoft.mesh.ordering import cell_morton_order
 from petsoft.physics.body_force import BodyForce
 from petsoft.physics.loads import gravity_forces
@@ -113,31 +115,7 @@ class ParameterMap:
         self.E_mult = np.ones(len(local))
         self.group = None
         self.ngroups = 0
-        # Which name governs each cell's value of each key: the logic of cell_materials, with a
-        # region that does not override a key following the default (as with_parameters does).
-        ncell = len(model.resolver.mesh.tets)
-        last = np.full(ncell, -1)
-        regions = [n for n in exp.material if n != "default"]
-        masks = {}
-        for i, name in enumerate(regions):
-            masks[name] = model.resolver.cell_mask(name, key=f"material.{name}")
-            last[masks[name]] = i
-        self.cells: dict[str, np.ndarray] = {}
-        for key in MATERIAL_KEYS:
-            default = last < 0
-            for i, name in enumerate(regions):
-                mine = last == i
-                if key in exp.material[name].overrides:
-                    self.cells[f"material.{key_part(name)}.{key}"] = mine[local]
-                else:
-                    default |= mine
-                    self.cells[f"material.{key_part(name)}.{key}"] = mine[local]
-            self.cells[f"material.{key}"] = default[local]
-            # a [region.<name>] without a material table: setting it appends an override
-            for name in exp.regions:
-                if name not in exp.material:
-                    mask = model.resolver.cell_mask(name, key=f"region.{name}")
-                    self.cells[f"material.{key_part(name)}.{key}"] = mask[local]
+        self.cells: dict[str, np.ndarray] = self._material_cells(exp, model.resolver)
         self.values = {n: float(self._current(n)) for n in self.cells}
         # the Rayleigh terms' coefficients (petsoft.dynamics.rayleigh)
         self.values.update(system.rayleigh.coef)
@@ -171,6 +149,51 @@ class ParameterMap:
         # the Maxwell branch: settable in place, not differentiable (see VISCOELASTIC)
         branch = system.viscoelastic
         self.values.update(branch.parameters())
+
+    def _material_cells(self, exp, resolver) -> dict[str, np.ndarray]:
+        """Which local cells each material name governs: the logic of cell_materials, with a
+        region that does not override a key following the default (as with_parameters does)."""
+        local = self.system.dmesh.cell_ids
+        last = np.full(len(resolver.mesh.tets), -1)
+        regions = [n for n in exp.material if n != "default"]
+        for i, name in enumerate(regions):
+            last[resolver.cell_mask(name, key=f"material.{name}")] = i
+        cells: dict[str, np.ndarray] = {}
+        for key in MATERIAL_KEYS:
+            default = last < 0
+            for i, name in enumerate(regions):
+                mine = last == i
+                if key not in exp.material[name].overrides:
+                    default |= mine
+                cells[f"material.{key_part(name)}.{key}"] = mine[local]
+            cells[f"material.{key}"] = default[local]
+            # a [region.<name>] without a material table: setting it appends an override
+            for name in exp.regions:
+                if name not in exp.material:
+                    mask = resolver.cell_mask(name, key=f"region.{name}")
+                    cells[f"material.{key_part(name)}.{key}"] = mask[local]
+        return cells
+
+    def move_regions(self, experiment) -> None:
+        """Take ``experiment``'s regions and material values in place: the same mesh, material
+        tables and laws as the system's, its regions moved or resized (a sphere search's trial,
+        :mod:`petsoft.diagnosis.reduced_trials`). Every cell's E, nu and density, the cells
+        each material name governs and those names' values become what a system built for
+        ``experiment`` holds (stiffness-field multipliers stay). The caller rebuilds the
+        matrices (``DynamicSystem.set_parameters({})``). Collective; raises on every rank when a
+        cell would change its material law (the element groups are per law)."""
+        mesh = self.system.model.resolver.mesh
+        resolver = RegionResolver(mesh, experiment.regions, experiment.source)
+        law, E, nu, rho = cell_materials(experiment, resolver)
+        local = self.system.dmesh.cell_ids
+        same = all(bool(np.all(law[local][g.cells] == g.model))
+                   for g in self.system.elastic.groups)
+        if not self.system.comm.tompi4py().allreduce(same, op=MPI.LAND):
+            raise ExperimentError(f"{experiment.source}: a moved region changes some cells' "
+                                  "material law, which is not done in place: build the model")
+        self.E_base, self.nu, self.rho = E[local].copy(), nu[local].copy(), rho[local].copy()
+        self.cells = self._material_cells(experiment, resolver)
+        self.values.update({n: float(self._current(n)) for n in self.cells})
 
     def _current(self, name: str) -> float:
         key = name.rsplit(".", 1)[1]
