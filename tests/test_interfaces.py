@@ -9,6 +9,7 @@ import inspect
 import numpy as np
 import pytest
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from petsoft.dynamics.integrators import SCHEMES, scheme
 from petsoft.dynamics.interfaces import Stepper, System
@@ -334,6 +335,63 @@ def test_factory_builds_each_kind_as_a_system_with_its_initial_state(example, tm
         assert got["cell"] ** 3 * ntets == pytest.approx(0.2 * 0.04 * 0.04, rel=1e-12)
     for x in (q, v):
         x.destroy()
+    s.destroy()
+
+
+@pytest.mark.parametrize("example", list(FACTORY_EXAMPLES))
+def test_each_kind_gives_the_node_wise_solvers_its_nodes(example, tmp_path_factory):
+    """What the matrix-free Jacobian and nonlinear Gauss-Seidel ask of a body, checked against
+    its assembled matrix and its initial state: ``owned_nodes`` are the rows of the global
+    vector (the [initial] expression of x at each); ``unassembled`` multiplies as the assembled
+    step matrix does; no two nodes of one colour of ``node_graph`` are coupled in it; an
+    element couples ``nodes_per_element`` nodes."""
+    from petsoft.dynamics.factory import build_system
+    from petsoft.dynamics.nonlinear_gs import owned_colours
+
+    comm = MPI.COMM_WORLD
+    folder = comm.bcast(str(tmp_path_factory.mktemp("nodes")) if comm.rank == 0 else None)
+    exp, _, _ = FACTORY_EXAMPLES[example][1](folder)
+    s = build_system(exp)
+    q, _ = s.initial_state()
+    x = s.dmesh.mesh.points[s.owned_nodes()]
+    qa = q.getArray(readonly=True).reshape(-1, 3)
+    free = x[:, 0] >= 1e-9
+    assert len(x) == len(qa) and free.any()
+    np.testing.assert_allclose(qa[free, 0], 0.01 * x[free, 0] + 0.001, rtol=1e-12)
+
+    A = s.assemble_combination(q, 2.0, 1.0, 0.5, s.create_matrix(), eliminate=False)
+    parts = s.unassembled()
+    parts.update(q, 2.0, 1.0, 0.5, 0.0)
+    rng = np.random.default_rng(comm.rank)
+    u, want, got = s.create_vec(), s.create_vec(), s.create_vec()
+    u.setArray(rng.standard_normal(u.getLocalSize()))
+    A.mult(u, want)
+    parts.mult(u, got)
+    np.testing.assert_allclose(got.getArray(), want.getArray(), rtol=1e-12,
+                               atol=1e-12 * want.norm())
+
+    colour = owned_colours(s)
+    lo = u.getOwnershipRange()[0]
+    own = np.arange(lo, lo + u.getLocalSize(), dtype=PETSc.IntType).reshape(-1, 3)
+    for c in range(comm.allreduce(int(colour.max()) + 1, op=MPI.MAX)):
+        mine = colour == c
+        u.getArray().reshape(-1, 3)[~mine] = 0.0
+        u.getArray().reshape(-1, 3)[mine] = rng.standard_normal((int(mine.sum()), 3))
+        A.mult(u, want)
+        scale = want.norm()     # collective: not inside the loop over this rank's nodes
+        ua = u.getArray(readonly=True).reshape(-1, 3)
+        for i in np.flatnonzero(mine):     # only the node's own block acts on it
+            block = A.getValues(own[i], own[i])
+            np.testing.assert_allclose(want.getArray(readonly=True).reshape(-1, 3)[i],
+                                       block @ ua[i], rtol=1e-12, atol=1e-12 * scale)
+    # each element of node i adds its k - 1 others to i's pairs, and k nodes' worth in all
+    # (a weak check of k: divisibility, not the count of elements)
+    n, src, dst = s.node_graph()
+    k, count = s.nodes_per_element, np.bincount(src, minlength=n)
+    assert np.all(count % (k - 1) == 0) and (count.sum() // (k - 1)) % k == 0, (k, count)
+    for vec in (q, u, want, got):
+        vec.destroy()
+    A.destroy()
     s.destroy()
 
 

@@ -6,8 +6,9 @@ mass-spring network (``[springs]``, a :class:`~petsoft.dynamics.mass_spring.Mass
 :func:`kind_of` is the one place that reads which (the experiment reader guarantees exactly one
 of the two tables); everything else asks the system, or its class when it has no system yet
 (:func:`system_class`), what it has: volume cells, finite element orders, a continuum material
-(the class attributes of :class:`~petsoft.dynamics.interfaces.System`), its initial state, where
-its probes sit and how large the body is (:class:`ExperimentSystem`).
+(the class attributes of :class:`~petsoft.dynamics.interfaces.System`), its initial state, its
+nodes for the node-wise solvers (``unassembled``, ``node_graph``, ``owned_nodes``), where its
+probes sit and how large the body is (:class:`ExperimentSystem`).
 
 A new kind of body is one entry of :data:`KINDS` (its system class, how its model is built, how
 the system is made from the model); tests/test_interfaces.py builds every entry through

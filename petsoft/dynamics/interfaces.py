@@ -49,6 +49,13 @@ class System(Protocol):
     elastic: Any
     #: reference spring lengths of a mass-spring network, or None
     rest_lengths: Any
+    #: the step matrix unassembled (:func:`petsoft.dynamics.matrix_free.unassembled`), the node
+    #: graph (N, src, dst), the owned nodes' file numbers in the global vector's order, the most
+    #: nodes one element couples (:mod:`petsoft.dynamics.nonlinear_gs`); None (0) without nodes
+    unassembled: Any
+    node_graph: Any
+    owned_nodes: Any
+    nodes_per_element: int
     #: prescribed displacements change in time / loads change in time / the step matrix is
     #: constant (linear material, no contact or nonlinear velocity terms)
     moving_boundary: bool
@@ -133,6 +140,13 @@ class SystemDefaults:
     parameter_derivatives = None
     #: the viscoelastic branch's stored energy, or None
     viscoelastic_energy = None
+    #: what the node-wise solvers (matrix-free Jacobian, nonlinear Gauss-Seidel) need of a body
+    #: of nodes: its step matrix unassembled, its node graph, its owned nodes' file numbers and
+    #: the most nodes one element couples; None (0) for a system without nodes
+    unassembled = None
+    node_graph = None
+    owned_nodes = None
+    nodes_per_element = 0
     #: what kind of body: none of the capabilities (see :class:`System`)
     defined_by = "(no experiment table)"
     volume_cells = False

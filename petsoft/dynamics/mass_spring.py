@@ -42,6 +42,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.initial import initial_from_expressions
 from petsoft.dynamics.interfaces import SystemDefaults
+from petsoft.dynamics.matrix_free import SpringBlocks
 from petsoft.dynamics.rayleigh import RayleighDamping
 from petsoft.dynamics.velocity import LAWS as VELOCITY_LAWS
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
@@ -916,6 +917,24 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         y = self._work
         mats[which].mult(v, y)
         return y.getArray(readonly=True).reshape(-1, 3).copy()
+
+    # -- the node-wise solvers (petsoft.dynamics.matrix_free, nonlinear_gs) ----------------------
+    #: a spring couples two nodes
+    nodes_per_element = 2
+
+    def unassembled(self) -> SpringBlocks:
+        """The step matrix as spring and node blocks (:meth:`combination_blocks`), unassembled."""
+        return SpringBlocks(self)
+
+    def node_graph(self) -> tuple[int, np.ndarray, np.ndarray]:
+        """(N, src, dst): both directions of every spring (file numbering; every rank)."""
+        e = self.edges
+        return len(self.points), np.concatenate([e[:, 0], e[:, 1]]), \
+            np.concatenate([e[:, 1], e[:, 0]])
+
+    def owned_nodes(self) -> np.ndarray:
+        """(nowned,) the file numbers of the owned nodes: a contiguous range."""
+        return np.arange(*self.node_range)
 
     def locate_probes(self, probes, source: str = "probes"):
         """(connectivity, cells, weights): probes sit on nodes (:func:`locate_nodes`), "cells" of

@@ -32,8 +32,6 @@ import weakref
 import numpy as np
 from petsc4py import PETSc
 
-from petsoft.dynamics.mass_spring import MassSpringSystem
-from petsoft.dynamics.system import DynamicSystem
 from petsoft.fem.kernels.scatter import scatter_add_vector
 from petsoft.physics.loads import consistent_mass_matrices
 
@@ -83,7 +81,7 @@ class ContinuumElements:
     once.
     """
 
-    def __init__(self, system: DynamicSystem):
+    def __init__(self, system):
         self.system = system
         self.dmesh = system.dmesh
         self.connectivity = system.assembler.connectivity
@@ -179,7 +177,7 @@ class SpringBlocks:
     """J of a :class:`~petsoft.dynamics.mass_spring.MassSpringSystem` as spring and node blocks
     (:meth:`~petsoft.dynamics.mass_spring.MassSpringSystem.combination_blocks`)."""
 
-    def __init__(self, system: MassSpringSystem):
+    def __init__(self, system):
         self.system = system
         lo, hi = system.node_range
         self.lo, self.hi = lo, hi
@@ -230,10 +228,8 @@ def unassembled(system):
     ValueError
         For a system without one (e.g. the analytic oscillator).
     """
-    if isinstance(system, MassSpringSystem):
-        return SpringBlocks(system)
-    if isinstance(system, DynamicSystem):
-        return ContinuumElements(system)
+    if system.unassembled is not None:
+        return system.unassembled()
     raise ValueError(f"{type(system).__name__}: the matrix-free Jacobian and nonlinear "
                      "Gauss-Seidel need a continuum (DynamicSystem) or mass-spring system")
 

@@ -36,9 +36,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from petsoft.dynamics.mass_spring import MassSpringSystem
 from petsoft.dynamics.matrix_free import StepOperator
-from petsoft.dynamics.system import DynamicSystem
 from petsoft.solvers.convergence import stop_at_round_off
 
 OPTION = "petsoft_ngs"
@@ -101,35 +99,16 @@ def greedy_colouring(n: int, src: np.ndarray, dst: np.ndarray, seed: int = 0) ->
 
 def node_graph(system) -> tuple[int, np.ndarray, np.ndarray]:
     """(N, src, dst): the whole node graph (file numbering; the same on every rank)."""
-    if isinstance(system, MassSpringSystem):
-        e = system.edges
-        return len(system.points), np.concatenate([e[:, 0], e[:, 1]]), \
-            np.concatenate([e[:, 1], e[:, 0]])
-    if isinstance(system, DynamicSystem):
-        cells = np.asarray(system.dmesh.mesh.cells)
-        k = cells.shape[1]
-        a, b = np.nonzero(~np.eye(k, dtype=bool))
-        return (system.dmesh.nglobal_vertices, cells[:, a].ravel(), cells[:, b].ravel())
-    raise ValueError(f"{type(system).__name__}: nonlinear Gauss-Seidel needs a continuum or "
-                     "mass-spring system")
+    if system.node_graph is None:
+        raise ValueError(f"{type(system).__name__}: nonlinear Gauss-Seidel needs a continuum or "
+                         "mass-spring system")
+    return system.node_graph()
 
 
 def owned_colours(system) -> np.ndarray:
     """(nowned,) the colour of each owned node, in the global vector's order."""
     n, src, dst = node_graph(system)
-    colour = greedy_colouring(n, src, dst)
-    if isinstance(system, MassSpringSystem):
-        lo, hi = system.node_range
-        return colour[lo:hi]
-    dm = system.dmesh
-    return colour[dm.vertex_ids[:dm.nowned]]   # owned local vertices come first
-
-
-def nodes_per_element(system) -> int:
-    """k, the most nodes one element (or spring) couples."""
-    if isinstance(system, MassSpringSystem):
-        return 2
-    return int(np.asarray(system.dmesh.mesh.cells).shape[1])
+    return greedy_colouring(n, src, dst)[system.owned_nodes()]
 
 
 class NodeSweeps:
@@ -152,7 +131,7 @@ class NodeSweeps:
         system = integrator.system
         self.variant = variant
         if omega is None:
-            omega = 1.0 if variant == "gs" else 0.95 * min(1.0, 2.0 / nodes_per_element(system))
+            omega = 1.0 if variant == "gs" else 0.95 * min(1.0, 2.0 / system.nodes_per_element)
         self.omega = float(omega)
         self.operator = StepOperator(system)
         self._R = system.create_vec()

@@ -37,6 +37,7 @@ from petsc4py import PETSc
 
 from petsoft.dynamics.initial import initial_from_expressions
 from petsoft.dynamics.interfaces import SystemDefaults
+from petsoft.dynamics.matrix_free import ContinuumElements
 from petsoft.dynamics.rayleigh import RayleighDamping
 from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms, coefficients_of
 from petsoft.errors import InvertedElementError
@@ -518,6 +519,29 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
             q0 = solver.solve().displacement.copy()
             solver.destroy()
         return initial_from_expressions(self, init, q0)
+
+    # -- the node-wise solvers (petsoft.dynamics.matrix_free, nonlinear_gs) ----------------------
+    def unassembled(self) -> ContinuumElements:
+        """The step matrix as element matrices per set, unassembled."""
+        return ContinuumElements(self)
+
+    def node_graph(self) -> tuple[int, np.ndarray, np.ndarray]:
+        """(N, src, dst): every pair of nodes that share a cell (file numbering; the same on
+        every rank)."""
+        cells = np.asarray(self.dmesh.mesh.cells)
+        k = cells.shape[1]
+        a, b = np.nonzero(~np.eye(k, dtype=bool))
+        return (self.dmesh.nglobal_vertices, cells[:, a].ravel(), cells[:, b].ravel())
+
+    def owned_nodes(self) -> np.ndarray:
+        """(nowned,) the file numbers of the owned nodes, in the global vector's order."""
+        dm = self.dmesh
+        return dm.vertex_ids[:dm.nowned]   # owned local vertices come first
+
+    @property
+    def nodes_per_element(self) -> int:
+        """The nodes of a cell (4 or 10): the most one element couples."""
+        return int(np.asarray(self.dmesh.mesh.cells).shape[1])
 
     def locate_probes(self, probes, source: str = "probes"):
         """(connectivity, cells, weights): the cell holding each probe point and its
