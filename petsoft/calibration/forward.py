@@ -564,8 +564,13 @@ class ForwardModel:
 
     # -- forward sensitivities --------------------------------------------------------------------
     @_collects_garbage
-    def jacobian(self, p):
-        """(sim (K, M, 3), dsim/dp (K, M, 3, P)) by forward sensitivities (one run)."""
+    def jacobian(self, p, watch=None):
+        """(sim (K, M, 3), dsim/dp (K, M, 3, P)) by forward sensitivities (one run).
+
+        ``watch(n, state, dq)``, optional, is called with every step's state (q, v, a or None)
+        and displacement tangents dq_j (P vectors), from n = 0 (the initial state): the run's
+        own vectors, to copy what is kept (e.g. a reduced model's snapshots,
+        :mod:`petsoft.diagnosis.reduced_trials`)."""
         self._refuse_derivatives(p, sensitivities=True)
         s, P = self.system, len(self.names)
         K_frames = len(self.frame_times)
@@ -602,6 +607,8 @@ class ForwardModel:
             if not started:
                 self._initial_tangents(st0, tangents)
                 observe_tangents(0)
+                if watch is not None:
+                    watch(0, st0, tangents["q"])
                 started.append(True)
             steps = self.step_derivatives
             lin = steps.linearize(n, st0, st1, self.J)
@@ -625,6 +632,8 @@ class ForwardModel:
                 x.destroy()
             lin.free()
             observe_tangents(n + 1)
+            if watch is not None:
+                watch(n + 1, st1, tangents["q"])
             if lend:
                 # the next step's Newton chord iterates on these factors (borrowed_chord)
                 self.integrator.borrow_chord(lagged.factors if lagged is not None else ksp)

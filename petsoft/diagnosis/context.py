@@ -181,6 +181,10 @@ def cell_geometry(mesh) -> tuple[np.ndarray, np.ndarray]:
 class Diagnosis:
     """State shared by the steps (recording split, noise, communicator, options)."""
 
+    #: score the sphere searches' trials by a reduced model, each poll's best verified on the
+    #: full model (:mod:`petsoft.diagnosis.reduced_trials`; ``diagnose --reduced-trials``)
+    reduced_trials: bool = False
+
     def __init__(self, experiment, recording, *, fraction, alpha, method, gradient,
                  integrator, noise, comm, say, one_rank_dofs: int = ONE_RANK_DOFS):
         from petsoft.diagnosis.noise import NoiseError, noise_summary

@@ -27,6 +27,7 @@ geometry parameters **and** a better held-out prediction.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import gc
 
 import numpy as np
@@ -45,6 +46,7 @@ from petsoft.diagnosis.context import (
     term_values,
 )
 from petsoft.diagnosis.numerics import model_sensitivities
+from petsoft.diagnosis.reduced_trials import ReducedTrials
 from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
 from petsoft.physics.model import load_mesh
 
@@ -84,11 +86,16 @@ class _Sphere:
         self.volume = float(self.volumes[self.cells(candidate.region)].sum())
         self.data = diag.data[diag.ident]
         self.seen = np.isfinite(self.data)
-        self.cols = model_sensitivities(diag, fit)[self.seen]
         self.names = list(fit.names)
         self.index = self.names.index(self.parameter)
         bounds = np.array([fit.experiment.calibrate[n] for n in self.names], dtype=float)
         self.lower, self.upper = bounds[:, 0], bounds[:, 1]
+
+    @functools.cached_property
+    def cols(self) -> np.ndarray:
+        """The current model's sensitivity columns (seen samples, parameters): asked for when
+        first scored (:mod:`petsoft.diagnosis.reduced_trials` may have kept them by then)."""
+        return model_sensitivities(self.diag, self.fit)[self.seen]
 
     def cells(self, region: dict) -> np.ndarray:
         """(E,) bool: the cells whose centroid is inside ``region`` (as the model's regions)."""
@@ -130,11 +137,10 @@ class _Sphere:
             step = refit_step(cols, r)
         return float(np.sum(((r + cols @ step) / self.diag.sigma) ** 2)), step
 
-    def trial(self, region: dict, comm) -> tuple[float, np.ndarray, dict]:
-        """One trial sphere: its linearised refit's chi2 and step, and its start values. One
-        run of the identification window with the sensitivity to the sphere's own value (the
-        other parameters' columns are the current model's: the sphere's place changes its own
-        column most)."""
+    def full_run(self, region: dict, comm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(sim, d sim/d the sphere's value (K, M, 3, 1), start values) of the full model with
+        the sphere at ``region``: one run of the identification window with the sensitivity
+        to the sphere's own value."""
         diag = self.diag
         exp = self.experiment(region)
         values = np.array([get_parameter(exp, n) for n in self.names])
@@ -144,9 +150,21 @@ class _Sphere:
             sim, own = fm.jacobian(values[[self.index]])
         finally:
             fm.destroy()
+        return sim, np.asarray(own), values
+
+    def trial_columns(self, own: np.ndarray) -> np.ndarray:
+        """The refit's columns of a trial: the sphere's value's its own ``own`` (seen
+        samples), the other parameters' the current model's (the sphere's place changes its
+        own column most)."""
         cols = self.cols.copy()
-        cols[:, self.index] = np.asarray(own)[self.seen][:, 0]
-        chi2_lin, step = self.misfit(sim, cols, values)
+        cols[:, self.index] = own[self.seen][:, 0]
+        return cols
+
+    def trial(self, region: dict, comm) -> tuple[float, np.ndarray, dict]:
+        """One trial sphere on the full model (:meth:`full_run`): its linearised refit's chi2
+        and step, and its start values."""
+        sim, own, values = self.full_run(region, comm)
+        chi2_lin, step = self.misfit(sim, self.trial_columns(own), values)
         return chi2_lin, step, dict(zip(self.names, map(float, values), strict=True))
 
 
@@ -165,8 +183,8 @@ def _polls(region: dict, h: float, f: float) -> list[dict]:
     return out
 
 
-def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS
-               ) -> SphereFit | None:
+def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
+               notes: list | None = None) -> SphereFit | None:
     """Fit the centre and radius of ``candidate``'s sphere (module docstring).
 
     Parameters
@@ -178,6 +196,9 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS
         A spatial candidate (``region`` set).
     max_polls : int
         Rounds of the compass search.
+    notes : list, optional
+        With ``diag.reduced_trials``, what the reduced trials did is appended here
+        (:meth:`~petsoft.diagnosis.reduced_trials.ReducedTrials.note`).
 
     Returns
     -------
@@ -196,6 +217,19 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS
     f = RADIUS_FACTOR
     min_h = 0.25 * search.cell
     start_chi2 = best_chi2
+    reduced = None
+    if diag.reduced_trials:
+        reduced = ReducedTrials.start(diag, search)
+        gc.collect()                    # every rank, same point (see run_diagnose)
+        if not reduced.active:
+            diag.tell(f"  {label}: full trials: {reduced.why}")
+
+    def full_trials(regions: list) -> list:
+        results = diag.placement.on_groups(lambda r, sub: search.trial(r, sub), regions,
+                                           fit.experiment)
+        gc.collect()                    # every rank, same point (see run_diagnose)
+        return [(*res.value, r) for res, r in zip(results, regions, strict=True) if res.ok]
+
     for poll in range(1, max_polls + 1):
         if h < min_h:
             break
@@ -214,10 +248,10 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS
             if cells.any() and key not in seen:
                 seen.add(key)
                 trials.append(region)
-        results = diag.placement.on_groups(lambda r, sub: search.trial(r, sub), trials,
-                                           fit.experiment)
-        gc.collect()                    # every rank, same point (see run_diagnose)
-        scored = [(*res.value, r) for res, r in zip(results, trials, strict=True) if res.ok]
+        if reduced is not None and reduced.active:
+            scored = reduced.poll(poll, trials, full_trials)
+        else:
+            scored = full_trials(trials)
         moved = False
         if scored:
             c2, step, values, region = min(scored, key=lambda t: t[0])
@@ -226,11 +260,18 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS
         diag.tell(f"  {label}: poll {poll}: {len(trials)} new cell sets (centre step "
                   f"{h:.3g} m, radius x {f:.3g}); best centre "
                   f"{np.round(best['center'], 4).tolist()} r {best['radius']:.4g}, chi2 "
-                  f"{best_chi2:.6g} (linearised refit)")
+                  f"{best_chi2:.6g} (linearised refit)"
+                  + (reduced.poll_words(poll) if reduced is not None else ""))
         if moved:               # a step that worked may be too short: try a longer one next
             h, f = min(2.0 * h, 2.0 * h0), min(f * f, RADIUS_FACTOR ** 2)
         else:
             h, f = 0.5 * h, float(np.sqrt(f))
+    if reduced is not None:
+        reduced.destroy()
+        gc.collect()                    # every rank, same point (see run_diagnose)
+        diag.tell(f"  {label}: {reduced.timing()}")
+        if notes is not None:
+            notes.append(reduced.note())
     if best_chi2 >= start_chi2:
         diag.tell(f"  {label}: the placed sphere is the best the search found")
         return None
@@ -276,22 +317,26 @@ def refit_added_sphere(diag: Diagnosis, entry: dict, fit: Fit, candidate,
         diag.tell(f"  {candidate.physics} sphere: not fitted (no exact sensitivities with the "
                   "viscoelastic branch under this integrator)")
         return entry, fit, candidate
-    said = []
+    said, notes = [], []
     for search in range(1, searches + 1):
         if diag.budget.stops(
                 f"{candidate.physics}'s sphere search {search} of {searches}",
                 "the sphere stays where the last search left it (the map's placement if none "
                 "ran): its centre and size are a first guess", diag.tell):
             break
-        moved = fit_sphere(diag, fit, candidate)
+        moved = fit_sphere(diag, fit, candidate, notes=notes)
         if moved is None:
             break
         fit, candidate = moved.fit, moved.candidate
         said.append(moved.summary)
+    # (notes: the reduced trials' words, only with diag.reduced_trials)
+    tail = "".join(f"; {words}" for words in (["; then ".join(said)] if said else []) + notes)
     if not said:
+        if notes:
+            entry = {**entry, "evidence": entry["evidence"] + tail}
         return entry, fit, candidate
     values, std = term_values(fit, candidate.parameters)
     entry = {**entry, "parameters": values, "std": std,
              "rms_after": fit.rms, "region": candidate.region,
-             "evidence": entry["evidence"] + "; " + "; then ".join(said)}
+             "evidence": entry["evidence"] + tail}
     return entry, fit, candidate

@@ -420,6 +420,13 @@ def model_sensitivities(diag: Diagnosis, fit: Fit, comm=None) -> np.ndarray:
     return diag.measured_meshes[key]
 
 
+def keep_sensitivities(diag: Diagnosis, fit: Fit, columns: np.ndarray) -> None:
+    """Keep ``columns`` as :func:`model_sensitivities` of ``fit``: the same Jacobian run made
+    for another purpose (a reduced model's training run,
+    :mod:`petsoft.diagnosis.reduced_trials`) on every rank."""
+    diag.measured_meshes.setdefault(_sensitivities_key(fit), columns)
+
+
 def refined(experiment, what: str):
     """The experiment refined by the entry ``what`` of :data:`REFINEMENTS` (``"step/2"``: the
     step halved; ``"mesh x2"``: a box's cells doubled, a mesh file's ``[mesh] refine`` + 1)."""
