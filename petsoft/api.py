@@ -472,7 +472,7 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
              gradient: str = "sensitivity", integrator: str | None = None,
              noise: float | None = None, numerics: bool = True, spelled_out: bool = False,
              one_rank_dofs: int = ONE_RANK_DOFS, budget: float | None = DEFAULT_BUDGET,
-             say=_quiet) -> DiagnoseResult:
+             reduced_trials: bool = False, say=_quiet) -> DiagnoseResult:
     """Find, model and verify the physics ``experiment`` lacks (``petsoft diagnose``).
 
     Calibrates the model on the first ``fraction`` of the record, tests the residual against
@@ -511,6 +511,9 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
     budget : float or None
         Wall seconds after which no new piece of work starts; the report then says what was
         left out. None: no budget.
+    reduced_trials : bool
+        Score an added region's sphere-search trials by a reduced-order model, each poll's
+        best verified on the full model (:mod:`petsoft.diagnosis.reduced_trials`).
     say : callable(str)
         Progress lines (rank 0); default silent.
 
@@ -524,4 +527,4 @@ def diagnose(experiment: Experiment, recording: Recording | str | Path, *,
                         max_tries=max_tries, method=method, gradient=gradient,
                         integrator=integrator, noise=noise, numerics=numerics, say=say,
                         spelled_out=spelled_out, one_rank_dofs=one_rank_dofs,
-                        budget=budget)
+                        budget=budget, reduced_trials=reduced_trials)

@@ -207,3 +207,31 @@ def test_jacobian_watch_sees_every_state_and_tangent(recording):  # noqa: F811
     assert not np.allclose(last, 0.0, atol=1e3 * atol)
     fm.destroy()
 
+
+
+def test_the_cli_option_reaches_run_diagnose(monkeypatch, tmp_path):
+    """``petsoft diagnose --reduced-trials`` sets run_diagnose's ``reduced_trials`` (off
+    without it)."""
+    from petsoft.cli import commands
+    from petsoft.cli.main import _parser
+
+    args = _parser().parse_args(["diagnose", "a.toml", "b.h5"])
+    assert args.reduced_trials is False
+    args = _parser().parse_args(["diagnose", "a.toml", "b.h5", "--reduced-trials"])
+    assert args.reduced_trials is True
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def run_diagnose(*_, **kw):
+        seen.update(kw)
+        raise Stop
+
+    monkeypatch.setattr(commands, "run_diagnose", run_diagnose)
+    monkeypatch.setattr(commands, "load_experiment", lambda path: type(
+        "E", (), {"output": type("O", (), {"directory": tmp_path})()})())
+    monkeypatch.setattr(commands, "read_recording_on_all_ranks", lambda path: None)
+    with pytest.raises(Stop):
+        commands.run(args)
+    assert seen["reduced_trials"] is True

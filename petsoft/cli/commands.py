@@ -121,7 +121,7 @@ def run(args) -> int:
                               method=args.method, integrator=args.integrator,
                               noise=args.noise, numerics=not args.no_numerics,
                               say=_print_here, spelled_out=args.spelled_out,
-                              budget=args.budget,
+                              budget=args.budget, reduced_trials=args.reduced_trials,
                               **({} if args.one_rank_dofs is None
                                  else {"one_rank_dofs": args.one_rank_dofs}))
         # the console ends with the conclusion, in the report's words and numbers

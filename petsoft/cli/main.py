@@ -362,6 +362,12 @@ def _add_diagnose_parser(sub) -> None:
                         f"rank solves up to {ONE_RANK_DOFS_DEFAULT} directly where several "
                         "solve iteratively; 0 spreads every model over all the ranks (default "
                         f"{ONE_RANK_DOFS_DEFAULT})")
+    c.add_argument("--reduced-trials", action="store_true",
+                   help="score the trials of an added region's sphere search (centre and "
+                        "radius) by a reduced-order model of the fitted model instead of a full "
+                        "run each; each poll's best is run on the full model, which decides, "
+                        "and the reduced model's error there is reported (full trials once it "
+                        "exceeds 0.2x the noise). Off by default")
 
 
 def _static_options(s) -> None:

@@ -99,7 +99,8 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
                  integrator: str | None = None, noise: float | None = None,
                  numerics: bool = True, comm=None, say=None,
                  spelled_out: bool = False, one_rank_dofs: int = ONE_RANK_DOFS,
-                 budget: float | None = DEFAULT_BUDGET) -> DiagnoseResult:
+                 budget: float | None = DEFAULT_BUDGET,
+                 reduced_trials: bool = False) -> DiagnoseResult:
     """Diagnose ``experiment`` against a recording (module docstring). All ranks call.
 
     Parameters
@@ -149,6 +150,10 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
         sphere search, a numerics check, a reconsideration); the report is then written from
         the model reached and says what was left out (:mod:`petsoft.diagnosis.budget`).
         None: no budget.
+    reduced_trials : bool
+        Score the trials of an added region's sphere search (:mod:`.geometry`) by a
+        reduced-order model of the fitted model, each poll's best verified on the full model
+        (:mod:`petsoft.diagnosis.reduced_trials`); off, every trial is a full run.
 
     Returns
     -------
@@ -188,7 +193,8 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
                                  method=method, gradient=gradient, integrator=integrator,
                                  noise=noise, numerics=numerics, comm=comm, say=say,
                                  spelled_out=spelled_out, t0=t0,
-                                 one_rank_dofs=one_rank_dofs, budget=budget)
+                                 one_rank_dofs=one_rank_dofs, budget=budget,
+                                 reduced_trials=reduced_trials)
     finally:
         gc.collect()
         if enabled:
@@ -198,7 +204,7 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
 def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions, max_tries,
                   method, gradient, integrator, noise, numerics, comm, say,
                   spelled_out, t0: float, one_rank_dofs: int,
-                  budget: float | None) -> DiagnoseResult:
+                  budget: float | None, reduced_trials: bool) -> DiagnoseResult:
     """The diagnosis of :func:`run_diagnose` (call that: it handles the garbage collector and
     the heartbeat); its log's times count from ``t0``."""
     diag = Diagnosis(experiment, recording, fraction=fraction, alpha=alpha, method=method,
@@ -206,6 +212,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                       say=say, one_rank_dofs=one_rank_dofs)
     diag.t0 = t0
     diag.budget = TimeBudget(budget, t0, diag.comm)
+    diag.reduced_trials = bool(reduced_trials)
     clock = PhaseClock(start=t0)     # its total is the log's clock
     diag.tell(f"petsoft diagnose: {len(diag.times)} frames, identification t <= {diag.cut:.4g} s "
               f"({int(diag.ident.sum())} frames), held out {int(diag.held.sum())}; noise "

@@ -17,6 +17,10 @@ with its log in ``<dir>/<case>/diagnose.log``. Run (one case after another)::
     # with its own venv; the cases are read from this checkout):
     .venv/bin/python scripts/benchmarks/bench_diagnose_realistic.py \
         --python /path/to/worktree/.venv/bin/python --dir out/realistic_start
+    # with diagnose options of its own (one string, appended to the command; kept in
+    # meta.json), e.g. the sphere searches' reduced trials:
+    .venv/bin/python scripts/benchmarks/bench_diagnose_realistic.py --cases payload \
+        --diagnose-args="--reduced-trials" --dir out/realistic_reduced_trials
     # tabulate what is in --dir already (e.g. cases run by two invocations):
     .venv/bin/python scripts/benchmarks/bench_diagnose_realistic.py --dir ... --collect
 
@@ -46,6 +50,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import shlex
 import statistics
 import subprocess
 import sys
@@ -183,8 +188,9 @@ def _f(x, fmt: str) -> str:
 
 
 def table_md(rows: list[dict], meta: dict) -> str:
+    opts = f", diagnose {meta['diagnose_args']}" if meta.get("diagnose_args") else ""
     lines = [f"petsoft {meta.get('petsoft')} (commit {meta.get('commit')}), {meta.get('np')} "
-             "ranks", "",
+             f"ranks{opts}", "",
              "| case | user tets | truth err / noise | concealed | named (added) | verdict "
              "| held-out rms / noise | E err | wall s | base fit | numerics | scoring | fits "
              "| final | phases from | factorisations / linear solves / residuals |",
@@ -242,6 +248,9 @@ def main() -> int:
     ap.add_argument("--log-view", action="store_true",
                     help="PETSc -log_view into each case folder; the table counts "
                          "factorisations, linear solves and residuals (work, not time)")
+    ap.add_argument("--diagnose-args", default="",
+                    help="more petsoft diagnose options, one string appended to the command "
+                         "(e.g. --diagnose-args=\"--reduced-trials\"); kept in meta.json")
     ap.add_argument("--collect", action="store_true",
                     help="run nothing: tabulate the case folders already in --dir")
     args = ap.parse_args()
@@ -255,7 +264,7 @@ def main() -> int:
     if args.collect:
         meta = json.loads(meta_path.read_text()) if meta_path.exists() else {}
     else:
-        meta = petsoft_of(args.python) | {"np": args.np}
+        meta = petsoft_of(args.python) | {"np": args.np, "diagnose_args": args.diagnose_args}
         meta_path.write_text(json.dumps(meta, indent=1) + "\n")
     rows = []
     for i, name in enumerate(names, 1):
@@ -272,6 +281,7 @@ def main() -> int:
                + [args.python, "-m", "petsoft.cli.main", "diagnose",
                   str(cases_dir / name / "user.toml"), str(cases_dir / name / "recording.h5"),
                   "--out", str(d)]
+               + shlex.split(args.diagnose_args)
                + (["-log_view", f":{d / 'log_view.txt'}"] if args.log_view else []))
         (d / "log_view.txt").unlink(missing_ok=True)
         wall, status = independent.run_logged(cmd, d / "diagnose.log", cases_dir / name,
