@@ -22,6 +22,10 @@ parameter would absorb, to first order. The best sphere is then calibrated in fu
 only if it passes the tests a term passes to be added
 (:func:`~petsoft.diagnosis.selection.judge`): a significant likelihood ratio for its four
 geometry parameters **and** a better held-out prediction.
+
+With ``diagnose --reduced-trials`` (``Diagnosis.reduced_trials``; off by default) the trials
+are scored by a reduced-order model of the fitted model and only each poll's best is run on the
+full model, which decides (:mod:`petsoft.diagnosis.reduced_trials`).
 """
 
 from __future__ import annotations
