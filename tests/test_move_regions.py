@@ -2,10 +2,10 @@
 
 The cantilever of tests/test_sphere_fit.py with a sphere of denser (and stiffer) material: the
 system built with the sphere at one place, its regions then moved to another place (and the
-sphere's density changed), holds what a system built there holds -- the mass matrix, the
-reference stiffness, the gravity load, each cell's E, nu and density, the cells every material
-name governs and the names' values. A moved region that would change some cells' material law
-is refused.
+sphere's density changed), holds what a system built there holds (4- and 10-node elements) --
+the mass matrix, the reference stiffness, the gravity load, each cell's E, nu and density, the
+cells every material name governs and the names' values. A moved region that would change some
+cells' material law is refused.
 """
 
 import numpy as np
@@ -22,12 +22,13 @@ from petsoft.experiment import experiment_from_dict
 NAME = "blob"
 
 
-def _experiment(centre, density: float, E: float = 4.0e7, law: str | None = None):
+def _experiment(centre, density: float, E: float = 4.0e7, law: str | None = None,
+                order: int = 1):
     model = f'model = "{law}"\n' if law else ""
     extra = (f"[material.{NAME}]\ndensity = {density}\nyoungs_modulus = {E}\n{model}\n"
              f'[region.{NAME}]\nwhere = "{sphere_condition(centre, 0.03)}"\n')
-    text = cantilever(2.0e7, extra=extra, end=0.02).replace("cells = [6, 1, 1]",
-                                                              "cells = [12, 2, 2]")
+    text = cantilever(2.0e7, extra=extra, end=0.02).replace(
+        "cells = [6, 1, 1] }", f"cells = [12, 2, 2] }}\norder = {order}")
     return experiment_from_dict(tomllib.loads(text), source="<move_regions test>")
 
 
@@ -36,10 +37,12 @@ def _matrix(A: PETSc.Mat) -> np.ndarray:
         np.array(A.getValues(range(*A.getOwnershipRange()), range(A.getSize()[1])))
 
 
-def test_moved_regions_hold_what_a_system_built_there_holds():
-    here = _experiment((0.1, 0.02, 0.02), 5000.0)
-    there = _experiment((0.22, 0.02, 0.02), 3000.0)
+@pytest.mark.parametrize("order", [1, 2])
+def test_moved_regions_hold_what_a_system_built_there_holds(order):
+    here = _experiment((0.1, 0.02, 0.02), 5000.0, order=order)
+    there = _experiment((0.22, 0.02, 0.02), 3000.0, order=order)
     moved, built = build_system(here), build_system(there)
+    assert moved.nodes_per_element == (4 if order == 1 else 10)
     pm, ref = moved.parameters, built.parameters
     before = _matrix(moved.M).copy()
     pm.move_regions(there)
