@@ -130,6 +130,18 @@ def test_a_poor_reduced_model_is_not_used(recording, monkeypatch):  # noqa: F811
         assert any("full trials: the reduced model's error" in line for line in said), said
 
 
+def test_no_reduced_trials_for_a_stiffness_region(recording):  # noqa: F811
+    """A stiffness region's moves change the mode shapes beyond the basis: full trials, and
+    why, before any run."""
+    diag, fit, cand = _start(recording, MISPLACED, "stiffness.toml")
+    search = _Sphere(diag, fit, cand)
+    search.parameter = f"material.{NAME}.youngs_modulus"
+    trials = ReducedTrials.start(diag, search)
+    assert not trials.active and "stiffness region" in trials.why
+    assert trials.fm is None and trials.model is None
+    assert trials.note().startswith("sphere trials on the full model: a moved stiffness region")
+
+
 def test_a_reduced_model_failing_its_verification_falls_back(recording, monkeypatch):  # noqa: F811
     """A poor model whose build check was made to pass: the first poll's verification finds
     its error above the target, and that poll's other trials and every later one run on the

@@ -363,7 +363,7 @@ def _add_diagnose_parser(sub) -> None:
                         "solve iteratively; 0 spreads every model over all the ranks (default "
                         f"{ONE_RANK_DOFS_DEFAULT})")
     c.add_argument("--reduced-trials", action="store_true",
-                   help="score the trials of an added region's sphere search (centre and "
+                   help="score the trials of an added mass's sphere search (centre and "
                         "radius) by a reduced-order model of the fitted model instead of a full "
                         "run each; each poll's best is run on the full model, which decides, "
                         "and the reduced model's error there is reported (full trials once it "
