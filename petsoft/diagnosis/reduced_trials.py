@@ -102,8 +102,9 @@ class ReducedTrials:
         The reduced basis' size r (0 when not built).
     built_error : float
         The built model's error at the fitted model (rms over the noise; NaN when not built).
-    verified : list of (int, float)
-        (poll, the reduced-vs-full error of its verified trial, rms over the noise).
+    verified : list of (int, float, float, float)
+        (poll, the reduced-vs-full error of its verified trial (rms over the noise), its
+        full and its reduced chi2).
     seconds : dict
         Wall time of the build, the reduced trials and the full verifications.
     """
@@ -114,7 +115,7 @@ class ReducedTrials:
         self.why = ""
         self.size = 0
         self.built_error = float("nan")
-        self.verified: list[tuple[int, float]] = []
+        self.verified: list[tuple[int, float, float, float]] = []
         self.fell_back_at: int | None = None
         self.seconds = {"build": 0.0, "trials": 0.0, "verification": 0.0}
         self.trials = 0
@@ -270,7 +271,7 @@ class ReducedTrials:
         error = reduced_error({"run": (sim, red_sim),
                                "refit": (sim + own[..., 0] * s, red_sim + red_own[..., 0] * s)},
                               self.diag.sigma, self.seen)
-        self.verified.append((poll, error.rms))
+        self.verified.append((poll, error.rms, chi2, float(reduced[0])))
         if not error.below(TARGET):
             self.active = False
             self.fell_back_at = poll
@@ -300,9 +301,10 @@ class ReducedTrials:
         """Poll ``number``'s line's addition: its verification (none on a full poll)."""
         if not self.verified or self.verified[-1][0] != number:
             return ""
-        poll, err = self.verified[-1]
+        poll, err, chi2, red = self.verified[-1]
         words = (f"; reduced trials (r = {self.size}), the best verified on the full model: "
-                 f"reduced-model error {err:.3g}x the noise")
+                 f"chi2 {chi2:.6g} (reduced {red:.6g}), reduced-model error {err:.3g}x the "
+                 "noise")
         if self.fell_back_at == poll:
             words += f", above the target {TARGET:g}x: full trials from here on"
         return words
@@ -313,7 +315,7 @@ class ReducedTrials:
             return f"sphere trials on the full model: {self.why}"
         head = (f"sphere trials scored by a reduced model (r = {self.size}, error at the "
                 f"fitted model {self.built_error:.3g}x the noise)")
-        worst = max(e for _, e in self.verified)
+        worst = max(v[1] for v in self.verified)
         words = (f"{head}, each poll's best verified on the full model (error up to "
                  f"{worst:.3g}x the noise over {len(self.verified)} poll(s), target "
                  f"{TARGET:g}x)")
