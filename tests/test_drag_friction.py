@@ -39,12 +39,14 @@ from petsoft.dynamics.mass_spring import (
     rope_mesh,
 )
 from petsoft.dynamics.system import DynamicSystem
+from petsoft.dynamics.velocity import LAWS as VELOCITY_LAWS
 from petsoft.errors import ExperimentError
 from petsoft.experiment import DragSpec, experiment_from_dict, load_experiment, with_parameters
 from petsoft.mesh.springs import SpringMesh, write_spring_mesh
 from petsoft.physics import drag, friction
 from petsoft.physics.model import build_model
 from petsoft.solvers.options import clear_options
+from petsoft.terms import TERMS
 
 MARKERS = np.array([[0.3, 0.04, 0.04], [0.3, 0.0, 0.0], [0.15, 0.02, 0.04]])
 FRAMES = [0.003, 0.0075, 0.01]
@@ -480,6 +482,31 @@ def test_bad_input_names_file_and_key(tmp_path, text, key, what):
         load_experiment(path)
     msg = str(info.value)
     assert str(path) in msg and key in msg and what in msg, msg
+
+
+@pytest.mark.parametrize("name", [n for n, t in TERMS.items()
+                                  if t.contributes in ("velocity", "rayleigh")])
+def test_the_reader_refuses_on_a_rope_exactly_the_terms_declared_on_the_surface(tmp_path, name):
+    """Over the registry's velocity and Rayleigh terms: the reader refuses a term declared on
+    the surface (``Term.surface``) on a line-only network, naming its key and the terms a rope
+    can carry, and accepts the others there; the law's ``on_surface`` is the declaration."""
+    path = _mesh_file(tmp_path, rope_mesh(3, 1.0))
+    t = TERMS[name]
+    key = t.keys[0]
+    data = {"mesh": {"file": str(path)}, "springs": {"stiffness": 10.0, "node_mass": 0.1},
+            "boundary": [{"kind": "fixed", "where": "x < 0.1"}], key.table: {key.key: 0.5}}
+    if t.surface:
+        with pytest.raises(ExperimentError, match=rf"{key.table}\.{key.key} = 0\.5: .* needs a "
+                           r"surface") as err:
+            experiment_from_dict(data, source="rope.toml")
+        said = str(err.value)
+        assert "[friction] dry" in said and "[damping] mass" in said
+        assert not any(f"[{k.table}] {k.key}" in said.split("; use")[1]
+                       for u in TERMS.values() if u.surface for k in u.keys)
+    else:
+        experiment_from_dict(data, source="rope.toml")
+    if t.contributes == "velocity":
+        assert VELOCITY_LAWS[name].on_surface == t.surface
 
 
 def test_drag_on_a_line_only_network_is_refused(tmp_path):

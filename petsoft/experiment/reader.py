@@ -122,7 +122,7 @@ from petsoft.experiment.spec import (
 )
 from petsoft.experiment.table import TableReader, describe_range
 from petsoft.mesh.springs import read_spring_mesh
-from petsoft.terms import keys_of, plugin_tables
+from petsoft.terms import TERMS, keys_of, plugin_tables
 
 try:
     import tomllib
@@ -364,12 +364,14 @@ def experiment_from_dict(
 
 
 def _check_drag_surface(exp: Experiment) -> None:
-    """Refuse drag (non-zero or calibrated) on a mass-spring mesh without triangles: drag acts
-    on a surface. Reads the mesh's cells (only in that case; spring meshes are small)."""
+    """Refuse a term that acts on the surface (``Term.surface``: drag; non-zero or calibrated)
+    on a mass-spring mesh without triangles. Reads the mesh's cells (only in that case; spring
+    meshes are small)."""
     if exp.springs is None or exp.mesh.file is None:
         return
-    keys = [f"drag.{k}" for k in ("linear", "quadratic")
-            if getattr(exp.drag, k) != 0.0 or f"drag.{k}" in exp.calibrate]
+    on_surface = [t for t in TERMS.values() if t.surface]
+    keys = [k.dotted for t in on_surface for k in t.keys
+            if get_parameter(exp, k.dotted) != 0.0 or k.dotted in exp.calibrate]
     if not keys:
         return
     try:
@@ -379,10 +381,14 @@ def _check_drag_surface(exp: Experiment) -> None:
     if len(mesh.triangles) == 0:
         where = (f"{keys[0]} = {get_parameter(exp, keys[0]):g}" if keys[0] not in exp.calibrate
                  else f'calibrate."{keys[0]}"')
+        # the terms a rope can carry: those acting on the nodes (velocity laws, Rayleigh)
+        nodal = [f"[{k.table}] {k.key}" for t in TERMS.values()
+                 if t.contributes in ("velocity", "rayleigh") and not t.surface
+                 for k in t.keys[:1]]
         raise ExperimentError(
-            f"{exp.source}: {where}: drag needs a surface, and the mass-spring mesh "
-            f"{exp.mesh.file} has no triangle cells (a line-only spring network); use "
-            "[friction] dry or [damping] mass for a rope or pendulum")
+            f"{exp.source}: {where}: {keys[0].split('.')[0]} needs a surface, and the "
+            f"mass-spring mesh {exp.mesh.file} has no triangle cells (a line-only spring "
+            f"network); use {', '.join(nodal[:-1])} or {nodal[-1]} for a rope or pendulum")
 
 
 def _read_mesh(r: TableReader | None, top: TableReader, base: Path) -> MeshSpec:

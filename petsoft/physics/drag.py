@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from petsoft.mesh.topology import triangle_areas_normals
+from petsoft.terms import term
 
 
 def face_pairs(points: np.ndarray, faces: np.ndarray, node_of: np.ndarray,
@@ -114,7 +115,7 @@ class LinearDrag:
     c_l, S_i = :func:`linear_blocks` (constant)."""
 
     linear = True
-    on_surface = True
+    on_surface = term("drag.linear").surface
     mass_proportional = False
 
     def __init__(self, support):
@@ -148,7 +149,7 @@ class QuadraticDrag:
     not bounded (``rate`` 0)."""
 
     linear = False
-    on_surface = True
+    on_surface = term("drag.quadratic").surface
     mass_proportional = False
 
     def __init__(self, support):

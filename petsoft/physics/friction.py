@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from petsoft.terms import term
+
 
 def _speed(v: np.ndarray, eps: float) -> np.ndarray:
     return np.sqrt(np.einsum("pi,pi->p", v, v) + eps * eps)
@@ -60,7 +62,7 @@ class DryFriction:
     ``support.speed``."""
 
     linear = False
-    on_surface = False
+    on_surface = term("friction.dry").surface
     mass_proportional = True
 
     def __init__(self, support):

@@ -189,6 +189,10 @@ class Term:
     builds : str
         ``"module:name"`` of its builder, imported by the layer that builds it (this package
         imports nothing else of petsoft: a name, not the object).
+    surface : bool
+        Whether it acts through the body's surface only: a mass-spring network of edges (no
+        triangles) cannot carry it, and the experiment reader refuses it there; its law's
+        ``on_surface`` (:mod:`petsoft.physics.velocity_law`) is this.
     """
 
     name: str
@@ -198,6 +202,7 @@ class Term:
     hints: tuple[tuple[str, str], ...] = ()
     contributes: str = ""
     builds: str = ""
+    surface: bool = False
 
     def hint(self, evidence: str, **values) -> str:
         """The hint's words for ``evidence`` with ``values`` filled in; a KeyError names the

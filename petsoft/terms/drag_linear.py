@@ -15,4 +15,5 @@ TERM = Term(
     hints=(("viscous envelope", "exponential amplitude decay (linear drag on the body)"),),
     contributes="velocity",
     builds="petsoft.physics.drag:LinearDrag",
+    surface=True,
 )

@@ -18,4 +18,5 @@ TERM = Term(
                                   "model's)"),),
     contributes="velocity",
     builds="petsoft.physics.drag:QuadraticDrag",
+    surface=True,
 )
