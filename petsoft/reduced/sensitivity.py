@@ -40,6 +40,7 @@ from scipy.linalg import lu_factor, lu_solve
 
 from petsoft.dynamics.alpha import alpha_parameters
 from petsoft.dynamics.rayleigh import NAMES as RAYLEIGH
+from petsoft.dynamics.velocity import LAWS as VELOCITY_LAWS
 from petsoft.errors import ExperimentError
 from petsoft.physics.body_force import COMPONENTS, TILTS
 from petsoft.reduced.galerkin import ReducedModel, ReducedRun, at_frames, projected_derivatives
@@ -47,7 +48,9 @@ from petsoft.reduced.galerkin import ReducedModel, ReducedRun, at_frames, projec
 #: The parameter names (prefixes) the reduced sensitivities cover: the terms the reduced model
 #: projects whose residual is affine in the velocity (quadratic drag and dry friction are not
 #: reduced; elastic supports and colliders are not differentiated here).
-DIFFERENTIATED = ("material.", *RAYLEIGH, "drag.linear", *COMPONENTS)
+#: the velocity laws that are linear (``linear``: linear drag) are the ones with a D_p
+LINEAR_VELOCITY = tuple(n for n, law in VELOCITY_LAWS.items() if law.linear)
+DIFFERENTIATED = ("material.", *RAYLEIGH, *LINEAR_VELOCITY, *COMPONENTS)
 
 
 @dataclass
@@ -166,8 +169,9 @@ def sensitivities(model: ReducedModel, v0: PETSc.Vec, h: float, nsteps: int, nam
     other = [n for n in names if not n.startswith(DIFFERENTIATED)]
     if other:
         raise ExperimentError(f'reduced sensitivities: "{other[0]}" is not differentiated in '
-                              "the reduced model (materials, damping, linear drag and gravity "
-                              "are); use ForwardModel.jacobian")
+                              "the reduced model (materials, "
+                              f"{', '.join(RAYLEIGH + LINEAR_VELOCITY)} and gravity are); use "
+                              "ForwardModel.jacobian")
     forces, Mr, Dr = model.forces, model.Mr, model.Dr
     Mp, Dp, lp, dmv0 = operator_derivatives(model, names, v0)
     r, P = model.basis.size, len(names)
