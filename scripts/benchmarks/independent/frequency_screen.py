@@ -80,7 +80,6 @@ def frequencies(gmsh, case: dict, h: float, modes: int = 2,
     from dolfinx.io import gmshio
     from mpi4py import MPI
     from petsc4py import PETSc
-    from slepc4py import SLEPc
 
     g, mat = case["geometry"], case["material"]
     rs.mesh(gmsh, case["family"], g, h, graded=True, regions=case["truth"].get("regions"))
@@ -104,25 +103,36 @@ def frequencies(gmsh, case: dict, h: float, modes: int = 2,
     K.assemble()
     M = assemble_matrix(m, bcs=[bc], diagonal=0.0)      # the clamped dofs' eigenvalues: inf
     M.assemble()
+    lam_ = lowest_eigenvalues(K, M, modes)[:modes]
+    if len(lam_) < modes:
+        raise RuntimeError(f"{case['name']}: {len(lam_)} of {modes} eigenvalues converged")
+    tets = msh.topology.index_map(3).size_local
+    for obj in (K, M):
+        obj.destroy()
+    return np.sqrt(np.maximum(lam_, 0.0)) / (2 * math.pi), tets
+
+
+def lowest_eigenvalues(K, M, count: int, target: float = 0.0) -> list[float]:
+    """The converged eigenvalues of K x = lam M x nearest ``target`` (at least ``count``
+    sought), sorted: SLEPc shift-invert with MUMPS LU, on one process."""
+    from mpi4py import MPI
+    from slepc4py import SLEPc
+
     es = SLEPc.EPS().create(MPI.COMM_SELF)
     es.setOperators(K, M)
     es.setProblemType(SLEPc.EPS.ProblemType.GHEP)
-    es.setDimensions(modes)
+    es.setDimensions(count)
     es.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
-    es.setTarget(0.0)
+    es.setTarget(target)
     st = es.getST()
     st.setType("sinvert")
     st.getKSP().setType("preonly")
     st.getKSP().getPC().setType("lu")
     st.getKSP().getPC().setFactorSolverType("mumps")
     es.solve()
-    lam_ = sorted(es.getEigenvalue(i).real for i in range(es.getConverged()))[:modes]
-    if len(lam_) < modes:
-        raise RuntimeError(f"{case['name']}: {len(lam_)} of {modes} eigenvalues converged")
-    tets = msh.topology.index_map(3).size_local
-    for obj in (es, K, M):
-        obj.destroy()
-    return np.sqrt(np.maximum(lam_, 0.0)) / (2 * math.pi), tets
+    out = sorted(es.getEigenvalue(i).real for i in range(es.getConverged()))
+    es.destroy()
+    return out
 
 
 def frequency_error(f: np.ndarray, max_order: float = 4.0) -> float | None:
