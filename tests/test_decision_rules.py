@@ -26,6 +26,7 @@ from petsoft.diagnosis.candidates import Candidate
 from petsoft.diagnosis.context import Fit
 from petsoft.diagnosis.numerics import refinement_matters
 from petsoft.diagnosis.reconsider import as_good, better_replacement
+from petsoft.diagnosis.records import ScoreEntry
 from petsoft.diagnosis.selection import TIE_CHI2, choose, heldout_noise_level, judge
 
 #: numpy only, the same draws on every rank: nothing to learn from a second rank
@@ -81,8 +82,9 @@ def candidate(physics: str, k: int = 1) -> Candidate:
                      bounds=[(-np.inf, np.inf)] * k, region=None, reason="")
 
 
-def entry(f: Fit) -> dict:
-    return {"physics": "", "score": 1.0, "p_value": 0.0, "fit": f}
+def entry(f: Fit) -> ScoreEntry:
+    return ScoreEntry(physics="", parameters=[], region=None, kind="score", score=1.0, dof=1,
+                      p_value=0.0, log10_p=-np.inf, fit=f)
 
 
 def perp(v: np.ndarray, window: np.ndarray) -> np.ndarray:

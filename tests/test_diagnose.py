@@ -469,9 +469,9 @@ def test_sensitivity_maps_beside_the_shared_run_equal_them_in_turn(case):
             np.testing.assert_allclose(maps[kind]["center"], in_turn[0][kind]["center"],
                                        rtol=1e-9)
     assert maps["stiffness"] is not None
-    assert [e["physics"] for e in entries] == [e["physics"] for e in in_turn[1]]
+    assert [e.physics for e in entries] == [e.physics for e in in_turn[1]]
     for mine, theirs in zip(entries, in_turn[1], strict=True):
-        assert mine["score"] == pytest.approx(theirs["score"], rel=1e-7), mine["physics"]
+        assert mine.score == pytest.approx(theirs.score, rel=1e-7), mine.physics
     assert diag._scored is not None and diag._scored[0] is base
     # each group scoring what its job allows right after it (the spatial candidates after the
     # maps, the rest after the shared run) gives the scores made after both, one by one
@@ -495,7 +495,7 @@ def test_sensitivity_maps_beside_the_shared_run_equal_them_in_turn(case):
             # as the round scores it otherwise: on one rank of a group
             alone = diag.placement.on_groups(lambda cand, sub: diag.score(base, cand, comm=sub),
                                              [c], base.experiment)[0]
-            assert res.value["score"] == pytest.approx(alone.value["score"], rel=1e-9), c.physics
+            assert res.value.score == pytest.approx(alone.value.score, rel=1e-9), c.physics
 
 
 def test_the_shared_run_is_kept_beside_a_forward_only_simulation(case):
@@ -594,17 +594,17 @@ def test_candidates_scored_together_score_as_they_do_alone(case, monkeypatch):
     assert shared is not None
     for c, entry in zip(together, shared, strict=True):
         alone = diag.score(base, c)
-        assert entry["physics"] == c.physics
-        assert entry["score"] == pytest.approx(alone["score"], rel=1e-7, abs=1e-9), c.physics
-        assert entry["p_value"] == pytest.approx(alone["p_value"], rel=1e-6, abs=1e-300)
-    assert max(e["score"] for e in shared) > 100.0        # the concealed damping shows
+        assert entry.physics == c.physics
+        assert entry.score == pytest.approx(alone.score, rel=1e-7, abs=1e-9), c.physics
+        assert entry.p_value == pytest.approx(alone.p_value, rel=1e-6, abs=1e-300)
+    assert max(e.score for e in shared) > 100.0        # the concealed damping shows
     # a switch's score reuses the shared run's columns of the current model: the same score
     plane = next(c for c in cands if c.kind == "switch")
     reused = diag.score(base, plane)
     scored, diag._scored = diag._scored, None
     own = diag.score(base, plane)
     diag._scored = scored
-    assert reused["score"] == pytest.approx(own["score"], rel=1e-7, abs=1e-9), plane.physics
+    assert reused.score == pytest.approx(own.score, rel=1e-7, abs=1e-9), plane.physics
     # a candidate fit starts from the shared run: its first evaluation costs no run, and the
     # fit ends where one that computes it again ends
     damping = next(c for c in together if c.physics == "damping.mass")
@@ -718,18 +718,18 @@ def test_a_candidate_fit_that_cannot_win_is_stopped_and_not_added(case, monkeypa
     cands, _ = build_candidates(exp, scales=diag.scales)
     damping = next(c for c in cands if c.physics == "damping.mass")
     scored = diag.score(base, damping)
-    free = dict(scored)
+    free = dataclasses.replace(scored)
     diag.fit_candidates([(free, damping)], base)
-    assert free["fit"] is not None and free["fit"].stopped == ""
+    assert free.fit is not None and free.fit.stopped == ""
     assert judge(diag, base, free, damping)["added"]
     monkeypatch.setattr(pace, "PACE_WINDOW", 1)
     rival = dataclasses.replace(base, chi2=1e-6 * base.chi2)
-    raced = dict(scored)
+    raced = dataclasses.replace(scored)
     diag.fit_candidates([(raced, damping)], base, rivals=[("an unreachable rival", rival)])
-    stopped = raced["fit"]
+    stopped = raced.fit
     assert stopped is not None and stopped.stopped.startswith("stopped at iteration")
     assert "an unreachable rival's" in stopped.stopped
-    assert stopped.iterations <= free["fit"].iterations
+    assert stopped.iterations <= free.fit.iterations
     verdict = judge(diag, base, raced, damping)
     assert not verdict["added"] and "could not have been preferred" in verdict["reason"]
 

@@ -18,6 +18,7 @@ from mpi4py import MPI
 
 from petsoft.diagnosis.candidates import build_candidates
 from petsoft.diagnosis.reconsider import Added, better_replacement, reconsider
+from petsoft.diagnosis.records import ScoreEntry
 from petsoft.experiment import get_parameter, with_parameters
 from petsoft.experiment.gravity_tilt import tilted
 
@@ -53,8 +54,10 @@ def _two_rounds(diag, exp, first_physics, runner_up, untried=False):
     first = diag.calibrate(first_c.extend(exp))
     grav = _candidate(first.experiment, "gravity.direction")
     current = diag.calibrate(grav.extend(first.experiment))
-    other = ([({"score": 2.0, "_repeats": "drag.quadratic"}, runner)] if untried
-             else [({"score": 2.0}, runner)])
+    s = ScoreEntry(physics=runner.physics, parameters=runner.parameters, region=None,
+                   kind=runner.kind, score=2.0, dof=1, p_value=0.0, log10_p=-300.0,
+                   repeats="drag.quadratic" if untried else None)
+    other = [(s, runner)]
     return current, [Added(_entry(first_c, first), first_c, [] if untried else other,
                            first_c.zero_values(exp), untried=other if untried else []),
                      Added(_entry(grav, current), grav, [], grav.zero_values(first.experiment))]

@@ -14,6 +14,7 @@ from scipy import stats
 
 from petsoft.diagnosis.candidates import Candidate
 from petsoft.diagnosis.context import Fit
+from petsoft.diagnosis.records import ScoreEntry
 from petsoft.diagnosis.selection import (
     MIN_SCORE_SHARE,
     choose,
@@ -46,8 +47,9 @@ def fit(chi2, heldout, names=("material.youngs_modulus",)):
 def contender(physics, parameters, chi2, heldout):
     c = Candidate(physics=physics, parameters=list(parameters),
                   bounds=[(0.0, 1.0)] * len(parameters), region=None, reason="")
-    s = {"physics": physics, "score": 1e5, "p_value": 0.0,
-         "fit": fit(chi2, heldout, ["material.youngs_modulus", *parameters])}
+    s = ScoreEntry(physics=physics, parameters=list(parameters), region=None, kind="score",
+                   score=1e5, dof=len(parameters), p_value=0.0, log10_p=-np.inf,
+                   fit=fit(chi2, heldout, ["material.youngs_modulus", *parameters]))
     return s, c
 
 
@@ -105,8 +107,9 @@ def test_the_held_out_test_passes_a_term_at_the_rate_its_prediction_law_gives():
         assert np.all(chi2_base - chi2_new > 100.0)        # the likelihood ratio passes
         added, reasons = 0, []
         for i in range(draws):
-            s = {"physics": c.physics, "score": 1.0, "p_value": 0.0,
-                 "fit": fit(chi2_new[i], held_new[i], names)}
+            s = ScoreEntry(physics=c.physics, parameters=c.parameters, region=None,
+                           kind="score", score=1.0, dof=1, p_value=0.0, log10_p=-np.inf,
+                           fit=fit(chi2_new[i], held_new[i], names))
             verdict = judge(diag, fit(chi2_base[i], held_base[i]), s, c)
             added += verdict["added"]
             assert verdict["added"] == (held_new[i] < held_base[i])
@@ -136,14 +139,14 @@ def test_terms_with_more_parameters_are_not_fitted_once_a_simpler_one_predicts_t
         def fit_candidates(batch, current, rivals=None):
             batches.append([c.physics for _, c in batch])
             for s, c in batch:
-                s["fit"] = prepared[c.physics]
+                s.fit = prepared[c.physics]
         diag.fit_candidates = fit_candidates
         contenders = [contender("material.viscoelastic",
                                 ["viscoelastic.ratio", "viscoelastic.relaxation_time"], 0, 0),
                       contender("damping.mass", ["damping.mass"], 0, 0),
                       contender("drag.linear", ["drag.linear"], 0, 0)]
         for s, _ in contenders:
-            del s["fit"]
+            s.fit = None
         base = fit(100.0 * n, 8.0 * level)
         fit_simplest_first(diag, base, contenders)
         return batches, choose(diag, base, contenders), diag.lines
@@ -174,7 +177,7 @@ def test_candidates_scoring_below_a_percent_of_the_best_are_not_fitted():
     scores = [best, 0.97 * MIN_SCORE_SHARE * best, 0.5 * MIN_SCORE_SHARE * best,
               1.03 * MIN_SCORE_SHARE * best]
     for (s, _), score in zip(scored, scores, strict=True):
-        s["score"] = score
+        s.score = score
     keep, rejected = worth_fitting(scored)
     assert [c.physics for _, c in keep] == ["gravity", "material.heterogeneous"]
     assert [r["physics"] for r in rejected] == ["contact.plane", "mass.added"]

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from petsoft.diagnosis.records import ScoreEntry
 from petsoft.diagnosis.score import score_test
 from petsoft.diagnosis.selection import shortlist
 
@@ -23,11 +24,13 @@ class _Term:
     physics: str
 
 
-def _entry(physics: str, score: float, direction) -> tuple[dict, _Term]:
+def _entry(physics: str, score: float, direction) -> tuple[ScoreEntry, _Term]:
     d = None if direction is None else np.asarray(direction, np.float32)
     if d is not None:
         d = d / np.linalg.norm(d)
-    return {"physics": physics, "score": score, "_direction": d}, _Term(physics)
+    return ScoreEntry(physics=physics, parameters=[physics], region=None, kind="score",
+                      score=score, dof=1, p_value=0.0, log10_p=-np.inf,
+                      direction=d), _Term(physics)
 
 
 def _ranked(extra_score: float, repeated: bool = True):
@@ -48,7 +51,7 @@ def test_a_repeated_change_gives_its_place_to_a_new_one():
     assert "mass.added" in line and "in place of drag.linear" in line
     assert "repeats" in line and "84%" in line
     # the one that gave its place, and whose change it repeats (for the reconsideration)
-    assert [(s["_repeats"], c.physics) for s, c in left_out] == [("friction.dry", "drag.linear")]
+    assert [(s.repeats, c.physics) for s, c in left_out] == [("friction.dry", "drag.linear")]
 
 
 def test_the_best_four_stay_when_nothing_new_scores_half_the_best():

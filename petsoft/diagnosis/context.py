@@ -28,6 +28,7 @@ from petsoft.calibration.optimize import STOPPED, iteration_limit
 from petsoft.diagnosis.budget import TimeBudget
 from petsoft.diagnosis.pace import CannotWin
 from petsoft.diagnosis.placement import ONE_RANK_DOFS, Placement
+from petsoft.diagnosis.records import ScoreEntry
 from petsoft.dynamics.factory import system_class
 from petsoft.dynamics.integrators import scheme
 from petsoft.dynamics.parameters import VISCOELASTIC
@@ -440,14 +441,14 @@ class Diagnosis:
 
     def fit_candidates(self, scored: list, current: Fit, rivals: list | None = None) -> None:
         """Calibrate each candidate of ``scored`` ((score entry, candidate) pairs) not fitted
-        yet, extending ``current``'s model, concurrently on groups of ranks; each entry gains
-        ``fit`` (None when the fit failed) and ``fit_error``.
+        yet, extending ``current``'s model, concurrently on groups of ranks; each entry's ``fit``
+        is set (None when the fit failed) and its ``fit_error``.
 
         A fit that can no longer win (:class:`~petsoft.diagnosis.pace.CannotWin`) against the
         best finished so far -- among ``rivals`` ((physics, Fit) pairs fitted earlier in the
         round) and the fits before it on its group of ranks -- is stopped; its ``stopped``
         says why."""
-        need = [(s, c) for s, c in scored if "fit" not in s]
+        need = [(s, c) for s, c in scored if not s.tried]
         if need:
             self.tell(self.round_estimate([c.physics for _, c in need]))
         # (f = chi2 / 2, physics) of the best finished fit; each group updates its own copy
@@ -473,8 +474,8 @@ class Diagnosis:
         fits = self.placement.on_groups(fit, need, current.experiment)
         gc.collect()                    # every rank, same point (see run_diagnose)
         for (s, _), f in zip(need, fits, strict=True):
-            s["fit"] = f.value if f.ok else None
-            s["fit_error"] = f.error
+            s.fit = f.value if f.ok else None
+            s.fit_error = f.error
 
     def scanned_start(self, ext, candidate, comm, label: str):
         """``ext`` with a one-parameter candidate's value at the best of a scan of its bounds
@@ -542,14 +543,14 @@ class Diagnosis:
         out[self.ident] = sim
         return out
 
-    def score(self, fit: Fit, candidate, comm=None) -> dict:
+    def score(self, fit: Fit, candidate, comm=None) -> ScoreEntry:
         """Rank ``candidate`` at ``fit`` (identification window) by its score-test statistic;
         a ``"switch"`` candidate's column is the change the switch makes (see
         :mod:`petsoft.diagnosis.candidates`)."""
         with doing(f"score {candidate.physics}"):
             return self._score(fit, candidate, comm)
 
-    def _score(self, fit: Fit, candidate, comm) -> dict:
+    def _score(self, fit: Fit, candidate, comm) -> ScoreEntry:
         comm = self.comm if comm is None else petsc_comm(comm)
         ext = candidate.extend(fit.experiment)
         if candidate.kind == "switch":
@@ -570,7 +571,8 @@ class Diagnosis:
         sim, cols = self._columns(ext, candidate, comm)
         return self._score_entry(fit, candidate, ext, sim, cols, candidate.tested_parameters)
 
-    def score_together(self, fit: Fit, candidates: list, comm=None) -> list[dict] | None:
+    def score_together(self, fit: Fit, candidates: list,
+                       comm=None) -> list[ScoreEntry] | None:
         """Score several candidates from one run with sensitivities to all their parameters:
         those that only switch settings on at a value that leaves the model as it is (no
         regions, colliders or support compliance: :func:`scored_together`). Their columns are
@@ -581,7 +583,7 @@ class Diagnosis:
         entries, scored, why = self._shared_run(fit, candidates, comm)
         return self._keep_shared(entries, scored, why)
 
-    def _keep_shared(self, entries, scored, why) -> list[dict] | None:
+    def _keep_shared(self, entries, scored, why) -> list[ScoreEntry] | None:
         """Keep a shared scoring run's columns for the round (:attr:`_scored`), or say why
         there are none."""
         if why:
@@ -616,7 +618,7 @@ class Diagnosis:
 
     def regions_and_shared_scores(self, fit: Fit, together: list, regions: bool = True,
                                   then: Callable | None = None
-                                  ) -> tuple[dict, list[dict] | None, dict]:
+                                  ) -> tuple[dict, list[ScoreEntry] | None, dict]:
         """The adjoint's sensitivity regions (:meth:`sensitivity_regions`) and the shared
         scoring run of ``together`` (:meth:`score_together`), concurrently on two groups of
         ranks: neither needs the other (the shared candidates have no regions), and a model
@@ -681,12 +683,14 @@ class Diagnosis:
                                         why)
         return maps, entries, early
 
-    def _score_entry(self, fit: Fit, candidate, ext, sim, cols: dict, tested: list) -> dict:
+    def _score_entry(self, fit: Fit, candidate, ext, sim, cols: dict,
+                     tested: list) -> ScoreEntry:
         """The score entry of ``candidate`` from the simulation and columns of ``ext``."""
         from petsoft.diagnosis.score import ScoreError, score_test
 
-        entry = {"physics": candidate.physics, "parameters": candidate.parameters,
-                 "region": candidate.region, "kind": candidate.kind}
+        entry = functools.partial(ScoreEntry, physics=candidate.physics,
+                                  parameters=candidate.parameters, region=candidate.region,
+                                  kind=candidate.kind)
         data = self.data[self.ident]
         seen = np.isfinite(data)
         r = (sim[seen] - data[seen]) / self.sigma
@@ -695,15 +699,13 @@ class Diagnosis:
         try:
             s = score_test(r, base_cols, cand_cols)
         except ScoreError as exc:
-            return {**entry, "score": 0.0, "dof": len(tested), "p_value": 1.0, "log10_p": 0.0,
-                    "note": str(exc)}
+            return entry(score=0.0, dof=len(tested), p_value=1.0, log10_p=0.0, note=str(exc))
         outward = outward_only(candidate, ext, tested, s.gradient)
         if outward:
-            return {**entry, "score": 0.0, "dof": s.dof, "p_value": 1.0, "log10_p": 0.0,
-                    "gradient": s.gradient.tolist(), "note": outward}
-        return {**entry, "score": s.statistic, "dof": s.dof, "p_value": s.p_value,
-                "log10_p": s.log10_p, "gradient": s.gradient.tolist(),
-                "_direction": s.direction}     # (not for the report: see shortlist)
+            return entry(score=0.0, dof=s.dof, p_value=1.0, log10_p=0.0,
+                         gradient=s.gradient.tolist(), note=outward)
+        return entry(score=s.statistic, dof=s.dof, p_value=s.p_value, log10_p=s.log10_p,
+                     gradient=s.gradient.tolist(), direction=s.direction)
 
     def branch_differentiable(self, ext) -> bool:
         """Whether the integrator's forward sensitivities carry a viscoelastic branch's internal

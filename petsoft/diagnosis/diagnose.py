@@ -78,6 +78,7 @@ from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings, 
 from petsoft.diagnosis.outputs import build_diagnosis_report, write_outputs
 from petsoft.diagnosis.placement import ONE_RANK_DOFS
 from petsoft.diagnosis.reconsider import Added, reconsider
+from petsoft.diagnosis.records import ScoreEntry
 from petsoft.diagnosis.result import DiagnoseResult
 from petsoft.diagnosis.selection import (
     choose,
@@ -301,33 +302,30 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         scores = []
         for i, c in enumerate(cands):
             res = ranked[i]
-            s = res.value if res.ok else {"physics": c.physics, "parameters": c.parameters,
-                                          "region": c.region, "kind": c.kind, "score": 0.0,
-                                          "dof": max(len(c.parameters), 1), "p_value": 1.0,
-                                          "log10_p": 0.0, "note": res.error}
-            s["round"] = rnd
+            s = res.value if res.ok else ScoreEntry.unscored(c, res.error)
+            s.round = rnd
             scores.append((s, c))
             diag.tell(f"  {'switch' if c.kind == 'switch' else 'score'} {c.physics:<24} "
-                      f"S = {s['score']:10.4g}  dof {s['dof']}  p = {s['p_value']:.3g}"
-                      + (f"  ({s['note']})" if s.get("note") else ""))
-        all_scores += [{k: v for k, v in s.items() if k != "fit" and not k.startswith("_")}
-                       for s, _ in scores]
+                      f"S = {s.score:10.4g}  dof {s.dof}  p = {s.p_value:.3g}"
+                      + (f"  ({s.note})" if s.note else ""))
+        # the round's report entries, in the candidates' order (ranked below)
+        reported = [s for s, _ in scores]
         # by log p (p underflows to 0 for strong candidates of different dof), then S
-        scores.sort(key=lambda sc: (sc[0]["log10_p"], -sc[0]["score"]))
-        ranked_significant = [(s, c) for s, c in scores if s["p_value"] < diag.alpha]
+        scores.sort(key=lambda sc: (sc[0].log10_p, -sc[0].score))
+        ranked_significant = [(s, c) for s, c in scores if s.p_value < diag.alpha]
         significant, exchanged, left_out = shortlist(ranked_significant, max_tries)
         if exchanged:
             diag.tell(exchanged)
         for s, _ in scores:
-            s.pop("_direction", None)
+            s.direction = None
         for s, c in scores:
-            if s["p_value"] >= diag.alpha:
-                rejected.append({"physics": c.physics, "score": s["score"],
-                                 "reason": f"score not significant (p = {s['p_value']:.3g})"
-                                 + (f": {s['note']}" if s.get("note") else "")})
+            if s.p_value >= diag.alpha:
+                rejected.append({"physics": c.physics, "score": s.score,
+                                 "reason": f"score not significant (p = {s.p_value:.3g})"
+                                 + (f": {s.note}" if s.note else "")})
         for s, c in ranked_significant:
             if not any(s is t for t, _ in significant):
-                rejected.append({"physics": c.physics, "score": s["score"],
+                rejected.append({"physics": c.physics, "score": s.score,
                                  "reason": f"not tried: max {max_tries} tries per round"
                                  + (f" ({exchanged})" if exchanged else "")})
         # The max_tries best-scoring significant candidates are all fitted (concurrently on
@@ -345,7 +343,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         rejected += choice.rejected
         if choice.switch is not None:
             checks.switch_since_check = choice.switch
-        rank_round(scores, accepted, all_scores, rnd)
+        rank_round(scores, accepted)
+        all_scores += [s.as_report() for s in reported]
         if accepted is None:
             clock.switch(None)
             break

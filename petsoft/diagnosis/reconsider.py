@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from petsoft.diagnosis.context import Diagnosis, Fit, fmt, term_values
+from petsoft.diagnosis.records import ScoreEntry
 from petsoft.diagnosis.selection import TIE_CHI2, heldout_noise_level, n_parameters
 from petsoft.errors import PetsoftError
 
@@ -54,7 +55,7 @@ class Added:
     """One round's addition: its report entry, its candidate, the round's runners-up (score
     entry, candidate), its parameters' values before it was added (to take it out) and the
     round's candidates left out of its shortlist as repeats of a fitted one (score entry with
-    ``_repeats``, candidate)."""
+    ``repeats``, candidate)."""
 
     entry: dict
     candidate: object
@@ -63,14 +64,14 @@ class Added:
     untried: list = field(default_factory=list)
 
 
-def _what(s: dict, i: int) -> str:
+def _what(s: ScoreEntry, i: int) -> str:
     """What an option of round ``i`` (0-based) was: a runner-up, or a candidate the shortlist
     left out as a repeat of another's first-order change."""
-    if s.get("_replaced"):
+    if s.replaced:
         return f"the term it replaced (round {i + 1})"
-    if s.get("_repeats"):
+    if s.repeats:
         return (f"round {i + 1}'s candidate not fitted there (its first-order change repeated "
-                f"{s['_repeats']}'s)")
+                f"{s.repeats}'s)")
     return f"round {i + 1}'s runner-up"
 
 
@@ -168,15 +169,15 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
                          "reason": f"added in round {i + 1}, replaced by {alt.physics} once "
                                    f"{later} were in ({change})"})
         entry = dict(added.entry)
-        entry.update(physics=alt.physics, score=s["score"], region=alt.region, rms_after=fit.rms,
-                     evidence=(f"{_what(s, i)} (score S = {s['score']:.4g}); "
+        entry.update(physics=alt.physics, score=s.score, region=alt.region, rms_after=fit.rms,
+                     evidence=(f"{_what(s, i)} (score S = {s.score:.4g}); "
                                f"replaced {cand.physics} once {later} were in: chi2 "
                                f"{current.chi2:.6g} -> {fit.chi2:.6g}, held-out rms "
                                f"{fmt(current.heldout_rms)} -> {fmt(fit.heldout_rms)} m"
                                + (f"; {alt.reason}" if alt.reason else "")))
         # the replaced term is the replacement's runner-up: a later reconsideration (after
         # another round, or on a refined model) tries it back and says when they tie
-        back = {"score": added.entry["score"], "_replaced": True}
+        back = ScoreEntry.replaced_term(cand, added.entry["score"])
         history[i] = Added(entry, alt, [(back, cand)], alt.zero_values(current.experiment))
         current = fit
         swapped = True

@@ -12,6 +12,7 @@ import numpy as np
 from scipy import stats
 
 from petsoft.diagnosis.context import Diagnosis, Fit, fmt, term_values
+from petsoft.diagnosis.records import ScoreEntry
 
 #: Fitted chi2 values within this of the best are statistically tied (see _run_diagnose).
 TIE_CHI2 = 2.0
@@ -67,19 +68,19 @@ def n_parameters(c) -> int:
     return max(len(c.parameters), 1)
 
 
-def judge(diag: Diagnosis, current: Fit, s: dict, c) -> dict:
+def judge(diag: Diagnosis, current: Fit, s: ScoreEntry, c) -> dict:
     """Keep candidate ``c`` (score entry ``s`` with its fit) only if the likelihood ratio is
     significant AND the held-out rms improves: ``{"added", "entry" | "reason"}``."""
-    if s.get("skipped"):
-        diag.tell(f"  try {c.physics}: not fitted ({s['skipped']})")
-        return {"added": False, "reason": f"not fitted: {s['skipped']}"}
-    new = s.get("fit")
+    if s.skipped:
+        diag.tell(f"  try {c.physics}: not fitted ({s.skipped})")
+        return {"added": False, "reason": f"not fitted: {s.skipped}"}
+    new = s.fit
     if new is not None and new.stopped:
         diag.tell(f"  try {c.physics}: not added: its fit was {new.stopped}")
         return {"added": False, "reason": f"its fit was {new.stopped}"}
     if new is None:
-        diag.tell(f"  try {c.physics}: the fit failed ({s.get('fit_error', '')})")
-        return {"added": False, "reason": f"the fit failed: {s.get('fit_error', '')}"}
+        diag.tell(f"  try {c.physics}: the fit failed ({s.fit_error})")
+        return {"added": False, "reason": f"the fit failed: {s.fit_error}"}
     lr, p_lr, better = _tests(diag, current, new, c)
     ok = p_lr < diag.alpha and better
     diag.tell(f"  try {c.physics}: LR {lr:.4g} (p {p_lr:.3g}), held-out rms "
@@ -97,8 +98,8 @@ def judge(diag: Diagnosis, current: Fit, s: dict, c) -> dict:
     what = "switch score test" if c.kind == "switch" else "score test"
     values, std = term_values(new, c.parameters)
     entry = {"physics": c.physics, "parameters": values, "std": std,
-             "score": s["score"], "rms_after": new.rms,
-             "evidence": (f"{what} S = {s['score']:.4g} (p = {s['p_value']:.3g}); likelihood "
+             "score": s.score, "rms_after": new.rms,
+             "evidence": (f"{what} S = {s.score:.4g} (p = {s.p_value:.3g}); likelihood "
                           f"ratio {lr:.4g} (p = {p_lr:.3g}); held-out rms "
                           f"{fmt(current.heldout_rms)} -> {fmt(new.heldout_rms)} m"
                           + (f"; region {c.region}" if c.region else "")
@@ -122,7 +123,7 @@ class Choice:
         be checked again after it.
     candidate : Candidate or None
         The added term's candidate.
-    alternatives : list of (dict, Candidate)
+    alternatives : list of (ScoreEntry, Candidate)
         The round's other candidates that passed both tests (score entry with its fit,
         candidate), best first: what :mod:`petsoft.diagnosis.reconsider` tries in its place
         once later terms are in.
@@ -146,13 +147,14 @@ DUPLICATE_COS = 0.95
 DISTINCT_SHARE = 0.5
 
 
-def _repeats(entry: dict, others: list[dict]) -> tuple[dict, float] | None:
+def _repeats(entry: ScoreEntry,
+             others: list[ScoreEntry]) -> tuple[ScoreEntry, float] | None:
     """The first of ``others`` whose score direction ``entry``'s repeats, with |cos|; None."""
-    d = entry.get("_direction")
+    d = entry.direction
     if d is None:
         return None
     for other in others:
-        e = other.get("_direction")
+        e = other.direction
         if e is not None and e.shape == d.shape:
             c = abs(float(np.dot(d.astype(float), e.astype(float))))
             if c >= DUPLICATE_COS:
@@ -179,30 +181,30 @@ def shortlist(ranked: list, max_tries: int) -> tuple[list, str | None, list]:
         What was exchanged, for the log and the report.
     left_out : list
         The (score entry, candidate) pair that gave its place (empty when none did): a twin
-        of a fitted candidate to first order (its entry's ``_repeats`` names which), which
+        of a fitted candidate to first order (its entry's ``repeats`` names which), which
         :mod:`petsoft.diagnosis.reconsider` still tries in the place of the term its round
         adds.
     """
     top, rest = list(ranked[:max_tries]), ranked[max_tries:]
     if not rest or not top:
         return top, None, []
-    best = max(s["score"] for s, _ in ranked)
+    best = max(s.score for s, _ in ranked)
     repeating = [i for i in range(1, len(top))
                  if _repeats(top[i][0], [s for s, _ in top[:i]]) is not None]
     if not repeating:
         return top, None, []
     new = next(((s, c) for s, c in rest
-                if s["score"] >= DISTINCT_SHARE * best and s.get("_direction") is not None
+                if s.score >= DISTINCT_SHARE * best and s.direction is not None
                 and _repeats(s, [e for e, _ in top]) is None), None)
     if new is None:
         return top, None, []
     i = repeating[-1]
     (_, out_c), (twin, cos) = top[i], _repeats(top[i][0], [s for s, _ in top[:i]])
     picked = top[:i] + top[i + 1:] + [new]
-    top[i][0]["_repeats"] = twin["physics"]
-    return picked, (f"shortlist: {new[1].physics} (S = {new[0]['score']:.4g}, "
-                    f"{new[0]['score'] / best:.0%} of the best) is fitted in place of "
-                    f"{out_c.physics}, whose first-order change repeats {twin['physics']}'s "
+    top[i][0].repeats = twin.physics
+    return picked, (f"shortlist: {new[1].physics} (S = {new[0].score:.4g}, "
+                    f"{new[0].score / best:.0%} of the best) is fitted in place of "
+                    f"{out_c.physics}, whose first-order change repeats {twin.physics}'s "
                     f"(|cos| {cos:.3f})"), [top[i]]
 
 
@@ -216,14 +218,14 @@ def worth_fitting(significant: list) -> tuple[list, list]:
     longer than gravity's)."""
     if not significant:
         return [], []
-    best = max(s["score"] for s, _ in significant)
+    best = max(s.score for s, _ in significant)
     keep, rejected = [], []
     for s, c in significant:
-        if s["score"] >= MIN_SCORE_SHARE * best:
+        if s.score >= MIN_SCORE_SHARE * best:
             keep.append((s, c))
             continue
-        rejected.append({"physics": c.physics, "score": s["score"],
-                         "reason": f"not fitted: its score S = {s['score']:.4g} is below "
+        rejected.append({"physics": c.physics, "score": s.score,
+                         "reason": f"not fitted: its score S = {s.score:.4g} is below "
                                    f"{MIN_SCORE_SHARE:.0%} of the round's best ({best:.4g}): "
                                    "to first order it explains at most that share of what the "
                                    "best does"})
@@ -234,14 +236,14 @@ def fit_simplest_first(diag: Diagnosis, current: Fit, contenders: list) -> None:
     """Fit the contenders ((score entry, candidate) pairs) in batches of as many parameters,
     fewest first; a batch is not fitted when a fitted contender with fewer parameters already
     passes both tests and predicts the held-out data to the noise (:func:`choose` would keep
-    that one whatever the batch fitted). Skipped entries gain ``skipped`` (why)."""
+    that one whatever the batch fitted). A skipped entry's ``skipped`` says why."""
     counts = sorted({n_parameters(c) for _, c in contenders})
     level = heldout_noise_level(diag)
     for k in counts:
         batch = [(s, c) for s, c in contenders if n_parameters(c) == k]
         enough = None
         for s, c in contenders:
-            new = s.get("fit")
+            new = s.fit
             if (n_parameters(c) >= k or new is None or new.stopped
                     or new.heldout_rms is None):
                 continue
@@ -251,8 +253,8 @@ def fit_simplest_first(diag: Diagnosis, current: Fit, contenders: list) -> None:
                 break
         if enough is None:
             diag.fit_candidates(batch, current,
-                                rivals=[(c.physics, s["fit"]) for s, c in contenders
-                                        if s.get("fit") is not None])
+                                rivals=[(c.physics, s.fit) for s, c in contenders
+                                        if s.fit is not None])
             continue
         simpler, rms_h = enough
         why = (f"{simpler.physics} ({n_parameters(simpler)} parameter"
@@ -260,7 +262,7 @@ def fit_simplest_first(diag: Diagnosis, current: Fit, contenders: list) -> None:
                f"to the noise (rms {fmt(rms_h)} m <= {fmt(level)} m); "
                f"with {k} parameters this term could not be preferred")
         for s, _ in batch:
-            s["skipped"] = why
+            s.skipped = why
         diag.tell(f"not fitting {', '.join(c.physics for _, c in batch)}: {why}")
 
 
@@ -278,7 +280,7 @@ def heldout_noise_level(diag: Diagnosis) -> float:
 def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
     """Among fitted (score entry, candidate) pairs, the one to add (if any passes both tests).
 
-    Each entry gains ``fitted_chi2``. The best held-out predictions (within 2 % of the best, or
+    Each entry's ``fitted_chi2`` is set. The best held-out predictions (within 2 % of the best, or
     within the noise: :func:`heldout_noise_level`) are equally good; among those the fewest
     parameters, then the lowest chi2 + k ln n; within :data:`TIE_CHI2` of it, the
     vocabulary's order.
@@ -296,13 +298,13 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
     passed = []
     for s, c in contenders:
         verdict = judge(diag, current, s, c)
-        s["fitted_chi2"] = s["fit"].chi2 if s.get("fit") is not None else None
+        s.fitted_chi2 = s.fit.chi2 if s.fit is not None else None
         if verdict["added"]:
             # a term must not win by its number of parameters alone
-            bic = s["fit"].chi2 + penalty * n_parameters(c)
-            passed.append((bic, s["fit"].heldout_rms or 0.0, s, c, verdict))
+            bic = s.fit.chi2 + penalty * n_parameters(c)
+            passed.append((bic, s.fit.heldout_rms or 0.0, s, c, verdict))
         else:
-            rejected.append({"physics": c.physics, "score": s["score"],
+            rejected.append({"physics": c.physics, "score": s.score,
                              "reason": verdict["reason"]})
     if passed:
         # The better held-out prediction (by more than 2 %) decides: the second test of a
@@ -339,17 +341,17 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
                 "; " + ", ".join(t[3].physics for t in simpler) + " (more parameters) "
                 "predicted the held-out data no better (within 2 % or the noise): the "
                 "explanation with fewer parameters is kept")
-        accepted = (v_best["entry"], s_best["fit"])
+        accepted = (v_best["entry"], s_best.fit)
         diag.tell(f"  chosen: {c_best.physics}" + (
             f" (of {len(passed)} that pass both tests: the best held-out prediction, then the "
             "fewest parameters)" if len(passed) > 1 else ""))
         if c_best.kind == "switch":
             switch = c_best.physics
         for chi2, _, s, c, _ in passed[1:]:
-            rejected.append({"physics": c.physics, "score": s["score"],
+            rejected.append({"physics": c.physics, "score": s.score,
                              "reason": f"fitted too, {c_best.physics} was preferred "
-                                       f"(held-out rms {fmt(s_best['fit'].heldout_rms)} "
-                                       f"vs {fmt(s['fit'].heldout_rms)} m; chi2 + k ln n "
+                                       f"(held-out rms {fmt(s_best.fit.heldout_rms)} "
+                                       f"vs {fmt(s.fit.heldout_rms)} m; chi2 + k ln n "
                                        f"{chi2_best:.6g} vs {chi2:.6g})"})
         if len(passed) > 1:
             accepted[0]["evidence"] += (
@@ -362,20 +364,13 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
     return Choice(accepted, rejected, switch, c_best, [(s, c) for _, _, s, c, _ in passed[1:]])
 
 
-def rank_round(scores: list, accepted, all_scores: list[dict], rnd: int) -> None:
-    """Number the round's candidates (``rank``) and copy the ranks and fitted chi2 into the
-    run's score table ``all_scores``."""
-    # the round's final ranking: the added term, the other fitted ones by chi2, then the
-    # rest by score
-    ranking = sorted((sc for sc in scores if sc[0].get("fitted_chi2") is not None),
-                     key=lambda sc: (accepted is None or sc[0].get("fit") is not accepted[1],
-                                     sc[0]["fitted_chi2"]))
+def rank_round(scores: list, accepted) -> None:
+    """Number the round's (score entry, candidate) pairs ``scores`` (each entry's ``rank``):
+    the added term (``accepted``: its report entry and fit, or None), the other fitted ones by
+    chi2, then the rest by score (the order ``scores`` comes in)."""
+    ranking = sorted((sc for sc in scores if sc[0].fitted_chi2 is not None),
+                     key=lambda sc: (accepted is None or sc[0].fit is not accepted[1],
+                                     sc[0].fitted_chi2))
     ranking += [sc for sc in scores if sc not in ranking]
     for i, (s, _) in enumerate(ranking, 1):
-        s["rank"] = i
-    for entry in all_scores:
-        if entry["round"] == rnd:
-            match = next(s for s, c in scores if c.physics == entry["physics"])
-            entry["rank"] = match["rank"]
-            if match.get("fitted_chi2") is not None:
-                entry["fitted_chi2"] = match["fitted_chi2"]
+        s.rank = i
