@@ -231,9 +231,16 @@ def test_calibration_figures_draw_millimetres(tmp_path):
 
 
 def test_observations_hold_the_window_checks_and_the_noise_policy():
-    """The recording's /noise wins over the given noise, which wins over estimating it; the
-    window keeps frames up to [time] end and rejects frames before t = 0 and position-less data."""
-    from petsoft.calibration.calibrate import ESTIMATED, Observations
+    """The recording's /noise wins over the given noise (which must be a positive number),
+    which wins over estimating it; the window keeps frames up to [time] end and rejects frames
+    before t = 0 and position-less data."""
+    from petsoft.calibration.calibrate import (
+        BY_CALLER,
+        BY_RECORDING,
+        ESTIMATED,
+        Observations,
+        frames_up_to,
+    )
     from petsoft.io.recording import Recording
 
     times = np.array([0.0, 0.1, 0.2, 0.3])
@@ -244,6 +251,17 @@ def test_observations_hold_the_window_checks_and_the_noise_policy():
     rec_noise = Recording(reference=rec.reference, names=rec.names, times=times,
                           positions=rec.positions, noise={"position_std": 1e-3})
     assert Observations(rec_noise, noise=2e-3).sigma() == (1e-3, "the recording's /noise")
+    # the policy diagnose words its own way (petsoft.diagnosis.context.position_noise)
+    assert Observations(rec).stated_noise() is None
+    assert Observations(rec, noise=2e-3).stated_noise() == (2e-3, BY_CALLER)
+    assert Observations(rec_noise, noise=-1.0).stated_noise() == (1e-3, BY_RECORDING)
+    for bad in (0.0, -1e-3, np.nan):
+        with pytest.raises(ExperimentError, match="must be > 0"):
+            Observations(rec, noise=bad).sigma()
+    # recorded times carry round-off: a frame stamped at the end is in the window
+    end = 0.2
+    assert frames_up_to(np.array([0.1, end * (1 + 1e-13), end * (1 + 1e-11)]),
+                        end).tolist() == [True, True, False]
 
     class _Time:
         end = 0.2

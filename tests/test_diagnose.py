@@ -8,6 +8,7 @@ model class must give ``consistent`` with nothing added. Under ``mpiexec -n 2`` 
 is also run rank-locally (COMM_SELF) and must agree with the 2-rank run.
 """
 
+import dataclasses
 import gc
 import re
 from pathlib import Path
@@ -344,9 +345,38 @@ def test_user_errors_name_the_problem(case):
     with pytest.raises(DiagnoseError, match="--fraction"):
         run_diagnose(load_experiment(case["user"]), case["plain"], fraction=0.01,
                      comm=PETSc.COMM_WORLD)
+    with pytest.raises(DiagnoseError, match=r"--noise = -0.001: the position noise std"):
+        run_diagnose(load_experiment(case["user"]),
+                     dataclasses.replace(read_recording(case["plain"]), noise={}), noise=-1e-3,
+                     comm=PETSc.COMM_WORLD)
     from petsoft.cli.main import main
 
     assert main(["diagnose", str(no_cal), str(case["plain"])]) == 2
+
+
+def test_the_noise_is_the_recordings_else_the_given_else_estimated(case):
+    """diagnose's noise policy is calibrate's (Observations.stated_noise), in its own words,
+    and estimated from the data when neither input states it; the run's calibrations are
+    weighed by it, on the identification window."""
+    from petsoft.calibration.calibrate import Observations
+    from petsoft.diagnosis.context import position_noise
+    from petsoft.diagnosis.noise import noise_summary, summary_std
+
+    rec = read_recording(case["plain"])
+    stated = rec.noise["position_std"]
+    assert position_noise(Observations(rec, noise=1.0), rec.positions, rec.times) == (
+        stated, "given by the recording")
+    bare = dataclasses.replace(rec, noise={})
+    assert position_noise(Observations(bare, noise=2e-4), rec.positions, rec.times) == (
+        2e-4, "given (--noise)")
+    guess = summary_std(noise_summary(rec.positions, rec.times))
+    assert position_noise(Observations(bare), rec.positions, rec.times) == (
+        guess, "estimated from the data")
+    diag = _diagnosis(load_experiment(case["user"]), case["plain"])
+    assert diag.observations.sigma() == (diag.sigma, "the recording's /noise")
+    window = diag.observations.window(diag.base_experiment)
+    assert window[:len(diag.times)].tolist() == diag.ident.tolist() and not window[
+        len(diag.times):].any()
 
 
 def test_escape_plane_finds_the_side_the_simulation_passes():
@@ -705,8 +735,6 @@ def test_a_candidate_fit_that_cannot_win_is_stopped_and_not_added(case, monkeypa
     added. The rival is made unreachable on purpose (chi2 1e-6 of the base fit's) and the pace
     judged over one iteration, so that the damping fit, which converges in a few iterations,
     is stopped at its last: what is tested is the path from the rule to the report."""
-    import dataclasses
-
     import petsoft.diagnosis.pace as pace
     from petsoft.diagnosis.context import evidence_of
     from petsoft.diagnosis.selection import judge

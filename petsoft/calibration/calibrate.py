@@ -99,6 +99,18 @@ def calibration_parameters(experiment) -> tuple[list[str], np.ndarray, list[tupl
     return names, start, bounds
 
 
+#: Recorded times carry round-off: a frame this share of a window's end past it is in the
+#: window, and a first frame this far (s) before t = 0 is at 0.
+TIME_ROUNDOFF = 1e-12
+
+
+def frames_up_to(times: np.ndarray, end: float) -> np.ndarray:
+    """Boolean mask of the frames at ``times`` that a window ending at ``end`` (s) holds, to
+    :data:`TIME_ROUNDOFF`: the one rule for calibrate's window and diagnose's (the recording
+    within ``[time] end``, the identification window within it)."""
+    return np.asarray(times) <= end * (1 + TIME_ROUNDOFF)
+
+
 def frames_in_window(experiment, times: np.ndarray, source: str,
                      end: float | None = None) -> np.ndarray:
     """Boolean mask of the recording frames the simulation covers: 0 <= t <= ``end`` (default
@@ -114,11 +126,11 @@ def frames_in_window(experiment, times: np.ndarray, source: str,
         raise ExperimentError(f"{experiment.source}: [time] (end, step) is needed to calibrate "
                               "against a recording")
     end = experiment.time.end if end is None else float(end)
-    if times[0] < -1e-12:
+    if times[0] < -TIME_ROUNDOFF:
         raise ExperimentError(
             f"{source}: the first frame is at t = {times[0]:g} s, before the experiment's initial "
             "state at t = 0: shift the recording's times so that t = 0 is the initial state")
-    keep = times <= end * (1 + 1e-12)
+    keep = frames_up_to(times, end)
     if not keep.any():
         raise ExperimentError(
             f"{source}: no frame lies in the simulated window [0, {end:g}] s (the window's end "
@@ -128,14 +140,18 @@ def frames_in_window(experiment, times: np.ndarray, source: str,
 
 
 ESTIMATED = "unknown (estimated from the fit)"
+#: Who states the position noise (:meth:`Observations.stated_noise`): the recording's
+#: ``/noise``, or the caller (``--noise``, ``noise=``).
+BY_RECORDING, BY_CALLER = "recording", "caller"
 
 
 @dataclass(frozen=True)
 class Observations:
     """What a calibration fits: a recording's marker positions and the noise to weigh them by.
 
-    The one home of the window checks (:meth:`window`) and the noise policy (:meth:`sigma`),
-    so that calibrate and its callers (diagnose) do not each re-derive them.
+    The one home of the window checks (:meth:`window`) and the noise policy
+    (:meth:`stated_noise`), so that calibrate and its callers (diagnose) do not each re-derive
+    them.
 
     Attributes
     ----------
@@ -161,16 +177,36 @@ class Observations:
         return frames_in_window(experiment, self.recording.times, str(self.recording.source),
                                 end=self.end)
 
-    def sigma(self) -> tuple[float, str]:
-        """The position noise std (m) and where it comes from: the recording's ``/noise``,
-        else :attr:`noise`, else 1 with source :data:`ESTIMATED` (the fit's residual then
-        gives it, :func:`noise_from_residual`)."""
+    def stated_noise(self) -> tuple[float, str] | None:
+        """The position noise std (m) the inputs state, and who states it: the recording's
+        ``/noise`` (:data:`BY_RECORDING`), else :attr:`noise` (:data:`BY_CALLER`; it must be
+        finite and > 0); None when neither does (calibrate then estimates the noise from the
+        fit's residual, diagnose from the data before any fit).
+
+        Raises
+        ------
+        ExperimentError
+            When the recording states none and :attr:`noise` is not a positive number.
+        """
         recorded = self.recording.noise.get("position_std") if self.recording.noise else None
         if recorded:
-            return float(recorded), "the recording's /noise"
-        if self.noise:
-            return float(self.noise), "--noise"
-        return 1.0, ESTIMATED
+            return float(recorded), BY_RECORDING
+        if self.noise is None:
+            return None
+        if not (np.isfinite(self.noise) and self.noise > 0):
+            raise ExperimentError(f"--noise = {self.noise}: the position noise std (m) must be "
+                                  "> 0")
+        return float(self.noise), BY_CALLER
+
+    def sigma(self) -> tuple[float, str]:
+        """calibrate's position noise std (m) and where it comes from (:meth:`stated_noise`),
+        else 1 with source :data:`ESTIMATED` (the fit's residual then gives it,
+        :func:`noise_from_residual`)."""
+        stated = self.stated_noise()
+        if stated is None:
+            return 1.0, ESTIMATED
+        value, by = stated
+        return value, "the recording's /noise" if by == BY_RECORDING else "--noise"
 
 
 def noise_from_residual(residual_m: np.ndarray, num_parameters: int) -> float:

@@ -19,9 +19,12 @@ import numpy as np
 from petsc4py import PETSc
 
 from petsoft.calibration.calibrate import (
+    BY_RECORDING,
+    TIME_ROUNDOFF,
     Observations,
     build_forward,
     calibration_parameters,
+    frames_up_to,
     run_calibration,
 )
 from petsoft.calibration.optimize import STOPPED, iteration_limit
@@ -106,6 +109,29 @@ def _changed(value, original):
     return None if value is original else value
 
 
+def position_noise(observations: Observations, data: np.ndarray,
+                   times: np.ndarray) -> tuple[float, str]:
+    """diagnose's position noise std (m) and where it comes from: the one the inputs state
+    (:meth:`Observations.stated_noise <petsoft.calibration.calibrate.Observations.
+    stated_noise>`: the recording's ``/noise``, else ``--noise``), else estimated from the
+    recorded positions ``data`` at ``times`` (:func:`~petsoft.diagnosis.noise.summary_std`):
+    the scores and the verdict need it before any fit."""
+    from petsoft.diagnosis.noise import NoiseError, noise_summary, summary_std
+
+    try:
+        stated = observations.stated_noise()
+    except ExperimentError as exc:
+        raise DiagnoseError(str(exc)) from exc
+    if stated is not None:
+        value, by = stated
+        return value, "given by the recording" if by == BY_RECORDING else "given (--noise)"
+    try:
+        return summary_std(noise_summary(data, times)), "estimated from the data"
+    except NoiseError as exc:
+        raise DiagnoseError(f"{observations.recording.source}: the recording has no /noise "
+                            f"and {exc}; give the noise with --noise") from exc
+
+
 def petsc_comm(comm):
     if comm is None:
         return PETSc.COMM_WORLD
@@ -188,8 +214,6 @@ class Diagnosis:
 
     def __init__(self, experiment, recording, *, fraction, alpha, method, gradient,
                  integrator, noise, comm, say, one_rank_dofs: int = ONE_RANK_DOFS):
-        from petsoft.diagnosis.noise import NoiseError, noise_summary
-
         self.comm = petsc_comm(comm)
         #: the run's time budget (run_diagnose sets the user's; none by default)
         self.budget = TimeBudget(None, time.perf_counter(), self.comm)
@@ -218,8 +242,8 @@ class Diagnosis:
             raise DiagnoseError(f"{experiment.source}: diagnose calibrates the model as given "
                                 'first: add a [calibrate] table, e.g. "material.youngs_modulus" '
                                 "= [1e4, 1e8]")
-        keep = rec.times <= experiment.time.end * (1 + 1e-12)
-        if rec.times[0] < -1e-12 or keep.sum() < 4:
+        keep = frames_up_to(rec.times, experiment.time.end)
+        if rec.times[0] < -TIME_ROUNDOFF or keep.sum() < 4:
             raise DiagnoseError(f"{self.path}: need at least 4 frames in [0, "
                                 f"{experiment.time.end:g}] s ([time] end of {experiment.source}); "
                                 f"the recording has "
@@ -228,7 +252,7 @@ class Diagnosis:
         self.data = rec.positions[keep]
         span = self.times[-1]
         self.cut = float(fraction * span)
-        ident = self.times <= self.cut * (1 + 1e-12)
+        ident = frames_up_to(self.times, self.cut)
         if ident.sum() < 4:
             raise DiagnoseError(f"--fraction = {fraction}: the identification window [0, "
                                 f"{self.cut:g}] s holds {int(ident.sum())} frames; at least 4 "
@@ -251,21 +275,11 @@ class Diagnosis:
         #: switches' scores of the same fit reuse its current-model columns (:meth:`_score`), and
         #: a candidate fit starting where it was scored begins from them (:meth:`known_start`)
         self._scored: tuple | None = None
-        if rec.noise and rec.noise.get("position_std"):
-            self.sigma = float(rec.noise["position_std"])
-            self.sigma_source = "given by the recording"
-        elif noise is not None:
-            if not (np.isfinite(noise) and noise > 0):
-                raise DiagnoseError(f"--noise = {noise}: the position noise std (m) must be > 0")
-            self.sigma, self.sigma_source = float(noise), "given (--noise)"
-        else:
-            try:
-                s = noise_summary(self.data, self.times)
-            except NoiseError as exc:
-                raise DiagnoseError(f"{self.path}: the recording has no /noise and {exc}; give "
-                                    "the noise with --noise") from exc
-            self.sigma = float(s["std_mad"] if s["gaussian"] else s["std_rms"])
-            self.sigma_source = "estimated from the data"
+        self.sigma, self.sigma_source = position_noise(Observations(rec, noise=noise),
+                                                       self.data, self.times)
+        #: what every calibration of the run fits: the identification window's frames,
+        #: weighed by the noise decided above
+        self.observations = Observations(rec, noise=self.sigma, end=self.cut)
 
     #: Estimated discretisation error (m, rms) of the current model per refinement kind, from
     #: :func:`resolve_numerics` (Richardson: the change under refinement over 2^p - 1).
@@ -393,9 +407,8 @@ class Diagnosis:
         comm = petsc_comm(comm)
         started = time.perf_counter()
         # the identification window travels with the data, not as a rewritten [time] end
-        observations = Observations(self.recording, noise=self.sigma, end=self.cut)
         with scoped_defaults(cal_lm_dtol=str(FIT_DTOL)), doing(label):
-            res = run_calibration(experiment, observations, method=self.method,
+            res = run_calibration(experiment, self.observations, method=self.method,
                                   gradient=gradient_for(experiment, self.gradient,
                                                         self.integrator),
                                   integrator=self.integrator, comm=comm,

@@ -87,12 +87,10 @@ def collect_evidence(data: np.ndarray, sim: np.ndarray, times: np.ndarray,
         if summary is None:
             raise noise.NoiseError("the recording has no /noise and the noise cannot be "
                                    "estimated from its positions (too few consecutive frames)")
-        if summary["gaussian"]:
-            sigma, source = summary["std_mad"], "estimated from the data (robust)"
-        else:
-            sigma = summary["std_rms"]
-            source = (f"estimated from the data (rms: the noise is heavy-tailed, kurtosis "
-                      f"{summary['kurtosis']:.3g})")
+        sigma = noise.summary_std(summary)
+        source = ("estimated from the data (robust)" if summary["gaussian"] else
+                  f"estimated from the data (rms: the noise is heavy-tailed, kurtosis "
+                  f"{summary['kurtosis']:.3g})")
     else:
         source = "given by the recording"
     residual = data - sim

@@ -211,6 +211,13 @@ def noise_summary(data: np.ndarray, times: np.ndarray, *, order: int = 4,
             "gaussian": bool(abs(kurt - 3.0) < 1.0), "samples": int(len(pooled))}
 
 
+def summary_std(summary: dict) -> float:
+    """The noise std a :func:`noise_summary` gives: its robust scale when the noise looks
+    Gaussian, else its rms scale (with heavy tails the robust scale understates the level a
+    chi-square test needs)."""
+    return float(summary["std_mad"] if summary["gaussian"] else summary["std_rms"])
+
+
 def runs_test(residual: np.ndarray) -> tuple[float, float]:
     """Wald-Wolfowitz runs test for positive serial correlation along the first axis.
 
