@@ -179,7 +179,7 @@ def test_the_true_term_is_chosen_more_often_as_its_effect_grows():
         choices, _ = chosen(diag, null_data(rng, scaled(COL_A, lam, diag.ident), draws=400),
                             [([COL_B], cb), ([COL_A], ca)])
         picked.append(np.mean([ch.accepted is not None
-                               and ch.accepted[0]["physics"] == "drag.linear"
+                               and ch.accepted[0].physics == "drag.linear"
                                for ch in choices]))
     assert np.all(np.diff(picked) >= 0) and picked[0] < picked[-1], picked
     assert picked[-1] > 0.98, picked
@@ -229,7 +229,7 @@ def test_two_terms_that_fit_equally_well_are_reported_tied_at_the_rate_the_tie_b
                                [([ub], second), ([ua], first)])
     tied = wins_first_untied = untied = 0
     for ch, a, b in zip(choices, fa, fb, strict=True):
-        name, evidence = ch.accepted[0]["physics"], ch.accepted[0]["evidence"]
+        name, evidence = ch.accepted[0].physics, ch.accepted[0].evidence
         if "ambiguous: drag.linear" in evidence:
             tied += 1
             assert name == "damping.mass"
@@ -262,12 +262,12 @@ def test_a_flexible_term_wins_only_when_it_predicts_better_than_the_noise_allows
                                     [([COL_A, COL_B], cab), ([COL_A], ca)])
         n_flexible = 0
         for ch, a, ab in zip(choices, fa, fab, strict=True):
-            won = ch.accepted[0]["physics"]
+            won = ch.accepted[0].physics
             assert ab.chi2 <= a.chi2 + 1e-9
             a_close = a.heldout_rms <= max(1.02 * ab.heldout_rms, level)
             assert (won == "damping.mass") == a_close
             if a_close and ab.heldout_rms <= max(1.02 * a.heldout_rms, level):
-                assert "material.viscoelastic (more parameters)" in ch.accepted[0]["evidence"]
+                assert "material.viscoelastic (more parameters)" in ch.accepted[0].evidence
             n_flexible += won == "material.viscoelastic"
         rates.append(n_flexible / 300)
     assert rates[0] < 0.05, rates                 # B spurious: the simpler term is kept

@@ -18,7 +18,7 @@ from mpi4py import MPI
 
 from petsoft.diagnosis.candidates import build_candidates
 from petsoft.diagnosis.reconsider import Added, better_replacement, reconsider
-from petsoft.diagnosis.records import ScoreEntry
+from petsoft.diagnosis.records import AddedTerm, ScoreEntry
 from petsoft.experiment import get_parameter, with_parameters
 from petsoft.experiment.gravity_tilt import tilted
 
@@ -41,9 +41,9 @@ def _candidate(experiment, physics):
 
 
 def _entry(c, fit):
-    return {"physics": c.physics, "score": 1.0, "rms_after": fit.rms, "evidence": "",
-            "region": None, "std": {},
-            "parameters": {n: float(fit.values[fit.names.index(n)]) for n in c.parameters}}
+    return AddedTerm(physics=c.physics, score=1.0, rms_after=fit.rms, evidence="",
+                     region=None, std={},
+                     parameters={n: float(fit.values[fit.names.index(n)]) for n in c.parameters})
 
 
 def _two_rounds(diag, exp, first_physics, runner_up, untried=False):
@@ -86,10 +86,10 @@ def test_a_wrong_first_term_is_replaced_once_the_second_is_in(diag_exp, untried)
     final = reconsider(diag, current, history, rejected)
     assert [h.candidate.physics for h in history] == ["damping.mass", "gravity.direction"]
     assert ("not fitted there (its first-order change repeated drag.quadratic's)"
-            in history[0].entry["evidence"]) == untried
+            in history[0].entry.evidence) == untried
     assert final.heldout_rms < current.heldout_rms
-    alpha = history[0].entry["parameters"]["damping.mass"]
-    assert abs(alpha - TRUE_ALPHA) < max(3.0 * history[0].entry["std"]["damping.mass"], 1.0)
+    alpha = history[0].entry.parameters["damping.mass"]
+    assert abs(alpha - TRUE_ALPHA) < max(3.0 * history[0].entry.std["damping.mass"], 1.0)
     assert rejected and rejected[0]["physics"] == "damping.stiffness"
     assert "replaced by damping.mass" in rejected[0]["reason"]
     # the replaced term is the replacement's runner-up (a later reconsideration tries it back)
@@ -121,7 +121,7 @@ def test_a_runner_up_that_fits_as_well_is_reported_as_ambiguous(diag_exp, monkey
     final = reconsider(diag, current, history, rejected)
     assert final is current and rejected == []
     assert [h.candidate.physics for h in history] == ["damping.mass", "gravity.direction"]
-    evidence = history[0].entry["evidence"]
+    evidence = history[0].entry.evidence
     assert "ambiguous: with gravity.direction in, damping.stiffness in its place" in evidence
     assert "do not tell the two apart" in evidence
 

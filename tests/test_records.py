@@ -8,7 +8,7 @@ round's working fields (the fit, the score direction, why a fit was skipped) sta
 import numpy as np
 
 from petsoft.diagnosis.candidates import Candidate
-from petsoft.diagnosis.records import ScoreEntry
+from petsoft.diagnosis.records import AddedTerm, ScoreEntry
 
 #: The report's keys in their order, each as the round sets it.
 REPORTED = ["physics", "parameters", "region", "kind", "score", "dof", "p_value", "log10_p",
@@ -64,3 +64,18 @@ def test_an_entry_is_recognised_by_identity():
     a, b = _scored(), _scored()
     assert a != b and a == a
     assert [a, b].index(b) == 1 and len({a, b}) == 2
+
+
+def test_an_added_term_reports_every_field_under_its_name_in_order():
+    """DiagnoseResult.added and report.json's ``added`` read AddedTerm.as_report."""
+    a = AddedTerm(physics="mass.added", parameters={"material.diag_mass.density": 3000.0},
+                  std={"material.diag_mass.density": 40.0}, score=900.0, rms_after=2e-5,
+                  evidence="score test S = 900", region={"center": [0.2, 0.0, 0.0],
+                                                         "radius": 0.03})
+    assert list(a.as_report()) == ["physics", "parameters", "std", "score", "rms_after",
+                                   "evidence", "region"]
+    assert a.as_report() == {"physics": "mass.added",
+                             "parameters": {"material.diag_mass.density": 3000.0},
+                             "std": {"material.diag_mass.density": 40.0}, "score": 900.0,
+                             "rms_after": 2e-5, "evidence": "score test S = 900",
+                             "region": {"center": [0.2, 0.0, 0.0], "radius": 0.03}}

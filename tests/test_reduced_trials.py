@@ -20,6 +20,7 @@ from test_sphere_fit import NAME, TRUE_CENTRE, _start, recording  # noqa: F401 -
 
 import petsoft.diagnosis.reduced_trials as rt_module
 from petsoft.diagnosis.geometry import _polls, _Sphere, fit_sphere, refit_added_sphere
+from petsoft.diagnosis.records import AddedTerm
 from petsoft.diagnosis.reduced_trials import ReducedTrials
 from petsoft.reduced.error import TARGET, ReducedError
 
@@ -96,14 +97,14 @@ def test_the_search_with_reduced_trials_moves_the_sphere(recording, monkeypatch)
     diag.reduced_trials = True
     said = _said(diag)
     made = _full_trials(monkeypatch)
-    entry = {"physics": "mass.added", "parameters": {}, "std": {}, "evidence": "score test",
-             "region": cand.region, "rms_after": fit.rms}
+    entry = AddedTerm(physics="mass.added", parameters={}, std={}, score=1.0,
+                      rms_after=fit.rms, evidence="score test", region=cand.region)
     new_entry, new_fit, new_cand = refit_added_sphere(diag, entry, fit, cand, searches=1)
     assert abs(new_cand.region["center"][0] - TRUE_CENTRE[0]) < \
         0.5 * abs(MISPLACED[0] - TRUE_CENTRE[0])
     assert fit.chi2 - new_fit.chi2 > 13.3
     assert made == []                   # the verifications are full runs, not full trials
-    evidence = new_entry["evidence"]
+    evidence = new_entry.evidence
     assert "sphere fitted" in evidence
     assert "sphere trials scored by a reduced model" in evidence
     assert "each poll's best verified on the full model" in evidence

@@ -154,7 +154,7 @@ def test_terms_with_more_parameters_are_not_fitted_once_a_simpler_one_predicts_t
     # the mass damping predicts the held-out data within the noise level
     batches, choice, lines = run(0.99)
     assert batches == [["damping.mass", "drag.linear"]]
-    assert choice.accepted[0]["physics"] == "damping.mass"
+    assert choice.accepted[0].physics == "damping.mass"
     skipped = next(r for r in choice.rejected if r["physics"] == "material.viscoelastic")
     assert skipped["reason"].startswith("not fitted: damping.mass (1 parameter) already "
                                         "predicts the held-out data to the noise")
@@ -162,7 +162,7 @@ def test_terms_with_more_parameters_are_not_fitted_once_a_simpler_one_predicts_t
     # the simpler ones leave 10 % over the noise level: the flexible term is fitted, and wins
     batches, choice, _ = run(1.10)
     assert batches == [["damping.mass", "drag.linear"], ["material.viscoelastic"]]
-    assert choice.accepted[0]["physics"] == "material.viscoelastic"
+    assert choice.accepted[0].physics == "material.viscoelastic"
 
 
 def test_candidates_scoring_below_a_percent_of_the_best_are_not_fitted():

@@ -20,6 +20,7 @@ from petsoft.calibration.synth import SynthOptions, synth
 from petsoft.diagnosis.candidates import REGION, Candidate, sphere_condition
 from petsoft.diagnosis.context import Diagnosis
 from petsoft.diagnosis.geometry import _polls, _Sphere, fit_sphere, refit_added_sphere
+from petsoft.diagnosis.records import AddedTerm
 from petsoft.experiment import load_experiment
 
 NAME = REGION["mass.added"]
@@ -95,12 +96,12 @@ def test_the_search_moves_a_misplaced_sphere_towards_the_truth(recording):
     assert moved.candidate.regions[NAME] == sphere_condition(moved.region["center"],
                                                              moved.region["radius"])
     # the report entry follows the fitted sphere
-    entry = {"physics": "mass.added", "parameters": {}, "std": {}, "evidence": "score test",
-             "region": cand.region, "rms_after": fit.rms}
+    entry = AddedTerm(physics="mass.added", parameters={}, std={}, score=1.0,
+                      rms_after=fit.rms, evidence="score test", region=cand.region)
     new_entry, new_fit, new_cand = refit_added_sphere(diag, entry, fit, cand, searches=1)
-    assert new_entry["region"] == new_cand.region == moved.region
-    assert "sphere fitted" in new_entry["evidence"]
-    assert new_entry["parameters"][f"material.{NAME}.density"] == pytest.approx(
+    assert new_entry.region == new_cand.region == moved.region
+    assert "sphere fitted" in new_entry.evidence
+    assert new_entry.parameters[f"material.{NAME}.density"] == pytest.approx(
         new_fit.values[new_fit.names.index(f"material.{NAME}.density")])
 
 
@@ -116,7 +117,8 @@ def test_no_sphere_search_without_exact_sensitivities(recording, monkeypatch):
     said = []
     diag.say = said.append
     monkeypatch.setattr(diag, "all_differenced", lambda experiment: True)
-    entry = {"evidence": "score test", "region": cand.region}
+    entry = AddedTerm(physics=cand.physics, parameters={}, std={}, score=1.0,
+                      rms_after=fit.rms, evidence="score test", region=cand.region)
     assert refit_added_sphere(diag, entry, fit, cand) == (entry, fit, cand)
     if MPI.COMM_WORLD.rank == 0:                # the first rank says the progress lines
         assert any("not fitted (no exact sensitivities" in line for line in said)
@@ -133,7 +135,8 @@ def test_no_sphere_search_once_the_time_budget_is_spent(recording):
     said = []
     diag.say = said.append
     diag.budget = TimeBudget(5.0, time.perf_counter() - 6.0, PETSc.COMM_WORLD)
-    entry = {"evidence": "score test", "region": cand.region}
+    entry = AddedTerm(physics=cand.physics, parameters={}, std={}, score=1.0,
+                      rms_after=fit.rms, evidence="score test", region=cand.region)
     assert refit_added_sphere(diag, entry, fit, cand) == (entry, fit, cand)
     [skipped] = diag.budget.skipped
     assert skipped["check"] == "mass.added's sphere search 1 of 2"

@@ -78,7 +78,7 @@ from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings, 
 from petsoft.diagnosis.outputs import build_diagnosis_report, write_outputs
 from petsoft.diagnosis.placement import ONE_RANK_DOFS
 from petsoft.diagnosis.reconsider import Added, reconsider
-from petsoft.diagnosis.records import ScoreEntry
+from petsoft.diagnosis.records import AddedTerm, ScoreEntry
 from petsoft.diagnosis.result import DiagnoseResult
 from petsoft.diagnosis.selection import (
     choose,
@@ -234,7 +234,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g}, "
               f"whiteness p {ev['noise_test'].whiteness_p_value:.3g})")
     current = base
-    added: list[dict] = []
+    added: list[AddedTerm] = []
     history: list[Added] = []
     rejected: list[dict] = []
     all_scores: list[dict] = []
@@ -368,7 +368,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         with clock.phase("fits"):
             current, added, ev = _reconsidered(diag, current, history, rejected, added, ev)
     # a physics rejected in one round and added in a later one is reported as added only
-    names_added = {a["physics"] for a in added}
+    names_added = {a.physics for a in added}
     rejected = [r for r in rejected if r["physics"] not in names_added]
     seen_r: dict[str, dict] = {}
     for r in rejected:
@@ -405,7 +405,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     report["timings"] = clock.seconds()
     report["budget"] = diag.budget.summary()
     result = DiagnoseResult(verdict=base_ev["verdict"], final_verdict=ev["verdict"],
-                            report=report, base=base, final=current, added=added,
+                            report=report, base=base, final=current,
+                            added=[a.as_report() for a in added],
                             rejected=rejected, scores=all_scores,
                             not_modelled=not_modelled, numerics=num, evidence=ev)
     # Collect the garbage of this run's PETSc objects on every rank *now*, at the same point:

@@ -50,6 +50,7 @@ from petsoft.diagnosis.context import (
     term_values,
 )
 from petsoft.diagnosis.numerics import model_sensitivities
+from petsoft.diagnosis.records import AddedTerm
 from petsoft.diagnosis.reduced_trials import ReducedTrials
 from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
 from petsoft.physics.model import load_mesh
@@ -307,9 +308,9 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
 MAX_SEARCHES = 2
 
 
-def refit_added_sphere(diag: Diagnosis, entry: dict, fit: Fit, candidate,
-                       searches: int = MAX_SEARCHES) -> tuple[dict, Fit, object]:
-    """The added spatial term ``candidate`` (report entry ``entry``, calibrated ``fit``) with
+def refit_added_sphere(diag: Diagnosis, entry: AddedTerm, fit: Fit, candidate,
+                       searches: int = MAX_SEARCHES) -> tuple[AddedTerm, Fit, object]:
+    """The added spatial term ``candidate`` (``entry``, calibrated ``fit``) with
     its sphere fitted by up to ``searches`` runs of :func:`fit_sphere`, each from the last
     one's sphere; the entry's values, region and evidence follow. A term without a region is
     returned as it is."""
@@ -337,10 +338,9 @@ def refit_added_sphere(diag: Diagnosis, entry: dict, fit: Fit, candidate,
     tail = "".join(f"; {words}" for words in (["; then ".join(said)] if said else []) + notes)
     if not said:
         if notes:
-            entry = {**entry, "evidence": entry["evidence"] + tail}
+            entry = dataclasses.replace(entry, evidence=entry.evidence + tail)
         return entry, fit, candidate
     values, std = term_values(fit, candidate.parameters)
-    entry = {**entry, "parameters": values, "std": std,
-             "rms_after": fit.rms, "region": candidate.region,
-             "evidence": entry["evidence"] + tail}
+    entry = dataclasses.replace(entry, parameters=values, std=std, rms_after=fit.rms,
+                                region=candidate.region, evidence=entry.evidence + tail)
     return entry, fit, candidate

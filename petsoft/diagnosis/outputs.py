@@ -16,6 +16,7 @@ from petsoft.diagnosis.figures import (
     rms_per_marker,
 )
 from petsoft.diagnosis.html import write_report_html
+from petsoft.diagnosis.records import AddedTerm
 from petsoft.diagnosis.result import DiagnoseResult
 from petsoft.dynamics.factory import system_class
 from petsoft.experiment.writer import write_experiment_update
@@ -39,8 +40,8 @@ def gravity_words(gravity) -> dict:
     return out
 
 
-def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict, added,
-                           rejected, numerics: dict | None = None,
+def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict,
+                           added: list[AddedTerm], rejected, numerics: dict | None = None,
                            skipped: list[dict] = ()) -> dict:
     """report.json of a diagnosis (formats.md section 3). An added term's ``parameters`` and
     ``std`` are the final model's (a refinement adopted after the term was added moves them),
@@ -56,15 +57,15 @@ def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict,
         validation = {"base_rms": base.heldout_rms, "final_rms": final.heldout_rms}
     mismatch = base_ev["mismatch"]
     region = mismatch["region"]
-    spatial = [a["region"] for a in added if a.get("region")]
+    spatial = [a.region for a in added if a.region]
     if spatial:
         region = spatial[0]
     final_added = []
     for a in added:
-        values, std = term_values(final, list(a["parameters"]))
-        entry = {**a, "parameters": {**a["parameters"], **values},
-                 "std": {**{k: v for k, v in a["std"].items() if k not in values}, **std}}
-        if a["physics"] in ("gravity", "gravity.direction"):
+        values, std = term_values(final, list(a.parameters))
+        entry = {**a.as_report(), "parameters": {**a.parameters, **values},
+                 "std": {**{k: v for k, v in a.std.items() if k not in values}, **std}}
+        if a.physics in ("gravity", "gravity.direction"):
             entry["gravity"] = gravity_words(final.experiment.gravity)
         final_added.append(entry)
     _, std_all = term_values(final, final.names)

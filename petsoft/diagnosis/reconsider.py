@@ -37,12 +37,12 @@ round 2 the added mass, and the mass damping was never tried in the stiffness da
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from petsoft.diagnosis.context import Diagnosis, Fit, fmt, term_values
-from petsoft.diagnosis.records import ScoreEntry
+from petsoft.diagnosis.records import AddedTerm, ScoreEntry
 from petsoft.diagnosis.selection import TIE_CHI2, heldout_noise_level, n_parameters
 from petsoft.errors import PetsoftError
 
@@ -52,12 +52,12 @@ MAX_ALTERNATIVES = 3
 
 @dataclass
 class Added:
-    """One round's addition: its report entry, its candidate, the round's runners-up (score
+    """One round's addition: the term added, its candidate, the round's runners-up (score
     entry, candidate), its parameters' values before it was added (to take it out) and the
     round's candidates left out of its shortlist as repeats of a fitted one (score entry with
     ``repeats``, candidate)."""
 
-    entry: dict
+    entry: AddedTerm
     candidate: object
     alternatives: list
     zeros: dict
@@ -145,7 +145,7 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
                 best = (bic, s, alt, fit)
             elif alt is not None and as_good(diag, fit, current, extra):
                 # kept by the tie-break, but the user must know the data cannot tell
-                added.entry["evidence"] += (
+                added.entry.evidence += (
                     f"; ambiguous: with {later} in, {alt.physics} in its place fits and "
                     f"predicts as well (chi2 {fit.chi2:.6g} vs {current.chi2:.6g}, held-out "
                     f"rms {fmt(fit.heldout_rms)} vs {fmt(current.heldout_rms)} m): the data "
@@ -157,7 +157,7 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
                   f"{fmt(current.heldout_rms)} -> {fmt(fit.heldout_rms)} m")
         if alt is None:
             diag.tell(f"reconsider: {cand.physics} (round {i + 1}) taken out")
-            rejected.append({"physics": cand.physics, "score": added.entry["score"],
+            rejected.append({"physics": cand.physics, "score": added.entry.score,
                              "reason": f"added in round {i + 1}, taken out once {later} were "
                                        f"in ({change})"})
             history[i] = None
@@ -165,19 +165,19 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
             swapped = True
             continue
         diag.tell(f"reconsider: {alt.physics} replaces {cand.physics} (round {i + 1})")
-        rejected.append({"physics": cand.physics, "score": added.entry["score"],
+        rejected.append({"physics": cand.physics, "score": added.entry.score,
                          "reason": f"added in round {i + 1}, replaced by {alt.physics} once "
                                    f"{later} were in ({change})"})
-        entry = dict(added.entry)
-        entry.update(physics=alt.physics, score=s.score, region=alt.region, rms_after=fit.rms,
-                     evidence=(f"{_what(s, i)} (score S = {s.score:.4g}); "
-                               f"replaced {cand.physics} once {later} were in: chi2 "
-                               f"{current.chi2:.6g} -> {fit.chi2:.6g}, held-out rms "
-                               f"{fmt(current.heldout_rms)} -> {fmt(fit.heldout_rms)} m"
-                               + (f"; {alt.reason}" if alt.reason else "")))
+        entry = replace(added.entry, physics=alt.physics, score=s.score, region=alt.region,
+                        rms_after=fit.rms,
+                        evidence=(f"{_what(s, i)} (score S = {s.score:.4g}); "
+                                  f"replaced {cand.physics} once {later} were in: chi2 "
+                                  f"{current.chi2:.6g} -> {fit.chi2:.6g}, held-out rms "
+                                  f"{fmt(current.heldout_rms)} -> {fmt(fit.heldout_rms)} m"
+                                  + (f"; {alt.reason}" if alt.reason else "")))
         # the replaced term is the replacement's runner-up: a later reconsideration (after
         # another round, or on a refined model) tries it back and says when they tie
-        back = ScoreEntry.replaced_term(cand, added.entry["score"])
+        back = ScoreEntry.replaced_term(cand, added.entry.score)
         history[i] = Added(entry, alt, [(back, cand)], alt.zero_values(current.experiment))
         current = fit
         swapped = True
@@ -186,6 +186,5 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
         # every term's values and deviations from the final fit: the later terms were
         # refitted beside the replacement
         for h in history:
-            h.entry["parameters"], h.entry["std"] = term_values(current,
-                                                                h.candidate.parameters)
+            h.entry.parameters, h.entry.std = term_values(current, h.candidate.parameters)
     return current

@@ -1,5 +1,5 @@
 """The diagnosis' typed records: what one candidate's score test gave and what its round made
-of it (:class:`ScoreEntry`).
+of it (:class:`ScoreEntry`), and a term a round added (:class:`AddedTerm`).
 
 A score entry is made when a candidate is scored and then travels through its round: the
 shortlist, the fits, the choice and the final ranking each set their own fields, declared here
@@ -131,3 +131,50 @@ class ScoreEntry:
                  "rank": self.rank, "fitted_chi2": self.fitted_chi2}
         out.update((k, v) for k, v in later.items() if v is not None)
         return out
+
+
+# eq=False: as a ScoreEntry, one round's addition, recognised by identity
+@dataclass(eq=False)
+class AddedTerm:
+    """A physics term a round added: report.json's ``added`` entry while the run goes on.
+
+    Made by :func:`~petsoft.diagnosis.selection.judge` when the candidate passes both tests;
+    :func:`~petsoft.diagnosis.selection.choose` and :func:`~petsoft.diagnosis.reconsider.
+    reconsider` extend its ``evidence``; :func:`~petsoft.diagnosis.geometry.refit_added_sphere`
+    and ``reconsider`` replace it (a fitted sphere, a replacement term) or its values.
+
+    Attributes
+    ----------
+    physics : str
+        The term's vocabulary name.
+    parameters : dict of str to float
+        Its parameters' values in the fit that added it (or, after a reconsideration, the
+        final one's); the report quotes the final model's (:func:`~petsoft.diagnosis.outputs.
+        build_diagnosis_report`).
+    std : dict of str to float
+        Their standard deviations, where finite.
+    score : float
+        The score-test statistic it was ranked by.
+    rms_after : float
+        The identification window's rms (m) of the fit that added it.
+    evidence : str
+        Why it was added, in words: its tests, and what it was preferred to.
+    region : dict or None
+        The sphere ``{"center", "radius"}`` of a spatial term.
+    """
+
+    physics: str
+    parameters: dict[str, float]
+    std: dict[str, float]
+    score: float
+    rms_after: float
+    evidence: str
+    region: dict | None = None
+
+    def as_report(self) -> dict:
+        """The entry as :attr:`DiagnoseResult.added <petsoft.diagnosis.result.DiagnoseResult.
+        added>` gives it: ``physics``, ``parameters``, ``std``, ``score``, ``rms_after``,
+        ``evidence``, ``region`` (in this order)."""
+        return {"physics": self.physics, "parameters": self.parameters, "std": self.std,
+                "score": self.score, "rms_after": self.rms_after, "evidence": self.evidence,
+                "region": self.region}

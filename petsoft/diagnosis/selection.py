@@ -12,7 +12,7 @@ import numpy as np
 from scipy import stats
 
 from petsoft.diagnosis.context import Diagnosis, Fit, fmt, term_values
-from petsoft.diagnosis.records import ScoreEntry
+from petsoft.diagnosis.records import AddedTerm, ScoreEntry
 
 #: Fitted chi2 values within this of the best are statistically tied (see _run_diagnose).
 TIE_CHI2 = 2.0
@@ -70,7 +70,8 @@ def n_parameters(c) -> int:
 
 def judge(diag: Diagnosis, current: Fit, s: ScoreEntry, c) -> dict:
     """Keep candidate ``c`` (score entry ``s`` with its fit) only if the likelihood ratio is
-    significant AND the held-out rms improves: ``{"added", "entry" | "reason"}``."""
+    significant AND the held-out rms improves: ``{"added", "entry" | "reason"}`` (the entry
+    an :class:`~petsoft.diagnosis.records.AddedTerm`)."""
     if s.skipped:
         diag.tell(f"  try {c.physics}: not fitted ({s.skipped})")
         return {"added": False, "reason": f"not fitted: {s.skipped}"}
@@ -97,14 +98,14 @@ def judge(diag: Diagnosis, current: Fit, s: ScoreEntry, c) -> dict:
         return {"added": False, "reason": "; ".join(why)}
     what = "switch score test" if c.kind == "switch" else "score test"
     values, std = term_values(new, c.parameters)
-    entry = {"physics": c.physics, "parameters": values, "std": std,
-             "score": s.score, "rms_after": new.rms,
-             "evidence": (f"{what} S = {s.score:.4g} (p = {s.p_value:.3g}); likelihood "
-                          f"ratio {lr:.4g} (p = {p_lr:.3g}); held-out rms "
-                          f"{fmt(current.heldout_rms)} -> {fmt(new.heldout_rms)} m"
-                          + (f"; region {c.region}" if c.region else "")
-                          + (f"; {c.reason}" if c.reason else "")),
-             "region": c.region}
+    entry = AddedTerm(physics=c.physics, parameters=values, std=std, score=s.score,
+                      rms_after=new.rms,
+                      evidence=(f"{what} S = {s.score:.4g} (p = {s.p_value:.3g}); likelihood "
+                                f"ratio {lr:.4g} (p = {p_lr:.3g}); held-out rms "
+                                f"{fmt(current.heldout_rms)} -> {fmt(new.heldout_rms)} m"
+                                + (f"; region {c.region}" if c.region else "")
+                                + (f"; {c.reason}" if c.reason else "")),
+                      region=c.region)
     return {"added": True, "entry": entry}
 
 
@@ -114,8 +115,8 @@ class Choice:
 
     Attributes
     ----------
-    accepted : (dict, Fit) or None
-        The added term's report entry and its fit.
+    accepted : (AddedTerm, Fit) or None
+        The added term and its fit.
     rejected : list of dict
         Fitted candidates not added, with the reason.
     switch : str or None
@@ -330,14 +331,14 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
         passed.insert(0, first)
         chi2_best, _, s_best, c_best, v_best = passed[0]
         if len(tied) > 1:
-            v_best["entry"]["evidence"] += (
+            v_best["entry"].evidence += (
                 "; ambiguous: " + ", ".join(t[3].physics for t in tied if t is not first)
                 + f" predicted and fitted as well (held-out rms within 2 % or the noise, "
                 f"as many parameters, chi2 + k ln n within {TIE_CHI2:g}); chosen by the "
                 "vocabulary's order")
         simpler = [t for t in close if t not in simplest]
         if simpler:
-            v_best["entry"]["evidence"] += (
+            v_best["entry"].evidence += (
                 "; " + ", ".join(t[3].physics for t in simpler) + " (more parameters) "
                 "predicted the held-out data no better (within 2 % or the noise): the "
                 "explanation with fewer parameters is kept")
@@ -354,7 +355,7 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
                                        f"vs {fmt(s.fit.heldout_rms)} m; chi2 + k ln n "
                                        f"{chi2_best:.6g} vs {chi2:.6g})"})
         if len(passed) > 1:
-            accepted[0]["evidence"] += (
+            accepted[0].evidence += (
                 "; among the best-scoring candidates it predicted the held-out data best ("
                 + ", ".join(f"{c.physics} held-out rms {fmt(h)} m, chi2 + k ln n "
                             f"{chi2:.6g}" for chi2, h, _, c, _ in passed)
@@ -366,7 +367,7 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
 
 def rank_round(scores: list, accepted) -> None:
     """Number the round's (score entry, candidate) pairs ``scores`` (each entry's ``rank``):
-    the added term (``accepted``: its report entry and fit, or None), the other fitted ones by
+    the added term (``accepted``: the AddedTerm and its fit, or None), the other fitted ones by
     chi2, then the rest by score (the order ``scores`` comes in)."""
     ranking = sorted((sc for sc in scores if sc[0].fitted_chi2 is not None),
                      key=lambda sc: (accepted is None or sc[0].fit is not accepted[1],
