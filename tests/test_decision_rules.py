@@ -116,7 +116,7 @@ def passed(diag, Y, cols, c) -> np.ndarray:
     """judge's verdicts (added or not) of candidate ``c`` (columns ``cols``) over the base
     model, one per draw (row of ``Y``)."""
     bases, news = fits([], Y, diag, []), fits(cols, Y, diag, c.parameters)
-    return np.array([judge(diag, b, entry(f), c)["added"] for b, f in zip(bases, news,
+    return np.array([judge(diag, b, entry(f), c).added for b, f in zip(bases, news,
                                                                           strict=True)])
 
 

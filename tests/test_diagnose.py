@@ -749,7 +749,7 @@ def test_a_candidate_fit_that_cannot_win_is_stopped_and_not_added(case, monkeypa
     free = dataclasses.replace(scored)
     diag.fit_candidates([(free, damping)], base)
     assert free.fit is not None and free.fit.stopped == ""
-    assert judge(diag, base, free, damping)["added"]
+    assert judge(diag, base, free, damping).added
     monkeypatch.setattr(pace, "PACE_WINDOW", 1)
     rival = dataclasses.replace(base, chi2=1e-6 * base.chi2)
     raced = dataclasses.replace(scored)
@@ -759,7 +759,7 @@ def test_a_candidate_fit_that_cannot_win_is_stopped_and_not_added(case, monkeypa
     assert "an unreachable rival's" in stopped.stopped
     assert stopped.iterations <= free.fit.iterations
     verdict = judge(diag, base, raced, damping)
-    assert not verdict["added"] and "could not have been preferred" in verdict["reason"]
+    assert not verdict.added and "could not have been preferred" in verdict.reason
 
 
 # -- the time budget ----------------------------------------------------------------------------

@@ -8,7 +8,7 @@ round's working fields (the fit, the score direction, why a fit was skipped) sta
 import numpy as np
 
 from petsoft.diagnosis.candidates import Candidate
-from petsoft.diagnosis.records import AddedTerm, ScoreEntry
+from petsoft.diagnosis.records import AddedTerm, Judgement, ScoreEntry
 
 #: The report's keys in their order, each as the round sets it.
 REPORTED = ["physics", "parameters", "region", "kind", "score", "dof", "p_value", "log10_p",
@@ -79,3 +79,11 @@ def test_an_added_term_reports_every_field_under_its_name_in_order():
                              "std": {"material.diag_mass.density": 40.0}, "score": 900.0,
                              "rms_after": 2e-5, "evidence": "score test S = 900",
                              "region": {"center": [0.2, 0.0, 0.0], "radius": 0.03}}
+
+
+def test_a_judgement_adds_its_term_or_says_why_not():
+    term = AddedTerm(physics="drag.linear", parameters={}, std={}, score=1.0, rms_after=1e-5,
+                     evidence="")
+    assert Judgement(term).added and Judgement(term).reason == ""
+    no = Judgement(reason="held-out rms did not improve")
+    assert not no.added and no.entry is None

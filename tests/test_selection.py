@@ -111,10 +111,10 @@ def test_the_held_out_test_passes_a_term_at_the_rate_its_prediction_law_gives():
                            kind="score", score=1.0, dof=1, p_value=0.0, log10_p=-np.inf,
                            fit=fit(chi2_new[i], held_new[i], names))
             verdict = judge(diag, fit(chi2_base[i], held_base[i]), s, c)
-            added += verdict["added"]
-            assert verdict["added"] == (held_new[i] < held_base[i])
-            if not verdict["added"]:
-                reasons.append(verdict["reason"])
+            added += verdict.added
+            assert verdict.added == (held_new[i] < held_base[i])
+            if not verdict.added:
+                reasons.append(verdict.reason)
         lo, hi = stats.binom.interval(0.999, draws, expected)
         assert lo <= added <= hi, (continues, added / draws, expected)
         assert reasons and all(r.startswith("held-out rms did not improve") for r in reasons)

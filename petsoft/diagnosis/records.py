@@ -1,5 +1,6 @@
 """The diagnosis' typed records: what one candidate's score test gave and what its round made
-of it (:class:`ScoreEntry`), and a term a round added (:class:`AddedTerm`).
+of it (:class:`ScoreEntry`), what the tests made of its fit (:class:`Judgement`), and a term a
+round added (:class:`AddedTerm`).
 
 A score entry is made when a candidate is scored and then travels through its round: the
 shortlist, the fits, the choice and the final ranking each set their own fields, declared here
@@ -178,3 +179,27 @@ class AddedTerm:
         return {"physics": self.physics, "parameters": self.parameters, "std": self.std,
                 "score": self.score, "rms_after": self.rms_after, "evidence": self.evidence,
                 "region": self.region}
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """What :func:`~petsoft.diagnosis.selection.judge` made of a fitted candidate: the term to
+    add when its fit passes both tests (the likelihood ratio and the held-out prediction),
+    else why not.
+
+    Attributes
+    ----------
+    entry : AddedTerm or None
+        The term, when the candidate passes (:func:`~petsoft.diagnosis.selection.choose`
+        extends its evidence when it is preferred to others).
+    reason : str
+        Why it does not pass ("" when it does).
+    """
+
+    entry: AddedTerm | None = None
+    reason: str = ""
+
+    @property
+    def added(self) -> bool:
+        """Whether the candidate passes both tests."""
+        return self.entry is not None

@@ -12,7 +12,7 @@ import numpy as np
 from scipy import stats
 
 from petsoft.diagnosis.context import Diagnosis, Fit, fmt, term_values
-from petsoft.diagnosis.records import AddedTerm, ScoreEntry
+from petsoft.diagnosis.records import AddedTerm, Judgement, ScoreEntry
 
 #: Fitted chi2 values within this of the best are statistically tied (see _run_diagnose).
 TIE_CHI2 = 2.0
@@ -68,20 +68,19 @@ def n_parameters(c) -> int:
     return max(len(c.parameters), 1)
 
 
-def judge(diag: Diagnosis, current: Fit, s: ScoreEntry, c) -> dict:
+def judge(diag: Diagnosis, current: Fit, s: ScoreEntry, c) -> Judgement:
     """Keep candidate ``c`` (score entry ``s`` with its fit) only if the likelihood ratio is
-    significant AND the held-out rms improves: ``{"added", "entry" | "reason"}`` (the entry
-    an :class:`~petsoft.diagnosis.records.AddedTerm`)."""
+    significant AND the held-out rms improves: the term to add, or why not."""
     if s.skipped:
         diag.tell(f"  try {c.physics}: not fitted ({s.skipped})")
-        return {"added": False, "reason": f"not fitted: {s.skipped}"}
+        return Judgement(reason=f"not fitted: {s.skipped}")
     new = s.fit
     if new is not None and new.stopped:
         diag.tell(f"  try {c.physics}: not added: its fit was {new.stopped}")
-        return {"added": False, "reason": f"its fit was {new.stopped}"}
+        return Judgement(reason=f"its fit was {new.stopped}")
     if new is None:
         diag.tell(f"  try {c.physics}: the fit failed ({s.fit_error})")
-        return {"added": False, "reason": f"the fit failed: {s.fit_error}"}
+        return Judgement(reason=f"the fit failed: {s.fit_error}")
     lr, p_lr, better = _tests(diag, current, new, c)
     ok = p_lr < diag.alpha and better
     diag.tell(f"  try {c.physics}: LR {lr:.4g} (p {p_lr:.3g}), held-out rms "
@@ -95,7 +94,7 @@ def judge(diag: Diagnosis, current: Fit, s: ScoreEntry, c) -> dict:
         if not better:
             why.append(f"held-out rms did not improve ({fmt(current.heldout_rms)} -> "
                        f"{fmt(new.heldout_rms)} m)")
-        return {"added": False, "reason": "; ".join(why)}
+        return Judgement(reason="; ".join(why))
     what = "switch score test" if c.kind == "switch" else "score test"
     values, std = term_values(new, c.parameters)
     entry = AddedTerm(physics=c.physics, parameters=values, std=std, score=s.score,
@@ -106,7 +105,7 @@ def judge(diag: Diagnosis, current: Fit, s: ScoreEntry, c) -> dict:
                                 + (f"; region {c.region}" if c.region else "")
                                 + (f"; {c.reason}" if c.reason else "")),
                       region=c.region)
-    return {"added": True, "entry": entry}
+    return Judgement(entry)
 
 
 @dataclass
@@ -300,13 +299,13 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
     for s, c in contenders:
         verdict = judge(diag, current, s, c)
         s.fitted_chi2 = s.fit.chi2 if s.fit is not None else None
-        if verdict["added"]:
+        if verdict.added:
             # a term must not win by its number of parameters alone
             bic = s.fit.chi2 + penalty * n_parameters(c)
             passed.append((bic, s.fit.heldout_rms or 0.0, s, c, verdict))
         else:
             rejected.append({"physics": c.physics, "score": s.score,
-                             "reason": verdict["reason"]})
+                             "reason": verdict.reason})
     if passed:
         # The better held-out prediction (by more than 2 %) decides: the second test of a
         # term, and the one a flexible term cannot pass by fitting the model's own errors
@@ -331,18 +330,18 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
         passed.insert(0, first)
         chi2_best, _, s_best, c_best, v_best = passed[0]
         if len(tied) > 1:
-            v_best["entry"].evidence += (
+            v_best.entry.evidence += (
                 "; ambiguous: " + ", ".join(t[3].physics for t in tied if t is not first)
                 + f" predicted and fitted as well (held-out rms within 2 % or the noise, "
                 f"as many parameters, chi2 + k ln n within {TIE_CHI2:g}); chosen by the "
                 "vocabulary's order")
         simpler = [t for t in close if t not in simplest]
         if simpler:
-            v_best["entry"].evidence += (
+            v_best.entry.evidence += (
                 "; " + ", ".join(t[3].physics for t in simpler) + " (more parameters) "
                 "predicted the held-out data no better (within 2 % or the noise): the "
                 "explanation with fewer parameters is kept")
-        accepted = (v_best["entry"], s_best.fit)
+        accepted = (v_best.entry, s_best.fit)
         diag.tell(f"  chosen: {c_best.physics}" + (
             f" (of {len(passed)} that pass both tests: the best held-out prediction, then the "
             "fewest parameters)" if len(passed) > 1 else ""))
