@@ -13,8 +13,12 @@ was skipped) stay out of it.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:       # (context.py makes score entries: importing it here would be a cycle)
+    from petsoft.diagnosis.context import Fit
 
 
 # eq=False: an entry is one candidate's in one round, recognised by identity (a round's lists
@@ -92,7 +96,7 @@ class ScoreEntry:
     round: int | None = None
     repeats: str | None = None
     replaced: bool = False
-    fit: object | None = None
+    fit: Fit | None = None
     fit_error: str = ""
     skipped: str | None = None
     fitted_chi2: float | None = None
