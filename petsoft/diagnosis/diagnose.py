@@ -76,6 +76,7 @@ from petsoft.diagnosis.numerics import (  # noqa: F401
 )
 from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings, refinement_words
 from petsoft.diagnosis.outputs import build_diagnosis_report, write_outputs
+from petsoft.diagnosis.partial_round import conclude
 from petsoft.diagnosis.placement import ONE_RANK_DOFS
 from petsoft.diagnosis.reconsider import Added, reconsider
 from petsoft.diagnosis.result import DiagnoseResult
@@ -340,7 +341,9 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         contenders, hopeless = worth_fitting(significant)
         rejected += hopeless
         fit_simplest_first(diag, current, contenders)
-        choice = choose(diag, current, contenders)
+        # fits the time budget left unfinished are not judged (partial_round.py)
+        contenders, decide = conclude(diag, current, contenders, rnd)
+        choice = choose(diag, current, contenders, decide)
         accepted = choice.accepted
         rejected += choice.rejected
         if choice.switch is not None:
