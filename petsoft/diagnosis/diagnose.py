@@ -148,7 +148,8 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
         0 runs every model on all the ranks.
     budget : float or None
         Wall seconds after which no new piece of work starts (a round of candidates, a
-        sphere search, a numerics check, a reconsideration); the report is then written from
+        candidate's fit, a sphere search, a numerics check, a reconsideration) and a
+        candidate fit under way stops at its next iteration; the report is then written from
         the model reached and says what was left out (:mod:`petsoft.diagnosis.budget`).
         None: no budget.
     reduced_trials : bool
