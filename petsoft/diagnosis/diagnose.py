@@ -363,8 +363,11 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
         if len(history) > 1:
             # before the next round: a term an earlier round took for the one just added
-            # must not call for a third (reconsider.py)
-            current, added, ev = _reconsidered(diag, current, history, rejected, added, ev)
+            # must not call for a third (reconsider.py); a piece of work as the one after the
+            # last round, which this stands for when left out (said once)
+            if not over_budget(diag, "reconsideration of the earlier terms beside the last",
+                               RECONSIDER_RISK):
+                current, added, ev = _reconsidered(diag, current, history, rejected, added, ev)
             reconsidered = current
         clock.switch(None)
     if (len(history) > 1 and current is not reconsidered
