@@ -253,7 +253,7 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
                 seen.add(key)
                 trials.append(region)
         if reduced is not None and reduced.active:
-            scored = reduced.poll(poll, trials, full_trials)
+            scored = reduced.poll(poll, trials, full_trials, best, best_chi2)
         else:
             scored = full_trials(trials)
         moved = False
