@@ -366,9 +366,9 @@ def _add_diagnose_parser(sub) -> None:
     c.add_argument("--reduced-trials", action="store_true",
                    help="score the trials of an added mass's sphere search (centre and "
                         "radius) by a reduced-order model of the fitted model instead of a full "
-                        "run each; each poll's best is run on the full model, which decides, "
-                        "and the reduced model's error there is reported (full trials once it "
-                        "exceeds 0.2x the noise). Off by default")
+                        "run each; each poll's best that would move the sphere is run on the "
+                        "full model, which decides, and the reduced model's error there is "
+                        "reported (full trials once it exceeds 0.2x the noise). Off by default")
 
 
 def _static_options(s) -> None:
