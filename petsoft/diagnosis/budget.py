@@ -96,12 +96,15 @@ class TimeBudget:
         return over
 
     def settle(self, found_at: float | None) -> None:
-        """After work on groups of ranks (collective, with the same ``found_at`` on every
-        rank: the groups' gathered outcomes): when a group found the budget spent
-        (``found_at``, seconds from ``start``; None: none did), it is spent on every rank."""
-        if found_at is not None and not self._spent:
-            self._spent = True
-            self.spent_at = float(found_at)
+        """After work on groups of ranks (collective; ``found_at`` None on every rank or on
+        none: the groups' gathered outcomes): when a group found the budget spent
+        (``found_at``, seconds from ``start``; None: none did), it is spent on every rank,
+        from the first rank's ``found_at`` (a group of all the ranks gives each its own)."""
+        if found_at is None or self._spent:
+            return
+        mpi = _mpi(self.comm)
+        self._spent = True
+        self.spent_at = float(mpi.bcast(found_at, root=0) if mpi.Get_size() > 1 else found_at)
 
     def stops(self, check: str, risk: str, tell=None, when: bool = True) -> bool:
         """Whether the budget is spent (collective, as :meth:`spent`); if so and ``when``,
