@@ -265,9 +265,9 @@ def fit_simplest_first(diag: Diagnosis, current: Fit, contenders: list) -> None:
 def sufficient(diag: Diagnosis, current: Fit, contenders: list, k: int) -> tuple | None:
     """(candidate, held-out rms) of the first fitted contender with fewer than ``k``
     parameters that passes both tests and predicts the held-out data to the noise
-    (:func:`heldout_noise_level`); None when there is none. :func:`choose` then keeps it or
-    a fitted contender simpler still, whatever a contender of ``k`` or more parameters
-    fits: it is in the best held-out predictions (within the noise) with fewer parameters."""
+    (:func:`heldout_noise_level`); None when there is none. :func:`choose` then keeps a
+    contender of at most its parameters, whatever a contender of ``k`` or more parameters
+    fits: it stays among the best held-out predictions (within the noise) with fewer."""
     level = heldout_noise_level(diag)
     for s, c in contenders:
         new = s.get("fit")
