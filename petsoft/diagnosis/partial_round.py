@@ -15,8 +15,8 @@ iteration (:mod:`petsoft.diagnosis.budget`); its score entry then has no ``fit``
   by which :func:`~petsoft.diagnosis.selection.fit_simplest_first` leaves a batch unfitted).
   Which finished fit is chosen is decided among the finished ones: an unfinished fit that
   predicted better than all of them could only have narrowed the predictions counted as
-  equally good to those within the noise (possible only where two finished fits of as many
-  parameters both pass).
+  equally good to those within the noise (which matters only where another finished fit that
+  passes both tests predicts the held-out data worse than the noise).
 - Otherwise the round adds nothing and says so: its finished fits are judged (one failing a
   test is rejected as in any round), none is chosen, and a ``round N's choice`` entry names
   those that passed both tests and the unfinished ones that might have been preferred. The
