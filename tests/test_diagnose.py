@@ -790,6 +790,7 @@ def test_a_spent_budget_stops_new_work_and_says_what_was_left_out(case, capsys):
                    for line in lines[start:]), lines[start:]
     box = (out / "report.md").read_text().split("\n\n")[1]
     assert "Not checked: round 1 of candidate physics" in box, box
+    assert "within the time budget no refinement" in box and "neither" not in box, box
 
 
 def test_a_budget_spent_mid_run_keeps_the_work_done(case, monkeypatch):
