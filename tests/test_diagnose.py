@@ -764,21 +764,29 @@ def test_a_candidate_fit_that_cannot_win_is_stopped_and_not_added(case, monkeypa
 
 # -- the time budget ----------------------------------------------------------------------------
 class _SpentAfter:
-    """A TimeBudget spent from its ``n``-th check on (the clock's part replaced by a count, so
-    where the run stops does not depend on the machine's speed)."""
+    """A TimeBudget spent from its ``n``-th check between pieces of work on, or from the
+    ``in_fits``-th check inside a round's candidate fits (their start and iterations, on each
+    fit's group of ranks: counted by each rank) on: the clock's part replaced by a count, so
+    where the run stops does not depend on the machine's speed."""
 
-    def __new__(cls, n: int):
+    def __new__(cls, n: int, in_fits: int | None = None):
         from petsoft.diagnosis.budget import TimeBudget
 
         class Counted(TimeBudget):
             checks = 0
+            fit_checks = 0
 
             def elapsed(self):
-                return self.seconds * (Counted.checks >= n) + 1e-3
+                over = Counted.checks >= n or (in_fits is not None
+                                               and Counted.fit_checks >= in_fits)
+                return self.seconds * over + 1e-3
 
-            def spent(self):
-                Counted.checks += 1
-                return super().spent()
+            def spent(self, comm=None):
+                if comm is None:
+                    Counted.checks += 1
+                else:
+                    Counted.fit_checks += 1
+                return super().spent(comm)
 
         return Counted
 
@@ -810,6 +818,7 @@ def test_a_spent_budget_stops_new_work_and_says_what_was_left_out(case, capsys):
                    for line in lines[start:]), lines[start:]
     box = (out / "report.md").read_text().split("\n\n")[1]
     assert "Not checked: round 1 of candidate physics" in box, box
+    assert "within the time budget no refinement" in box and "neither" not in box, box
 
 
 def test_a_budget_spent_mid_run_keeps_the_work_done(case, monkeypatch):
@@ -829,6 +838,103 @@ def test_a_budget_spent_mid_run_keeps_the_work_done(case, monkeypatch):
     assert full.report["budget"] == {"seconds": 900.0, "spent": False, "spent_at": None,
                                      "left_out": []}
     assert isinstance(full.numerics.get("step/2"), dict)
+
+
+@pytest.mark.parametrize("in_fits", [1, 3, 5])
+def test_a_budget_spent_inside_a_rounds_fits_leaves_them_out(case, monkeypatch, in_fits):
+    """The budget spent inside round 1's candidate fits (its ``in_fits``-th check there,
+    counted on each fit's group of ranks: 1, none starts; 3, the first fit of each group is
+    cut short at its iteration 1; 5, the first fit of each group finishes (3 iterations), the
+    next is not started). Every shortlisted candidate is either finished or a skipped entry
+    with its risk; nothing is added (the four are one-parameter dissipation laws: an
+    unfinished one could always have been preferred), no unfinished one is rejected or
+    ranked by a chi2, the round's choice is a skipped entry naming them, and the log says
+    so. On 2 ranks each rank is a group with its own count, and the ranks agree after the
+    round (the final numerics check is left out on both)."""
+    from petsoft.diagnosis import diagnose as diagnose_module
+    from petsoft.diagnosis.report import validate_report
+
+    full = _damped_result(case)
+    shortlisted = {e["physics"] for e in full.scores
+                   if e["round"] == 1 and e.get("fitted_chi2") is not None}
+    assert len(shortlisted) == 4, shortlisted
+    monkeypatch.setattr(diagnose_module, "TimeBudget", _SpentAfter(10**6, in_fits=in_fits))
+    lines = []
+    res = run_diagnose(load_experiment(case["user"]), case["damped"], comm=PETSc.COMM_WORLD,
+                       budget=60.0, say=lines.append)
+    validate_report(res.report)
+    assert res.added == [] and res.report["added"] == []
+    skipped = {k["check"]: k for k in res.report["skipped"]}
+    prefix = "round 1: candidate fit of "
+    unfinished = {c[len(prefix):] for c in skipped if c.startswith(prefix)}
+    assert unfinished and unfinished <= shortlisted, (unfinished, shortlisted)
+    for name in unfinished:
+        k = skipped[prefix + name]
+        assert "time budget (60 s" in k["why"] and "was not judged" in k["risk"], k
+    whys = [skipped[prefix + n]["why"] for n in unfinished]
+    if in_fits == 1:
+        assert unfinished == shortlisted and all(w.endswith(": not started") for w in whys)
+    elif in_fits == 3:
+        assert any("cut short by the time budget at iteration 1: its chi2" in w for w in whys)
+    choice = skipped["round 1's choice"]
+    finished = shortlisted - unfinished
+    assert all(name in choice["risk"] for name in unfinished), choice
+    assert all(name in choice["risk"] for name in finished), choice   # each passed both tests
+    assert (in_fits == 5) == bool(finished), (in_fits, finished)
+    assert "no term was added" in choice["risk"]
+    # nothing of an unfinished fit is named as if it were complete
+    assert not {r["physics"] for r in res.rejected} & shortlisted, res.rejected
+    assert all(e.get("fitted_chi2") is None for e in res.scores if e["physics"] in unfinished)
+    assert res.report["budget"]["spent"]
+    assert res.report["budget"]["left_out"][-1] == "numerics check of the final model"
+    assert MPI.COMM_WORLD.allgather(res.report["budget"]["left_out"][-1:]) == [
+        ["numerics check of the final model"]] * MPI.COMM_WORLD.size
+    if MPI.COMM_WORLD.rank == 0:
+        assert any("round 1: adds nothing" in line for line in lines), lines
+
+
+def test_a_round_cut_by_the_budget_adds_only_what_its_finished_fits_decide(case):
+    """:func:`~petsoft.diagnosis.partial_round.conclude` on a round whose damping.mass fit
+    finished (it predicts the held-out data to the noise with one parameter) beside an
+    unfinished candidate: with gravity.direction (two parameters) unfinished the round is
+    decided and adds damping.mass; with drag.linear (one parameter, which might have predicted
+    better) unfinished it adds nothing, and the finished fit is judged but not chosen."""
+    import time as _time
+
+    from petsoft.diagnosis.budget import TimeBudget
+    from petsoft.diagnosis.context import evidence_of
+    from petsoft.diagnosis.partial_round import conclude
+    from petsoft.diagnosis.selection import choose
+
+    exp = load_experiment(case["user"])
+    diag = _diagnosis(exp, case["damped"])
+    base = diag.calibrate(exp)
+    diag.fix_scales(base, evidence_of(diag, base))
+    cands = {c.physics: c for c in build_candidates(exp, scales=diag.scales)[0]}
+    damping = (diag.score(base, cands["damping.mass"]), cands["damping.mass"])
+    diag.fit_candidates([damping], base)
+    assert damping[0].fit is not None and not damping[0].unfinished
+    diag.budget = TimeBudget(5.0, _time.perf_counter() - 6.0, PETSc.COMM_WORLD)
+    assert diag.budget.spent()
+    for other, decided in (("gravity.direction", True), ("drag.linear", False)):
+        cut = (dataclasses.replace(diag.score(base, cands[other]), unfinished="not started"),
+               cands[other])
+        diag.budget.skipped.clear()
+        kept, decide = conclude(diag, base, [damping, cut], rnd=1)
+        assert decide is decided and kept == [damping]
+        left = [k["check"] for k in diag.budget.skipped]
+        assert left == [f"round 1: candidate fit of {other}"] + (
+            [] if decided else ["round 1's choice"]), left
+        choice = choose(diag, base, kept, decide)
+        if decided:
+            assert choice.accepted[0].physics == "damping.mass"
+            assert "could not have been preferred to damping.mass" in diag.budget.skipped[0][
+                "risk"]
+        else:
+            assert choice.accepted is None and choice.rejected == []
+            assert "damping.mass passed both tests" in diag.budget.skipped[1]["risk"]
+    # a round without unfinished fits is untouched
+    assert conclude(diag, base, [damping], rnd=1) == ([damping], True)
 
 
 def test_budget_values():

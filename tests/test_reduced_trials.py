@@ -91,27 +91,42 @@ def test_reduced_trials_score_as_the_full_model(recording):  # noqa: F811
 
 
 def test_the_search_with_reduced_trials_moves_the_sphere(recording, monkeypatch):  # noqa: F811
-    """The whole search with the option on: one full trial a poll, the sphere moved towards
-    the truth as the full search moves it, the reduced trials' note in the evidence."""
+    """The whole search with the option on: at most one full run a poll, made only where the
+    poll's best reduced trial would move the sphere (here 5 of its 8 polls: polls 3, 5 and 6
+    keep the sphere, as the full search's do); the sphere ends where the full search ends
+    it, nearer the truth, with the same calibrated fit; the reduced trials' note in the
+    evidence."""
+    full_diag, full_fit, full_cand = _start(recording, MISPLACED, "full_search.toml")
+    full = fit_sphere(full_diag, full_fit, full_cand)
     diag, fit, cand = _start(recording, MISPLACED, "reduced_search.toml")
     diag.reduced_trials = True
     said = _said(diag)
     made = _full_trials(monkeypatch)
+    runs = []
+    verify = ReducedTrials.verify
+    monkeypatch.setattr(ReducedTrials, "verify",
+                        lambda self, poll, *a: (runs.append(poll), verify(self, poll, *a))[1])
     entry = AddedTerm(physics="mass.added", parameters={}, std={}, score=1.0,
                       rms_after=fit.rms, evidence="score test", region=cand.region)
     new_entry, new_fit, new_cand = refit_added_sphere(diag, entry, fit, cand, searches=1)
+    assert new_cand.region == full.region, (new_cand.region, full.region)
+    assert new_fit.chi2 == pytest.approx(full.fit.chi2, rel=1e-9)
     assert abs(new_cand.region["center"][0] - TRUE_CENTRE[0]) < \
         0.5 * abs(MISPLACED[0] - TRUE_CENTRE[0])
     assert fit.chi2 - new_fit.chi2 > 13.3
     assert made == []                   # the verifications are full runs, not full trials
+    assert runs == [1, 2, 4, 7, 8], runs
     evidence = new_entry.evidence
     assert "sphere fitted" in evidence
     assert "sphere trials scored by a reduced model" in evidence
     assert "each poll's best verified on the full model" in evidence
+    assert "3 poll(s) whose best would not move the sphere not verified" in evidence
     if MPI.COMM_WORLD.rank == 0:
         polls = [line for line in said if ": poll " in line]
-        assert polls and all("the best verified on the full model: chi2 " in line
-                             and "reduced-model error" in line for line in polls), said
+        verified = [line for line in polls if "the best verified on the full model: chi2 "
+                    in line and "reduced-model error" in line]
+        kept = [line for line in polls if "not verified, the sphere stays" in line]
+        assert len(verified) == len(runs) and len(kept) == 3 and len(polls) == 8, said
         assert any("reduced trials: build" in line for line in said), said
 
 

@@ -353,9 +353,10 @@ def _add_diagnose_parser(sub) -> None:
                    help="skip the step/mesh refinement check")
     c.add_argument("--budget", type=_budget, metavar="SECONDS", default=BUDGET_DEFAULT,
                    help="wall seconds after which no new piece of work starts (a round of "
-                        "candidates, a sphere search, a numerics check); the report is then "
-                        "written from the model reached and says what was left out; 0: no "
-                        f"budget (default {BUDGET_DEFAULT:g})")
+                        "candidates, a candidate's fit, a sphere search, a numerics check) and "
+                        "a candidate fit under way stops at its next iteration; the report is "
+                        "then written from the model reached and says what was left out; 0: "
+                        f"no budget (default {BUDGET_DEFAULT:g})")
     c.add_argument("--one-rank-dofs", type=_count, metavar="N",
                    help="under mpiexec, a model of at most N unknowns runs on one rank (the "
                         "others wait, or run independent fits side by side): faster, since one "
@@ -365,9 +366,9 @@ def _add_diagnose_parser(sub) -> None:
     c.add_argument("--reduced-trials", action="store_true",
                    help="score the trials of an added mass's sphere search (centre and "
                         "radius) by a reduced-order model of the fitted model instead of a full "
-                        "run each; each poll's best is run on the full model, which decides, "
-                        "and the reduced model's error there is reported (full trials once it "
-                        "exceeds 0.2x the noise). Off by default")
+                        "run each; each poll's best that would move the sphere is run on the "
+                        "full model, which decides, and the reduced model's error there is "
+                        "reported (full trials once it exceeds 0.2x the noise). Off by default")
 
 
 def _static_options(s) -> None:

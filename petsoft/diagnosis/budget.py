@@ -4,21 +4,42 @@ A diagnosis of a long record on a fine mesh can take far longer than a person wa
 tapered cantilever with a hidden payload (issue 40, 711 tets, 1 s at 2 ms) spent 20 minutes
 fitting its added mass's sphere and a second round of physics, and gave no report when it was
 stopped. The budget bounds that: once it is spent, the diagnosis starts no new piece of work
-(a round of candidates, a sphere search, a numerics check, a reconsideration); the work under
-way is finished, the report is written from the model reached so far, and every piece left out
-is said in the report's ``skipped`` list with what it risks. The budget is checked between
-pieces of work, and between the polls of a sphere search (which then keeps its best sphere so
-far), so a run ends after it by at most one piece: a round's candidate fits, or a poll and the
-calibration that ends a search (a minute or two on such a case).
+(a round of candidates, a candidate's fit, a sphere search, a numerics check, a
+reconsideration), the report is written from the model reached so far, and every piece left
+out is said in the report's ``skipped`` list with what it risks. The budget is checked between
+pieces of work, between the polls of a sphere search (which then keeps its best sphere so far),
+and inside a round of candidate fits, so a run ends after it by at most a poll and the
+calibration that ends a search, or an iteration of each candidate fit under way (a minute or
+two on such a case).
+
+**A round's candidate fits.** Measured before this rule: the realistic payload case with
+``--reduced-trials`` entered its second round inside its 900 s budget, and that round's fits
+ran 485 s past it. Now each fit checks the budget on its own group of ranks
+(:meth:`TimeBudget.spent` with the group's communicator): before it starts (once the budget is
+spent it does not start) and at each iteration boundary, where
+:class:`~petsoft.diagnosis.pace.CannotWin` cuts a fit that cannot win (:class:`FitStop`: a fit
+under way stops at the iterate reached). Such a candidate is *unfinished*: it is neither added
+nor rejected, a fit cut short keeps its chi2 only as an upper bound on what it would have
+reached, and it is a ``skipped`` entry (``round N: candidate fit of PHYSICS``) with what it
+risks. The round then adds a term only when no unfinished candidate could have been chosen in
+its place: a finished fit that passes both tests predicts the held-out data to the noise with
+fewer parameters than every unfinished candidate; otherwise it adds nothing and says so (a
+``round N's choice`` entry naming the finished fits that passed both tests), and the model is
+the one the round started from (:mod:`petsoft.diagnosis.partial_round`).
 
 Every rank of the diagnosis must take the same decision at the same point (the pieces are
 collective), so the first rank's clock decides and the decision is broadcast; once spent, a
-budget stays spent.
+budget stays spent. A candidate fit runs on its own group of ranks, side by side with the
+others' (:meth:`~petsoft.diagnosis.placement.Placement.on_groups`), so inside it the group's
+first rank decides for the group; once the round's fits are gathered (the same outcomes on
+every rank), a fit left unfinished makes the budget spent on every rank
+(:meth:`TimeBudget.settle`), at the time that group found it spent.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 #: The default budget of ``petsoft diagnose`` (seconds): issue 40's bound for its largest
 #: realistic case (a 5,000-tet mesh), beyond which a person wants a report more than more work.
@@ -55,18 +76,35 @@ class TimeBudget:
         """Seconds since ``start`` on this rank."""
         return time.perf_counter() - self.start
 
-    def spent(self) -> bool:
-        """Whether the budget is spent (collective on ``comm``: the first rank's clock
-        decides). Call it only where every rank of ``comm`` calls it."""
+    def spent(self, comm=None) -> bool:
+        """Whether the budget is spent (collective on ``comm``: its first rank's clock
+        decides). Call it only where every rank of ``comm`` calls it.
+
+        ``comm`` None: the budget's own communicator, whose decision stays (every rank holds
+        it). A group of its ranks (a candidate fit's, petsc4py or mpi4py): the group's
+        decision, for the group's work only; it leaves the budget unspent until
+        :meth:`settle` (the other groups decide at their own points)."""
         if self._spent or self.seconds is None:
             return self._spent
+        mpi = _mpi(self.comm if comm is None else comm)
         over = self.elapsed() >= self.seconds
-        if self.comm.getSize() > 1:
-            over = bool(self.comm.tompi4py().bcast(over, root=0))
-        if over:
+        if mpi.Get_size() > 1:
+            over = bool(mpi.bcast(over, root=0))
+        if over and comm is None:
             self._spent = True
             self.spent_at = self.elapsed()
-        return self._spent
+        return over
+
+    def settle(self, found_at: float | None) -> None:
+        """After work on groups of ranks (collective; ``found_at`` None on every rank or on
+        none: the groups' gathered outcomes): when a group found the budget spent
+        (``found_at``, seconds from ``start``; None: none did), it is spent on every rank,
+        from the first rank's ``found_at`` (a group of all the ranks gives each its own)."""
+        if found_at is None or self._spent:
+            return
+        mpi = _mpi(self.comm)
+        self._spent = True
+        self.spent_at = float(mpi.bcast(found_at, root=0) if mpi.Get_size() > 1 else found_at)
 
     def stops(self, check: str, risk: str, tell=None, when: bool = True) -> bool:
         """Whether the budget is spent (collective, as :meth:`spent`); if so and ``when``,
@@ -81,12 +119,13 @@ class TimeBudget:
                 tell(f"time budget: {check} not started ({entry['why']})")
         return True
 
-    def skip(self, check: str, risk: str) -> dict:
+    def skip(self, check: str, risk: str, detail: str = "") -> dict:
         """Record ``check`` as left out for the budget (report.json ``skipped``), with the
-        ``risk`` a reader takes by it; returns the entry."""
+        ``risk`` a reader takes by it and, in its ``why``, the ``detail`` of what was done of
+        it; returns the entry."""
         entry = {"check": check,
                  "why": f"the time budget ({self.seconds:g} s, petsoft diagnose --budget) was "
-                        f"spent at {self.spent_at:.0f} s",
+                        f"spent at {self.spent_at:.0f} s" + (f": {detail}" if detail else ""),
                  "risk": risk}
         self.skipped.append(entry)
         return entry
@@ -97,3 +136,53 @@ class TimeBudget:
         return {"seconds": self.seconds, "spent": self._spent,
                 "spent_at": None if self.spent_at is None else round(self.spent_at, 1),
                 "left_out": [k["check"] for k in self.skipped]}
+
+
+@dataclass
+class Unfinished:
+    """A candidate fit the budget left unfinished (what its group returns in place of the
+    fit): ``why`` (not started, or :attr:`FitStop.why`), and when its group found the budget
+    spent (``found_at``, seconds from the budget's start)."""
+
+    why: str
+    found_at: float
+
+
+class FitStop:
+    """A candidate fit's ``stop`` (:func:`petsoft.calibration.optimize.minimize`): the fit's
+    own ``then`` (a :class:`~petsoft.diagnosis.pace.CannotWin`) and the time budget, checked
+    on the fit's group of ranks at every iteration (module docstring). Called at the same
+    iterations on every rank of ``comm`` (the records are identical there), as the budget's
+    check must be.
+
+    Parameters
+    ----------
+    budget : TimeBudget
+    comm : petsc4py or mpi4py communicator
+        The fit's ranks.
+    then : callable(IterationRecord) -> bool, optional
+        The fit's other stop; decides first (a fit it ends is finished: it could not win).
+    """
+
+    def __init__(self, budget: TimeBudget, comm, then=None):
+        self.budget, self.comm, self.then = budget, comm, then
+        self.why = ""
+        #: (iteration, chi2 there, seconds from the budget's start) where the budget cut the
+        #: fit; None while it has not
+        self.cut: tuple[int, float, float] | None = None
+
+    def __call__(self, rec) -> bool:
+        if self.then is not None and self.then(rec):
+            self.why = self.then.why
+            return True
+        if not self.budget.spent(self.comm):
+            return False
+        self.cut = (int(rec.iteration), 2.0 * float(rec.f), self.budget.elapsed())
+        self.why = (f"cut short by the time budget at iteration {rec.iteration}: its chi2 "
+                    f"{2.0 * rec.f:.6g} there only bounds a converged fit's from above")
+        return True
+
+
+def _mpi(comm):
+    """The mpi4py communicator of a petsc4py or mpi4py one."""
+    return comm.tompi4py() if hasattr(comm, "tompi4py") else comm

@@ -28,7 +28,7 @@ from petsoft.calibration.calibrate import (
     run_calibration,
 )
 from petsoft.calibration.optimize import STOPPED, iteration_limit
-from petsoft.diagnosis.budget import TimeBudget
+from petsoft.diagnosis.budget import FitStop, TimeBudget, Unfinished
 from petsoft.diagnosis.pace import CannotWin
 from petsoft.diagnosis.placement import ONE_RANK_DOFS, Placement
 from petsoft.diagnosis.records import ScoreEntry
@@ -460,7 +460,9 @@ class Diagnosis:
         A fit that can no longer win (:class:`~petsoft.diagnosis.pace.CannotWin`) against the
         best finished so far -- among ``rivals`` ((physics, Fit) pairs fitted earlier in the
         round) and the fits before it on its group of ranks -- is stopped; its ``stopped``
-        says why."""
+        says why. Once the time budget is spent a fit is not started, or stopped at its next
+        iteration: its entry then has no ``fit`` but ``unfinished`` (why;
+        :mod:`petsoft.diagnosis.budget`)."""
         need = [(s, c) for s, c in scored if not s.tried]
         if need:
             self.tell(self.round_estimate([c.physics for _, c in need]))
@@ -471,13 +473,19 @@ class Diagnosis:
 
         def fit(item, sub):
             nonlocal best
-            ext = item[1].extend(current.experiment)
             label = f"candidate {item[1].physics}"
+            if self.budget.spent(sub):      # a round's fits under the budget: budget.py
+                self.group_says(sub, f"{label}: not started: the time budget is spent")
+                return Unfinished("not started", self.budget.elapsed())
+            ext = item[1].extend(current.experiment)
             known = self.known_start(ext, current)
             if known is None:
                 ext = self.scanned_start(ext, item[1], sub, label)
-            stop = CannotWin(*best, max_it=max_it)
+            stop = FitStop(self.budget, sub, CannotWin(*best, max_it=max_it))
             result = self.calibrate(ext, comm=sub, label=label, known=known, stop=stop)
+            if stop.cut is not None:
+                self.group_says(sub, f"{label}: {stop.why}")
+                return Unfinished(stop.why, stop.cut[2])
             if result.stopped:
                 self.group_says(sub, f"{label}: {result.stopped}")
             else:
@@ -487,8 +495,12 @@ class Diagnosis:
         fits = self.placement.on_groups(fit, need, current.experiment)
         gc.collect()                    # every rank, same point (see run_diagnose)
         for (s, _), f in zip(need, fits, strict=True):
-            s.fit = f.value if f.ok else None
-            s.fit_error = f.error
+            value = f.value if f.ok else None
+            if isinstance(value, Unfinished):     # no fit: partial_round.py judges it
+                s.unfinished, value = value.why, None
+            s.fit, s.fit_error = value, f.error
+        self.budget.settle(min((f.value.found_at for f in fits if isinstance(f.value, Unfinished)),
+                               default=None))
 
     def scanned_start(self, ext, candidate, comm, label: str):
         """``ext`` with a one-parameter candidate's value at the best of a scan of its bounds

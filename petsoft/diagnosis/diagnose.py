@@ -76,6 +76,7 @@ from petsoft.diagnosis.numerics import (  # noqa: F401
 )
 from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings, refinement_words
 from petsoft.diagnosis.outputs import build_diagnosis_report, write_outputs
+from petsoft.diagnosis.partial_round import conclude
 from petsoft.diagnosis.placement import ONE_RANK_DOFS
 from petsoft.diagnosis.reconsider import Added, reconsider
 from petsoft.diagnosis.records import AddedTerm, ScoreEntry
@@ -148,7 +149,8 @@ def run_diagnose(experiment, recording, *, out: Path | None = None, fraction: fl
         0 runs every model on all the ranks.
     budget : float or None
         Wall seconds after which no new piece of work starts (a round of candidates, a
-        sphere search, a numerics check, a reconsideration); the report is then written from
+        candidate's fit, a sphere search, a numerics check, a reconsideration) and a
+        candidate fit under way stops at its next iteration; the report is then written from
         the model reached and says what was left out (:mod:`petsoft.diagnosis.budget`).
         None: no budget.
     reduced_trials : bool
@@ -338,7 +340,9 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         contenders, hopeless = worth_fitting(significant)
         rejected += hopeless
         fit_simplest_first(diag, current, contenders)
-        choice = choose(diag, current, contenders)
+        # fits the time budget left unfinished are not judged (partial_round.py)
+        contenders, decide = conclude(diag, current, contenders, rnd)
+        choice = choose(diag, current, contenders, decide)
         accepted = choice.accepted
         rejected += choice.rejected
         if choice.switch is not None:
@@ -358,8 +362,11 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
         if len(history) > 1:
             # before the next round: a term an earlier round took for the one just added
-            # must not call for a third (reconsider.py)
-            current, added, ev = _reconsidered(diag, current, history, rejected, added, ev)
+            # must not call for a third (reconsider.py); a piece of work as the one after the
+            # last round, which this stands for when left out (said once)
+            if not over_budget(diag, "reconsideration of the earlier terms beside the last",
+                               RECONSIDER_RISK):
+                current, added, ev = _reconsidered(diag, current, history, rejected, added, ev)
             reconsidered = current
         clock.switch(None)
     if (len(history) > 1 and current is not reconsidered

@@ -25,7 +25,8 @@ geometry parameters **and** a better held-out prediction.
 
 With ``diagnose --reduced-trials`` (``Diagnosis.reduced_trials``; off by default) the trials
 are scored by a reduced-order model of the fitted model and only each poll's best is run on the
-full model, which decides (:mod:`petsoft.diagnosis.reduced_trials`).
+full model, which decides, and only when it would move the sphere
+(:mod:`petsoft.diagnosis.reduced_trials`).
 """
 
 from __future__ import annotations
@@ -254,7 +255,7 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
                 seen.add(key)
                 trials.append(region)
         if reduced is not None and reduced.active:
-            scored = reduced.poll(poll, trials, full_trials)
+            scored = reduced.poll(poll, trials, full_trials, best, best_chi2)
         else:
             scored = full_trials(trials)
         moved = False

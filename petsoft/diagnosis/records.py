@@ -72,6 +72,10 @@ class ScoreEntry:
         <petsoft.diagnosis.context.Diagnosis.fit_candidates>`.
     fit_error : str
         Why the fit failed ("" when it did not, or was not made); set with ``fit``.
+    unfinished : str or None
+        Why the time budget left its fit unfinished (not started, or stopped at an
+        iteration): it then has no ``fit``, and :mod:`petsoft.diagnosis.partial_round` judges
+        the round without it. Set with ``fit``.
     skipped : str or None
         Why it was not fitted; set by :func:`~petsoft.diagnosis.selection.fit_simplest_first`.
     fitted_chi2 : float or None
@@ -98,6 +102,7 @@ class ScoreEntry:
     replaced: bool = False
     fit: Fit | None = None
     fit_error: str = ""
+    unfinished: str | None = None
     skipped: str | None = None
     fitted_chi2: float | None = None
     rank: int | None = None
@@ -122,8 +127,9 @@ class ScoreEntry:
 
     @property
     def tried(self) -> bool:
-        """Whether its fit was made (``fit`` holds it, or ``fit_error`` why it failed)."""
-        return self.fit is not None or bool(self.fit_error)
+        """Whether its fit was tried (``fit`` holds it, ``fit_error`` why it failed, or
+        ``unfinished`` why the time budget cut it)."""
+        return self.fit is not None or bool(self.fit_error) or self.unfinished is not None
 
     def as_report(self) -> dict:
         """The entry as ``scores`` reports it: ``physics``, ``parameters``, ``region``,

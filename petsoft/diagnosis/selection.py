@@ -63,6 +63,13 @@ def _tests(diag: Diagnosis, current: Fit, new: Fit, c) -> tuple[float, float, bo
     return lr, p_lr, better
 
 
+def passes_both(diag: Diagnosis, current: Fit, new: Fit, c) -> bool:
+    """Whether ``new``, the fit of candidate ``c`` extending ``current``, passes both tests
+    (the likelihood ratio's at ``alpha``, and the held-out rms improves), quietly."""
+    _, p_lr, better = _tests(diag, current, new, c)
+    return p_lr < diag.alpha and better
+
+
 def n_parameters(c) -> int:
     """How many parameters candidate ``c`` adds (at least 1: a switch adds one choice)."""
     return max(len(c.parameters), 1)
@@ -241,16 +248,7 @@ def fit_simplest_first(diag: Diagnosis, current: Fit, contenders: list) -> None:
     level = heldout_noise_level(diag)
     for k in counts:
         batch = [(s, c) for s, c in contenders if n_parameters(c) == k]
-        enough = None
-        for s, c in contenders:
-            new = s.fit
-            if (n_parameters(c) >= k or new is None or new.stopped
-                    or new.heldout_rms is None):
-                continue
-            _, p_lr, better = _tests(diag, current, new, c)
-            if p_lr < diag.alpha and better and new.heldout_rms <= level:
-                enough = (c, new.heldout_rms)
-                break
+        enough = sufficient(diag, current, contenders, k)
         if enough is None:
             diag.fit_candidates(batch, current,
                                 rivals=[(c.physics, s.fit) for s, c in contenders
@@ -266,6 +264,23 @@ def fit_simplest_first(diag: Diagnosis, current: Fit, contenders: list) -> None:
         diag.tell(f"not fitting {', '.join(c.physics for _, c in batch)}: {why}")
 
 
+def sufficient(diag: Diagnosis, current: Fit, contenders: list, k: int) -> tuple | None:
+    """(candidate, held-out rms) of the first fitted contender with fewer than ``k``
+    parameters that passes both tests and predicts the held-out data to the noise
+    (:func:`heldout_noise_level`); None when there is none. :func:`choose` then keeps a
+    contender of at most its parameters, whatever a contender of ``k`` or more parameters
+    fits: it stays among the best held-out predictions (within the noise) with fewer."""
+    level = heldout_noise_level(diag)
+    for s, c in contenders:
+        new = s.fit
+        if (n_parameters(c) >= k or new is None or new.stopped
+                or new.heldout_rms is None):
+            continue
+        if passes_both(diag, current, new, c) and new.heldout_rms <= level:
+            return c, new.heldout_rms
+    return None
+
+
 def heldout_noise_level(diag: Diagnosis) -> float:
     """The held-out rms (m) below which a prediction is as good as the noise lets one tell:
     the upper ``1 - alpha`` point of the rms of pure noise on the held-out window's seen
@@ -277,13 +292,14 @@ def heldout_noise_level(diag: Diagnosis) -> float:
     return float(diag.sigma * np.sqrt(stats.chi2.ppf(1.0 - diag.alpha, n) / n))
 
 
-def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
+def choose(diag: Diagnosis, current: Fit, contenders: list, decide: bool = True) -> Choice:
     """Among fitted (score entry, candidate) pairs, the one to add (if any passes both tests).
 
     Each entry's ``fitted_chi2`` is set. The best held-out predictions (within 2 % of the best, or
     within the noise: :func:`heldout_noise_level`) are equally good; among those the fewest
     parameters, then the lowest chi2 + k ln n; within :data:`TIE_CHI2` of it, the
-    vocabulary's order.
+    vocabulary's order. ``decide`` False: each is judged (those failing a test rejected), but
+    none is chosen (a round the time budget left undecided: :mod:`.partial_round`).
     """
     from petsoft.diagnosis.report import PHYSICS
 
@@ -306,6 +322,10 @@ def choose(diag: Diagnosis, current: Fit, contenders: list) -> Choice:
         else:
             rejected.append({"physics": c.physics, "score": s.score,
                              "reason": verdict.reason})
+    if passed and not decide:
+        diag.tell(f"  none chosen: {', '.join(t[3].physics for t in passed)} passed both tests, "
+                  "but the round cannot choose without its unfinished fits")
+        return Choice(None, rejected, None)
     if passed:
         # The better held-out prediction (by more than 2 %) decides: the second test of a
         # term, and the one a flexible term cannot pass by fitting the model's own errors

@@ -178,9 +178,15 @@ class Story:
             words.append(f"The model as given, calibrated, explains the recording to the "
                          f"measurement noise ({self.noise}; chi2/dof {self.chi2[0]}).")
         elif self.cause == "unexplained":
+            # a search the time budget cut short found nothing, which is not "none explained it"
+            # (a round's finished fit may even have passed both tests: partial_round.py)
+            cut = (self.report.get("budget") or {}).get("left_out")
             words.append(f"The model as given misses the recording by more than the noise "
-                         f"(chi2/dof {self.chi2[0]}; 1 is the noise), and neither a refinement "
-                         "of the numerics nor a term of the vocabulary explained it.")
+                         f"(chi2/dof {self.chi2[0]}; 1 is the noise), and "
+                         + ("within the time budget no refinement of the numerics or term of "
+                            "the vocabulary was found to explain it (what was left out is "
+                            "below)." if cut else "neither a refinement of the numerics nor a "
+                            "term of the vocabulary explained it."))
         else:
             words.append(f"The model as given missed {self._missed()}.")
             if self.added_values:
