@@ -359,11 +359,11 @@ def experiment_from_dict(
     table = top.table("calibrate")
     calibrate = {} if table is None else read_calibrate(table.data, source, experiment)
     experiment = dataclasses.replace(experiment, calibrate=calibrate)
-    _check_drag_surface(experiment)
+    _check_surface_terms(experiment)
     return experiment
 
 
-def _check_drag_surface(exp: Experiment) -> None:
+def _check_surface_terms(exp: Experiment) -> None:
     """Refuse a term that acts on the surface (``Term.surface``: drag; non-zero or calibrated)
     on a mass-spring mesh without triangles. Reads the mesh's cells (only in that case; spring
     meshes are small)."""
