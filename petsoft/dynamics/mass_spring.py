@@ -46,7 +46,13 @@ from petsoft.dynamics.matrix_free import SpringBlocks
 from petsoft.dynamics.rayleigh import RayleighDamping
 from petsoft.dynamics.velocity import LAWS as VELOCITY_LAWS
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
-from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms, coefficients_of
+from petsoft.dynamics.velocity import (
+    VelocityDamping,
+    VelocityTerms,
+    coefficients_of,
+    settings_of,
+    where_of,
+)
 from petsoft.errors import ExperimentError
 from petsoft.fem.regions import RegionResolver
 from petsoft.io.recording import read_input_series
@@ -450,7 +456,8 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         self._velocity_setup()
 
     def _velocity_setup(self) -> None:
-        """Drag on the triangles and friction on the owned nodes (rows lo..hi)."""
+        """The velocity laws on the owned nodes (rows lo..hi); those on the surface through the
+        triangles."""
         exp, lay = self.model.experiment, self.dmesh
         lo, hi = self.node_range
         n = lay.nvertices
@@ -458,17 +465,10 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         node_of[lo:hi] = np.arange(hi - lo)
         tris = lay.mesh.triangles
         pairs = face_pairs(self.points, tris, node_of) if len(tris) else None
-        self._friction_mask = np.ones(n, dtype=bool)
-        if exp.friction.where is not None:
-            self._friction_mask = self.model.resolver.vertex_mask(exp.friction.where,
-                                                                  "friction.where")
-        self.velocity_terms = VelocityTerms(hi - lo, pairs, self._friction_masses(),
-                                            coefficients_of(exp), exp.friction.speed,
-                                            node_mass=self.masses[lo:hi].copy())
-
-    def _friction_masses(self) -> np.ndarray:
-        lo, hi = self.node_range
-        return np.where(self._friction_mask[lo:hi], self.masses[lo:hi], 0.0)
+        # each law on the nodes its where selects
+        owned = {name: mask[lo:hi] for name, mask in where_of(exp, self.model.resolver).items()}
+        self.velocity_terms = VelocityTerms(hi - lo, pairs, self.masses[lo:hi].copy(),
+                                            coefficients_of(exp), owned, settings_of(exp))
 
     # -- pattern and matrices ---------------------------------------------------------------
     def _build_pattern(self) -> None:
@@ -848,7 +848,6 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
             self._update_mass()
             if self.velocity_terms is not None:     # None while __init__ builds them
                 lo, hi = self.node_range
-                self.velocity_terms.friction_mass = self._friction_masses()
                 self.velocity_terms.node_mass = self.masses[lo:hi].copy()
         if ref_changed:
             self._update_reference()
@@ -884,7 +883,7 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
             elif name == "springs.node_mass":
                 arr[:] = al + self.alpha * vl - self.acceleration
                 # a velocity law proportional to the node masses (the dry friction)
-                share = vt.mass_linearised(vl, vlin, self._friction_mask[lo:hi].astype(float))
+                share = vt.mass_linearised(vl, vlin)
                 if share is not None:
                     arr += share
             elif name in VELOCITY_NAMES:
