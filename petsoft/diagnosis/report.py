@@ -452,10 +452,43 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
     validate_report(report)
     ev = dict(evidence or {})
     story = Story(report)
-    mm = report["mismatch"]
     lines = ["# Diagnosis report", "", story.verdict_box(), "", "## In short", ""]
     lines += [f"- {b}" for b in story.in_short()]
-    lines += ["", "## Where and when", ""]
+    lines += ["", "## Where and when", ""] + _md_where_and_when(report["mismatch"])
+    lines += ["", "## Physics", ""] + _md_physics(report)
+    # the numerics' summary and recommendation are "In short"'s (one place); the rounds are in
+    # the appendix
+    if figures:
+        lines += ["", "## Figures", ""] + [
+            f"![{CAPTIONS.get(Path(f).stem, Path(f).stem)}]({f})" for f in figures]
+    # the details: collapsed (GitHub's Markdown and report.html both fold <details>)
+    lines += ["", "<details><summary>Appendix: the evidence in detail (raw fit numbers, noise "
+              "tests, modes, score tests, the numerics round by round)</summary>", ""]
+    lines += _md_fit(story)
+    lines += _md_noise_test(ev.get("noise_test"), ev.get("noise_source", ""), story.noise)
+    lines += _md_modes(ev.get("modes"))
+    lines += _md_envelope(ev.get("envelope"))
+    lines += ["", "### Candidates, as each was judged", ""] + _md_candidates(report)
+    notes = ev.get("notes", [])
+    if notes:
+        lines += ["", "### Log", ""] + [f"- {n}" for n in notes]
+    num = report.get("numerics") or {}
+    if num.get("findings"):
+        lines += ["", "### The numerics round by round (each on the model of its round)", ""]
+        lines += [f"- {f}" for f in num["findings"]]
+    lines += ["", "</details>"]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text("\n".join(lines) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def _md_where_and_when(mm: Mapping) -> list[str]:
+    """report.md's "Where and when": the markers, the region, the time windows and the
+    frequencies of the mismatch (``report["mismatch"]``)."""
+    lines = []
     if mm["markers"]:
         lines.append(f"Markers that stand out: {', '.join(mm['markers'])}.")
     else:
@@ -477,82 +510,104 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
                      + ", ".join(f"{_fmt(f)} Hz" for f in mm["frequencies_hz"]) + ".")
     lines.append("The residual over the whole body is in residual_field.xdmf (open it in "
                  "ParaView) when the model has a mesh.")
-    lines += ["", "## Physics", ""]
+    return lines
+
+
+#: report.md's groups of the candidates not kept: the start of a rejection's reason -> the
+#: group's words (the other reasons: "Fitted and not kept").
+_REJECTED_GROUPS = (
+    ("not tried", "Not fitted (a round fits only its best-scoring candidates)"),
+    ("score not significant", "No sign of it in the data (score test not significant)"),
+    ("fitted too", "Fitted too, but an added term predicted better"),
+)
+
+
+def _md_physics(report: Mapping) -> list[str]:
+    """report.md's "Physics": what was added, and the other candidates grouped by why they
+    were not kept."""
+    lines = []
     if report["added"]:
         lines.append("Added: " + ", ".join(a["physics"] for a in report["added"])
                      + " (values above). The other candidates:")
         lines.append("")
     groups: dict[str, list[str]] = {}
     for r in report["rejected"]:
-        if r["reason"].startswith("not tried"):
-            groups.setdefault("Not fitted (a round fits only its best-scoring candidates)",
-                              []).append(r["physics"])
-        elif r["reason"].startswith("score not significant"):
-            groups.setdefault("No sign of it in the data (score test not significant)",
-                              []).append(r["physics"])
-        elif r["reason"].startswith("fitted too"):
-            groups.setdefault("Fitted too, but an added term predicted better",
-                              []).append(r["physics"])
-        else:
-            groups.setdefault("Fitted and not kept (see the appendix)", []).append(r["physics"])
+        group = next((words for start, words in _REJECTED_GROUPS
+                      if r["reason"].startswith(start)),
+                     "Fitted and not kept (see the appendix)")
+        groups.setdefault(group, []).append(r["physics"])
     lines += [f"- {k}: {', '.join(v)}." for k, v in groups.items()]
     if not report["added"] and not report["rejected"]:
         lines.append("No candidate physics was tried.")
-    # the numerics' summary and recommendation are "In short"'s (one place); the rounds are in
-    # the appendix
-    if figures:
-        lines += ["", "## Figures", ""] + [
-            f"![{CAPTIONS.get(Path(f).stem, Path(f).stem)}]({f})" for f in figures]
-    # the details: collapsed (GitHub's Markdown and report.html both fold <details>)
-    lines += ["", "<details><summary>Appendix: the evidence in detail (raw fit numbers, noise "
-              "tests, modes, score tests, the numerics round by round)</summary>", "",
-              "### Fit", "",
-              # the numbers "In short" quotes, from the same strings (story.py)
-              "| model | rms, identification window | chi2/dof | rms, held out |",
-              "|---|---|---|---|",
-              f"| as given, calibrated | {story.rms[0]} | {story.chi2[0]} | "
-              f"{story.heldout[0] if story.heldout else '-'} |",
-              f"| final | {story.rms[1]} | {story.chi2[1]} | "
-              f"{story.heldout[1] if story.heldout else '-'} |"]
-    test = ev.get("noise_test")
-    if test is not None:
-        t = test if isinstance(test, Mapping) else test.as_dict()
-        src = ev.get("noise_source", "")
-        lines += ["", "### Is the residual of the final model noise?", "",
-                  f"Noise level {story.noise}{f' ({src})' if src else ''}. "
-                  f"Chi-square: {t['chi2']:.4g} on {t['dof']} degrees of freedom "
-                  f"(p = {t['p_value']:.3g}): the level "
-                  f"{'passes' if t['level_ok'] else 'fails'}. Whiteness (autocorrelation, "
-                  f"portmanteau): Q = {t['whiteness_q']:.3g}, p = "
-                  f"{t['whiteness_p_value']:.3g}: the residual "
-                  f"{'looks white' if t['white_ok'] else 'is correlated in time, not noise'}"
-                  f" (runs test on its signs: z = {t['runs_z']:.3g})."]
-    modes = ev.get("modes")
-    if modes:
-        lines += ["", "### Modes: data vs simulation", "",
-                  "| data (Hz) | sim (Hz) | shift | data decay (1/s) | sim decay (1/s) |",
-                  "|---|---|---|---|---|"]
-        lines += [f"| {_fmt(m['data_hz'])} | {_fmt(m['sim_hz'])} | "
-                  f"{m['relative_frequency_shift']:+.2%} | {_fmt(m['data_decay'])} | "
-                  f"{_fmt(m['sim_decay'])} |" for m in modes["matched"]]
-        lines += [""] + [f"- {h}" for h in modes.get("hints", [])]
-    env = ev.get("envelope")
-    if env:
-        lines += ["", "### Shape of the amplitude decay (the recording)", ""]
-        if env["ratio"] < 2.0:
-            # a law whose fit is barely better than the next one's names no friction
-            lines.append(f"The decay's shape does not tell the friction laws apart: the best "
-                         f"law's fit ({env['best']}) is only {env['ratio']:.2g}x closer than "
-                         "the next one's.")
-        else:
-            lines.append(f"The oscillation amplitude decays most like the **{env['best']}** "
-                         f"law, the signature of **{env['friction']}** friction (its fit is "
-                         f"{env['ratio']:.2g}x closer than the next law's; general law dA/dt ~ "
-                         f"-A^p with p = {env['exponent_p']:.2f}: 0 dry, 1 viscous, 2 "
-                         "quadratic).")
-        lines += ["", "| law | rms of fit (m) |", "|---|---|"]
-        lines += [f"| {k} | {_fmt(v['rms'])} |" for k, v in env["fits"].items()]
-    lines += ["", "### Candidates, as each was judged", ""]
+    return lines
+
+
+def _md_fit(story) -> list[str]:
+    """The appendix's fit table: the numbers "In short" quotes, from the same strings
+    (story.py)."""
+    return ["### Fit", "",
+            "| model | rms, identification window | chi2/dof | rms, held out |",
+            "|---|---|---|---|",
+            f"| as given, calibrated | {story.rms[0]} | {story.chi2[0]} | "
+            f"{story.heldout[0] if story.heldout else '-'} |",
+            f"| final | {story.rms[1]} | {story.chi2[1]} | "
+            f"{story.heldout[1] if story.heldout else '-'} |"]
+
+
+def _md_noise_test(test, source: str, noise: str) -> list[str]:
+    """The appendix's noise test of the final model's residual (``test``: a
+    :class:`~petsoft.diagnosis.noise.ChiSquareResult` or its dict; None: nothing)."""
+    if test is None:
+        return []
+    t = test if isinstance(test, Mapping) else test.as_dict()
+    return ["", "### Is the residual of the final model noise?", "",
+            f"Noise level {noise}{f' ({source})' if source else ''}. "
+            f"Chi-square: {t['chi2']:.4g} on {t['dof']} degrees of freedom "
+            f"(p = {t['p_value']:.3g}): the level "
+            f"{'passes' if t['level_ok'] else 'fails'}. Whiteness (autocorrelation, "
+            f"portmanteau): Q = {t['whiteness_q']:.3g}, p = "
+            f"{t['whiteness_p_value']:.3g}: the residual "
+            f"{'looks white' if t['white_ok'] else 'is correlated in time, not noise'}"
+            f" (runs test on its signs: z = {t['runs_z']:.3g})."]
+
+
+def _md_modes(modes) -> list[str]:
+    """The appendix's table of the matched modes, data vs simulation, and their hints."""
+    if not modes:
+        return []
+    lines = ["", "### Modes: data vs simulation", "",
+             "| data (Hz) | sim (Hz) | shift | data decay (1/s) | sim decay (1/s) |",
+             "|---|---|---|---|---|"]
+    lines += [f"| {_fmt(m['data_hz'])} | {_fmt(m['sim_hz'])} | "
+              f"{m['relative_frequency_shift']:+.2%} | {_fmt(m['data_decay'])} | "
+              f"{_fmt(m['sim_decay'])} |" for m in modes["matched"]]
+    return lines + [""] + [f"- {h}" for h in modes.get("hints", [])]
+
+
+def _md_envelope(env) -> list[str]:
+    """The appendix's shape of the recording's amplitude decay, and each law's fit."""
+    if not env:
+        return []
+    lines = ["", "### Shape of the amplitude decay (the recording)", ""]
+    if env["ratio"] < 2.0:
+        # a law whose fit is barely better than the next one's names no friction
+        lines.append(f"The decay's shape does not tell the friction laws apart: the best "
+                     f"law's fit ({env['best']}) is only {env['ratio']:.2g}x closer than "
+                     "the next one's.")
+    else:
+        lines.append(f"The oscillation amplitude decays most like the **{env['best']}** "
+                     f"law, the signature of **{env['friction']}** friction (its fit is "
+                     f"{env['ratio']:.2g}x closer than the next law's; general law dA/dt ~ "
+                     f"-A^p with p = {env['exponent_p']:.2f}: 0 dry, 1 viscous, 2 "
+                     "quadratic).")
+    lines += ["", "| law | rms of fit (m) |", "|---|---|"]
+    return lines + [f"| {k} | {_fmt(v['rms'])} |" for k, v in env["fits"].items()]
+
+
+def _md_candidates(report: Mapping) -> list[str]:
+    """The appendix's candidates, as each was judged: the added ones, then the others, the
+    rounds' shortlist sentences said once at the end."""
+    lines = []
     for a in report["added"]:
         lines.append(f"- added {a['physics']} (score {a['score']:.4g}; rms after it was added "
                      f"{a['rms_after']:.4g} m): {a['evidence']}.")
@@ -566,21 +621,7 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
             if why not in shortlist:
                 shortlist.append(why)
         lines.append(f"- {r['physics']} (score {r['score']:.4g}): {reason}.")
-    lines += [f"- {w[0].upper()}{w[1:]}." for w in shortlist]
-    notes = ev.get("notes", [])
-    if notes:
-        lines += ["", "### Log", ""] + [f"- {n}" for n in notes]
-    num = report.get("numerics") or {}
-    if num.get("findings"):
-        lines += ["", "### The numerics round by round (each on the model of its round)", ""]
-        lines += [f"- {f}" for f in num["findings"]]
-    lines += ["", "</details>"]
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, path)
-    return path
+    return lines + [f"- {w[0].upper()}{w[1:]}." for w in shortlist]
 
 
 # ---------------------------------------------------------------------------------------------
