@@ -171,7 +171,41 @@ def read_mesh(path: str | Path, scale: float = 1.0, order: int = 1) -> Mesh:
     scale = _check_scale(scale, path)
     raw = _read_meshio(path)
     source = str(path)
+    points = _scaled_points(raw, source, scale)
+    names = _group_names(raw.field_data)
+    cells = _FileCells.of(raw, source)
+    if not cells.tet_blocks or sum(len(b) for b in cells.tet_blocks) == 0:
+        what = _count_phrase(cells.found) if cells.found else "no cells at all"
+        raise MeshError(
+            f"{source}: contains no tetrahedra (found {what}); petsoft needs a 3D mesh of "
+            f"{_LINEAR_TETS}: mesh the volume, e.g. gmsh -3"
+        )
+    tets = np.concatenate(cells.tet_blocks)
+    cell_tags = np.concatenate(cells.tet_tags)
+    regions = {
+        names.get((3, int(t)), f"group{int(t)}"): int(t) for t in np.unique(cell_tags) if t != 0
+    }
+    tris = (np.concatenate(cells.tri_blocks) if cells.tri_blocks
+            else np.zeros((0, 3), np.int64))
+    ttags = np.concatenate(cells.tri_tags) if cells.tri_tags else np.zeros(0, np.int64)
+    facet_groups = {
+        names.get((2, int(t)), f"group{int(t)}"): tris[ttags == t] for t in np.unique(ttags) if t
+    }
+    cells.warn_unused(source, int(np.count_nonzero(ttags)), facet_groups, order)
+    edge_points = None
+    if order == 2 and cells.n_quadratic == len(tets):
+        points, tets, facet_groups, edge_points = _edge_nodes_apart(
+            source, points, tets, np.concatenate(cells.mid_blocks), facet_groups)
+    mesh = validate(Mesh(points, tets, cell_tags, regions, facet_groups, source))
+    if order == 1:
+        return mesh
+    from petsoft.mesh.quadratic import raise_order
 
+    return raise_order(mesh, edge_points=edge_points)
+
+
+def _scaled_points(raw, source: str, scale: float) -> np.ndarray:
+    """The file's node coordinates in metres, refused unless 3D numbers."""
     points = np.asarray(raw.points)
     if points.ndim != 2 or points.shape[1] != 3:
         shape = "x".join(map(str, points.shape))
@@ -181,103 +215,98 @@ def read_mesh(path: str | Path, scale: float = 1.0, order: int = 1) -> Mesh:
         )
     if not np.issubdtype(points.dtype, np.number):
         raise MeshError(f"{source}: node coordinates are not numbers (dtype {points.dtype})")
-    points = points.astype(np.float64) * scale
+    return points.astype(np.float64) * scale
 
-    tag_key = next((k for k in TAG_KEYS if k in raw.cell_data), None)
-    names = _group_names(raw.field_data)
 
-    tet_blocks: list[np.ndarray] = []
-    tet_tags: list[np.ndarray] = []
-    tri_blocks: list[np.ndarray] = []
-    tri_tags: list[np.ndarray] = []
-    found: dict[str, int] = {}  # every cell type in the file, for messages
-    kept: dict[str, int] = {}  # triangles used as facets, by type (the rest are ignored)
-    n_quadratic = 0
-    mid_blocks: list[np.ndarray | None] = []  # the mid-edge nodes of each tetra10 block
-    for i, block in enumerate(raw.cells):
-        data = np.asarray(block.data)
-        found[block.type] = found.get(block.type, 0) + len(data)
-        tags = _block_tags(raw, tag_key, i, len(data), source)
-        if block.type in ("tetra", "tetra10"):
-            # gmsh and VTK both list the 4 corners first in a tetra10.
-            tet_blocks.append(data[:, :4].astype(np.int64))
-            tet_tags.append(tags)
-            mid_blocks.append(data[:, 4:10].astype(np.int64) if block.type == "tetra10" else None)
-            if block.type == "tetra10":
-                n_quadratic += len(data)
-        elif block.type in ("triangle", "triangle6"):
-            tri_blocks.append(data[:, :3].astype(np.int64))
-            tri_tags.append(tags)
-            # Tagged triangles become facet groups; untagged ones are ignored like other cells.
-            kept[block.type] = kept.get(block.type, 0) + int(np.count_nonzero(tags))
+@dataclass
+class _FileCells:
+    """The cell blocks of a mesh file, sorted: the tetrahedra (corners, tags, the mid-edge
+    nodes of a tetra10 block, None for a tetra block), the triangles (corners, tags), every
+    cell type's count (``found``, for messages) and the triangles kept as facets by type."""
 
-    if not tet_blocks or sum(len(b) for b in tet_blocks) == 0:
-        what = _count_phrase(found) if found else "no cells at all"
-        raise MeshError(
-            f"{source}: contains no tetrahedra (found {what}); petsoft needs a 3D mesh of "
-            f"{_LINEAR_TETS}: mesh the volume, e.g. gmsh -3"
-        )
-    tets = np.concatenate(tet_blocks)
-    cell_tags = np.concatenate(tet_tags)
+    tet_blocks: list[np.ndarray] = field(default_factory=list)
+    tet_tags: list[np.ndarray] = field(default_factory=list)
+    mid_blocks: list[np.ndarray | None] = field(default_factory=list)
+    n_quadratic: int = 0
+    tri_blocks: list[np.ndarray] = field(default_factory=list)
+    tri_tags: list[np.ndarray] = field(default_factory=list)
+    found: dict[str, int] = field(default_factory=dict)
+    kept: dict[str, int] = field(default_factory=dict)
 
-    regions = {
-        names.get((3, int(t)), f"group{int(t)}"): int(t) for t in np.unique(cell_tags) if t != 0
-    }
+    @classmethod
+    def of(cls, raw, source: str) -> _FileCells:
+        """The blocks of the meshio mesh ``raw`` (its tags by :data:`TAG_KEYS`)."""
+        out = cls()
+        tag_key = next((k for k in TAG_KEYS if k in raw.cell_data), None)
+        for i, block in enumerate(raw.cells):
+            data = np.asarray(block.data)
+            out.found[block.type] = out.found.get(block.type, 0) + len(data)
+            tags = _block_tags(raw, tag_key, i, len(data), source)
+            if block.type in ("tetra", "tetra10"):
+                # gmsh and VTK both list the 4 corners first in a tetra10.
+                out.tet_blocks.append(data[:, :4].astype(np.int64))
+                out.tet_tags.append(tags)
+                out.mid_blocks.append(data[:, 4:10].astype(np.int64)
+                                      if block.type == "tetra10" else None)
+                if block.type == "tetra10":
+                    out.n_quadratic += len(data)
+            elif block.type in ("triangle", "triangle6"):
+                out.tri_blocks.append(data[:, :3].astype(np.int64))
+                out.tri_tags.append(tags)
+                # Tagged triangles become facet groups; untagged ones are ignored like other
+                # cells.
+                out.kept[block.type] = (out.kept.get(block.type, 0)
+                                        + int(np.count_nonzero(tags)))
+        return out
 
-    tris = np.concatenate(tri_blocks) if tri_blocks else np.zeros((0, 3), np.int64)
-    ttags = np.concatenate(tri_tags) if tri_tags else np.zeros(0, np.int64)
-    facet_groups = {
-        names.get((2, int(t)), f"group{int(t)}"): tris[ttags == t] for t in np.unique(ttags) if t
-    }
-
-    # Say what was not used, and (so that it is not mistaken for loss) what triangles were kept.
-    ignored = {k: v - kept.get(k, 0) for k, v in found.items() if k not in ("tetra", "tetra10")}
-    ignored = {k: v for k, v in ignored.items() if v > 0}
-    n_facets = int(np.count_nonzero(ttags))
-    if ignored:
-        msg = f"{source}: ignored {_count_phrase(ignored)} cells; petsoft uses only the tetrahedra"
-        if n_facets:
-            groups = ", ".join(repr(n) for n in facet_groups)
-            msg += (
-                f" (the {n_facets} triangles in 2D physical groups {groups} are kept as facet "
-                "groups)"
+    def warn_unused(self, source: str, n_facets: int, facet_groups: dict, order: int) -> None:
+        """Say what was not used, and (so that it is not mistaken for loss) what triangles were
+        kept; and that quadratic tetrahedra lose their mid-edge nodes at ``order`` 1."""
+        ignored = {k: v - self.kept.get(k, 0) for k, v in self.found.items()
+                   if k not in ("tetra", "tetra10")}
+        ignored = {k: v for k, v in ignored.items() if v > 0}
+        if ignored:
+            msg = (f"{source}: ignored {_count_phrase(ignored)} cells; petsoft uses only the "
+                   "tetrahedra")
+            if n_facets:
+                groups = ", ".join(repr(n) for n in facet_groups)
+                msg += (
+                    f" (the {n_facets} triangles in 2D physical groups {groups} are kept as facet "
+                    "groups)"
+                )
+            # (stack: this method, read_mesh, its caller)
+            warnings.warn(msg, MeshWarning, stacklevel=3)
+        if self.n_quadratic and order != 2:
+            warnings.warn(
+                f"{source}: {self.n_quadratic} quadratic tetrahedra (tetra10): the model is linear "
+                "(4-node tetrahedra), so petsoft uses their 4 corner nodes and drops the mid-edge "
+                "nodes; set [mesh] order = 2 to use them",
+                MeshWarning,
+                stacklevel=3,
             )
-        warnings.warn(msg, MeshWarning, stacklevel=2)
-    if n_quadratic and order != 2:
-        warnings.warn(
-            f"{source}: {n_quadratic} quadratic tetrahedra (tetra10): the model is linear (4-node "
-            "tetrahedra), so petsoft uses their 4 corner nodes and drops the mid-edge nodes; "
-            "set [mesh] order = 2 to use them",
-            MeshWarning,
-            stacklevel=2,
-        )
 
-    edge_points = None
-    if order == 2 and n_quadratic == len(tets):
-        mids = np.concatenate(mid_blocks)
-        bad = (mids < 0) | (mids >= len(points))
-        if bad.any():
-            e = int(np.flatnonzero(bad.any(axis=1))[0])
-            raise MeshError(f"{source}: tetra10 {e} (0-based) refers to a mid-edge node that "
-                            f"does not exist (the file has {len(points)} nodes)")
-        edge_points = points[mids]
-        if (signed_volumes(points, tets) < 0).all():
-            # validate() swaps corners 1 and 2 of every tetrahedron: follow with the edges
-            edge_points = edge_points[:, [2, 1, 0, 3, 5, 4]]
-        # the mid-edge nodes are not the corner mesh's: leave them out of its validation (which
-        # would call them unused), then give them back as edge nodes
-        mid_only = np.zeros(len(points), bool)
-        mid_only[mids.ravel()] = True
-        mid_only[tets.ravel()] = False
-        new_index = np.cumsum(~mid_only) - 1
-        points, tets = points[~mid_only], new_index[tets]
-        facet_groups = {k: new_index[v] for k, v in facet_groups.items()}
-    mesh = validate(Mesh(points, tets, cell_tags, regions, facet_groups, source))
-    if order == 1:
-        return mesh
-    from petsoft.mesh.quadratic import raise_order
 
-    return raise_order(mesh, edge_points=edge_points)
+def _edge_nodes_apart(source: str, points: np.ndarray, tets: np.ndarray, mids: np.ndarray,
+                      facet_groups: dict):
+    """A file of 10-node tetrahedra read at order 2: (the corner nodes, the tetrahedra and the
+    facet groups renumbered on them, the (E, 6, 3) mid-edge nodes' positions) -- the mid-edge
+    nodes are not the corner mesh's: they are left out of its validation (which would call them
+    unused), then given back as edge nodes."""
+    bad = (mids < 0) | (mids >= len(points))
+    if bad.any():
+        e = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise MeshError(f"{source}: tetra10 {e} (0-based) refers to a mid-edge node that "
+                        f"does not exist (the file has {len(points)} nodes)")
+    edge_points = points[mids]
+    if (signed_volumes(points, tets) < 0).all():
+        # validate() swaps corners 1 and 2 of every tetrahedron: follow with the edges
+        edge_points = edge_points[:, [2, 1, 0, 3, 5, 4]]
+    mid_only = np.zeros(len(points), bool)
+    mid_only[mids.ravel()] = True
+    mid_only[tets.ravel()] = False
+    new_index = np.cumsum(~mid_only) - 1
+    return (points[~mid_only], new_index[tets],
+            {k: new_index[v] for k, v in facet_groups.items()}, edge_points)
 
 
 def _check_scale(scale: object, path: Path) -> float:
