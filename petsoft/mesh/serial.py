@@ -452,6 +452,35 @@ def validate(mesh: Mesh) -> Mesh:
         A new, validated mesh.
     """
     src = mesh.source
+    points, tets, cell_tags = _checked_arrays(mesh)
+    n = len(points)
+    _check_node_indices(tets, n, src, "tetrahedron", "counting tetrahedra only")
+    facet_groups = {}
+    for name, tris in mesh.facet_groups.items():
+        tris = np.asarray(tris).astype(np.int64).reshape(-1, 3)
+        _check_node_indices(tris, n, src, "triangle", f"within facet group {name!r}")
+        facet_groups[name] = tris
+    used = np.zeros(n, bool)
+    used[tets.ravel()] = True
+    _check_used_finite(points, used, src)
+    tets = _oriented(points, tets, src)
+    facet_groups = _check_faces(tets, facet_groups, src)
+    if not used.all():
+        points, tets, facet_groups = _without_unused(points, tets, facet_groups, used, src)
+    return Mesh(
+        points=points,
+        tets=tets,
+        cell_tags=cell_tags,
+        regions={str(k): int(v) for k, v in mesh.regions.items()},
+        facet_groups=facet_groups,
+        source=src,
+    )
+
+
+def _checked_arrays(mesh: Mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The mesh's coordinates (float64), tetrahedra (int64) and cell tags, their shapes
+    checked."""
+    src = mesh.source
     points = np.asarray(mesh.points)
     tets = np.asarray(mesh.tets)
     if points.ndim != 2 or points.shape[1] != 3 or not np.issubdtype(points.dtype, np.number):
@@ -463,22 +492,14 @@ def validate(mesh: Mesh) -> Mesh:
         )
     if len(tets) == 0:
         raise MeshError(f"{src}: contains no tetrahedra; petsoft needs {_LINEAR_TETS}")
-    points = points.astype(np.float64)
-    tets = tets.astype(np.int64)
-    n, ne = len(points), len(tets)
     cell_tags = np.asarray(mesh.cell_tags).astype(np.int64).reshape(-1)
-    if cell_tags.shape != (ne,):
-        raise MeshError(f"{src}: {len(cell_tags)} cell tags for {ne} tetrahedra")
+    if cell_tags.shape != (len(tets),):
+        raise MeshError(f"{src}: {len(cell_tags)} cell tags for {len(tets)} tetrahedra")
+    return points.astype(np.float64), tets.astype(np.int64), cell_tags
 
-    _check_node_indices(tets, n, src, "tetrahedron", "counting tetrahedra only")
-    facet_groups = {}
-    for name, tris in mesh.facet_groups.items():
-        tris = np.asarray(tris).astype(np.int64).reshape(-1, 3)
-        _check_node_indices(tris, n, src, "triangle", f"within facet group {name!r}")
-        facet_groups[name] = tris
 
-    used = np.zeros(n, bool)
-    used[tets.ravel()] = True
+def _check_used_finite(points: np.ndarray, used: np.ndarray, src: str) -> None:
+    """Refuse non-finite coordinates of a node a tetrahedron uses."""
     bad = np.flatnonzero(used & ~np.isfinite(points).all(axis=1))
     if len(bad):
         raise MeshError(
@@ -488,6 +509,11 @@ def validate(mesh: Mesh) -> Mesh:
             "all coordinates must be finite numbers"
         )
 
+
+def _oriented(points: np.ndarray, tets: np.ndarray, src: str) -> np.ndarray:
+    """The tetrahedra, refused when degenerate or of mixed orientation, flipped (with a
+    warning) when all are negative."""
+    ne = len(tets)
     vol = signed_volumes(points, tets)
     h = _mean_edge_lengths(points, tets)
     degenerate = np.flatnonzero(~(np.abs(vol) > DEGENERATE_RTOL * h**3))
@@ -501,17 +527,16 @@ def validate(mesh: Mesh) -> Mesh:
             f"({_listing(degenerate, 'tetrahedron ')}). "
             "Every tetrahedron needs 4 distinct, non-coplanar vertices"
         )
-
     negative = vol < 0
     if negative.all():
         warnings.warn(
             f"{src}: all {ne} tetrahedra are negatively oriented; taking that as the file's "
             "convention and swapping vertices 1 and 2 of each so that all have positive volume",
             MeshWarning,
-            stacklevel=2,
+            stacklevel=3,   # (stack: this function, validate, its caller)
         )
-        tets = tets[:, [0, 2, 1, 3]]
-    elif negative.any():
+        return tets[:, [0, 2, 1, 3]]
+    if negative.any():
         neg = np.flatnonzero(negative)
         shown = ", ".join(f"{e} (volume {vol[e]:.3e} m^3)" for e in neg[:_SHOW])
         more = f" and {len(neg) - _SHOW} more" if len(neg) > _SHOW else ""
@@ -521,37 +546,29 @@ def validate(mesh: Mesh) -> Mesh:
             "only). All tetrahedra must have the same orientation, det[p1-p0, p2-p0, p3-p0] > 0; "
             "regenerate or repair the mesh"
         )
+    return tets
 
-    facet_groups = _check_faces(tets, facet_groups, src)
 
-    n_unused = int(n - np.count_nonzero(used))
-    if n_unused:
-        # Renumber so the remaining nodes keep their relative order.
-        new_index = np.cumsum(used) - 1
-        unused = np.flatnonzero(~used)
-        n_dropped_tris = 0
-        for name, tris in facet_groups.items():
-            keep = used[tris].all(axis=1)
-            n_dropped_tris += int(len(tris) - np.count_nonzero(keep))
-            facet_groups[name] = new_index[tris[keep]]
-        msg = (
-            f"{src}: dropped {n_unused} node(s) used by no tetrahedron "
-            f"(0-based {_listing(unused, 'node ')}); nodes were renumbered"
-        )
-        if n_dropped_tris:
-            msg += f", and {n_dropped_tris} facet-group triangle(s) touching them were removed"
-        warnings.warn(msg, MeshWarning, stacklevel=2)
-        points = points[used]
-        tets = new_index[tets]
-
-    return Mesh(
-        points=points,
-        tets=tets,
-        cell_tags=cell_tags,
-        regions={str(k): int(v) for k, v in mesh.regions.items()},
-        facet_groups=facet_groups,
-        source=src,
+def _without_unused(points: np.ndarray, tets: np.ndarray, facet_groups: dict,
+                    used: np.ndarray, src: str):
+    """(points, tets, facet groups) without the nodes no tetrahedron uses (the others keep
+    their relative order; facet triangles touching a dropped node are removed), with a
+    warning."""
+    new_index = np.cumsum(used) - 1
+    unused = np.flatnonzero(~used)
+    n_dropped_tris = 0
+    for name, tris in facet_groups.items():
+        keep = used[tris].all(axis=1)
+        n_dropped_tris += int(len(tris) - np.count_nonzero(keep))
+        facet_groups[name] = new_index[tris[keep]]
+    msg = (
+        f"{src}: dropped {len(unused)} node(s) used by no tetrahedron "
+        f"(0-based {_listing(unused, 'node ')}); nodes were renumbered"
     )
+    if n_dropped_tris:
+        msg += f", and {n_dropped_tris} facet-group triangle(s) touching them were removed"
+    warnings.warn(msg, MeshWarning, stacklevel=3)   # (this function, validate, its caller)
+    return points[used], new_index[tets], facet_groups
 
 
 def _check_node_indices(cells: np.ndarray, n: int, src: str, kind: str, counting: str) -> None:
