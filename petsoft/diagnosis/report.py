@@ -274,35 +274,16 @@ def validate_report(report: Mapping) -> None:
     for k, v in report.get("timings", {}).items():
         _number(v, f"timings.{k}")
     if "budget" in report:
-        b = report["budget"]
-        _keys(b, "budget", {"seconds", "spent", "spent_at", "left_out"})
-        if b["seconds"] is not None:
-            _number(b["seconds"], "budget.seconds", positive=True)
-        if not isinstance(b["spent"], bool):
-            _fail("budget.spent", f"must be true or false, got {b['spent']!r}")
-        if b["spent_at"] is not None:
-            _number(b["spent_at"], "budget.spent_at")
-        _list(b["left_out"], "budget.left_out")
-        for i, k in enumerate(b["left_out"]):
-            _string(k, f"budget.left_out[{i}]")
+        _check_budget(report["budget"])
     if "numerics" in report:
-        _keys(report["numerics"], "numerics", {"findings"},
-              frozenset({"recommendation", "mesh", "summary", "adopted"}))
-        for part in ("findings", "summary", "adopted"):
-            _list(report["numerics"].get(part, []), f"numerics.{part}")
-            for i, f in enumerate(report["numerics"].get(part, [])):
-                _string(f, f"numerics.{part}[{i}]")
+        _check_numerics(report["numerics"])
     if "final_verdict" in report and report["final_verdict"] not in VERDICTS:
         _fail("final_verdict", f"must be one of {', '.join(VERDICTS)}, got "
                                f"{report['final_verdict']!r}")
     if "cause" in report and report["cause"] not in CAUSES:
         _fail("cause", f"must be one of {', '.join(CAUSES)}, got {report['cause']!r}")
     if "skipped" in report:
-        _list(report["skipped"], "skipped")
-        for i, k in enumerate(report["skipped"]):
-            _keys(k, f"skipped[{i}]", {"check", "why", "risk"})
-            for part in ("check", "why", "risk"):
-                _string(k[part], f"skipped[{i}].{part}")
+        _check_skipped(report["skipped"])
     if report["format"] != FORMAT:
         _fail("format", f"must be {FORMAT!r}, got {report['format']!r}")
     if isinstance(report["version"], bool) or report["version"] != VERSION:
@@ -310,7 +291,63 @@ def validate_report(report: Mapping) -> None:
     if report["verdict"] not in VERDICTS:
         _fail("verdict", f"must be one of {', '.join(VERDICTS)}, got {report['verdict']!r}")
     _number(report["noise_std"], "noise_std", positive=True)
-    fit = report["fit"]
+    _check_fit(report["fit"])
+    _check_mismatch(report["mismatch"])
+    _list(report["added"], "added")
+    for i, a in enumerate(report["added"]):
+        _check_added(a, f"added[{i}]")
+    _list(report["rejected"], "rejected")
+    for i, r in enumerate(report["rejected"]):
+        key = f"rejected[{i}]"
+        _keys(r, key, {"physics", "score", "reason"})
+        _physics(r["physics"], key + ".physics")
+        _number(r["score"], key + ".score")
+        _string(r["reason"], key + ".reason")
+    _param_map(report["parameters"], "parameters")
+    if "parameters_std" in report:
+        _param_map(report["parameters_std"], "parameters_std", 0.0)
+        extra = sorted(set(report["parameters_std"]) - set(report["parameters"]))
+        if extra:
+            _fail("parameters_std", f"has {', '.join(extra)} which parameters does not")
+
+
+def _check_budget(b) -> None:
+    """report.json's ``budget``: its seconds, whether it was spent, when, and what was left
+    out."""
+    _keys(b, "budget", {"seconds", "spent", "spent_at", "left_out"})
+    if b["seconds"] is not None:
+        _number(b["seconds"], "budget.seconds", positive=True)
+    if not isinstance(b["spent"], bool):
+        _fail("budget.spent", f"must be true or false, got {b['spent']!r}")
+    if b["spent_at"] is not None:
+        _number(b["spent_at"], "budget.spent_at")
+    _list(b["left_out"], "budget.left_out")
+    for i, k in enumerate(b["left_out"]):
+        _string(k, f"budget.left_out[{i}]")
+
+
+def _check_numerics(n) -> None:
+    """report.json's ``numerics``: its findings, summary and adopted refinements (strings)."""
+    _keys(n, "numerics", {"findings"},
+          frozenset({"recommendation", "mesh", "summary", "adopted"}))
+    for part in ("findings", "summary", "adopted"):
+        _list(n.get(part, []), f"numerics.{part}")
+        for i, f in enumerate(n.get(part, [])):
+            _string(f, f"numerics.{part}[{i}]")
+
+
+def _check_skipped(skipped) -> None:
+    """report.json's ``skipped``: the checks not made, each with why and the risk."""
+    _list(skipped, "skipped")
+    for i, k in enumerate(skipped):
+        _keys(k, f"skipped[{i}]", {"check", "why", "risk"})
+        for part in ("check", "why", "risk"):
+            _string(k[part], f"skipped[{i}].{part}")
+
+
+def _check_fit(fit) -> None:
+    """report.json's ``fit``: rms and chi2/dof of the base and the final model, and the
+    held-out validation when there is one."""
     _keys(fit, "fit", {"base", "final"}, frozenset({"validation"}))
     for part in ("base", "final"):
         _keys(fit[part], f"fit.{part}", {"rms", "chi2_per_dof"})
@@ -320,7 +357,11 @@ def validate_report(report: Mapping) -> None:
         _keys(fit["validation"], "fit.validation", {"base_rms", "final_rms"})
         for k in ("base_rms", "final_rms"):
             _number(fit["validation"][k], f"fit.validation.{k}", 0.0)
-    mm = report["mismatch"]
+
+
+def _check_mismatch(mm) -> None:
+    """report.json's ``mismatch``: the markers (each once), the time windows, the frequencies
+    and the region."""
     _keys(mm, "mismatch", {"markers", "time_windows", "frequencies_hz", "region"})
     _list(mm["markers"], "mismatch.markers")
     for i, m in enumerate(mm["markers"]):
@@ -348,35 +389,23 @@ def validate_report(report: Mapping) -> None:
         for i, v in enumerate(c):
             _number(v, f"mismatch.region.center[{i}]")
         _number(region["radius"], "mismatch.region.radius", 0.0)
-    _list(report["added"], "added")
-    for i, a in enumerate(report["added"]):
-        key = f"added[{i}]"
-        _keys(a, key, {"physics", "parameters", "std", "score", "rms_after", "evidence"},
-              frozenset({"gravity"}))
-        _physics(a["physics"], key + ".physics")
-        _param_map(a["parameters"], key + ".parameters")
-        _param_map(a["std"], key + ".std", 0.0)
-        extra = sorted(set(a["std"]) - set(a["parameters"]))
-        if extra:
-            _fail(key + ".std", f"has {', '.join(extra)} which {key}.parameters does not")
-        _number(a["score"], key + ".score")
-        _number(a["rms_after"], key + ".rms_after", 0.0)
-        _string(a["evidence"], key + ".evidence")
-        if "gravity" in a:
-            _check_gravity(a["gravity"], key + ".gravity")
-    _list(report["rejected"], "rejected")
-    for i, r in enumerate(report["rejected"]):
-        key = f"rejected[{i}]"
-        _keys(r, key, {"physics", "score", "reason"})
-        _physics(r["physics"], key + ".physics")
-        _number(r["score"], key + ".score")
-        _string(r["reason"], key + ".reason")
-    _param_map(report["parameters"], "parameters")
-    if "parameters_std" in report:
-        _param_map(report["parameters_std"], "parameters_std", 0.0)
-        extra = sorted(set(report["parameters_std"]) - set(report["parameters"]))
-        if extra:
-            _fail("parameters_std", f"has {', '.join(extra)} which parameters does not")
+
+
+def _check_added(a, key: str) -> None:
+    """One entry of report.json's ``added`` (``key``: its place, ``added[i]``)."""
+    _keys(a, key, {"physics", "parameters", "std", "score", "rms_after", "evidence"},
+          frozenset({"gravity"}))
+    _physics(a["physics"], key + ".physics")
+    _param_map(a["parameters"], key + ".parameters")
+    _param_map(a["std"], key + ".std", 0.0)
+    extra = sorted(set(a["std"]) - set(a["parameters"]))
+    if extra:
+        _fail(key + ".std", f"has {', '.join(extra)} which {key}.parameters does not")
+    _number(a["score"], key + ".score")
+    _number(a["rms_after"], key + ".rms_after", 0.0)
+    _string(a["evidence"], key + ".evidence")
+    if "gravity" in a:
+        _check_gravity(a["gravity"], key + ".gravity")
 
 
 # ---------------------------------------------------------------------------------------------
