@@ -124,6 +124,55 @@ class _Step:
     floor: float = 0.0
 
 
+def _checked_network(edges, rest_lengths, stiffness, masses, fixed, node_index, damping_mass,
+                     colliders):
+    """(edges, rest lengths, stiffnesses, masses, (N, 3) fixed components, node_index) of a
+    spring network as arrays, checked with the damping and the colliders on the replicated
+    data, so that every rank raises the same :class:`LocalGlobalError` (no deadlock)."""
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    masses = np.asarray(masses, dtype=float).ravel()
+    n = len(masses)
+    S = len(edges)
+    rest = np.asarray(rest_lengths, dtype=float).ravel()
+    k = np.broadcast_to(np.asarray(stiffness, dtype=float), (S,)).copy() if S else \
+        np.zeros(0)
+    if rest.shape != (S,):
+        raise LocalGlobalError(f"rest_lengths has {rest.size} entries for {S} springs")
+    if S and (edges.min() < 0 or edges.max() >= n):
+        s = int(np.flatnonzero((edges < 0).any(1) | (edges >= n).any(1))[0])
+        raise LocalGlobalError(f"spring {s} joins nodes {tuple(edges[s])}: node numbers must "
+                               f"be in [0, {n})")
+    if S and (edges[:, 0] == edges[:, 1]).any():
+        s = int(np.flatnonzero(edges[:, 0] == edges[:, 1])[0])
+        raise LocalGlobalError(f"spring {s} joins node {edges[s, 0]} to itself")
+    if S and not (rest > 0).all():
+        s = int(np.flatnonzero(~(rest > 0))[0])
+        raise LocalGlobalError(f"spring {s} has rest length {rest[s]}: it must be > 0 (the "
+                               "local step projects onto the sphere of that radius)")
+    if S and not (k >= 0).all():
+        s = int(np.flatnonzero(~(k >= 0))[0])
+        raise LocalGlobalError(f"spring {s} has stiffness {k[s]}: it must be >= 0")
+    fixed = np.zeros((n, 3), bool) if fixed is None else np.asarray(fixed, bool)
+    if fixed.ndim == 1:
+        fixed = np.repeat(fixed[:, None], 3, axis=1)
+    if fixed.shape != (n, 3):
+        raise LocalGlobalError(f"fixed has shape {fixed.shape}; expected ({n},) or ({n}, 3)")
+    bad = ~(masses > 0) & ~fixed.all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise LocalGlobalError(f"node {i} has mass {masses[i]}: a node that is not fixed "
+                               "needs a positive mass")
+    if damping_mass < 0:
+        raise LocalGlobalError(f"damping_mass = {damping_mass}: it must be >= 0")
+    for c in colliders:
+        if not c.stiffness > 0:
+            raise LocalGlobalError(f"collider {c} needs a stiffness > 0")
+    node_index = np.arange(n) if node_index is None else np.asarray(node_index, np.int64)
+    if sorted(node_index.tolist()) != list(range(n)):
+        raise LocalGlobalError("node_index must be a permutation of 0..N-1")
+    return edges, rest, k, masses, fixed, node_index
+
+
 class LocalGlobalSolver:
     """The backward-Euler step of a mass-spring network by local/global iteration.
 
@@ -185,48 +234,9 @@ class LocalGlobalSolver:
                  atol: float = 1e-10, max_it: int = 500, anderson: int = 5,
                  accept: bool = False, options: SolverOptions | None = None):
         self.comm = comm if comm is not None else PETSc.COMM_WORLD
-        edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-        masses = np.asarray(masses, dtype=float).ravel()
+        edges, rest, k, masses, fixed, node_index = _checked_network(
+            edges, rest_lengths, stiffness, masses, fixed, node_index, damping_mass, colliders)
         n = self.nnodes = len(masses)
-        S = len(edges)
-        rest = np.asarray(rest_lengths, dtype=float).ravel()
-        k = np.broadcast_to(np.asarray(stiffness, dtype=float), (S,)).copy() if S else \
-            np.zeros(0)
-        # Validation on replicated data: every rank raises the same error (no deadlock).
-        if rest.shape != (S,):
-            raise LocalGlobalError(f"rest_lengths has {rest.size} entries for {S} springs")
-        if S and (edges.min() < 0 or edges.max() >= n):
-            s = int(np.flatnonzero((edges < 0).any(1) | (edges >= n).any(1))[0])
-            raise LocalGlobalError(f"spring {s} joins nodes {tuple(edges[s])}: node numbers must "
-                                   f"be in [0, {n})")
-        if S and (edges[:, 0] == edges[:, 1]).any():
-            s = int(np.flatnonzero(edges[:, 0] == edges[:, 1])[0])
-            raise LocalGlobalError(f"spring {s} joins node {edges[s, 0]} to itself")
-        if S and not (rest > 0).all():
-            s = int(np.flatnonzero(~(rest > 0))[0])
-            raise LocalGlobalError(f"spring {s} has rest length {rest[s]}: it must be > 0 (the "
-                                   "local step projects onto the sphere of that radius)")
-        if S and not (k >= 0).all():
-            s = int(np.flatnonzero(~(k >= 0))[0])
-            raise LocalGlobalError(f"spring {s} has stiffness {k[s]}: it must be >= 0")
-        fixed = np.zeros((n, 3), bool) if fixed is None else np.asarray(fixed, bool)
-        if fixed.ndim == 1:
-            fixed = np.repeat(fixed[:, None], 3, axis=1)
-        if fixed.shape != (n, 3):
-            raise LocalGlobalError(f"fixed has shape {fixed.shape}; expected ({n},) or ({n}, 3)")
-        bad = ~(masses > 0) & ~fixed.all(axis=1)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise LocalGlobalError(f"node {i} has mass {masses[i]}: a node that is not fixed "
-                                   "needs a positive mass")
-        if damping_mass < 0:
-            raise LocalGlobalError(f"damping_mass = {damping_mass}: it must be >= 0")
-        for c in colliders:
-            if not c.stiffness > 0:
-                raise LocalGlobalError(f"collider {c} needs a stiffness > 0")
-        node_index = np.arange(n) if node_index is None else np.asarray(node_index, np.int64)
-        if sorted(node_index.tolist()) != list(range(n)):
-            raise LocalGlobalError("node_index must be a permutation of 0..N-1")
         X = np.zeros((n, 3)) if reference is None else np.asarray(reference, float).reshape(n, 3)
 
         # everything below in PETSc node order g = node_index[n]
@@ -243,21 +253,48 @@ class LocalGlobalSolver:
         self.colliders = tuple(colliders)
         self.options = own_options(prefix, options)
         self.prefix = prefix = self.options.prefix
+        self._own_nodes(layout)
+        self._own_springs()
+        # the constant Laplacian, assembled from the replicated springs (owned rows only)
+        i, j = self.edges[:, 0], self.edges[:, 1]
+        rows = np.concatenate([i, j, i, j])
+        cols = np.concatenate([i, j, j, i])
+        vals = np.concatenate([k, k, -k, -k])
+        self._lap = sp.coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsr()
+        self._lap.sum_duplicates()
+        self._lapX = self._lap @ self.X   # replicated (n, 3): constant part of grad E
+        self.h = None
+        self._sets = None          # contact sets of the factored matrix
+        self._last_active = None   # nodes in contact at the end of the last step
+        self._ksps: list[PETSc.KSP] = []
+        self._mats: list[PETSc.Mat] = []
+        self._K = None
+        self._cvecs = [self._component_vec() for _ in range(3)]
+        opts = PETSc.Options(prefix)
+        with self.options.pushed():
+            self.rtol = opts.getReal("rtol", rtol)
+            self.atol = opts.getReal("atol", atol)
+            self.max_it = opts.getInt("max_it", max_it)
+            self.anderson = opts.getInt("anderson", anderson)
+            self.accept = opts.getBool("accept", accept)
+        self.factorizations = 0
 
-        # ownership: contiguous blocks of nodes
+    def _own_nodes(self, layout: PETSc.Vec | None) -> None:
+        """This rank's nodes ``n0:n1``: a contiguous block, ``layout``'s (3 entries per node)
+        or PETSc's default split."""
         if layout is not None:
             r0, r1 = layout.getOwnershipRange()
             self.n0, self.n1 = r0 // 3, r1 // 3
         else:
-            probe = PETSc.Vec().createMPI((PETSc.DECIDE, n), comm=self.comm)
+            probe = PETSc.Vec().createMPI((PETSc.DECIDE, self.nnodes), comm=self.comm)
             self.n0, self.n1 = probe.getOwnershipRange()
             probe.destroy()
-        nloc = self.n1 - self.n0
-        mpi = self.comm.tompi4py()
-        if mpi.allreduce(nloc) != n:
+        if self.comm.tompi4py().allreduce(self.n1 - self.n0) != self.nnodes:
             raise LocalGlobalError("the layout vector does not have 3 entries per node")
 
-        # springs this rank projects, and the nodes whose positions it needs
+    def _own_springs(self) -> None:
+        """The springs this rank projects (those whose first node it owns), the nodes whose
+        positions they need and the scatter that brings them."""
         owner_local = (self.edges[:, 0] >= self.n0) & (self.edges[:, 0] < self.n1)
         self.my_springs = np.flatnonzero(owner_local)
         ends = self.edges[self.my_springs]
@@ -274,31 +311,6 @@ class LocalGlobalSolver:
         self._is = PETSc.IS().createBlock(3, self.needed.astype(PETSc.IntType),
                                           comm=PETSc.COMM_SELF)
         self._scatter = PETSc.Scatter().create(self._template, self._is, self._seq, None)
-
-        # the constant Laplacian, assembled from the replicated springs (owned rows only)
-        i, j = self.edges[:, 0], self.edges[:, 1]
-        rows = np.concatenate([i, j, i, j])
-        cols = np.concatenate([i, j, j, i])
-        vals = np.concatenate([k, k, -k, -k])
-        self._lap = sp.coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsr()
-        self._lap.sum_duplicates()
-        self._lapX = self._lap @ self.X   # replicated (n, 3): constant part of grad E
-        self.h = None
-        self._sets = None          # contact sets of the factored matrix
-        self._last_active = None   # nodes in contact at the end of the last step
-        self._ksps: list[PETSc.KSP] = []
-        self._mats: list[PETSc.Mat] = []
-        self._K = None
-        self._cvecs = [self._component_vec() for _ in range(3)]
-        self.rtol, self.atol, self.max_it = rtol, atol, max_it
-        opts = PETSc.Options(prefix)
-        with self.options.pushed():
-            self.rtol = opts.getReal("rtol", rtol)
-            self.atol = opts.getReal("atol", atol)
-            self.max_it = opts.getInt("max_it", max_it)
-            self.anderson = opts.getInt("anderson", anderson)
-            self.accept = opts.getBool("accept", accept)
-        self.factorizations = 0
 
     # -- vectors ----------------------------------------------------------------------------
     def create_vec(self) -> PETSc.Vec:
