@@ -444,7 +444,7 @@ def test_friction_where_and_parameter_round_trip():
     """friction.where selects the nodes it acts on; with_parameters / to_dict keep the keys."""
     exp = _bar(friction={"dry": 1.0, "where": "x > 0.2"}, drag={"quadratic": 3.0})
     s = DynamicSystem(build_model(exp))
-    mass = s.velocity_terms.friction_mass
+    mass = s.velocity_terms.laws["friction.dry"].mass
     total = s.dmesh.allreduce_sum(mass.sum())
     assert 0.0 < total < 0.5 * s.dmesh.allreduce_sum(
         s.lumped.getArray(readonly=True)[::3].sum())

@@ -419,10 +419,55 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
     std = measured.std
     weight = 1.0 / (std if std is not None else f_meas)   # relative error without a std
     model = FrequencyModel(experiment, names, len(f_meas), comm, measured=measured)
-    lower = np.array([b[0] for b in bounds])
-    upper = np.array([b[1] for b in bounds])
     positive = [n for n in names if not n.endswith("poisson_ratio")]
-    scaling = ParameterScaling(names, start, lower, upper, positive=positive)
+    scaling = ParameterScaling(names, start, np.array([b[0] for b in bounds]),
+                               np.array([b[1] for b in bounds]), positive=positive)
+    _say_measured(tell, measured, model, names, comm)
+
+    def residual(p):
+        f, _ = model.evaluate(p, jacobian=False)
+        return (f - f_meas) * weight
+
+    def jacobian(p):
+        _, J = model.evaluate(p, jacobian=True)
+        return J * weight[:, None]
+
+    problem = LeastSquares(residual, len(names), jacobian, scaling=scaling,
+                           comm=comm.tompi4py())
+    before, _ = model.evaluate(start, jacobian=False)
+    pairing_before = model.pairing
+    result = _gauss_newton(problem, scaling, names, experiment, tell)
+    z = np.asarray(result.z)
+    values = scaling.to_physical(z)
+    after, J = model.evaluate(values, jacobian=True)
+    pairing = model.pairing
+    r = (after - f_meas) * weight
+    std_p, corr, sigma = _parameter_std(scaling, z, J * weight[:, None], r, std is not None,
+                                        tell)
+    sigma_source = "the file's std" if std is not None else "estimated from the fit"
+    fit = FrequencyFit(names=names, start=start, values=values, std=std_p, correlation=corr,
+                       measured=f_meas, measured_std=std, before=before, after=after,
+                       sigma=float(sigma), sigma_source=sigma_source,
+                       iterations=int(result.iterations), evaluations=model.evaluations,
+                       reason=str(result.reason), wall_time=time.perf_counter() - t0,
+                       bounds=bounds, pairing_before=pairing_before, pairing=pairing,
+                       measured_details=measured.details)
+    _say_frequencies(tell, f_meas, std, before, after, pairing)
+    if std is not None and len(r) > len(names):
+        fit.residual_over_std = _misfit_over_std(r, len(names), tell)
+    _say_pairing(tell, comm, f_meas, after, pairing, pairing_before, model.model_modes)
+    for n, v, sd in zip(names, values, std_p, strict=True):
+        rel = f"{sd / abs(v):.2%}" if v != 0 else "of a zero value"
+        tell(f"{n:<34} {v:14.8g}  std {sd:.3g} ({rel})")
+    tell(f"{fit.iterations} iterations, {fit.evaluations} eigen-solves, {fit.reason}, "
+         f"{fit.wall_time:.1f} s")
+    return fit
+
+
+def _say_measured(tell, measured, model, names: list[str], comm) -> None:
+    """The opening lines of :func:`calibrate_frequencies`: what is fitted to what (the
+    recording's oscillations, the pairing by MAC)."""
+    f_meas = measured.frequencies
     tell(f"petsoft calibrate --modes: {len(f_meas)} measured frequencies "
          f"({f_meas[0]:.5g} .. {f_meas[-1]:.5g} Hz) from {measured.source}; "
          f"{len(model.system.dmesh.mesh.tets)} tets on {comm.size} rank(s); fitting "
@@ -439,19 +484,9 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
         tell(f"pairing by MAC of the mode shapes at {len(measured.markers)} markers with the "
              f"model's {model.model_modes} lowest elastic modes")
 
-    def residual(p):
-        f, _ = model.evaluate(p, jacobian=False)
-        return (f - f_meas) * weight
 
-    def jacobian(p):
-        _, J = model.evaluate(p, jacobian=True)
-        return J * weight[:, None]
-
-    problem = LeastSquares(residual, len(names), jacobian, scaling=scaling,
-                           comm=comm.tompi4py())
-    before, _ = model.evaluate(start, jacobian=False)
-    pairing_before = model.pairing
-
+def _gauss_newton(problem, scaling, names: list[str], experiment, tell):
+    """The fit of ``problem`` from the start (scaled 0), a line per iteration."""
     pace = IterationPace()
 
     def monitor(rec):
@@ -460,31 +495,28 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
             f"{n}={v:.6g}" for n, v in zip(names, p, strict=True))
              + f"  ({pace.update(rec.iteration, rec.f)})")
 
-    result = minimize(problem, np.zeros(len(names)), method="gauss-newton",
-                      bounds=scaling.bounds(), monitor=monitor, scaling=scaling,
-                      options={"gatol": 1e-12, "grtol": 1e-12},
-                      solver_options=SolverOptions("cal_", experiment.petsc))
-    z = np.asarray(result.z)
-    values = scaling.to_physical(z)
-    after, J = model.evaluate(values, jacobian=True)
-    pairing = model.pairing
-    r = (after - f_meas) * weight
-    Jz = scaling.jacobian_to_scaled(z, J * weight[:, None])
-    sigma_source = "the file's std" if std is not None else "estimated from the fit"
+    return minimize(problem, np.zeros(len(names)), method="gauss-newton",
+                    bounds=scaling.bounds(), monitor=monitor, scaling=scaling,
+                    options={"gatol": 1e-12, "grtol": 1e-12},
+                    solver_options=SolverOptions("cal_", experiment.petsc))
+
+
+def _parameter_std(scaling, z: np.ndarray, J: np.ndarray, r: np.ndarray, stated: bool, tell):
+    """(std, correlation, sigma) of the fitted parameters from the weighted Jacobian ``J`` and
+    residual ``r`` at the scaled ``z`` (``stated``: the residual is in units of the file's std);
+    NaN std when they are not identifiable (said, not fatal)."""
+    Jz = scaling.jacobian_to_scaled(z, J)
     try:
-        unc = uncertainty(Jz, r, scaling=scaling, z=z,
-                          noise_std=1.0 if std is not None else None)
-        std_p, corr, sigma = unc.std, unc.correlation, unc.sigma
+        unc = uncertainty(Jz, r, scaling=scaling, z=z, noise_std=1.0 if stated else None)
+        return unc.std, unc.correlation, unc.sigma
     except (UnidentifiableError, PetsoftError) as exc:   # reported, not fatal
         tell(f"no standard deviations: {exc}")
-        std_p, corr, sigma = np.full(len(names), np.nan), None, float("nan")
-    fit = FrequencyFit(names=names, start=start, values=values, std=std_p, correlation=corr,
-                       measured=f_meas, measured_std=std, before=before, after=after,
-                       sigma=float(sigma), sigma_source=sigma_source,
-                       iterations=int(result.iterations), evaluations=model.evaluations,
-                       reason=str(result.reason), wall_time=time.perf_counter() - t0,
-                       bounds=bounds, pairing_before=pairing_before, pairing=pairing,
-                       measured_details=measured.details)
+        return np.full(len(z), np.nan), None, float("nan")
+
+
+def _say_frequencies(tell, f_meas, std, before, after, pairing) -> None:
+    """The table of the measured frequencies beside the model's before and after the fit
+    (with the paired model mode and its MAC when paired by shapes)."""
     mac = pairing.mac is not None
     tell(f"{'mode':>4} {'measured Hz':>13} {'before Hz':>13} {'after Hz':>13} {'rel.err':>9}"
          + (f" {'err/std':>8}" if std is not None else "")
@@ -494,15 +526,24 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
              + (f" {(fa - fm) / std[i]:8.2f}" if std is not None else "")
              + (f" {pairing.model_modes[i] + 1:>10d} {pairing.mac[i]:6.3f}"
                 + ("  doubtful" if i in pairing.doubtful else "") if mac else ""))
-    if std is not None and len(r) > len(names):
-        # the std of the parameters assume the model fits to the stated std: say when not
-        chi = float(np.sqrt(r @ r / (len(r) - len(names))))
-        fit.residual_over_std = chi
-        if chi > 3.0:
-            tell(f"warning: the calibrated frequencies miss the measured ones by {chi:.3g} of "
-                 "their std (rms): model error (mesh, supports, a mode not paired right) or "
-                 "optimistic std; the parameters' std are too small by about that factor")
-    if mac and not np.array_equal(pairing.model_modes, pairing_before.model_modes):
+
+
+def _misfit_over_std(r: np.ndarray, n_parameters: int, tell) -> float:
+    """The rms of the residual in units of the stated std; said when it is large (the
+    parameters' std assume the model fits to the stated std)."""
+    chi = float(np.sqrt(r @ r / (len(r) - n_parameters)))
+    if chi > 3.0:
+        tell(f"warning: the calibrated frequencies miss the measured ones by {chi:.3g} of "
+             "their std (rms): model error (mesh, supports, a mode not paired right) or "
+             "optimistic std; the parameters' std are too small by about that factor")
+    return chi
+
+
+def _say_pairing(tell, comm, f_meas, after, pairing, pairing_before, model_modes: int) -> None:
+    """Whether the pairing changed during the fit, and each doubtful pair (also a
+    :class:`PairingWarning` on rank 0)."""
+    if pairing.mac is not None and not np.array_equal(pairing.model_modes,
+                                                       pairing_before.model_modes):
         tell("the pairing changed during the fit: at the start the measured modes paired with "
              "model modes " + ", ".join(str(int(m) + 1) for m in pairing_before.model_modes))
     for i in pairing.doubtful:
@@ -510,16 +551,10 @@ def calibrate_frequencies(experiment, measured, *, names=None, start=None, bound
                    f"{pairing.model_modes[i] + 1} ({after[i]:.6g} Hz) at MAC "
                    f"{pairing.mac[i]:.3f} < {DOUBTFUL_MAC}: the pairing is doubtful (too few or "
                    "badly placed markers, a noisy shape, or a mode the model lacks or that lies "
-                   f"above the {model.model_modes} model modes computed)")
+                   f"above the {model_modes} model modes computed)")
         tell(f"warning: {message}")
         if comm.rank == 0:
-            warnings.warn(message, PairingWarning, stacklevel=2)
-    for n, v, sd in zip(names, values, std_p, strict=True):
-        rel = f"{sd / abs(v):.2%}" if v != 0 else "of a zero value"
-        tell(f"{n:<34} {v:14.8g}  std {sd:.3g} ({rel})")
-    tell(f"{fit.iterations} iterations, {fit.evaluations} eigen-solves, {fit.reason}, "
-         f"{fit.wall_time:.1f} s")
-    return fit
+            warnings.warn(message, PairingWarning, stacklevel=3)
 
 
 def read_measured_modes(path, comm=None):

@@ -274,6 +274,33 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
         The user's calibrated model and the final one.
     """
     sigma = diag.sigma
+    remaining = {r["adopted"]: r["options"][r["adopted"]] for r in rounds if r.get("adopted")}
+    findings = (_rounds_findings(rounds, sigma)
+                + [_remaining_sentence(label, o, rounds, diag.model_error, sigma)
+                   for label, o in remaining.items()]
+                + _final_model_findings(num))
+    summary, adopted, unchecked = numerics_summary(num, rounds, final, sigma)
+    out = {"findings": findings, "recommendation": None, "summary": summary,
+           "adopted": adopted, "unchecked": unchecked}
+    if not system_class(base.experiment).volume_cells:
+        return out
+    mesh = {"tets": mesh_cells(base.experiment), "tets_final": mesh_cells(final.experiment)}
+    advice = _mesh_advice(num, rounds, remaining, unchecked, base, final, sigma, mesh)
+    if final.experiment.mesh.order > base.experiment.mesh.order:
+        advice.append("Use 10-node tetrahedra ([mesh] order = 2): on your mesh they remove "
+                      "what the 4-node ones' stiffness in bending hid.")
+        mesh["order_final"] = final.experiment.mesh.order
+    if final.experiment.time.step < base.experiment.time.step:
+        advice.append(f"Use a time step of at most {final.experiment.time.step:.4g} s (yours is "
+                      f"{base.experiment.time.step:.4g} s).")
+    out["recommendation"] = " ".join(advice) or None
+    out["mesh"] = mesh
+    return out
+
+
+def _rounds_findings(rounds: list[dict], sigma: float) -> list[str]:
+    """What each round found (:func:`_round_sentences`), and each refinement not tried, said
+    once, where it was first not tried."""
     findings: list[str] = []
     said_not_tried: set[str] = set()
     for i, r in enumerate(rounds):
@@ -283,63 +310,72 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
                 said_not_tried.add(label)
                 again = " again" if any(label in q["options"] for q in rounds) else ""
                 findings.append(f"The {refinement_words(label)[1]} was not refined{again}: {why}.")
-    remaining = {}
-    for r in rounds:
-        label = r.get("adopted")
-        if label:
-            remaining[label] = r["options"][label]
-    for label, o in remaining.items():
-        noun = refinement_words(label)[1]
-        if o["remaining_estimate"] == 0.0:
-            # a refinement whose own error is taken as nil (10-node elements on the same mesh:
-            # their error falls as h^3), not estimated from the change it made
-            at = next(i for i, q in enumerate(rounds) if q.get("adopted") == label)
-            measured = any("mesh x2" in q["options"] for q in rounds[at + 1:])
-            findings.append(f"What remains: the adopted {noun} is taken as resolved on this mesh "
-                            "(10-node elements' error falls as h^3)"
-                            + ("; the mesh refinement above measured it." if measured else
-                               "; the mesh split 1->8 that would measure it was not made."))
-            continue
-        rem, bound = o["remaining_estimate"], o.get("remaining_bound", o["remaining_estimate"])
-        counted = label in diag.model_error and any(
-            q.get("adopted") == label and q.get("remaining_counted") for q in rounds)
-        share = rem / o["change_rms"] if o["change_rms"] > 0 else 0.0
-        text = (f"What remains: the adopted {noun}'s own error is estimated at {_x(rem / sigma)}x "
-                f"the noise (Richardson: {share:.2g} of the change refining made)")
-        if bound < 0.05 * sigma:
-            text += ", but the refined fit leaves nothing above the noise"
-        elif bound < 0.8 * rem:
-            text += (f", at most {_x(bound / sigma)}x as the refined fit leaves no more above "
-                     "the noise")
-        if counted:
-            text += ("; it is counted in the verdict's noise budget, since the next refinement "
-                     "was not made")
-            if bound > sigma:
-                text += (f", so a missing effect smaller than about {_x(bound / sigma)}x the "
-                         f"noise cannot be told apart from the {noun}")
-        findings.append(text + ".")
+    return findings
+
+
+def _remaining_sentence(label: str, o: dict, rounds: list[dict], model_error: dict,
+                        sigma: float) -> str:
+    """What remains of the adopted refinement ``label`` (its round's option ``o``): its own
+    error, bounded by what the refined fit leaves, and whether the verdict counts it."""
+    noun = refinement_words(label)[1]
+    if o["remaining_estimate"] == 0.0:
+        # a refinement whose own error is taken as nil (10-node elements on the same mesh:
+        # their error falls as h^3), not estimated from the change it made
+        at = next(i for i, q in enumerate(rounds) if q.get("adopted") == label)
+        measured = any("mesh x2" in q["options"] for q in rounds[at + 1:])
+        return (f"What remains: the adopted {noun} is taken as resolved on this mesh "
+                "(10-node elements' error falls as h^3)"
+                + ("; the mesh refinement above measured it." if measured else
+                   "; the mesh split 1->8 that would measure it was not made."))
+    rem, bound = o["remaining_estimate"], o.get("remaining_bound", o["remaining_estimate"])
+    counted = label in model_error and any(
+        q.get("adopted") == label and q.get("remaining_counted") for q in rounds)
+    share = rem / o["change_rms"] if o["change_rms"] > 0 else 0.0
+    text = (f"What remains: the adopted {noun}'s own error is estimated at {_x(rem / sigma)}x "
+            f"the noise (Richardson: {share:.2g} of the change refining made)")
+    if bound < 0.05 * sigma:
+        text += ", but the refined fit leaves nothing above the noise"
+    elif bound < 0.8 * rem:
+        text += (f", at most {_x(bound / sigma)}x as the refined fit leaves no more above "
+                 "the noise")
+    if counted:
+        text += ("; it is counted in the verdict's noise budget, since the next refinement "
+                 "was not made")
+        if bound > sigma:
+            text += (f", so a missing effect smaller than about {_x(bound / sigma)}x the "
+                     f"noise cannot be told apart from the {noun}")
+    return text + "."
+
+
+def _final_model_findings(num: dict) -> list[str]:
+    """What each refinement changes on the final model (``num``: its numerics check),
+    measured or estimated."""
+    findings = []
     for label, v in num.items():
-        if isinstance(v, dict) and "change" in v:
-            action, noun = refinement_words(label)
-            limits = ("" if v["resolved"] else f": more than the noise, so the {noun} still "
-                      "limits what this diagnosis can tell apart")
-            if v.get("estimated"):
-                findings.append(f"On the final model, the simulation would change by an "
-                                f"estimated {_x(v['change_over_noise'])}x the noise when "
-                                f"{action} ({v['how']}; Richardson, from the last refinement's "
-                                f"change: not simulated, being far below the noise){limits}.")
-                continue
+        if not (isinstance(v, dict) and "change" in v):
+            continue
+        action, noun = refinement_words(label)
+        limits = ("" if v["resolved"] else f": more than the noise, so the {noun} still "
+                  "limits what this diagnosis can tell apart")
+        if v.get("estimated"):
+            findings.append(f"On the final model, the simulation would change by an "
+                            f"estimated {_x(v['change_over_noise'])}x the noise when "
+                            f"{action} ({v['how']}; Richardson, from the last refinement's "
+                            f"change: not simulated, being far below the noise){limits}.")
+        else:
             findings.append(f"On the final model, the simulation changes by "
                             f"{_x(v['change_over_noise'])}x the noise when {action} "
                             f"({v['how']}){limits}.")
-    summary, adopted, unchecked = numerics_summary(num, rounds, final, sigma)
-    out = {"findings": findings, "recommendation": None, "summary": summary,
-           "adopted": adopted, "unchecked": unchecked}
-    if not system_class(base.experiment).volume_cells:
-        return out
-    user, now = mesh_cells(base.experiment), mesh_cells(final.experiment)
-    mesh = {"tets": user, "tets_final": now}
-    advice = []
+    return findings
+
+
+def _mesh_advice(num: dict, rounds: list[dict], remaining: dict, unchecked: dict, base, final,
+                 sigma: float, mesh: dict) -> list[str]:
+    """What the recommendation says of the mesh (at most one sentence, a list to extend):
+    refine it to a count (set in ``mesh["recommended_tets"]``), refine it because a run
+    measured its error or the final model's check found it unresolved, check it with
+    ``--check-mesh``, or that it is fine."""
+    user, now = mesh["tets"], mesh["tets_final"]
     measured, measured_by = measured_error(rounds)
     if "mesh x2" in remaining or now > user:
         o = remaining.get("mesh x2", {})
@@ -352,28 +388,29 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
         how = (f"box cells x{2 ** levels} per axis" if base.experiment.mesh.box is not None
                else f"[mesh] refine = {levels + base.experiment.mesh.refine}, or a mesh file "
                     f"with the element size divided by {2 ** levels}")
-        advice.append(f"Refine the mesh to at least {need} tets (yours has {user}: {how})"
-                      + (f"; the diagnosis used {now}, whose own error is estimated at "
-                         f"{_x(rem)}x the noise" if extra else "") + ".")
         mesh["recommended_tets"] = need
-    elif measured > sigma:
+        return [f"Refine the mesh to at least {need} tets (yours has {user}: {how})"
+                + (f"; the diagnosis used {now}, whose own error is estimated at "
+                   f"{_x(rem)}x the noise" if extra else "") + "."]
+    if measured > sigma:
         both = measured_by != "mesh x2"
-        advice.append(f"Refine the mesh ({user} tets){' and the time step' if both else ''}: "
-                      f"one run of the split mesh{' at half the step' if both else ''} measured "
-                      f"an error of {_x(measured / sigma)}x the noise on the final model.")
-    elif unresolved := [label for label in ("mesh x2", "P2")
-                        if isinstance(num.get(label), dict) and "change" in num[label]
-                        and not num[label]["resolved"]]:
-        advice.append(f"Refine the mesh ({user} tets) before using the calibrated values "
-                      "beyond this recording: on the final model, refining the "
-                      + " or the ".join(refinement_words(label)[1] for label in unresolved)
-                      + " changes the simulation by more than the noise.")
-    elif "mesh x2" in unchecked and measured == 0.0:
-        advice.append(f"Your mesh ({user} tets) could not be refined within diagnose's limit "
-                      f"({unchecked['mesh x2']}): check the calibrated parameters with "
-                      "`petsoft calibrate --check-mesh`.")
-    elif (any("mesh x2" in r["options"] or "P2" in r["options"] for r in rounds)
-          or isinstance(num.get("mesh x2"), dict)):
+        return [f"Refine the mesh ({user} tets){' and the time step' if both else ''}: "
+                f"one run of the split mesh{' at half the step' if both else ''} measured "
+                f"an error of {_x(measured / sigma)}x the noise on the final model."]
+    unresolved = [label for label in ("mesh x2", "P2")
+                  if isinstance(num.get(label), dict) and "change" in num[label]
+                  and not num[label]["resolved"]]
+    if unresolved:
+        return [f"Refine the mesh ({user} tets) before using the calibrated values "
+                "beyond this recording: on the final model, refining the "
+                + " or the ".join(refinement_words(label)[1] for label in unresolved)
+                + " changes the simulation by more than the noise."]
+    if "mesh x2" in unchecked and measured == 0.0:
+        return [f"Your mesh ({user} tets) could not be refined within diagnose's limit "
+                f"({unchecked['mesh x2']}): check the calibrated parameters with "
+                "`petsoft calibrate --check-mesh`."]
+    if (any("mesh x2" in r["options"] or "P2" in r["options"] for r in rounds)
+            or isinstance(num.get("mesh x2"), dict)):
         raised = final.experiment.mesh.order > base.experiment.mesh.order
         text = (f"Your mesh ({user} tets) is fine for this recording"
                 + (" with 10-node elements (below)" if raised else ""))
@@ -383,17 +420,8 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
             text += (f": one run of the split mesh{' at half the step' if both else ''} "
                      f"measured an error of {_x(measured / sigma)}x the noise on the final "
                      "model, below the noise and counted in the verdict's noise budget")
-        advice.append(text + ".")
-    elif any("mesh x2" in r.get("not_tried", {}) for r in rounds) or "mesh x2" in num:
-        advice.append(f"Your mesh ({user} tets) could not be checked within diagnose's limit: "
-                      "check the calibrated parameters with `petsoft calibrate --check-mesh`.")
-    if final.experiment.mesh.order > base.experiment.mesh.order:
-        advice.append("Use 10-node tetrahedra ([mesh] order = 2): on your mesh they remove "
-                      "what the 4-node ones' stiffness in bending hid.")
-        mesh["order_final"] = final.experiment.mesh.order
-    if final.experiment.time.step < base.experiment.time.step:
-        advice.append(f"Use a time step of at most {final.experiment.time.step:.4g} s (yours is "
-                      f"{base.experiment.time.step:.4g} s).")
-    out["recommendation"] = " ".join(advice) or None
-    out["mesh"] = mesh
-    return out
+        return [text + "."]
+    if any("mesh x2" in r.get("not_tried", {}) for r in rounds) or "mesh x2" in num:
+        return [f"Your mesh ({user} tets) could not be checked within diagnose's limit: "
+                "check the calibrated parameters with `petsoft calibrate --check-mesh`."]
+    return []

@@ -274,35 +274,16 @@ def validate_report(report: Mapping) -> None:
     for k, v in report.get("timings", {}).items():
         _number(v, f"timings.{k}")
     if "budget" in report:
-        b = report["budget"]
-        _keys(b, "budget", {"seconds", "spent", "spent_at", "left_out"})
-        if b["seconds"] is not None:
-            _number(b["seconds"], "budget.seconds", positive=True)
-        if not isinstance(b["spent"], bool):
-            _fail("budget.spent", f"must be true or false, got {b['spent']!r}")
-        if b["spent_at"] is not None:
-            _number(b["spent_at"], "budget.spent_at")
-        _list(b["left_out"], "budget.left_out")
-        for i, k in enumerate(b["left_out"]):
-            _string(k, f"budget.left_out[{i}]")
+        _check_budget(report["budget"])
     if "numerics" in report:
-        _keys(report["numerics"], "numerics", {"findings"},
-              frozenset({"recommendation", "mesh", "summary", "adopted"}))
-        for part in ("findings", "summary", "adopted"):
-            _list(report["numerics"].get(part, []), f"numerics.{part}")
-            for i, f in enumerate(report["numerics"].get(part, [])):
-                _string(f, f"numerics.{part}[{i}]")
+        _check_numerics(report["numerics"])
     if "final_verdict" in report and report["final_verdict"] not in VERDICTS:
         _fail("final_verdict", f"must be one of {', '.join(VERDICTS)}, got "
                                f"{report['final_verdict']!r}")
     if "cause" in report and report["cause"] not in CAUSES:
         _fail("cause", f"must be one of {', '.join(CAUSES)}, got {report['cause']!r}")
     if "skipped" in report:
-        _list(report["skipped"], "skipped")
-        for i, k in enumerate(report["skipped"]):
-            _keys(k, f"skipped[{i}]", {"check", "why", "risk"})
-            for part in ("check", "why", "risk"):
-                _string(k[part], f"skipped[{i}].{part}")
+        _check_skipped(report["skipped"])
     if report["format"] != FORMAT:
         _fail("format", f"must be {FORMAT!r}, got {report['format']!r}")
     if isinstance(report["version"], bool) or report["version"] != VERSION:
@@ -310,7 +291,63 @@ def validate_report(report: Mapping) -> None:
     if report["verdict"] not in VERDICTS:
         _fail("verdict", f"must be one of {', '.join(VERDICTS)}, got {report['verdict']!r}")
     _number(report["noise_std"], "noise_std", positive=True)
-    fit = report["fit"]
+    _check_fit(report["fit"])
+    _check_mismatch(report["mismatch"])
+    _list(report["added"], "added")
+    for i, a in enumerate(report["added"]):
+        _check_added(a, f"added[{i}]")
+    _list(report["rejected"], "rejected")
+    for i, r in enumerate(report["rejected"]):
+        key = f"rejected[{i}]"
+        _keys(r, key, {"physics", "score", "reason"})
+        _physics(r["physics"], key + ".physics")
+        _number(r["score"], key + ".score")
+        _string(r["reason"], key + ".reason")
+    _param_map(report["parameters"], "parameters")
+    if "parameters_std" in report:
+        _param_map(report["parameters_std"], "parameters_std", 0.0)
+        extra = sorted(set(report["parameters_std"]) - set(report["parameters"]))
+        if extra:
+            _fail("parameters_std", f"has {', '.join(extra)} which parameters does not")
+
+
+def _check_budget(b) -> None:
+    """report.json's ``budget``: its seconds, whether it was spent, when, and what was left
+    out."""
+    _keys(b, "budget", {"seconds", "spent", "spent_at", "left_out"})
+    if b["seconds"] is not None:
+        _number(b["seconds"], "budget.seconds", positive=True)
+    if not isinstance(b["spent"], bool):
+        _fail("budget.spent", f"must be true or false, got {b['spent']!r}")
+    if b["spent_at"] is not None:
+        _number(b["spent_at"], "budget.spent_at")
+    _list(b["left_out"], "budget.left_out")
+    for i, k in enumerate(b["left_out"]):
+        _string(k, f"budget.left_out[{i}]")
+
+
+def _check_numerics(n) -> None:
+    """report.json's ``numerics``: its findings, summary and adopted refinements (strings)."""
+    _keys(n, "numerics", {"findings"},
+          frozenset({"recommendation", "mesh", "summary", "adopted"}))
+    for part in ("findings", "summary", "adopted"):
+        _list(n.get(part, []), f"numerics.{part}")
+        for i, f in enumerate(n.get(part, [])):
+            _string(f, f"numerics.{part}[{i}]")
+
+
+def _check_skipped(skipped) -> None:
+    """report.json's ``skipped``: the checks not made, each with why and the risk."""
+    _list(skipped, "skipped")
+    for i, k in enumerate(skipped):
+        _keys(k, f"skipped[{i}]", {"check", "why", "risk"})
+        for part in ("check", "why", "risk"):
+            _string(k[part], f"skipped[{i}].{part}")
+
+
+def _check_fit(fit) -> None:
+    """report.json's ``fit``: rms and chi2/dof of the base and the final model, and the
+    held-out validation when there is one."""
     _keys(fit, "fit", {"base", "final"}, frozenset({"validation"}))
     for part in ("base", "final"):
         _keys(fit[part], f"fit.{part}", {"rms", "chi2_per_dof"})
@@ -320,7 +357,11 @@ def validate_report(report: Mapping) -> None:
         _keys(fit["validation"], "fit.validation", {"base_rms", "final_rms"})
         for k in ("base_rms", "final_rms"):
             _number(fit["validation"][k], f"fit.validation.{k}", 0.0)
-    mm = report["mismatch"]
+
+
+def _check_mismatch(mm) -> None:
+    """report.json's ``mismatch``: the markers (each once), the time windows, the frequencies
+    and the region."""
     _keys(mm, "mismatch", {"markers", "time_windows", "frequencies_hz", "region"})
     _list(mm["markers"], "mismatch.markers")
     for i, m in enumerate(mm["markers"]):
@@ -348,35 +389,23 @@ def validate_report(report: Mapping) -> None:
         for i, v in enumerate(c):
             _number(v, f"mismatch.region.center[{i}]")
         _number(region["radius"], "mismatch.region.radius", 0.0)
-    _list(report["added"], "added")
-    for i, a in enumerate(report["added"]):
-        key = f"added[{i}]"
-        _keys(a, key, {"physics", "parameters", "std", "score", "rms_after", "evidence"},
-              frozenset({"gravity"}))
-        _physics(a["physics"], key + ".physics")
-        _param_map(a["parameters"], key + ".parameters")
-        _param_map(a["std"], key + ".std", 0.0)
-        extra = sorted(set(a["std"]) - set(a["parameters"]))
-        if extra:
-            _fail(key + ".std", f"has {', '.join(extra)} which {key}.parameters does not")
-        _number(a["score"], key + ".score")
-        _number(a["rms_after"], key + ".rms_after", 0.0)
-        _string(a["evidence"], key + ".evidence")
-        if "gravity" in a:
-            _check_gravity(a["gravity"], key + ".gravity")
-    _list(report["rejected"], "rejected")
-    for i, r in enumerate(report["rejected"]):
-        key = f"rejected[{i}]"
-        _keys(r, key, {"physics", "score", "reason"})
-        _physics(r["physics"], key + ".physics")
-        _number(r["score"], key + ".score")
-        _string(r["reason"], key + ".reason")
-    _param_map(report["parameters"], "parameters")
-    if "parameters_std" in report:
-        _param_map(report["parameters_std"], "parameters_std", 0.0)
-        extra = sorted(set(report["parameters_std"]) - set(report["parameters"]))
-        if extra:
-            _fail("parameters_std", f"has {', '.join(extra)} which parameters does not")
+
+
+def _check_added(a, key: str) -> None:
+    """One entry of report.json's ``added`` (``key``: its place, ``added[i]``)."""
+    _keys(a, key, {"physics", "parameters", "std", "score", "rms_after", "evidence"},
+          frozenset({"gravity"}))
+    _physics(a["physics"], key + ".physics")
+    _param_map(a["parameters"], key + ".parameters")
+    _param_map(a["std"], key + ".std", 0.0)
+    extra = sorted(set(a["std"]) - set(a["parameters"]))
+    if extra:
+        _fail(key + ".std", f"has {', '.join(extra)} which {key}.parameters does not")
+    _number(a["score"], key + ".score")
+    _number(a["rms_after"], key + ".rms_after", 0.0)
+    _string(a["evidence"], key + ".evidence")
+    if "gravity" in a:
+        _check_gravity(a["gravity"], key + ".gravity")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -452,10 +481,43 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
     validate_report(report)
     ev = dict(evidence or {})
     story = Story(report)
-    mm = report["mismatch"]
     lines = ["# Diagnosis report", "", story.verdict_box(), "", "## In short", ""]
     lines += [f"- {b}" for b in story.in_short()]
-    lines += ["", "## Where and when", ""]
+    lines += ["", "## Where and when", ""] + _md_where_and_when(report["mismatch"])
+    lines += ["", "## Physics", ""] + _md_physics(report)
+    # the numerics' summary and recommendation are "In short"'s (one place); the rounds are in
+    # the appendix
+    if figures:
+        lines += ["", "## Figures", ""] + [
+            f"![{CAPTIONS.get(Path(f).stem, Path(f).stem)}]({f})" for f in figures]
+    # the details: collapsed (GitHub's Markdown and report.html both fold <details>)
+    lines += ["", "<details><summary>Appendix: the evidence in detail (raw fit numbers, noise "
+              "tests, modes, score tests, the numerics round by round)</summary>", ""]
+    lines += _md_fit(story)
+    lines += _md_noise_test(ev.get("noise_test"), ev.get("noise_source", ""), story.noise)
+    lines += _md_modes(ev.get("modes"))
+    lines += _md_envelope(ev.get("envelope"))
+    lines += ["", "### Candidates, as each was judged", ""] + _md_candidates(report)
+    notes = ev.get("notes", [])
+    if notes:
+        lines += ["", "### Log", ""] + [f"- {n}" for n in notes]
+    num = report.get("numerics") or {}
+    if num.get("findings"):
+        lines += ["", "### The numerics round by round (each on the model of its round)", ""]
+        lines += [f"- {f}" for f in num["findings"]]
+    lines += ["", "</details>"]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text("\n".join(lines) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def _md_where_and_when(mm: Mapping) -> list[str]:
+    """report.md's "Where and when": the markers, the region, the time windows and the
+    frequencies of the mismatch (``report["mismatch"]``)."""
+    lines = []
     if mm["markers"]:
         lines.append(f"Markers that stand out: {', '.join(mm['markers'])}.")
     else:
@@ -477,82 +539,104 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
                      + ", ".join(f"{_fmt(f)} Hz" for f in mm["frequencies_hz"]) + ".")
     lines.append("The residual over the whole body is in residual_field.xdmf (open it in "
                  "ParaView) when the model has a mesh.")
-    lines += ["", "## Physics", ""]
+    return lines
+
+
+#: report.md's groups of the candidates not kept: the start of a rejection's reason -> the
+#: group's words (the other reasons: "Fitted and not kept").
+_REJECTED_GROUPS = (
+    ("not tried", "Not fitted (a round fits only its best-scoring candidates)"),
+    ("score not significant", "No sign of it in the data (score test not significant)"),
+    ("fitted too", "Fitted too, but an added term predicted better"),
+)
+
+
+def _md_physics(report: Mapping) -> list[str]:
+    """report.md's "Physics": what was added, and the other candidates grouped by why they
+    were not kept."""
+    lines = []
     if report["added"]:
         lines.append("Added: " + ", ".join(a["physics"] for a in report["added"])
                      + " (values above). The other candidates:")
         lines.append("")
     groups: dict[str, list[str]] = {}
     for r in report["rejected"]:
-        if r["reason"].startswith("not tried"):
-            groups.setdefault("Not fitted (a round fits only its best-scoring candidates)",
-                              []).append(r["physics"])
-        elif r["reason"].startswith("score not significant"):
-            groups.setdefault("No sign of it in the data (score test not significant)",
-                              []).append(r["physics"])
-        elif r["reason"].startswith("fitted too"):
-            groups.setdefault("Fitted too, but an added term predicted better",
-                              []).append(r["physics"])
-        else:
-            groups.setdefault("Fitted and not kept (see the appendix)", []).append(r["physics"])
+        group = next((words for start, words in _REJECTED_GROUPS
+                      if r["reason"].startswith(start)),
+                     "Fitted and not kept (see the appendix)")
+        groups.setdefault(group, []).append(r["physics"])
     lines += [f"- {k}: {', '.join(v)}." for k, v in groups.items()]
     if not report["added"] and not report["rejected"]:
         lines.append("No candidate physics was tried.")
-    # the numerics' summary and recommendation are "In short"'s (one place); the rounds are in
-    # the appendix
-    if figures:
-        lines += ["", "## Figures", ""] + [
-            f"![{CAPTIONS.get(Path(f).stem, Path(f).stem)}]({f})" for f in figures]
-    # the details: collapsed (GitHub's Markdown and report.html both fold <details>)
-    lines += ["", "<details><summary>Appendix: the evidence in detail (raw fit numbers, noise "
-              "tests, modes, score tests, the numerics round by round)</summary>", "",
-              "### Fit", "",
-              # the numbers "In short" quotes, from the same strings (story.py)
-              "| model | rms, identification window | chi2/dof | rms, held out |",
-              "|---|---|---|---|",
-              f"| as given, calibrated | {story.rms[0]} | {story.chi2[0]} | "
-              f"{story.heldout[0] if story.heldout else '-'} |",
-              f"| final | {story.rms[1]} | {story.chi2[1]} | "
-              f"{story.heldout[1] if story.heldout else '-'} |"]
-    test = ev.get("noise_test")
-    if test is not None:
-        t = test if isinstance(test, Mapping) else test.as_dict()
-        src = ev.get("noise_source", "")
-        lines += ["", "### Is the residual of the final model noise?", "",
-                  f"Noise level {story.noise}{f' ({src})' if src else ''}. "
-                  f"Chi-square: {t['chi2']:.4g} on {t['dof']} degrees of freedom "
-                  f"(p = {t['p_value']:.3g}): the level "
-                  f"{'passes' if t['level_ok'] else 'fails'}. Whiteness (autocorrelation, "
-                  f"portmanteau): Q = {t['whiteness_q']:.3g}, p = "
-                  f"{t['whiteness_p_value']:.3g}: the residual "
-                  f"{'looks white' if t['white_ok'] else 'is correlated in time, not noise'}"
-                  f" (runs test on its signs: z = {t['runs_z']:.3g})."]
-    modes = ev.get("modes")
-    if modes:
-        lines += ["", "### Modes: data vs simulation", "",
-                  "| data (Hz) | sim (Hz) | shift | data decay (1/s) | sim decay (1/s) |",
-                  "|---|---|---|---|---|"]
-        lines += [f"| {_fmt(m['data_hz'])} | {_fmt(m['sim_hz'])} | "
-                  f"{m['relative_frequency_shift']:+.2%} | {_fmt(m['data_decay'])} | "
-                  f"{_fmt(m['sim_decay'])} |" for m in modes["matched"]]
-        lines += [""] + [f"- {h}" for h in modes.get("hints", [])]
-    env = ev.get("envelope")
-    if env:
-        lines += ["", "### Shape of the amplitude decay (the recording)", ""]
-        if env["ratio"] < 2.0:
-            # a law whose fit is barely better than the next one's names no friction
-            lines.append(f"The decay's shape does not tell the friction laws apart: the best "
-                         f"law's fit ({env['best']}) is only {env['ratio']:.2g}x closer than "
-                         "the next one's.")
-        else:
-            lines.append(f"The oscillation amplitude decays most like the **{env['best']}** "
-                         f"law, the signature of **{env['friction']}** friction (its fit is "
-                         f"{env['ratio']:.2g}x closer than the next law's; general law dA/dt ~ "
-                         f"-A^p with p = {env['exponent_p']:.2f}: 0 dry, 1 viscous, 2 "
-                         "quadratic).")
-        lines += ["", "| law | rms of fit (m) |", "|---|---|"]
-        lines += [f"| {k} | {_fmt(v['rms'])} |" for k, v in env["fits"].items()]
-    lines += ["", "### Candidates, as each was judged", ""]
+    return lines
+
+
+def _md_fit(story) -> list[str]:
+    """The appendix's fit table: the numbers "In short" quotes, from the same strings
+    (story.py)."""
+    return ["### Fit", "",
+            "| model | rms, identification window | chi2/dof | rms, held out |",
+            "|---|---|---|---|",
+            f"| as given, calibrated | {story.rms[0]} | {story.chi2[0]} | "
+            f"{story.heldout[0] if story.heldout else '-'} |",
+            f"| final | {story.rms[1]} | {story.chi2[1]} | "
+            f"{story.heldout[1] if story.heldout else '-'} |"]
+
+
+def _md_noise_test(test, source: str, noise: str) -> list[str]:
+    """The appendix's noise test of the final model's residual (``test``: a
+    :class:`~petsoft.diagnosis.noise.ChiSquareResult` or its dict; None: nothing)."""
+    if test is None:
+        return []
+    t = test if isinstance(test, Mapping) else test.as_dict()
+    return ["", "### Is the residual of the final model noise?", "",
+            f"Noise level {noise}{f' ({source})' if source else ''}. "
+            f"Chi-square: {t['chi2']:.4g} on {t['dof']} degrees of freedom "
+            f"(p = {t['p_value']:.3g}): the level "
+            f"{'passes' if t['level_ok'] else 'fails'}. Whiteness (autocorrelation, "
+            f"portmanteau): Q = {t['whiteness_q']:.3g}, p = "
+            f"{t['whiteness_p_value']:.3g}: the residual "
+            f"{'looks white' if t['white_ok'] else 'is correlated in time, not noise'}"
+            f" (runs test on its signs: z = {t['runs_z']:.3g})."]
+
+
+def _md_modes(modes) -> list[str]:
+    """The appendix's table of the matched modes, data vs simulation, and their hints."""
+    if not modes:
+        return []
+    lines = ["", "### Modes: data vs simulation", "",
+             "| data (Hz) | sim (Hz) | shift | data decay (1/s) | sim decay (1/s) |",
+             "|---|---|---|---|---|"]
+    lines += [f"| {_fmt(m['data_hz'])} | {_fmt(m['sim_hz'])} | "
+              f"{m['relative_frequency_shift']:+.2%} | {_fmt(m['data_decay'])} | "
+              f"{_fmt(m['sim_decay'])} |" for m in modes["matched"]]
+    return lines + [""] + [f"- {h}" for h in modes.get("hints", [])]
+
+
+def _md_envelope(env) -> list[str]:
+    """The appendix's shape of the recording's amplitude decay, and each law's fit."""
+    if not env:
+        return []
+    lines = ["", "### Shape of the amplitude decay (the recording)", ""]
+    if env["ratio"] < 2.0:
+        # a law whose fit is barely better than the next one's names no friction
+        lines.append(f"The decay's shape does not tell the friction laws apart: the best "
+                     f"law's fit ({env['best']}) is only {env['ratio']:.2g}x closer than "
+                     "the next one's.")
+    else:
+        lines.append(f"The oscillation amplitude decays most like the **{env['best']}** "
+                     f"law, the signature of **{env['friction']}** friction (its fit is "
+                     f"{env['ratio']:.2g}x closer than the next law's; general law dA/dt ~ "
+                     f"-A^p with p = {env['exponent_p']:.2f}: 0 dry, 1 viscous, 2 "
+                     "quadratic).")
+    lines += ["", "| law | rms of fit (m) |", "|---|---|"]
+    return lines + [f"| {k} | {_fmt(v['rms'])} |" for k, v in env["fits"].items()]
+
+
+def _md_candidates(report: Mapping) -> list[str]:
+    """The appendix's candidates, as each was judged: the added ones, then the others, the
+    rounds' shortlist sentences said once at the end."""
+    lines = []
     for a in report["added"]:
         lines.append(f"- added {a['physics']} (score {a['score']:.4g}; rms after it was added "
                      f"{a['rms_after']:.4g} m): {a['evidence']}.")
@@ -566,21 +650,7 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
             if why not in shortlist:
                 shortlist.append(why)
         lines.append(f"- {r['physics']} (score {r['score']:.4g}): {reason}.")
-    lines += [f"- {w[0].upper()}{w[1:]}." for w in shortlist]
-    notes = ev.get("notes", [])
-    if notes:
-        lines += ["", "### Log", ""] + [f"- {n}" for n in notes]
-    num = report.get("numerics") or {}
-    if num.get("findings"):
-        lines += ["", "### The numerics round by round (each on the model of its round)", ""]
-        lines += [f"- {f}" for f in num["findings"]]
-    lines += ["", "</details>"]
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, path)
-    return path
+    return lines + [f"- {w[0].upper()}{w[1:]}." for w in shortlist]
 
 
 # ---------------------------------------------------------------------------------------------

@@ -65,6 +65,7 @@ import numpy as np
 import scipy.sparse as sp
 from petsc4py import PETSc
 
+from petsoft.dynamics.anderson import AndersonMixing
 from petsoft.dynamics.implicit import ImplicitIntegrator, StepReport
 from petsoft.errors import ExperimentError, PetsoftError
 from petsoft.solvers.convergence import check_converged
@@ -95,6 +96,81 @@ class LocalGlobalReport:
     potential_history: list = field(default_factory=list)   # incremental potential per iterate
     anderson_rejections: int = 0    # accelerated iterates replaced by plain ones
     residual_history: list = field(default_factory=list)
+
+
+@dataclass
+class _Step:
+    """What one local/global step (:meth:`LocalGlobalSolver.solve`) keeps on this rank's nodes:
+    the fixed data of its potential, its work vectors (destroyed by the solve) and the contact
+    sets (``sets``: of the matrix, grown within the step; ``active``: in contact at the last
+    iterate), whether the last evaluation refactored the matrix, and the residual's round-off
+    floor."""
+
+    h: float
+    mpi: object
+    m: np.ndarray
+    fx: np.ndarray
+    q0a: np.ndarray
+    y: np.ndarray
+    fa: np.ndarray
+    z: np.ndarray
+    b0: np.ndarray
+    jd: PETSc.Vec
+    work: list
+    zc: list
+    sets: np.ndarray
+    active: np.ndarray
+    refactored: bool = False
+    floor: float = 0.0
+
+
+def _checked_network(edges, rest_lengths, stiffness, masses, fixed, node_index, damping_mass,
+                     colliders):
+    """(edges, rest lengths, stiffnesses, masses, (N, 3) fixed components, node_index) of a
+    spring network as arrays, checked with the damping and the colliders on the replicated
+    data, so that every rank raises the same :class:`LocalGlobalError` (no deadlock)."""
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    masses = np.asarray(masses, dtype=float).ravel()
+    n = len(masses)
+    S = len(edges)
+    rest = np.asarray(rest_lengths, dtype=float).ravel()
+    k = np.broadcast_to(np.asarray(stiffness, dtype=float), (S,)).copy() if S else \
+        np.zeros(0)
+    if rest.shape != (S,):
+        raise LocalGlobalError(f"rest_lengths has {rest.size} entries for {S} springs")
+    if S and (edges.min() < 0 or edges.max() >= n):
+        s = int(np.flatnonzero((edges < 0).any(1) | (edges >= n).any(1))[0])
+        raise LocalGlobalError(f"spring {s} joins nodes {tuple(edges[s])}: node numbers must "
+                               f"be in [0, {n})")
+    if S and (edges[:, 0] == edges[:, 1]).any():
+        s = int(np.flatnonzero(edges[:, 0] == edges[:, 1])[0])
+        raise LocalGlobalError(f"spring {s} joins node {edges[s, 0]} to itself")
+    if S and not (rest > 0).all():
+        s = int(np.flatnonzero(~(rest > 0))[0])
+        raise LocalGlobalError(f"spring {s} has rest length {rest[s]}: it must be > 0 (the "
+                               "local step projects onto the sphere of that radius)")
+    if S and not (k >= 0).all():
+        s = int(np.flatnonzero(~(k >= 0))[0])
+        raise LocalGlobalError(f"spring {s} has stiffness {k[s]}: it must be >= 0")
+    fixed = np.zeros((n, 3), bool) if fixed is None else np.asarray(fixed, bool)
+    if fixed.ndim == 1:
+        fixed = np.repeat(fixed[:, None], 3, axis=1)
+    if fixed.shape != (n, 3):
+        raise LocalGlobalError(f"fixed has shape {fixed.shape}; expected ({n},) or ({n}, 3)")
+    bad = ~(masses > 0) & ~fixed.all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise LocalGlobalError(f"node {i} has mass {masses[i]}: a node that is not fixed "
+                               "needs a positive mass")
+    if damping_mass < 0:
+        raise LocalGlobalError(f"damping_mass = {damping_mass}: it must be >= 0")
+    for c in colliders:
+        if not c.stiffness > 0:
+            raise LocalGlobalError(f"collider {c} needs a stiffness > 0")
+    node_index = np.arange(n) if node_index is None else np.asarray(node_index, np.int64)
+    if sorted(node_index.tolist()) != list(range(n)):
+        raise LocalGlobalError("node_index must be a permutation of 0..N-1")
+    return edges, rest, k, masses, fixed, node_index
 
 
 class LocalGlobalSolver:
@@ -158,48 +234,9 @@ class LocalGlobalSolver:
                  atol: float = 1e-10, max_it: int = 500, anderson: int = 5,
                  accept: bool = False, options: SolverOptions | None = None):
         self.comm = comm if comm is not None else PETSc.COMM_WORLD
-        edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-        masses = np.asarray(masses, dtype=float).ravel()
+        edges, rest, k, masses, fixed, node_index = _checked_network(
+            edges, rest_lengths, stiffness, masses, fixed, node_index, damping_mass, colliders)
         n = self.nnodes = len(masses)
-        S = len(edges)
-        rest = np.asarray(rest_lengths, dtype=float).ravel()
-        k = np.broadcast_to(np.asarray(stiffness, dtype=float), (S,)).copy() if S else \
-            np.zeros(0)
-        # Validation on replicated data: every rank raises the same error (no deadlock).
-        if rest.shape != (S,):
-            raise LocalGlobalError(f"rest_lengths has {rest.size} entries for {S} springs")
-        if S and (edges.min() < 0 or edges.max() >= n):
-            s = int(np.flatnonzero((edges < 0).any(1) | (edges >= n).any(1))[0])
-            raise LocalGlobalError(f"spring {s} joins nodes {tuple(edges[s])}: node numbers must "
-                                   f"be in [0, {n})")
-        if S and (edges[:, 0] == edges[:, 1]).any():
-            s = int(np.flatnonzero(edges[:, 0] == edges[:, 1])[0])
-            raise LocalGlobalError(f"spring {s} joins node {edges[s, 0]} to itself")
-        if S and not (rest > 0).all():
-            s = int(np.flatnonzero(~(rest > 0))[0])
-            raise LocalGlobalError(f"spring {s} has rest length {rest[s]}: it must be > 0 (the "
-                                   "local step projects onto the sphere of that radius)")
-        if S and not (k >= 0).all():
-            s = int(np.flatnonzero(~(k >= 0))[0])
-            raise LocalGlobalError(f"spring {s} has stiffness {k[s]}: it must be >= 0")
-        fixed = np.zeros((n, 3), bool) if fixed is None else np.asarray(fixed, bool)
-        if fixed.ndim == 1:
-            fixed = np.repeat(fixed[:, None], 3, axis=1)
-        if fixed.shape != (n, 3):
-            raise LocalGlobalError(f"fixed has shape {fixed.shape}; expected ({n},) or ({n}, 3)")
-        bad = ~(masses > 0) & ~fixed.all(axis=1)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise LocalGlobalError(f"node {i} has mass {masses[i]}: a node that is not fixed "
-                                   "needs a positive mass")
-        if damping_mass < 0:
-            raise LocalGlobalError(f"damping_mass = {damping_mass}: it must be >= 0")
-        for c in colliders:
-            if not c.stiffness > 0:
-                raise LocalGlobalError(f"collider {c} needs a stiffness > 0")
-        node_index = np.arange(n) if node_index is None else np.asarray(node_index, np.int64)
-        if sorted(node_index.tolist()) != list(range(n)):
-            raise LocalGlobalError("node_index must be a permutation of 0..N-1")
         X = np.zeros((n, 3)) if reference is None else np.asarray(reference, float).reshape(n, 3)
 
         # everything below in PETSc node order g = node_index[n]
@@ -216,21 +253,48 @@ class LocalGlobalSolver:
         self.colliders = tuple(colliders)
         self.options = own_options(prefix, options)
         self.prefix = prefix = self.options.prefix
+        self._own_nodes(layout)
+        self._own_springs()
+        # the constant Laplacian, assembled from the replicated springs (owned rows only)
+        i, j = self.edges[:, 0], self.edges[:, 1]
+        rows = np.concatenate([i, j, i, j])
+        cols = np.concatenate([i, j, j, i])
+        vals = np.concatenate([k, k, -k, -k])
+        self._lap = sp.coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsr()
+        self._lap.sum_duplicates()
+        self._lapX = self._lap @ self.X   # replicated (n, 3): constant part of grad E
+        self.h = None
+        self._sets = None          # contact sets of the factored matrix
+        self._last_active = None   # nodes in contact at the end of the last step
+        self._ksps: list[PETSc.KSP] = []
+        self._mats: list[PETSc.Mat] = []
+        self._K = None
+        self._cvecs = [self._component_vec() for _ in range(3)]
+        opts = PETSc.Options(prefix)
+        with self.options.pushed():
+            self.rtol = opts.getReal("rtol", rtol)
+            self.atol = opts.getReal("atol", atol)
+            self.max_it = opts.getInt("max_it", max_it)
+            self.anderson = opts.getInt("anderson", anderson)
+            self.accept = opts.getBool("accept", accept)
+        self.factorizations = 0
 
-        # ownership: contiguous blocks of nodes
+    def _own_nodes(self, layout: PETSc.Vec | None) -> None:
+        """This rank's nodes ``n0:n1``: a contiguous block, ``layout``'s (3 entries per node)
+        or PETSc's default split."""
         if layout is not None:
             r0, r1 = layout.getOwnershipRange()
             self.n0, self.n1 = r0 // 3, r1 // 3
         else:
-            probe = PETSc.Vec().createMPI((PETSc.DECIDE, n), comm=self.comm)
+            probe = PETSc.Vec().createMPI((PETSc.DECIDE, self.nnodes), comm=self.comm)
             self.n0, self.n1 = probe.getOwnershipRange()
             probe.destroy()
-        nloc = self.n1 - self.n0
-        mpi = self.comm.tompi4py()
-        if mpi.allreduce(nloc) != n:
+        if self.comm.tompi4py().allreduce(self.n1 - self.n0) != self.nnodes:
             raise LocalGlobalError("the layout vector does not have 3 entries per node")
 
-        # springs this rank projects, and the nodes whose positions it needs
+    def _own_springs(self) -> None:
+        """The springs this rank projects (those whose first node it owns), the nodes whose
+        positions they need and the scatter that brings them."""
         owner_local = (self.edges[:, 0] >= self.n0) & (self.edges[:, 0] < self.n1)
         self.my_springs = np.flatnonzero(owner_local)
         ends = self.edges[self.my_springs]
@@ -247,31 +311,6 @@ class LocalGlobalSolver:
         self._is = PETSc.IS().createBlock(3, self.needed.astype(PETSc.IntType),
                                           comm=PETSc.COMM_SELF)
         self._scatter = PETSc.Scatter().create(self._template, self._is, self._seq, None)
-
-        # the constant Laplacian, assembled from the replicated springs (owned rows only)
-        i, j = self.edges[:, 0], self.edges[:, 1]
-        rows = np.concatenate([i, j, i, j])
-        cols = np.concatenate([i, j, j, i])
-        vals = np.concatenate([k, k, -k, -k])
-        self._lap = sp.coo_matrix((vals, (rows, cols)), shape=(n, n)).tocsr()
-        self._lap.sum_duplicates()
-        self._lapX = self._lap @ self.X   # replicated (n, 3): constant part of grad E
-        self.h = None
-        self._sets = None          # contact sets of the factored matrix
-        self._last_active = None   # nodes in contact at the end of the last step
-        self._ksps: list[PETSc.KSP] = []
-        self._mats: list[PETSc.Mat] = []
-        self._K = None
-        self._cvecs = [self._component_vec() for _ in range(3)]
-        self.rtol, self.atol, self.max_it = rtol, atol, max_it
-        opts = PETSc.Options(prefix)
-        with self.options.pushed():
-            self.rtol = opts.getReal("rtol", rtol)
-            self.atol = opts.getReal("atol", atol)
-            self.max_it = opts.getInt("max_it", max_it)
-            self.anderson = opts.getInt("anderson", anderson)
-            self.accept = opts.getBool("accept", accept)
-        self.factorizations = 0
 
     # -- vectors ----------------------------------------------------------------------------
     def create_vec(self) -> PETSc.Vec:
@@ -453,9 +492,52 @@ class LocalGlobalSolver:
         decreases monotonically (up to contact-set changes) and convergence is kept.
         """
         rep = LocalGlobalReport()
-        mpi = self.comm.tompi4py()
-        h = float(h)
-        nloc = self.n1 - self.n0
+        step = self._step_data(q0, v0, float(h), force, prescribed)
+        if guess is not None:
+            guess.copy(q1)
+        else:
+            q1.getArray()[:] = step.y.ravel()
+        q1.getArray().reshape(-1, 3)[step.fx] = step.z[step.fx]
+        mixer = AndersonMixing(self.anderson, step.mpi)
+        phi_prev = np.inf
+        try:
+            rhs, norm, phi = self._evaluate(step, q1, rep)
+            ref = rep.initial_residual = norm
+            # size of the potential's terms: the round-off scale of its differences
+            phi_scale = abs(phi) + float(step.mpi.allreduce(np.sum(np.abs(step.fa * step.y))))
+            for it in range(self.max_it + 1):
+                # (a rise below round-off of the potential is noise: rejecting on it would make
+                # the iteration count depend on the number of ranks)
+                if step.refactored:
+                    # a new matrix is a new fixed-point map: the history no longer applies
+                    mixer.forget()
+                if (mixer.window and mixer.plain is not None
+                        and phi > phi_prev + 1e-12 * (abs(phi_prev) + phi_scale)):
+                    # the accelerated iterate raised the potential: take the plain one
+                    q1.getArray()[:] = mixer.plain
+                    mixer.restart()
+                    rep.anderson_rejections += 1
+                    rhs, norm, phi = self._evaluate(step, q1, rep)
+                rep.residual_history.append(norm)
+                rep.potential_history.append(phi)
+                rep.residual = norm
+                rep.iterations = it
+                if self._stopped(rep, it, norm, ref, step.floor):
+                    break
+                qa = q1.getArray(readonly=True).ravel().copy()
+                g = self._global_step(step, rhs, rep).ravel()
+                phi_prev = phi
+                q1.getArray()[:] = mixer.mix(qa, g)
+                rhs, norm, phi = self._evaluate(step, q1, rep)
+            self._last_active = step.active
+        finally:
+            for v in [step.jd] + step.work + step.zc:
+                v.destroy()
+        return rep
+
+    def _step_data(self, q0: PETSc.Vec, v0: PETSc.Vec, h: float, force: PETSc.Vec,
+                   prescribed: PETSc.Vec | None) -> _Step:
+        """What a step (:meth:`solve`) keeps fixed on this rank's nodes, and its work vectors."""
         m = self.masses[self.n0:self.n1, None]
         fx = self.fixed[self.n0:self.n1]
         q0a = q0.getArray(readonly=True).reshape(-1, 3).copy()
@@ -465,163 +547,100 @@ class LocalGlobalSolver:
         z = z.reshape(-1, 3).copy()
         # constant part of the right-hand side
         b0 = m * y / h**2 + (self.alpha / h) * m * q0a + fa - self._lapX[self.n0:self.n1]
-        if guess is not None:
-            guess.copy(q1)
-        else:
-            q1.getArray()[:] = y.ravel()
-        q1.getArray().reshape(-1, 3)[fx] = z[fx]
-        jd = self.create_vec()
-        work = [self._component_vec() for _ in range(4)]
         zc = [self._component_vec() for _ in range(3)]
         for c in range(3):
             zc[c].getArray()[:] = np.where(fx[:, c], z[:, c], 0.0)
-
         # contact sets of the matrix: the nodes in contact at the end of the last step, grown
         # whenever another node penetrates (see _contact)
         sets = (self._last_active.copy() if self._last_active is not None
-                else np.zeros((len(self.colliders), nloc), bool))
-        state = {"active": sets.copy(), "refactored": False, "floor": 0.0}
+                else np.zeros((len(self.colliders), self.n1 - self.n0), bool))
+        return _Step(h=h, mpi=self.comm.tompi4py(), m=m, fx=fx, q0a=q0a, y=y, fa=fa, z=z,
+                     b0=b0, jd=self.create_vec(), work=[self._component_vec() for _ in range(4)],
+                     zc=zc, sets=sets, active=sets.copy())
 
-        def evaluate(qvec):
-            """rhs(d(q)), |R(q)| and the incremental potential at q (collective)."""
-            t = time.perf_counter()
-            qa = qvec.getArray(readonly=True).reshape(-1, 3)
-            e_loc = self._local(qvec, jd)
-            refactor = self.h != h or self._K is None
-            if self.colliders:
+    def _evaluate(self, step: _Step, qvec: PETSc.Vec, rep: LocalGlobalReport):
+        """rhs(d(q)), |R(q)| and the incremental potential at q (collective); refactors the
+        matrix when the step size or the contact sets changed (``step.refactored``)."""
+        t = time.perf_counter()
+        mpi, h, m, fx = step.mpi, step.h, step.m, step.fx
+        qa = qvec.getArray(readonly=True).reshape(-1, 3)
+        e_loc = self._local(qvec, step.jd)
+        refactor = self.h != h or self._K is None
+        if self.colliders:
+            sets = step.sets
+            weight, pull, e_c, active = self._contact(qa, sets)
+            if mpi.allreduce(int(np.any(active & ~sets)), op=_max_op()):
+                # a node penetrates outside the matrix's contact set: grow the set
+                sets[...] |= active
                 weight, pull, e_c, active = self._contact(qa, sets)
-                if mpi.allreduce(int(np.any(active & ~sets)), op=_max_op()):
-                    # a node penetrates outside the matrix's contact set: grow the set
-                    sets[...] |= active
-                    weight, pull, e_c, active = self._contact(qa, sets)
-                state["active"] = active
-                refactor |= bool(mpi.allreduce(int(not np.array_equal(sets, self._sets)),
-                                               op=_max_op()))
-            else:
-                pull, e_c, weight = 0.0, 0.0, None
-            rhs = b0 + jd.getArray(readonly=True).reshape(-1, 3) + pull
-            state["refactored"] = refactor
-            if refactor:
-                full_weight = (np.concatenate(mpi.allgather(weight)) if weight is not None
-                               else np.zeros(self.nnodes))
-                rep.setup_time += self._setup(h, full_weight)
-                rep.factorizations += len(self._ksps)
-                self._sets = sets.copy()
-            res = np.empty((nloc, 3))
-            for c in range(3):
-                work[0].getArray()[:] = qa[:, c]
-                self._K.mult(work[0], work[1])
-                res[:, c] = work[1].getArray(readonly=True) - rhs[:, c]
-            res[fx] = 0.0
-            phi = (0.5 / h**2 * np.sum(m * (qa - y) ** 2)
-                   + 0.5 * self.alpha / h * np.sum(m * (qa - q0a) ** 2)
-                   - np.sum(fa * qa) + e_loc + e_c)
-            sq, phi, rhs_sq = mpi.allreduce(np.array([float(np.sum(res * res)), float(phi),
-                                                      float(np.sum(rhs[~fx] ** 2))]))
-            # the residual cannot fall below the round-off of K q - rhs
-            state["floor"] = ROUNDOFF_FACTOR * np.finfo(float).eps * float(np.sqrt(rhs_sq))
-            rep.local_time += time.perf_counter() - t
-            return rhs, float(np.sqrt(sq)), float(phi)
+            step.active = active
+            refactor |= bool(mpi.allreduce(int(not np.array_equal(sets, self._sets)),
+                                           op=_max_op()))
+        else:
+            pull, e_c, weight = 0.0, 0.0, None
+        rhs = step.b0 + step.jd.getArray(readonly=True).reshape(-1, 3) + pull
+        step.refactored = refactor
+        if refactor:
+            full_weight = (np.concatenate(mpi.allgather(weight)) if weight is not None
+                           else np.zeros(self.nnodes))
+            rep.setup_time += self._setup(h, full_weight)
+            rep.factorizations += len(self._ksps)
+            self._sets = step.sets.copy()
+        res = np.empty((self.n1 - self.n0, 3))
+        work = step.work
+        for c in range(3):
+            work[0].getArray()[:] = qa[:, c]
+            self._K.mult(work[0], work[1])
+            res[:, c] = work[1].getArray(readonly=True) - rhs[:, c]
+        res[fx] = 0.0
+        phi = (0.5 / h**2 * np.sum(m * (qa - step.y) ** 2)
+               + 0.5 * self.alpha / h * np.sum(m * (qa - step.q0a) ** 2)
+               - np.sum(step.fa * qa) + e_loc + e_c)
+        sq, phi, rhs_sq = mpi.allreduce(np.array([float(np.sum(res * res)), float(phi),
+                                                  float(np.sum(rhs[~fx] ** 2))]))
+        # the residual cannot fall below the round-off of K q - rhs
+        step.floor = ROUNDOFF_FACTOR * np.finfo(float).eps * float(np.sqrt(rhs_sq))
+        rep.local_time += time.perf_counter() - t
+        return rhs, float(np.sqrt(sq)), float(phi)
 
-        def global_step(rhs):
-            """G: the minimiser of the quadratic model with the projections fixed."""
-            t = time.perf_counter()
-            new = np.empty((nloc, 3))
-            for c in range(3):
-                self._K.mult(zc[c], work[2])
-                r = rhs[:, c] - work[2].getArray(readonly=True)
-                work[3].getArray()[:] = np.where(fx[:, c], z[:, c], r)
-                ksp = self._ksps[self._solver_of[c]]
-                ksp.solve(work[3], work[0])
-                # the KSP is collective: every rank sees the same reason
-                check_converged(ksp, f"local/global step (h = {h:g} s): the linear solve of "
-                                f"coordinate {'xyz'[c]}",
-                                hint=f"try -{self.prefix}ksp_type preonly "
-                                     f"-{self.prefix}pc_type cholesky")
-                new[:, c] = work[0].getArray(readonly=True)
-            rep.global_time += time.perf_counter() - t
-            return new
+    def _global_step(self, step: _Step, rhs: np.ndarray, rep: LocalGlobalReport) -> np.ndarray:
+        """G: the minimiser of the quadratic model with the projections fixed."""
+        t = time.perf_counter()
+        work, fx, z = step.work, step.fx, step.z
+        new = np.empty((self.n1 - self.n0, 3))
+        for c in range(3):
+            self._K.mult(step.zc[c], work[2])
+            r = rhs[:, c] - work[2].getArray(readonly=True)
+            work[3].getArray()[:] = np.where(fx[:, c], z[:, c], r)
+            ksp = self._ksps[self._solver_of[c]]
+            ksp.solve(work[3], work[0])
+            # the KSP is collective: every rank sees the same reason
+            check_converged(ksp, f"local/global step (h = {step.h:g} s): the linear solve of "
+                            f"coordinate {'xyz'[c]}",
+                            hint=f"try -{self.prefix}ksp_type preonly "
+                                 f"-{self.prefix}pc_type cholesky")
+            new[:, c] = work[0].getArray(readonly=True)
+        rep.global_time += time.perf_counter() - t
+        return new
 
-        window = self.anderson
-        dG, dF = [], []          # Anderson histories (owned entries, flattened)
-        prev_g = prev_f = None
-        plain_prev = None        # G(q) of the last accepted iterate, the safeguard's fallback
-        phi_prev = np.inf
-        try:
-            rhs, norm, phi = evaluate(q1)
-            ref = rep.initial_residual = norm
-            # size of the potential's terms: the round-off scale of its differences
-            phi_scale = abs(phi) + float(mpi.allreduce(np.sum(np.abs(fa * y))))
-            for it in range(self.max_it + 1):
-                # (a rise below round-off of the potential is noise: rejecting on it would make
-                # the iteration count depend on the number of ranks)
-                if state["refactored"]:
-                    # a new matrix is a new fixed-point map: the history no longer applies
-                    dG.clear()
-                    dF.clear()
-                    prev_g = prev_f = plain_prev = None
-                if (window and plain_prev is not None
-                        and phi > phi_prev + 1e-12 * (abs(phi_prev) + phi_scale)):
-                    # the accelerated iterate raised the potential: take the plain one
-                    q1.getArray()[:] = plain_prev
-                    dG.clear()
-                    dF.clear()
-                    prev_g = prev_f = None
-                    rep.anderson_rejections += 1
-                    rhs, norm, phi = evaluate(q1)
-                rep.residual_history.append(norm)
-                rep.potential_history.append(phi)
-                rep.residual = norm
-                rep.iterations = it
-                if norm <= max(self.atol, self.rtol * ref):
-                    rep.converged, rep.reason = True, "CONVERGED_RESIDUAL"
-                    break
-                if norm <= state["floor"]:
-                    rep.converged, rep.reason = True, "CONVERGED_ROUNDOFF"
-                    break
-                if not np.isfinite(norm):
-                    rep.reason = "DIVERGED_NAN"
-                    break
-                if it == self.max_it and self.accept:
-                    rep.converged, rep.reason = True, "ACCEPTED_AT_MAX_IT"
-                    break
-                if it == self.max_it:
-                    rep.reason = (f"DIVERGED_MAX_IT ({self.max_it} iterations, |R| = "
-                                  f"{norm:.3e}, |R0| = {ref:.3e})")
-                    break
-                qa = q1.getArray(readonly=True).ravel().copy()
-                g = global_step(rhs).ravel()
-                phi_prev = phi
-                if window:
-                    f = g - qa
-                    if prev_g is not None:
-                        dG.append(g - prev_g)
-                        dF.append(f - prev_f)
-                        if len(dG) > window:
-                            dG.pop(0)
-                            dF.pop(0)
-                    prev_g, prev_f = g, f
-                    plain_prev = g
-                    if dF:
-                        F = np.array(dF)
-                        gram = mpi.allreduce(F @ F.T)
-                        proj = mpi.allreduce(F @ f)
-                        # regularised least squares: the differences become nearly dependent
-                        # close to convergence
-                        # (at round-off all differences may vanish: then no mixing)
-                        scale = float(np.trace(gram))
-                        if scale > 0.0 and np.isfinite(scale):
-                            lam = 1e-10 * scale / len(dF)
-                            gamma = np.linalg.lstsq(gram + lam * np.eye(len(dF)), proj,
-                                                    rcond=None)[0]
-                            g = g - gamma @ np.array(dG)
-                q1.getArray()[:] = g
-                rhs, norm, phi = evaluate(q1)
-            self._last_active = state["active"]
-        finally:
-            for v in [jd] + work + zc:
-                v.destroy()
-        return rep
+    def _stopped(self, rep: LocalGlobalReport, it: int, norm: float, ref: float,
+                 floor: float) -> bool:
+        """Whether iterate ``it`` (residual ``norm``, the predictor's ``ref``) ends the step;
+        its outcome in ``rep`` (``converged``, ``reason``)."""
+        if norm <= max(self.atol, self.rtol * ref):
+            rep.converged, rep.reason = True, "CONVERGED_RESIDUAL"
+        elif norm <= floor:
+            rep.converged, rep.reason = True, "CONVERGED_ROUNDOFF"
+        elif not np.isfinite(norm):
+            rep.reason = "DIVERGED_NAN"
+        elif it == self.max_it and self.accept:
+            rep.converged, rep.reason = True, "ACCEPTED_AT_MAX_IT"
+        elif it == self.max_it:
+            rep.reason = (f"DIVERGED_MAX_IT ({self.max_it} iterations, |R| = "
+                          f"{norm:.3e}, |R0| = {ref:.3e})")
+        else:
+            return False
+        return True
 
     # -- energies (for checks and reports) -------------------------------------------------
     def spring_energy(self, q: PETSc.Vec) -> float:

@@ -46,7 +46,13 @@ from petsoft.dynamics.matrix_free import SpringBlocks
 from petsoft.dynamics.rayleigh import RayleighDamping
 from petsoft.dynamics.velocity import LAWS as VELOCITY_LAWS
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
-from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms, coefficients_of
+from petsoft.dynamics.velocity import (
+    VelocityDamping,
+    VelocityTerms,
+    coefficients_of,
+    settings_of,
+    where_of,
+)
 from petsoft.errors import ExperimentError
 from petsoft.fem.regions import RegionResolver
 from petsoft.io.recording import read_input_series
@@ -251,9 +257,39 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
         mesh = on_root(comm, load_spring_mesh, experiment)
     mesh = comm.tompi4py().bcast(mesh, root=0)
     pts = mesh.points
-    n = len(pts)
     spec = experiment.springs
+    network = _network(spec, mesh, src)
+    size = float(np.ptp(pts, axis=0).max()) or 1.0
+    rest = _rest_lengths(pts, network.edges, size, spec.pairs is not None, src)
+    bending_kind = network.kind == KINDS.index("bending")
+    stiffness = np.where(bending_kind, spec.bending or 0.0, spec.stiffness)
+    damping = np.where(bending_kind, 0.0, spec.damping)
+    point_masses = _point_masses(experiment, pts, size)
+    resolver = RegionResolver(mesh, experiment.regions, src)
+    conditions = _node_conditions(experiment, resolver, recording)
+    _check_surface_terms(experiment, mesh)
+    if experiment.initial.from_ == "static":
+        raise ExperimentError(f"{src}: initial.from = \"static\" is not available for mass-spring "
+                              "models; give initial displacement/velocity expressions")
+
+    layout = NodeLayout(mesh, comm)
+    dirichlet = NodeConditions(layout, conditions)
+    masses = spec.node_mass + point_masses
+    free = ~dirichlet.mask.all(axis=1)
+    _check_nodes(src, masses, free, network.edges)
+    default_k = default_stiffness(masses[free], experiment.time.step if experiment.time else None,
+                                  spec.stiffness)
+    colliders = [Collider.from_spec(c, default_k) for c in experiment.colliders]
+    _check_colliders(src, colliders, pts, dirichlet.mask.any(axis=1))
+    return MassSpringModel(experiment, layout, resolver, network, rest, stiffness, damping,
+                           point_masses, float(spec.node_mass), dirichlet, colliders)
+
+
+def _network(spec, mesh, src: str):
+    """The spring network: ``springs.pairs`` (checked against the nodes), else the mesh's
+    lines and triangles' edges (and bending springs); refused when empty."""
     if spec.pairs is not None:
+        n = len(mesh.points)
         pairs = np.asarray(spec.pairs, dtype=np.int64)
         bad = np.flatnonzero((pairs >= n).any(axis=1))
         if len(bad):
@@ -261,38 +297,49 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
                                   f"{pairs[bad[0]].tolist()}: the mesh has nodes 0..{n - 1}")
         network = network_from_pairs(pairs)
     else:
-        network = network_from_cells(pts, mesh.lines, mesh.triangles,
+        network = network_from_cells(mesh.points, mesh.lines, mesh.triangles,
                                      bending=bool(spec.bending))
     if len(network.edges) == 0:
         raise ExperimentError(f"{src}: [springs]: the mesh {mesh.source} has no line or triangle "
                               "cell and no springs.pairs are given: there are no springs")
-    edges = network.edges
+    return network
+
+
+def _rest_lengths(pts: np.ndarray, edges: np.ndarray, size: float, from_pairs: bool,
+                  src: str) -> np.ndarray:
+    """The springs' rest lengths, refused where two nodes of a spring coincide (``size``: the
+    mesh's extent, the scale of :data:`NODE_TOLERANCE`)."""
     rest = np.linalg.norm(pts[edges[:, 0]] - pts[edges[:, 1]], axis=1)
-    size = float(np.ptp(pts, axis=0).max()) or 1.0
     zero = np.flatnonzero(rest <= NODE_TOLERANCE * size)
     if len(zero):
         s = int(zero[0])
-        where = f"springs.pairs[{s}]" if spec.pairs is not None else f"spring {s}"
+        where = f"springs.pairs[{s}]" if from_pairs else f"spring {s}"
         raise ExperimentError(
             f"{src}: {where} joins nodes {edges[s].tolist()} at the same reference position "
             f"{pts[edges[s, 0]].tolist()}: a spring needs a rest length > 0 (its direction is "
             f"undefined); {len(zero)} such spring(s): merge duplicate nodes or drop the pair")
-    bending_kind = network.kind == KINDS.index("bending")
-    stiffness = np.where(bending_kind, spec.bending or 0.0, spec.stiffness)
-    damping = np.where(bending_kind, 0.0, spec.damping)
+    return rest
 
-    point_masses = np.zeros(n)
+
+def _point_masses(experiment, pts: np.ndarray, size: float) -> np.ndarray:
+    """(N,) the ``[[mass]]`` entries on their nodes (each must sit on one)."""
+    point_masses = np.zeros(len(pts))
     for k, m in enumerate(experiment.masses):
         dist = np.linalg.norm(pts - np.asarray(m.at), axis=1)
         node = int(np.argmin(dist))
         if dist[node] > NODE_TOLERANCE * size:
             raise ExperimentError(
-                f"{src}: mass[{k}].at = {list(m.at)} is not a node of the mesh: the nearest node "
-                f"is {node} at {pts[node].tolist()} ({dist[node]:.3g} m away); a point mass must "
-                "sit on a node")
+                f"{experiment.source}: mass[{k}].at = {list(m.at)} is not a node of the mesh: "
+                f"the nearest node is {node} at {pts[node].tolist()} ({dist[node]:.3g} m away); "
+                "a point mass must sit on a node")
         point_masses[node] += m.value
+    return point_masses
 
-    resolver = RegionResolver(mesh, experiment.regions, src)
+
+def _node_conditions(experiment, resolver, recording) -> list:
+    """(mask, components, displacement) of each ``[[boundary]]`` (fixed or prescribed, a
+    measured series from ``recording``); tractions refused."""
+    src = experiment.source
     conditions = []
     for i, b in enumerate(experiment.boundaries):
         key = f"boundary[{i}]"
@@ -311,40 +358,43 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
         if not mask.any():
             raise ExperimentError(f"{src}: {key}.where: selects no node of the mesh")
         conditions.append((mask, b.component_indices, displacement))
+    return conditions
+
+
+def _check_surface_terms(experiment, mesh) -> None:
+    """Refuse a velocity law acting on the surface (``on_surface``) on a network without
+    triangles, naming the laws that act on the nodes."""
     surface = {n: c for n, c in coefficients_of(experiment).items()
                if c != 0.0 and VELOCITY_LAWS[n].on_surface}
     if surface and len(mesh.triangles) == 0:
         name = next(iter(surface))
         nodal = [n for n, law in VELOCITY_LAWS.items() if not law.on_surface]
         raise ExperimentError(
-            f"{src}: {', '.join(f'{n} = {c:g}' for n, c in surface.items())}, but the mesh "
-            f"{mesh.source} has no triangles: {term(name).keys[0].table} needs a surface "
+            f"{experiment.source}: {', '.join(f'{n} = {c:g}' for n, c in surface.items())}, but "
+            f"the mesh {mesh.source} has no triangles: {term(name).keys[0].table} needs a surface "
             f"(triangle cells); use {' or '.join(nodal)} or a Rayleigh damping for a line-only "
             "spring network")
-    if experiment.initial.from_ == "static":
-        raise ExperimentError(f"{src}: initial.from = \"static\" is not available for mass-spring "
-                              "models; give initial displacement/velocity expressions")
 
-    layout = NodeLayout(mesh, comm)
-    dirichlet = NodeConditions(layout, conditions)
-    masses = spec.node_mass + point_masses
-    in_spring = np.zeros(n, dtype=bool)
-    in_spring[edges.ravel()] = True
-    free = ~dirichlet.mask.all(axis=1)
+
+def _check_nodes(src: str, masses: np.ndarray, free: np.ndarray, edges: np.ndarray) -> None:
+    """Refuse a free node without mass; warn of nodes in no spring."""
     massless = np.flatnonzero(free & (masses <= 0.0))
     if len(massless):
         raise ExperimentError(
             f"{src}: node(s) {_listing(massless)} are free but have no mass: give [springs] "
             "node_mass > 0, a [[mass]] at them, or fix them with a [[boundary]]")
+    in_spring = np.zeros(len(masses), dtype=bool)
+    in_spring[edges.ravel()] = True
     lonely = np.flatnonzero(~in_spring)
     if len(lonely):
+        # (stack: this function, build_mass_spring_model, its caller)
         warnings.warn(f"{src}: node(s) {_listing(lonely)} belong to no spring (they move as free "
-                      "particles)", MassSpringWarning, stacklevel=2)
+                      "particles)", MassSpringWarning, stacklevel=3)
 
-    default_k = default_stiffness(masses[free], experiment.time.step if experiment.time else None,
-                                  spec.stiffness)
-    colliders = [Collider.from_spec(c, default_k) for c in experiment.colliders]
-    held = dirichlet.mask.any(axis=1)
+
+def _check_colliders(src: str, colliders: list, pts: np.ndarray, held: np.ndarray) -> None:
+    """Refuse a collider that contains a supported node; warn of free nodes that start
+    inside one."""
     for k, c in enumerate(colliders):
         phi = c.distance(pts)[0]
         inside = np.flatnonzero(held & (phi < 0.0))
@@ -358,9 +408,7 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
         if len(inside):
             warnings.warn(f"{src}: collider[{k}] ({c.describe()}) starts with node(s) "
                           f"{_listing(inside)} inside it: they will be pushed out",
-                          MassSpringWarning, stacklevel=2)
-    return MassSpringModel(experiment, layout, resolver, network, rest, stiffness, damping,
-                           point_masses, float(spec.node_mass), dirichlet, colliders)
+                          MassSpringWarning, stacklevel=3)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -450,7 +498,8 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         self._velocity_setup()
 
     def _velocity_setup(self) -> None:
-        """Drag on the triangles and friction on the owned nodes (rows lo..hi)."""
+        """The velocity laws on the owned nodes (rows lo..hi); those on the surface through the
+        triangles."""
         exp, lay = self.model.experiment, self.dmesh
         lo, hi = self.node_range
         n = lay.nvertices
@@ -458,17 +507,10 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         node_of[lo:hi] = np.arange(hi - lo)
         tris = lay.mesh.triangles
         pairs = face_pairs(self.points, tris, node_of) if len(tris) else None
-        self._friction_mask = np.ones(n, dtype=bool)
-        if exp.friction.where is not None:
-            self._friction_mask = self.model.resolver.vertex_mask(exp.friction.where,
-                                                                  "friction.where")
-        self.velocity_terms = VelocityTerms(hi - lo, pairs, self._friction_masses(),
-                                            coefficients_of(exp), exp.friction.speed,
-                                            node_mass=self.masses[lo:hi].copy())
-
-    def _friction_masses(self) -> np.ndarray:
-        lo, hi = self.node_range
-        return np.where(self._friction_mask[lo:hi], self.masses[lo:hi], 0.0)
+        # each law on the nodes its where selects
+        owned = {name: mask[lo:hi] for name, mask in where_of(exp, self.model.resolver).items()}
+        self.velocity_terms = VelocityTerms(hi - lo, pairs, self.masses[lo:hi].copy(),
+                                            coefficients_of(exp), owned, settings_of(exp))
 
     # -- pattern and matrices ---------------------------------------------------------------
     def _build_pattern(self) -> None:
@@ -848,7 +890,6 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
             self._update_mass()
             if self.velocity_terms is not None:     # None while __init__ builds them
                 lo, hi = self.node_range
-                self.velocity_terms.friction_mass = self._friction_masses()
                 self.velocity_terms.node_mass = self.masses[lo:hi].copy()
         if ref_changed:
             self._update_reference()
@@ -884,7 +925,7 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
             elif name == "springs.node_mass":
                 arr[:] = al + self.alpha * vl - self.acceleration
                 # a velocity law proportional to the node masses (the dry friction)
-                share = vt.mass_linearised(vl, vlin, self._friction_mask[lo:hi].astype(float))
+                share = vt.mass_linearised(vl, vlin)
                 if share is not None:
                     arr += share
             elif name in VELOCITY_NAMES:

@@ -39,7 +39,13 @@ from petsoft.dynamics.initial import initial_from_expressions
 from petsoft.dynamics.interfaces import SystemDefaults
 from petsoft.dynamics.matrix_free import ContinuumElements
 from petsoft.dynamics.rayleigh import RayleighDamping
-from petsoft.dynamics.velocity import VelocityDamping, VelocityTerms, coefficients_of
+from petsoft.dynamics.velocity import (
+    VelocityDamping,
+    VelocityTerms,
+    coefficients_of,
+    settings_of,
+    where_of,
+)
 from petsoft.errors import InvertedElementError
 from petsoft.experiment import get_parameter
 from petsoft.fem.assembly import MatrixAssembler
@@ -135,7 +141,7 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
         self._velocity_setup()
 
     def _velocity_setup(self) -> None:
-        """The drag and friction terms on the owned nodes (rows of a global vector's array)."""
+        """The velocity laws on the owned nodes (rows of a global vector's array)."""
         dm, exp = self.dmesh, self.model.experiment
         lo, _ = self._work.getOwnershipRange()
         self._own_local = np.flatnonzero(dm.owned)
@@ -147,30 +153,26 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
         nodes = face_nodes(dm.mesh, exterior)
         pairs = face_pairs(dm.mesh.points, exterior, node_of, nodes,
                            face_lumped_areas(dm.order, dm.mesh.points, nodes))
-        self._friction_mask = np.ones(nown, dtype=bool)
-        self._friction_mask_local = np.ones(dm.nvertices, dtype=bool)
-        where = exp.friction.where
-        if where is not None:
-            mask = self.model.resolver.vertex_mask(where, "friction.where")
-            self._friction_mask[self._own_pos] = mask[dm.vertex_ids[self._own_local]]
-            self._friction_mask_local = mask[dm.vertex_ids]
-        self.velocity_terms = VelocityTerms(nown, pairs, self._friction_masses(),
-                                            coefficients_of(exp), exp.friction.speed,
-                                            node_mass=self._node_masses())
+        # each law on the nodes its where selects: the owned rows, and the local vertices
+        # (the density derivative's share, integrated per cell)
+        where = where_of(exp, self.model.resolver)
+        owned = {}
+        for name, mask in where.items():
+            owned[name] = np.ones(nown, dtype=bool)
+            owned[name][self._own_pos] = mask[dm.vertex_ids[self._own_local]]
+        self._where_local = {name: mask[dm.vertex_ids] for name, mask in where.items()}
+        self.velocity_terms = VelocityTerms(nown, pairs, self._node_masses(),
+                                            coefficients_of(exp), owned, settings_of(exp))
         self._v_last = np.zeros((nown, 3))
 
     def velocity_mass_local(self, v_local: np.ndarray, v_lin_local=None) -> np.ndarray | None:
         """(nv, 3) the mass-proportional velocity laws' damping per unit mass at the local
         vertices (:meth:`VelocityTerms.mass_linearised`; None when none acts): their share of
         the density derivative."""
-        return self.velocity_terms.mass_linearised(
-            v_local, v_lin_local, self._friction_mask_local.astype(float))
+        return self.velocity_terms.mass_linearised(v_local, v_lin_local, self._where_local)
 
     def _node_masses(self) -> np.ndarray:
         return self.lumped.getArray(readonly=True).reshape(-1, 3)[:, 0].copy()
-
-    def _friction_masses(self) -> np.ndarray:
-        return np.where(self._friction_mask, self._node_masses(), 0.0)
 
     # -- matrices ---------------------------------------------------------------------------
     def _add_reference_hessian(self) -> None:
@@ -463,7 +465,6 @@ class DynamicSystem(VelocityDamping, SystemDefaults):
                          self.lumped)
         self.gravity.zeroEntries()
         dm.add_to_global(gravity_forces(dm, model.density, acc), self.gravity)
-        self.velocity_terms.friction_mass = self._friction_masses()
         self.velocity_terms.node_mass = self._node_masses()
         # the static solver's load (gravity + tractions at t = 0) follows
         self.gravity.copy(model.external)

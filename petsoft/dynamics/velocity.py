@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from petsoft.physics.velocity_law import VelocitySupport
-from petsoft.terms import builders, coefficients
+from petsoft.terms import builders, coefficients, value_of
 
 #: The velocity terms' laws, from their declarations (petsoft.terms, contributes "velocity"):
 #: name -> law class (petsoft.physics.velocity_law), in the registry's order.
@@ -37,6 +37,25 @@ def coefficients_of(experiment) -> dict[str, float]:
     return coefficients(experiment, NAMES)
 
 
+def settings_of(experiment) -> dict[str, dict[str, float]]:
+    """name -> the experiment's values of each law's declared ``settings`` (``friction.dry``:
+    ``{"speed": [friction] speed}``)."""
+    return {name: {setting: float(value_of(experiment, key)) for setting, key in law.settings}
+            for name, law in LAWS.items()}
+
+
+def where_of(experiment, resolver) -> dict[str, np.ndarray]:
+    """name -> (N,) bool over the mesh's nodes: where each law whose ``where`` key the
+    experiment sets acts (``resolver``: the model's
+    :class:`~petsoft.fem.regions.RegionResolver`); the laws not named act on every node."""
+    out = {}
+    for name, law in LAWS.items():
+        where = value_of(experiment, law.where) if law.where else None
+        if where is not None:
+            out[name] = resolver.vertex_mask(where, law.where)
+    return out
+
+
 def _linearised(law, v: np.ndarray, v_lin: np.ndarray | None) -> np.ndarray:
     """G(v_lin) + dG/dv(v_lin) (v - v_lin) of one ``law`` (v_lin None: G(v))."""
     if v_lin is None:
@@ -46,7 +65,7 @@ def _linearised(law, v: np.ndarray, v_lin: np.ndarray | None) -> np.ndarray:
 
 class VelocityTerms:
     """The velocity laws (drag, dry friction) on the nodes a rank owns, each times its
-    coefficient.
+    coefficient, each on the nodes its ``where`` selects.
 
     Parameters
     ----------
@@ -54,42 +73,57 @@ class VelocityTerms:
         Nodes this rank owns (rows of its (nnodes, 3) view of a global vector).
     pairs : (node, weight, normal)
         Surface pairs from :func:`petsoft.physics.drag.face_pairs` (owned rows); None: no surface.
-    friction_mass : ndarray (nnodes,)
-        Lumped mass of each owned node where friction acts, 0 elsewhere.
+    node_mass : ndarray (nnodes,)
+        Lumped mass of every owned node (the mass-proportional laws' masses, :meth:`rate_bound`;
+        the system sets it again when the masses change).
     coefficients : mapping, optional
         name (:data:`NAMES`) -> coefficient (``[drag] linear``, ...; :func:`coefficients_of`);
         the terms not named are 0.
-    speed : float
-        ``[friction] speed``.
-    node_mass : ndarray (nnodes,), optional
-        Lumped mass of every owned node (for :meth:`rate_bound`; the system keeps it current).
+    where : mapping, optional
+        name -> (nnodes,) bool: the owned nodes a law acts on (:func:`where_of`'s rows); the
+        laws not named act on every node.
+    settings : mapping, optional
+        name -> the law's settings (:func:`settings_of`).
     """
 
-    def __init__(self, nnodes: int, pairs, friction_mass: np.ndarray,
-                 coefficients: dict[str, float] | None = None, speed: float = 1e-3,
-                 node_mass: np.ndarray | None = None):
+    def __init__(self, nnodes: int, pairs, node_mass: np.ndarray,
+                 coefficients: dict[str, float] | None = None,
+                 where: dict[str, np.ndarray] | None = None,
+                 settings: dict[str, dict[str, float]] | None = None):
         coefficients = dict(coefficients or {})
-        unknown = sorted(set(coefficients) - set(NAMES))
+        unknown = sorted((set(coefficients) | set(where or {}) | set(settings or {}))
+                         - set(NAMES))
         if unknown:
             raise ValueError(f"no velocity term {unknown} (known: {', '.join(NAMES)})")
-        self.node_mass = node_mass
         self.nnodes = int(nnodes)
         self.has_surface = pairs is not None
-        self.speed = float(speed)
         self._pairs = pairs
-        self.friction_mass = friction_mass
+        self.where = dict(where or {})
+        self.settings = {name: dict((settings or {}).get(name, {})) for name in NAMES}
         self.coef = {name: float(coefficients.get(name, 0.0)) for name in NAMES}
+        self.node_mass = node_mass
 
     @property
-    def friction_mass(self) -> np.ndarray:
-        """(nnodes,) the lumped mass where friction acts; set when the masses change (the
-        density calibrated), which rebuilds the laws on the new support."""
-        return self._support.friction_mass
+    def node_mass(self) -> np.ndarray:
+        """(nnodes,) the lumped mass of the owned nodes; set when the masses change (the
+        density calibrated), which rebuilds the laws on their supports."""
+        return self._node_mass
 
-    @friction_mass.setter
-    def friction_mass(self, value: np.ndarray) -> None:
-        self._support = VelocitySupport.of(self.nnodes, self._pairs, value, self.speed)
-        self.laws = {name: law(self._support) for name, law in LAWS.items()}
+    @node_mass.setter
+    def node_mass(self, value: np.ndarray) -> None:
+        self._node_mass = value
+        self.laws = {name: law(self._support(name, value)) for name, law in LAWS.items()}
+
+    def _support(self, name: str, node_mass: np.ndarray) -> VelocitySupport:
+        """Law ``name``'s support: the masses and the surface pairs of its nodes."""
+        acts, pairs = self.where.get(name), self._pairs
+        mass = np.asarray(node_mass, dtype=float)
+        if acts is not None:
+            mass = np.where(acts, mass, 0.0)
+            if pairs is not None:
+                keep = acts[pairs[0]]
+                pairs = tuple(x[keep] for x in pairs)
+        return VelocitySupport.of(self.nnodes, pairs, mass, self.settings[name])
 
     def _acting(self):
         return [(c, self.laws[name]) for name, c in self.coef.items() if c != 0.0]
@@ -124,19 +158,23 @@ class VelocityTerms:
         return _linearised(self.laws[name], v, v_lin)
 
     def mass_linearised(self, v: np.ndarray, v_lin: np.ndarray | None,
-                        unit_mass: np.ndarray) -> np.ndarray | None:
+                        where: dict[str, np.ndarray] | None = None) -> np.ndarray | None:
         """(n, 3) the acting mass-proportional laws' G (``mass_proportional``), each times its
-        coefficient, per unit node mass on the nodes of ``unit_mass`` (n,) (1 where they act,
-        0 elsewhere), linearised at v_lin as :meth:`unit_linearised`; None when none acts.
+        coefficient, per unit node mass on the n nodes of v where each acts, linearised at
+        v_lin as :meth:`unit_linearised`; None when none acts. ``where``: name -> (n,) bool,
+        as :func:`where_of` (None: this object's own, the owned nodes).
 
         A law proportional to the node masses adds this to a derivative with respect to the
         density or the node mass (the nodes need not be this object's: a FEM system passes its
         local vertices, whose share is integrated per cell)."""
+        where = self.where if where is None else where
         out = None
         for name, c in self.coef.items():
             if c == 0.0 or not LAWS[name].mass_proportional:
                 continue
-            law = LAWS[name](VelocitySupport.of(len(unit_mass), None, unit_mass, self.speed))
+            acts = where.get(name)
+            unit = np.ones(len(v)) if acts is None else acts.astype(float)
+            law = LAWS[name](VelocitySupport.of(len(v), None, unit, self.settings[name]))
             y = c * _linearised(law, v, v_lin)
             out = y if out is None else out + y
         return out

@@ -283,34 +283,11 @@ def experiment_from_dict(
         )
 
     mesh = _read_mesh(top.table("mesh"), top, base)
-    if "material" in data and "springs" in data:
-        raise ExperimentError(
-            f"{source}: both [material] and [springs] are given: a model is either a continuum "
-            "([material]) or mass-spring ([springs]), not both"
-        )
-    if "material" not in data and "springs" not in data:
-        raise ExperimentError(
-            f"{source}: the model is missing: give [material] (continuum: model, youngs_modulus, "
-            "poisson_ratio, density) or [springs] (mass-spring: stiffness, damping)"
-        )
-    material = _read_material(top.table("material")) if "material" in data else {}
-    springs = _read_springs(top.table("springs")) if "springs" in data else None
-    if springs is not None and mesh.refine:
-        raise ExperimentError(f"{source}: [mesh] refine = {mesh.refine}: only tetrahedral meshes "
-                              "of a [material] model are refined; a [springs] model's springs "
-                              "are its mesh's edges: remove refine")
+    material, springs = _read_model(top, data, source, mesh)
     regions = _read_regions(top.table("region"))
     damping = _read_damping(top.table("damping"))
     gravity = _read_gravity(top.table("gravity"))
-    boundaries = tuple(_read_boundary(r) for r in top.table_array("boundary"))
-    for i, b in enumerate(boundaries):
-        if springs is not None and b.compliance > 0.0:
-            raise ExperimentError(
-                f"{source}: boundary[{i}].compliance = {show_value(b.compliance)}: elastic "
-                "supports "
-                "are implemented for [material] (continuum) models only; the fixed nodes of a "
-                "[springs] model are rigid (remove compliance, or model the support by springs)"
-            )
+    boundaries = _read_boundaries(top, source, springs)
     initial = _read_initial(top.table("initial"))
     time = _read_time(top.table("time"))
     output = _read_output(top.table("output"), base)
@@ -319,18 +296,14 @@ def experiment_from_dict(
     colliders = tuple(_read_collider(r) for r in top.table_array("collider"))
     viscoelastic = _read_viscoelastic(top.table("viscoelastic"))
     if viscoelastic.ratio > 0.0 and springs is not None:
-        raise ExperimentError(
-            f"{source}: [viscoelastic] ratio = {format_number(viscoelastic.ratio)}: the standard "
-            "linear "
-            "solid acts on a continuum [material] model, not on [springs]; remove "
-            "[viscoelastic] or set ratio = 0")
+        _refuse_on_springs(source, f"[viscoelastic] ratio = {format_number(viscoelastic.ratio)}: "
+                           "the standard linear solid acts",
+                           "; remove [viscoelastic] or set ratio = 0")
     drag = _read_drag(top.table("drag"))
     friction = _read_friction(top.table("friction"))
     terms = {t: _read_package_table(top.table(t), t) for t in PACKAGE_TABLES if t in data}
     if terms and springs is not None:
-        raise ExperimentError(
-            f"{source}: [{next(iter(terms))}]: the terms of other packages act on a continuum "
-            "[material] model, not on [springs]")
+        _refuse_on_springs(source, f"[{next(iter(terms))}]: the terms of other packages act")
 
     experiment = Experiment(
         mesh=mesh,
@@ -359,11 +332,54 @@ def experiment_from_dict(
     table = top.table("calibrate")
     calibrate = {} if table is None else read_calibrate(table.data, source, experiment)
     experiment = dataclasses.replace(experiment, calibrate=calibrate)
-    _check_drag_surface(experiment)
+    _check_surface_terms(experiment)
     return experiment
 
 
-def _check_drag_surface(exp: Experiment) -> None:
+def _read_model(top: TableReader, data: Mapping[str, Any], source: str, mesh: MeshSpec):
+    """(material, springs): the model, a continuum (``[material]``, springs None) or a
+    mass-spring network (``[springs]``, material empty, its mesh not refined), exactly one."""
+    if "material" in data and "springs" in data:
+        raise ExperimentError(
+            f"{source}: both [material] and [springs] are given: a model is either a continuum "
+            "([material]) or mass-spring ([springs]), not both"
+        )
+    if "material" not in data and "springs" not in data:
+        raise ExperimentError(
+            f"{source}: the model is missing: give [material] (continuum: model, youngs_modulus, "
+            "poisson_ratio, density) or [springs] (mass-spring: stiffness, damping)"
+        )
+    material = _read_material(top.table("material")) if "material" in data else {}
+    springs = _read_springs(top.table("springs")) if "springs" in data else None
+    if springs is not None and mesh.refine:
+        raise ExperimentError(f"{source}: [mesh] refine = {mesh.refine}: only tetrahedral meshes "
+                              "of a [material] model are refined; a [springs] model's springs "
+                              "are its mesh's edges: remove refine")
+    return material, springs
+
+
+def _read_boundaries(top: TableReader, source: str, springs) -> tuple:
+    """The ``[[boundary]]`` entries; an elastic support (compliance) only on a continuum."""
+    boundaries = tuple(_read_boundary(r) for r in top.table_array("boundary"))
+    for i, b in enumerate(boundaries):
+        if springs is not None and b.compliance > 0.0:
+            raise ExperimentError(
+                f"{source}: boundary[{i}].compliance = {show_value(b.compliance)}: elastic "
+                "supports "
+                "are implemented for [material] (continuum) models only; the fixed nodes of a "
+                "[springs] model are rigid (remove compliance, or model the support by springs)"
+            )
+    return boundaries
+
+
+def _refuse_on_springs(source: str, what: str, advice: str = "") -> None:
+    """Refuse on a ``[springs]`` model what acts on a continuum (``what``: its key and words,
+    ending with the verb)."""
+    raise ExperimentError(f"{source}: {what} on a continuum [material] model, not on "
+                          f"[springs]{advice}")
+
+
+def _check_surface_terms(exp: Experiment) -> None:
     """Refuse a term that acts on the surface (``Term.surface``: drag; non-zero or calibrated)
     on a mass-spring mesh without triangles. Reads the mesh's cells (only in that case; spring
     meshes are small)."""

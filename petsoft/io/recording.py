@@ -247,10 +247,31 @@ def read_recording(path: Path) -> Recording:
         reference positions or times, times that do not increase strictly, infinite values,
         duplicate or empty marker names, negative or non-finite noise levels, bad inputs.
     """
-    import h5py
-
     path = Path(path)
     where = str(path)
+    with _open_recording(path, where) as f:
+        _check_header(f, where)
+        reference = _reference(f, where)
+        names = _marker_names(f, where, len(reference))
+        times = _frame_times(f, where)
+        shape = (len(times), len(reference), 3)
+        positions = _frames(f, "frames/position", shape, where, names)
+        accelerations = _frames(f, "frames/acceleration", shape, where, names)
+        noise = _noise_levels(f, where)
+        inputs = _inputs(f, where)
+        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()
+                 if k not in ("format", "version")}
+    rec = Recording(reference, names, times, positions, accelerations, noise, inputs, attrs,
+                    source=where)
+    _warn_never_seen(where, names, positions, accelerations)
+    return rec
+
+
+def _open_recording(path: Path, where: str):
+    """The recording's HDF5 file, open for reading; an error that says what the file is when
+    it is missing, a marker file or not HDF5."""
+    import h5py
+
     if not path.is_file():
         raise RecordingError(f"{where}: recording not found")
     kind = marker_file_kind(path)
@@ -260,102 +281,128 @@ def read_recording(path: Path) -> Recording:
             f"with `petsoft import {where} --out recording.h5` (add --units mm if its lengths "
             "are in mm; formats.md section 2)")
     try:
-        f = h5py.File(path, "r")
+        return h5py.File(path, "r")
     except OSError as exc:
         raise RecordingError(f"{where}: not an HDF5 file ({exc}); a recording is the HDF5 file "
                              "of formats.md section 2 (`petsoft import` makes one from CSV or "
                              "C3D marker files)") from None
-    with f:
-        fmt = f.attrs.get("format")
-        fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
-        if fmt != FORMAT:
-            raise RecordingError(f"{where}: root attribute format = {fmt!r}; a recording has "
-                                 f"format = {FORMAT!r}")
-        version = f.attrs.get("version")
-        if version is None or int(version) != VERSION:
-            raise RecordingError(f"{where}: version = {version!r} is not supported; this "
-                                 f"petsoft reads version {VERSION}")
-        for key in ("markers/reference", "frames/time"):
-            if key not in f:
-                raise RecordingError(f"{where}: /{key} is missing (formats.md section 2)")
-        if "frames/position" not in f and "frames/acceleration" not in f:
-            raise RecordingError(f"{where}: neither /frames/position nor /frames/acceleration "
-                                 "is present; a recording needs at least one")
-        reference = np.asarray(f["markers/reference"][()], dtype=np.float64)
-        if reference.ndim != 2 or reference.shape[1] != 3 or len(reference) == 0:
-            raise RecordingError(f"{where}: /markers/reference has shape {reference.shape}; "
-                                 "expected (M, 3) with M >= 1")
-        bad = np.argwhere(~np.isfinite(reference))
-        if len(bad):
-            m = int(bad[0][0])
-            raise RecordingError(f"{where}: /markers/reference of marker {m} is "
-                                 f"{reference[m].tolist()}; reference positions must be finite")
-        nmark = len(reference)
-        if "markers/name" in f:
-            raw = f["markers/name"][()]
-            names = [n.decode() if isinstance(n, bytes) else str(n) for n in np.ravel(raw)]
-            if np.ndim(raw) != 1 or len(names) != nmark:
-                raise RecordingError(f"{where}: /markers/name has shape {np.shape(raw)}; "
-                                     f"expected ({nmark},), one name per marker")
-            empty = [i for i, n in enumerate(names) if not n.strip()]
-            if empty:
-                raise RecordingError(f"{where}: /markers/name[{empty[0]}] is empty; every "
-                                     "marker needs a name")
-            seen: dict[str, int] = {}
-            for i, n in enumerate(names):
-                if n in seen:
-                    raise RecordingError(f"{where}: /markers/name: {n!r} names markers "
-                                         f"{seen[n]} and {i}; names must be unique")
-                seen[n] = i
-        else:
-            names = [f"m{i}" for i in range(nmark)]
-        times = np.asarray(f["frames/time"][()], dtype=np.float64)
-        if times.ndim != 1 or len(times) == 0:
-            raise RecordingError(f"{where}: /frames/time has shape {times.shape}; expected "
-                                 "(K,) with K >= 1")
-        nonfinite = np.flatnonzero(~np.isfinite(times))
-        if len(nonfinite):
-            i = int(nonfinite[0])
-            raise RecordingError(f"{where}: /frames/time[{i}] = {times[i]}; times must be "
-                                 "finite")
-        _increasing(times, f"{where}: /frames/time")
-        shape = (len(times), nmark, 3)
-        positions = _frames(f, "frames/position", shape, where, names)
-        accelerations = _frames(f, "frames/acceleration", shape, where, names)
-        noise = {}
-        if "noise" in f:
-            unknown = sorted(set(f["noise"].attrs) - set(NOISE_KEYS))
-            if unknown:
-                raise RecordingError(f"{where}: /noise has unknown attribute(s) "
-                                     f"{', '.join(unknown)}; valid: {', '.join(NOISE_KEYS)}")
-            for k in NOISE_KEYS:
-                if k in f["noise"].attrs:
-                    v = float(f["noise"].attrs[k])
-                    if not (np.isfinite(v) and v >= 0):
-                        raise RecordingError(f"{where}: /noise {k} = {v}; must be finite and "
-                                             ">= 0")
-                    noise[k] = v
-        inputs = {}
-        for name in sorted(f.get("inputs", {})):
-            g = f["inputs"][name]
-            w = f"{where}: /inputs/{name}"
-            if "time" not in g or "value" not in g:
-                raise RecordingError(f"{w} needs datasets time (J,) and value (J, 3)")
-            t_in = np.asarray(g["time"][()], dtype=np.float64)
-            v_in = np.asarray(g["value"][()], dtype=np.float64)
-            if t_in.ndim != 1 or v_in.shape != (len(t_in), 3):
-                raise RecordingError(f"{w}: time {t_in.shape} and value {v_in.shape}; "
-                                     "expected (J,) and (J, 3)")
-            if not (np.isfinite(t_in).all() and np.isfinite(v_in).all()):
-                raise RecordingError(f"{w}: NaN or infinite entries (an input must be "
-                                     "complete)")
-            _increasing(t_in, f"{w}/time")
-            inputs[name] = (t_in, v_in)
-        attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()
-                 if k not in ("format", "version")}
-    rec = Recording(reference, names, times, positions, accelerations, noise, inputs, attrs,
-                    source=where)
-    seen_any = np.zeros(nmark, dtype=bool)
+
+
+def _check_header(f, where: str) -> None:
+    """The root attributes (format, version) and the datasets every recording has."""
+    fmt = f.attrs.get("format")
+    fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
+    if fmt != FORMAT:
+        raise RecordingError(f"{where}: root attribute format = {fmt!r}; a recording has "
+                             f"format = {FORMAT!r}")
+    version = f.attrs.get("version")
+    if version is None or int(version) != VERSION:
+        raise RecordingError(f"{where}: version = {version!r} is not supported; this "
+                             f"petsoft reads version {VERSION}")
+    for key in ("markers/reference", "frames/time"):
+        if key not in f:
+            raise RecordingError(f"{where}: /{key} is missing (formats.md section 2)")
+    if "frames/position" not in f and "frames/acceleration" not in f:
+        raise RecordingError(f"{where}: neither /frames/position nor /frames/acceleration "
+                             "is present; a recording needs at least one")
+
+
+def _reference(f, where: str) -> np.ndarray:
+    """(M, 3) the markers' reference positions, finite, M >= 1."""
+    reference = np.asarray(f["markers/reference"][()], dtype=np.float64)
+    if reference.ndim != 2 or reference.shape[1] != 3 or len(reference) == 0:
+        raise RecordingError(f"{where}: /markers/reference has shape {reference.shape}; "
+                             "expected (M, 3) with M >= 1")
+    bad = np.argwhere(~np.isfinite(reference))
+    if len(bad):
+        m = int(bad[0][0])
+        raise RecordingError(f"{where}: /markers/reference of marker {m} is "
+                             f"{reference[m].tolist()}; reference positions must be finite")
+    return reference
+
+
+def _marker_names(f, where: str, nmark: int) -> list[str]:
+    """The markers' names (``/markers/name``: one each, not empty, unique; absent: m0, m1,
+    ...)."""
+    if "markers/name" not in f:
+        return [f"m{i}" for i in range(nmark)]
+    raw = f["markers/name"][()]
+    names = [n.decode() if isinstance(n, bytes) else str(n) for n in np.ravel(raw)]
+    if np.ndim(raw) != 1 or len(names) != nmark:
+        raise RecordingError(f"{where}: /markers/name has shape {np.shape(raw)}; "
+                             f"expected ({nmark},), one name per marker")
+    empty = [i for i, n in enumerate(names) if not n.strip()]
+    if empty:
+        raise RecordingError(f"{where}: /markers/name[{empty[0]}] is empty; every "
+                             "marker needs a name")
+    seen: dict[str, int] = {}
+    for i, n in enumerate(names):
+        if n in seen:
+            raise RecordingError(f"{where}: /markers/name: {n!r} names markers "
+                                 f"{seen[n]} and {i}; names must be unique")
+        seen[n] = i
+    return names
+
+
+def _frame_times(f, where: str) -> np.ndarray:
+    """(K,) the frames' times, finite and strictly increasing, K >= 1."""
+    times = np.asarray(f["frames/time"][()], dtype=np.float64)
+    if times.ndim != 1 or len(times) == 0:
+        raise RecordingError(f"{where}: /frames/time has shape {times.shape}; expected "
+                             "(K,) with K >= 1")
+    nonfinite = np.flatnonzero(~np.isfinite(times))
+    if len(nonfinite):
+        i = int(nonfinite[0])
+        raise RecordingError(f"{where}: /frames/time[{i}] = {times[i]}; times must be "
+                             "finite")
+    _increasing(times, f"{where}: /frames/time")
+    return times
+
+
+def _noise_levels(f, where: str) -> dict[str, float]:
+    """``/noise``'s attributes (:data:`NOISE_KEYS`, finite and >= 0)."""
+    noise = {}
+    if "noise" not in f:
+        return noise
+    unknown = sorted(set(f["noise"].attrs) - set(NOISE_KEYS))
+    if unknown:
+        raise RecordingError(f"{where}: /noise has unknown attribute(s) "
+                             f"{', '.join(unknown)}; valid: {', '.join(NOISE_KEYS)}")
+    for k in NOISE_KEYS:
+        if k in f["noise"].attrs:
+            v = float(f["noise"].attrs[k])
+            if not (np.isfinite(v) and v >= 0):
+                raise RecordingError(f"{where}: /noise {k} = {v}; must be finite and "
+                                     ">= 0")
+            noise[k] = v
+    return noise
+
+
+def _inputs(f, where: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """name -> (times, (J, 3) values) of each measured input series (``/inputs/<name>``),
+    complete and in increasing time."""
+    inputs = {}
+    for name in sorted(f.get("inputs", {})):
+        g = f["inputs"][name]
+        w = f"{where}: /inputs/{name}"
+        if "time" not in g or "value" not in g:
+            raise RecordingError(f"{w} needs datasets time (J,) and value (J, 3)")
+        t_in = np.asarray(g["time"][()], dtype=np.float64)
+        v_in = np.asarray(g["value"][()], dtype=np.float64)
+        if t_in.ndim != 1 or v_in.shape != (len(t_in), 3):
+            raise RecordingError(f"{w}: time {t_in.shape} and value {v_in.shape}; "
+                                 "expected (J,) and (J, 3)")
+        if not (np.isfinite(t_in).all() and np.isfinite(v_in).all()):
+            raise RecordingError(f"{w}: NaN or infinite entries (an input must be "
+                                 "complete)")
+        _increasing(t_in, f"{w}/time")
+        inputs[name] = (t_in, v_in)
+    return inputs
+
+
+def _warn_never_seen(where: str, names: list[str], positions, accelerations) -> None:
+    """A :class:`RecordingWarning` naming the markers seen in no frame (NaN throughout)."""
+    seen_any = np.zeros(len(names), dtype=bool)
     for arr in (positions, accelerations):
         if arr is not None:
             seen_any |= np.isfinite(arr).all(axis=2).any(axis=0)
@@ -363,9 +410,9 @@ def read_recording(path: Path) -> Recording:
     if len(never):
         listed = ", ".join(f"{names[m]!r} (index {m})" for m in never[:5])
         more = f" and {len(never) - 5} more" if len(never) > 5 else ""
+        # (stack: this function, read_recording, its caller)
         warnings.warn(f"{where}: marker(s) {listed}{more} are never seen (NaN in every frame); "
-                      "they add nothing to a fit", RecordingWarning, stacklevel=2)
-    return rec
+                      "they add nothing to a fit", RecordingWarning, stacklevel=3)
 
 
 class SeriesComponent:

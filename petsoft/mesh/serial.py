@@ -171,7 +171,41 @@ def read_mesh(path: str | Path, scale: float = 1.0, order: int = 1) -> Mesh:
     scale = _check_scale(scale, path)
     raw = _read_meshio(path)
     source = str(path)
+    points = _scaled_points(raw, source, scale)
+    names = _group_names(raw.field_data)
+    cells = _FileCells.of(raw, source)
+    if not cells.tet_blocks or sum(len(b) for b in cells.tet_blocks) == 0:
+        what = _count_phrase(cells.found) if cells.found else "no cells at all"
+        raise MeshError(
+            f"{source}: contains no tetrahedra (found {what}); petsoft needs a 3D mesh of "
+            f"{_LINEAR_TETS}: mesh the volume, e.g. gmsh -3"
+        )
+    tets = np.concatenate(cells.tet_blocks)
+    cell_tags = np.concatenate(cells.tet_tags)
+    regions = {
+        names.get((3, int(t)), f"group{int(t)}"): int(t) for t in np.unique(cell_tags) if t != 0
+    }
+    tris = (np.concatenate(cells.tri_blocks) if cells.tri_blocks
+            else np.zeros((0, 3), np.int64))
+    ttags = np.concatenate(cells.tri_tags) if cells.tri_tags else np.zeros(0, np.int64)
+    facet_groups = {
+        names.get((2, int(t)), f"group{int(t)}"): tris[ttags == t] for t in np.unique(ttags) if t
+    }
+    cells.warn_unused(source, int(np.count_nonzero(ttags)), facet_groups, order)
+    edge_points = None
+    if order == 2 and cells.n_quadratic == len(tets):
+        points, tets, facet_groups, edge_points = _edge_nodes_apart(
+            source, points, tets, np.concatenate(cells.mid_blocks), facet_groups)
+    mesh = validate(Mesh(points, tets, cell_tags, regions, facet_groups, source))
+    if order == 1:
+        return mesh
+    from petsoft.mesh.quadratic import raise_order
 
+    return raise_order(mesh, edge_points=edge_points)
+
+
+def _scaled_points(raw, source: str, scale: float) -> np.ndarray:
+    """The file's node coordinates in metres, refused unless 3D numbers."""
     points = np.asarray(raw.points)
     if points.ndim != 2 or points.shape[1] != 3:
         shape = "x".join(map(str, points.shape))
@@ -181,103 +215,98 @@ def read_mesh(path: str | Path, scale: float = 1.0, order: int = 1) -> Mesh:
         )
     if not np.issubdtype(points.dtype, np.number):
         raise MeshError(f"{source}: node coordinates are not numbers (dtype {points.dtype})")
-    points = points.astype(np.float64) * scale
+    return points.astype(np.float64) * scale
 
-    tag_key = next((k for k in TAG_KEYS if k in raw.cell_data), None)
-    names = _group_names(raw.field_data)
 
-    tet_blocks: list[np.ndarray] = []
-    tet_tags: list[np.ndarray] = []
-    tri_blocks: list[np.ndarray] = []
-    tri_tags: list[np.ndarray] = []
-    found: dict[str, int] = {}  # every cell type in the file, for messages
-    kept: dict[str, int] = {}  # triangles used as facets, by type (the rest are ignored)
-    n_quadratic = 0
-    mid_blocks: list[np.ndarray | None] = []  # the mid-edge nodes of each tetra10 block
-    for i, block in enumerate(raw.cells):
-        data = np.asarray(block.data)
-        found[block.type] = found.get(block.type, 0) + len(data)
-        tags = _block_tags(raw, tag_key, i, len(data), source)
-        if block.type in ("tetra", "tetra10"):
-            # gmsh and VTK both list the 4 corners first in a tetra10.
-            tet_blocks.append(data[:, :4].astype(np.int64))
-            tet_tags.append(tags)
-            mid_blocks.append(data[:, 4:10].astype(np.int64) if block.type == "tetra10" else None)
-            if block.type == "tetra10":
-                n_quadratic += len(data)
-        elif block.type in ("triangle", "triangle6"):
-            tri_blocks.append(data[:, :3].astype(np.int64))
-            tri_tags.append(tags)
-            # Tagged triangles become facet groups; untagged ones are ignored like other cells.
-            kept[block.type] = kept.get(block.type, 0) + int(np.count_nonzero(tags))
+@dataclass
+class _FileCells:
+    """The cell blocks of a mesh file, sorted: the tetrahedra (corners, tags, the mid-edge
+    nodes of a tetra10 block, None for a tetra block), the triangles (corners, tags), every
+    cell type's count (``found``, for messages) and the triangles kept as facets by type."""
 
-    if not tet_blocks or sum(len(b) for b in tet_blocks) == 0:
-        what = _count_phrase(found) if found else "no cells at all"
-        raise MeshError(
-            f"{source}: contains no tetrahedra (found {what}); petsoft needs a 3D mesh of "
-            f"{_LINEAR_TETS}: mesh the volume, e.g. gmsh -3"
-        )
-    tets = np.concatenate(tet_blocks)
-    cell_tags = np.concatenate(tet_tags)
+    tet_blocks: list[np.ndarray] = field(default_factory=list)
+    tet_tags: list[np.ndarray] = field(default_factory=list)
+    mid_blocks: list[np.ndarray | None] = field(default_factory=list)
+    n_quadratic: int = 0
+    tri_blocks: list[np.ndarray] = field(default_factory=list)
+    tri_tags: list[np.ndarray] = field(default_factory=list)
+    found: dict[str, int] = field(default_factory=dict)
+    kept: dict[str, int] = field(default_factory=dict)
 
-    regions = {
-        names.get((3, int(t)), f"group{int(t)}"): int(t) for t in np.unique(cell_tags) if t != 0
-    }
+    @classmethod
+    def of(cls, raw, source: str) -> _FileCells:
+        """The blocks of the meshio mesh ``raw`` (its tags by :data:`TAG_KEYS`)."""
+        out = cls()
+        tag_key = next((k for k in TAG_KEYS if k in raw.cell_data), None)
+        for i, block in enumerate(raw.cells):
+            data = np.asarray(block.data)
+            out.found[block.type] = out.found.get(block.type, 0) + len(data)
+            tags = _block_tags(raw, tag_key, i, len(data), source)
+            if block.type in ("tetra", "tetra10"):
+                # gmsh and VTK both list the 4 corners first in a tetra10.
+                out.tet_blocks.append(data[:, :4].astype(np.int64))
+                out.tet_tags.append(tags)
+                out.mid_blocks.append(data[:, 4:10].astype(np.int64)
+                                      if block.type == "tetra10" else None)
+                if block.type == "tetra10":
+                    out.n_quadratic += len(data)
+            elif block.type in ("triangle", "triangle6"):
+                out.tri_blocks.append(data[:, :3].astype(np.int64))
+                out.tri_tags.append(tags)
+                # Tagged triangles become facet groups; untagged ones are ignored like other
+                # cells.
+                out.kept[block.type] = (out.kept.get(block.type, 0)
+                                        + int(np.count_nonzero(tags)))
+        return out
 
-    tris = np.concatenate(tri_blocks) if tri_blocks else np.zeros((0, 3), np.int64)
-    ttags = np.concatenate(tri_tags) if tri_tags else np.zeros(0, np.int64)
-    facet_groups = {
-        names.get((2, int(t)), f"group{int(t)}"): tris[ttags == t] for t in np.unique(ttags) if t
-    }
-
-    # Say what was not used, and (so that it is not mistaken for loss) what triangles were kept.
-    ignored = {k: v - kept.get(k, 0) for k, v in found.items() if k not in ("tetra", "tetra10")}
-    ignored = {k: v for k, v in ignored.items() if v > 0}
-    n_facets = int(np.count_nonzero(ttags))
-    if ignored:
-        msg = f"{source}: ignored {_count_phrase(ignored)} cells; petsoft uses only the tetrahedra"
-        if n_facets:
-            groups = ", ".join(repr(n) for n in facet_groups)
-            msg += (
-                f" (the {n_facets} triangles in 2D physical groups {groups} are kept as facet "
-                "groups)"
+    def warn_unused(self, source: str, n_facets: int, facet_groups: dict, order: int) -> None:
+        """Say what was not used, and (so that it is not mistaken for loss) what triangles were
+        kept; and that quadratic tetrahedra lose their mid-edge nodes at ``order`` 1."""
+        ignored = {k: v - self.kept.get(k, 0) for k, v in self.found.items()
+                   if k not in ("tetra", "tetra10")}
+        ignored = {k: v for k, v in ignored.items() if v > 0}
+        if ignored:
+            msg = (f"{source}: ignored {_count_phrase(ignored)} cells; petsoft uses only the "
+                   "tetrahedra")
+            if n_facets:
+                groups = ", ".join(repr(n) for n in facet_groups)
+                msg += (
+                    f" (the {n_facets} triangles in 2D physical groups {groups} are kept as facet "
+                    "groups)"
+                )
+            # (stack: this method, read_mesh, its caller)
+            warnings.warn(msg, MeshWarning, stacklevel=3)
+        if self.n_quadratic and order != 2:
+            warnings.warn(
+                f"{source}: {self.n_quadratic} quadratic tetrahedra (tetra10): the model is linear "
+                "(4-node tetrahedra), so petsoft uses their 4 corner nodes and drops the mid-edge "
+                "nodes; set [mesh] order = 2 to use them",
+                MeshWarning,
+                stacklevel=3,
             )
-        warnings.warn(msg, MeshWarning, stacklevel=2)
-    if n_quadratic and order != 2:
-        warnings.warn(
-            f"{source}: {n_quadratic} quadratic tetrahedra (tetra10): the model is linear (4-node "
-            "tetrahedra), so petsoft uses their 4 corner nodes and drops the mid-edge nodes; "
-            "set [mesh] order = 2 to use them",
-            MeshWarning,
-            stacklevel=2,
-        )
 
-    edge_points = None
-    if order == 2 and n_quadratic == len(tets):
-        mids = np.concatenate(mid_blocks)
-        bad = (mids < 0) | (mids >= len(points))
-        if bad.any():
-            e = int(np.flatnonzero(bad.any(axis=1))[0])
-            raise MeshError(f"{source}: tetra10 {e} (0-based) refers to a mid-edge node that "
-                            f"does not exist (the file has {len(points)} nodes)")
-        edge_points = points[mids]
-        if (signed_volumes(points, tets) < 0).all():
-            # validate() swaps corners 1 and 2 of every tetrahedron: follow with the edges
-            edge_points = edge_points[:, [2, 1, 0, 3, 5, 4]]
-        # the mid-edge nodes are not the corner mesh's: leave them out of its validation (which
-        # would call them unused), then give them back as edge nodes
-        mid_only = np.zeros(len(points), bool)
-        mid_only[mids.ravel()] = True
-        mid_only[tets.ravel()] = False
-        new_index = np.cumsum(~mid_only) - 1
-        points, tets = points[~mid_only], new_index[tets]
-        facet_groups = {k: new_index[v] for k, v in facet_groups.items()}
-    mesh = validate(Mesh(points, tets, cell_tags, regions, facet_groups, source))
-    if order == 1:
-        return mesh
-    from petsoft.mesh.quadratic import raise_order
 
-    return raise_order(mesh, edge_points=edge_points)
+def _edge_nodes_apart(source: str, points: np.ndarray, tets: np.ndarray, mids: np.ndarray,
+                      facet_groups: dict):
+    """A file of 10-node tetrahedra read at order 2: (the corner nodes, the tetrahedra and the
+    facet groups renumbered on them, the (E, 6, 3) mid-edge nodes' positions) -- the mid-edge
+    nodes are not the corner mesh's: they are left out of its validation (which would call them
+    unused), then given back as edge nodes."""
+    bad = (mids < 0) | (mids >= len(points))
+    if bad.any():
+        e = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise MeshError(f"{source}: tetra10 {e} (0-based) refers to a mid-edge node that "
+                        f"does not exist (the file has {len(points)} nodes)")
+    edge_points = points[mids]
+    if (signed_volumes(points, tets) < 0).all():
+        # validate() swaps corners 1 and 2 of every tetrahedron: follow with the edges
+        edge_points = edge_points[:, [2, 1, 0, 3, 5, 4]]
+    mid_only = np.zeros(len(points), bool)
+    mid_only[mids.ravel()] = True
+    mid_only[tets.ravel()] = False
+    new_index = np.cumsum(~mid_only) - 1
+    return (points[~mid_only], new_index[tets],
+            {k: new_index[v] for k, v in facet_groups.items()}, edge_points)
 
 
 def _check_scale(scale: object, path: Path) -> float:
@@ -423,6 +452,35 @@ def validate(mesh: Mesh) -> Mesh:
         A new, validated mesh.
     """
     src = mesh.source
+    points, tets, cell_tags = _checked_arrays(mesh)
+    n = len(points)
+    _check_node_indices(tets, n, src, "tetrahedron", "counting tetrahedra only")
+    facet_groups = {}
+    for name, tris in mesh.facet_groups.items():
+        tris = np.asarray(tris).astype(np.int64).reshape(-1, 3)
+        _check_node_indices(tris, n, src, "triangle", f"within facet group {name!r}")
+        facet_groups[name] = tris
+    used = np.zeros(n, bool)
+    used[tets.ravel()] = True
+    _check_used_finite(points, used, src)
+    tets = _oriented(points, tets, src)
+    facet_groups = _check_faces(tets, facet_groups, src)
+    if not used.all():
+        points, tets, facet_groups = _without_unused(points, tets, facet_groups, used, src)
+    return Mesh(
+        points=points,
+        tets=tets,
+        cell_tags=cell_tags,
+        regions={str(k): int(v) for k, v in mesh.regions.items()},
+        facet_groups=facet_groups,
+        source=src,
+    )
+
+
+def _checked_arrays(mesh: Mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The mesh's coordinates (float64), tetrahedra (int64) and cell tags, their shapes
+    checked."""
+    src = mesh.source
     points = np.asarray(mesh.points)
     tets = np.asarray(mesh.tets)
     if points.ndim != 2 or points.shape[1] != 3 or not np.issubdtype(points.dtype, np.number):
@@ -434,22 +492,14 @@ def validate(mesh: Mesh) -> Mesh:
         )
     if len(tets) == 0:
         raise MeshError(f"{src}: contains no tetrahedra; petsoft needs {_LINEAR_TETS}")
-    points = points.astype(np.float64)
-    tets = tets.astype(np.int64)
-    n, ne = len(points), len(tets)
     cell_tags = np.asarray(mesh.cell_tags).astype(np.int64).reshape(-1)
-    if cell_tags.shape != (ne,):
-        raise MeshError(f"{src}: {len(cell_tags)} cell tags for {ne} tetrahedra")
+    if cell_tags.shape != (len(tets),):
+        raise MeshError(f"{src}: {len(cell_tags)} cell tags for {len(tets)} tetrahedra")
+    return points.astype(np.float64), tets.astype(np.int64), cell_tags
 
-    _check_node_indices(tets, n, src, "tetrahedron", "counting tetrahedra only")
-    facet_groups = {}
-    for name, tris in mesh.facet_groups.items():
-        tris = np.asarray(tris).astype(np.int64).reshape(-1, 3)
-        _check_node_indices(tris, n, src, "triangle", f"within facet group {name!r}")
-        facet_groups[name] = tris
 
-    used = np.zeros(n, bool)
-    used[tets.ravel()] = True
+def _check_used_finite(points: np.ndarray, used: np.ndarray, src: str) -> None:
+    """Refuse non-finite coordinates of a node a tetrahedron uses."""
     bad = np.flatnonzero(used & ~np.isfinite(points).all(axis=1))
     if len(bad):
         raise MeshError(
@@ -459,6 +509,11 @@ def validate(mesh: Mesh) -> Mesh:
             "all coordinates must be finite numbers"
         )
 
+
+def _oriented(points: np.ndarray, tets: np.ndarray, src: str) -> np.ndarray:
+    """The tetrahedra, refused when degenerate or of mixed orientation, flipped (with a
+    warning) when all are negative."""
+    ne = len(tets)
     vol = signed_volumes(points, tets)
     h = _mean_edge_lengths(points, tets)
     degenerate = np.flatnonzero(~(np.abs(vol) > DEGENERATE_RTOL * h**3))
@@ -472,17 +527,16 @@ def validate(mesh: Mesh) -> Mesh:
             f"({_listing(degenerate, 'tetrahedron ')}). "
             "Every tetrahedron needs 4 distinct, non-coplanar vertices"
         )
-
     negative = vol < 0
     if negative.all():
         warnings.warn(
             f"{src}: all {ne} tetrahedra are negatively oriented; taking that as the file's "
             "convention and swapping vertices 1 and 2 of each so that all have positive volume",
             MeshWarning,
-            stacklevel=2,
+            stacklevel=3,   # (stack: this function, validate, its caller)
         )
-        tets = tets[:, [0, 2, 1, 3]]
-    elif negative.any():
+        return tets[:, [0, 2, 1, 3]]
+    if negative.any():
         neg = np.flatnonzero(negative)
         shown = ", ".join(f"{e} (volume {vol[e]:.3e} m^3)" for e in neg[:_SHOW])
         more = f" and {len(neg) - _SHOW} more" if len(neg) > _SHOW else ""
@@ -492,37 +546,29 @@ def validate(mesh: Mesh) -> Mesh:
             "only). All tetrahedra must have the same orientation, det[p1-p0, p2-p0, p3-p0] > 0; "
             "regenerate or repair the mesh"
         )
+    return tets
 
-    facet_groups = _check_faces(tets, facet_groups, src)
 
-    n_unused = int(n - np.count_nonzero(used))
-    if n_unused:
-        # Renumber so the remaining nodes keep their relative order.
-        new_index = np.cumsum(used) - 1
-        unused = np.flatnonzero(~used)
-        n_dropped_tris = 0
-        for name, tris in facet_groups.items():
-            keep = used[tris].all(axis=1)
-            n_dropped_tris += int(len(tris) - np.count_nonzero(keep))
-            facet_groups[name] = new_index[tris[keep]]
-        msg = (
-            f"{src}: dropped {n_unused} node(s) used by no tetrahedron "
-            f"(0-based {_listing(unused, 'node ')}); nodes were renumbered"
-        )
-        if n_dropped_tris:
-            msg += f", and {n_dropped_tris} facet-group triangle(s) touching them were removed"
-        warnings.warn(msg, MeshWarning, stacklevel=2)
-        points = points[used]
-        tets = new_index[tets]
-
-    return Mesh(
-        points=points,
-        tets=tets,
-        cell_tags=cell_tags,
-        regions={str(k): int(v) for k, v in mesh.regions.items()},
-        facet_groups=facet_groups,
-        source=src,
+def _without_unused(points: np.ndarray, tets: np.ndarray, facet_groups: dict,
+                    used: np.ndarray, src: str):
+    """(points, tets, facet groups) without the nodes no tetrahedron uses (the others keep
+    their relative order; facet triangles touching a dropped node are removed), with a
+    warning."""
+    new_index = np.cumsum(used) - 1
+    unused = np.flatnonzero(~used)
+    n_dropped_tris = 0
+    for name, tris in facet_groups.items():
+        keep = used[tris].all(axis=1)
+        n_dropped_tris += int(len(tris) - np.count_nonzero(keep))
+        facet_groups[name] = new_index[tris[keep]]
+    msg = (
+        f"{src}: dropped {len(unused)} node(s) used by no tetrahedron "
+        f"(0-based {_listing(unused, 'node ')}); nodes were renumbered"
     )
+    if n_dropped_tris:
+        msg += f", and {n_dropped_tris} facet-group triangle(s) touching them were removed"
+    warnings.warn(msg, MeshWarning, stacklevel=3)   # (this function, validate, its caller)
+    return points[used], new_index[tets], facet_groups
 
 
 def _check_node_indices(cells: np.ndarray, n: int, src: str, kind: str, counting: str) -> None:

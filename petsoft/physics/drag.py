@@ -117,6 +117,8 @@ class LinearDrag:
     linear = True
     on_surface = term("drag.linear").surface
     mass_proportional = False
+    where = ""
+    settings = ()
 
     def __init__(self, support):
         self.S = linear_blocks(support.node, support.weight, support.normal, support.nnodes)
@@ -151,6 +153,8 @@ class QuadraticDrag:
     linear = False
     on_surface = term("drag.quadratic").surface
     mass_proportional = False
+    where = ""
+    settings = ()
 
     def __init__(self, support):
         self.pairs = (support.node, support.weight, support.normal)

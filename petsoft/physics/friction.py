@@ -58,15 +58,17 @@ def potential(v: np.ndarray, mass: np.ndarray, eps: float) -> float:
 
 class DryFriction:
     """``friction.dry``'s law (:mod:`petsoft.physics.velocity_law`): per unit mu_g,
-    G_i = m_i v_i / s_i on the nodes of ``support.friction_mass``, regularised below
-    ``support.speed``."""
+    G_i = m_i v_i / s_i on the nodes of ``support.mass`` (those of ``[friction] where``),
+    regularised below ``support.settings["speed"]`` (``[friction] speed``)."""
 
     linear = False
     on_surface = term("friction.dry").surface
     mass_proportional = True
+    where = "friction.where"
+    settings = (("speed", "friction.speed"),)
 
     def __init__(self, support):
-        self.mass, self.speed = support.friction_mass, support.speed
+        self.mass, self.speed = support.mass, support.settings["speed"]
 
     def damping(self, v: np.ndarray) -> np.ndarray:
         return damping(v, self.mass, self.speed)

@@ -15,16 +15,26 @@ A term whose force depends on the velocity (``drag.linear``, ``drag.quadratic``,
 ``on_surface``       whether it acts through the body's surface pairs only (a body without
                      surface triangles, a mass-spring model of edges, cannot carry it)
 ``mass_proportional`` whether G is proportional to the support's node masses
-                     (``VelocitySupport.friction_mass``): then a derivative with respect to the
+                     (``VelocitySupport.mass``): then a derivative with respect to the
                      density or the node mass has the law's share, its G per unit mass
+``where``            the dotted experiment key (of its term) that selects the nodes it acts on
+                     (``"friction.where"``), ``""`` when it acts on every node (or its whole
+                     surface); the key's value None: every node. Its support holds the masses
+                     and the surface pairs of those nodes only
+``settings``         ``((name, dotted key), ...)``: the experiment's numbers it is built with
+                     besides its coefficient (``(("speed", "friction.speed"),)``), handed to it
+                     as ``support.settings[name]``
 
 :class:`petsoft.dynamics.velocity.VelocityTerms` sums the laws the registry declares, each
-times its coefficient; adding a velocity law is its term module and its class.
+times its coefficient, each on its own support: the systems read ``where`` and ``settings``
+(:func:`petsoft.dynamics.velocity.where_of`, :func:`~petsoft.dynamics.velocity.settings_of`), so
+adding a velocity law is its term module and its class.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -38,25 +48,27 @@ class VelocitySupport:
     nnodes : int
         The nodes this rank owns (rows of its (nnodes, 3) view of a global vector).
     node, weight, normal : ndarray (P,), (P,), (P, 3)
-        Surface pairs (:func:`petsoft.physics.drag.face_pairs`; empty: no surface).
-    friction_mass : ndarray (nnodes,)
-        Lumped mass of each owned node where friction acts, 0 elsewhere.
-    speed : float
-        The friction's regularisation speed (``[friction] speed``, m/s).
+        Surface pairs (:func:`petsoft.physics.drag.face_pairs`) of the nodes the law acts on
+        (empty: no surface).
+    mass : ndarray (nnodes,)
+        Lumped mass of each owned node the law acts on (its ``where``), 0 elsewhere.
+    settings : mapping
+        The law's ``settings`` by name (``{"speed": 1e-3}``: ``[friction] speed``, m/s).
     """
 
     nnodes: int
     node: np.ndarray
     weight: np.ndarray
     normal: np.ndarray
-    friction_mass: np.ndarray
-    speed: float
+    mass: np.ndarray
+    settings: Mapping[str, float] = field(default_factory=dict)
 
     @classmethod
-    def of(cls, nnodes: int, pairs, friction_mass, speed: float) -> VelocitySupport:
+    def of(cls, nnodes: int, pairs, mass, settings: Mapping[str, float] | None = None
+           ) -> VelocitySupport:
         """From surface ``pairs`` (node, weight, normal) or None (no surface)."""
         if pairs is None:
             pairs = (np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)))
         node, weight, normal = pairs
-        return cls(int(nnodes), node, weight, normal,
-                   np.asarray(friction_mass, dtype=float), float(speed))
+        return cls(int(nnodes), node, weight, normal, np.asarray(mass, dtype=float),
+                   dict(settings or {}))

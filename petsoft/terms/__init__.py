@@ -57,7 +57,7 @@ from petsoft.terms.declare import (
 
 __all__ = ["CONTRIBUTIONS", "GROUP", "KINDS", "PLUGINS", "RANKINGS", "SCALES", "TERMS", "Key",
            "Parameter", "Plugin", "Proposal", "Term", "builders", "coefficients", "keys_of",
-           "load_plugin", "plugin_tables", "term"]
+           "load_plugin", "plugin_tables", "term", "value_of"]
 
 #: The entry-point group of terms from other packages.
 GROUP = "petsoft.terms"
@@ -220,11 +220,14 @@ def coefficients(experiment, names) -> dict[str, float]:
     """name -> the value ``experiment`` (a read experiment) gives the first key of each term of
     ``names``: the coefficient of a term whose force is linear in one number (``[damping]
     mass``, ``[drag] linear``, ...)."""
-    out = {}
-    for name in names:
-        key = term(name).keys[0]
-        out[name] = float(getattr(getattr(experiment, key.table), key.key))
-    return out
+    return {name: float(value_of(experiment, term(name).keys[0].dotted)) for name in names}
+
+
+def value_of(experiment, dotted: str):
+    """The value ``experiment`` (a read experiment) gives the key ``table.key`` of a table a
+    built-in term reads (``"friction.where"``: ``experiment.friction.where``)."""
+    table, key = dotted.split(".")
+    return getattr(getattr(experiment, table), key)
 
 
 def keys_of(table: str) -> tuple[Key, ...]:
