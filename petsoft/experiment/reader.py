@@ -101,6 +101,7 @@ from petsoft.experiment.spec import (
     MATERIAL_MODELS,
     SPACE,
     SPACE_TIME,
+    VELOCITY_TABLES,
     BoundarySpec,
     BoxSpec,
     ColliderSpec,
@@ -299,8 +300,7 @@ def experiment_from_dict(
         _refuse_on_springs(source, f"[viscoelastic] ratio = {format_number(viscoelastic.ratio)}: "
                            "the standard linear solid acts",
                            "; remove [viscoelastic] or set ratio = 0")
-    drag = _read_drag(top.table("drag"))
-    friction = _read_friction(top.table("friction"))
+    velocity = {t: _read_velocity_table(top.table(t), t) for t in VELOCITY_TABLES}
     terms = {t: _read_package_table(top.table(t), t) for t in PACKAGE_TABLES if t in data}
     if terms and springs is not None:
         _refuse_on_springs(source, f"[{next(iter(terms))}]: the terms of other packages act")
@@ -321,8 +321,7 @@ def experiment_from_dict(
         masses=masses,
         colliders=colliders,
         viscoelastic=viscoelastic,
-        drag=drag,
-        friction=friction,
+        **velocity,
         terms=terms,
         format_version=version,
         path=Path(path) if path is not None else None,
@@ -548,6 +547,14 @@ def _term_keys(table: str) -> tuple[str, ...]:
     return tuple(k.key for k in keys_of(table))
 
 
+def _term_wheres(r: TableReader, table: str) -> dict[str, Any]:
+    """The ``where`` keys the terms declare in ``[table]``: a region name or a condition of x,
+    y, z; absent, the declared default (a region name or condition), or None, which the term
+    reads as its own choice of place (the friction: every node)."""
+    return {k.key: _read_where(r, k.key) if k.key in r.data else k.default
+            for k in keys_of(table) if k.type == "where"}
+
+
 def _read_package_table(r: TableReader, table: str) -> dict[str, Any]:
     """``[table]`` of a term from another package: every key it declares, checked against its
     declaration (range, unit, choices, a ``where``), its default when absent."""
@@ -557,11 +564,7 @@ def _read_package_table(r: TableReader, table: str) -> dict[str, Any]:
     for k in keys_of(table):
         if k.type == "choice":
             out[k.key] = r.choice(k.key, k.choices, k.default)
-        elif k.type == "where":
-            # absent: the declared default (a region name or condition), or None, which the
-            # term reads as its own choice of place
-            out[k.key] = _read_where(r, k.key) if k.key in r.data else k.default
-    return out
+    return {**out, **_term_wheres(r, table)}
 
 
 def _read_damping(r: TableReader | None) -> DampingSpec:
@@ -578,11 +581,15 @@ def _read_viscoelastic(r: TableReader | None) -> ViscoelasticSpec:
     return ViscoelasticSpec(**_term_values(r, "viscoelastic"))
 
 
-def _read_drag(r: TableReader | None) -> DragSpec:
+def _read_velocity_table(r: TableReader | None, table: str) -> DragSpec | FrictionSpec:
+    """``[table]`` of the velocity laws (:data:`~petsoft.experiment.spec.VELOCITY_TABLES`:
+    ``[drag]``, ``[friction]``) as its spec: every key the terms declare there, checked against
+    its declaration, its default when absent."""
+    spec = type(getattr(Experiment, table))  # the class of the Experiment field's default
     if r is None:
-        return DragSpec()
-    r.check_keys(_term_keys("drag"))
-    return DragSpec(**_term_values(r, "drag"))
+        return spec()
+    r.check_keys(_term_keys(table))
+    return spec(**_term_values(r, table), **_term_wheres(r, table))
 
 
 def _read_where(r: TableReader, k: str) -> str | Expression:
@@ -592,14 +599,6 @@ def _read_where(r: TableReader, k: str) -> str | Expression:
         return text.strip()
     return parse_expression(text, source=f"{r.source}: {r.key(k)}", variables=SPACE,
                             expect="condition")
-
-
-def _read_friction(r: TableReader | None) -> FrictionSpec:
-    if r is None:
-        return FrictionSpec()
-    r.check_keys(_term_keys("friction"))
-    return FrictionSpec(**_term_values(r, "friction"),
-                        where=_read_where(r, "where") if "where" in r.data else None)
 
 
 def _read_gravity(r: TableReader | None) -> GravitySpec:
