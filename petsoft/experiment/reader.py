@@ -77,7 +77,7 @@ from petsoft.errors import ExperimentError
 from petsoft.experiment.expressions import FUNCTIONS, Expression, parse_expression
 from petsoft.experiment.gravity_tilt import tilted
 from petsoft.experiment.messages import show_value, suggest, type_name
-from petsoft.experiment.parameters import get_parameter, key_part, read_calibrate
+from petsoft.experiment.parameters import key_part, read_calibrate
 from petsoft.experiment.ranges import (
     ANY,
     INT_NONNEGATIVE,
@@ -121,9 +121,10 @@ from petsoft.experiment.spec import (
     ViscoelasticSpec,
     zero_field,
 )
+from petsoft.experiment.surface import check_surface_terms, surface_keys
 from petsoft.experiment.table import TableReader, describe_range
 from petsoft.mesh.springs import read_spring_mesh
-from petsoft.terms import TERMS, keys_of, plugin_tables
+from petsoft.terms import keys_of, plugin_tables
 
 try:
     import tomllib
@@ -379,31 +380,16 @@ def _refuse_on_springs(source: str, what: str, advice: str = "") -> None:
 
 
 def _check_surface_terms(exp: Experiment) -> None:
-    """Refuse a term that acts on the surface (``Term.surface``: drag; non-zero or calibrated)
-    on a mass-spring mesh without triangles. Reads the mesh's cells (only in that case; spring
-    meshes are small)."""
-    if exp.springs is None or exp.mesh.file is None:
-        return
-    on_surface = [t for t in TERMS.values() if t.surface]
-    keys = [k.dotted for t in on_surface for k in t.keys
-            if get_parameter(exp, k.dotted) != 0.0 or k.dotted in exp.calibrate]
-    if not keys:
+    """Refuse a term that acts on the surface on a mass-spring mesh without one
+    (:mod:`petsoft.experiment.surface`). Reads the mesh's cells (only when such a term is
+    switched on; spring meshes are small)."""
+    if exp.springs is None or exp.mesh.file is None or not surface_keys(exp):
         return
     try:
         mesh = read_spring_mesh(exp.mesh.file, scale=exp.mesh.scale)
     except Exception:  # the model builder reports an unreadable mesh with its own message
         return
-    if len(mesh.triangles) == 0:
-        where = (f"{keys[0]} = {get_parameter(exp, keys[0]):g}" if keys[0] not in exp.calibrate
-                 else f'calibrate."{keys[0]}"')
-        # the terms a rope can carry: those acting on the nodes (velocity laws, Rayleigh)
-        nodal = [f"[{k.table}] {k.key}" for t in TERMS.values()
-                 if t.contributes in ("velocity", "rayleigh") and not t.surface
-                 for k in t.keys[:1]]
-        raise ExperimentError(
-            f"{exp.source}: {where}: {keys[0].split('.')[0]} needs a surface, and the "
-            f"mass-spring mesh {exp.mesh.file} has no triangle cells (a line-only spring "
-            f"network); use {', '.join(nodal[:-1])} or {nodal[-1]} for a rope or pendulum")
+    check_surface_terms(exp, mesh)
 
 
 def _read_mesh(r: TableReader | None, top: TableReader, base: Path) -> MeshSpec:
