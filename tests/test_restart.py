@@ -1,6 +1,7 @@
 """Checkpoints and restarts: bitwise on the same ranks, 1e-10 across rank counts, and a run
 killed (SIGKILL) while writing a checkpoint restarts from the previous valid one."""
 
+import re
 import shutil
 import signal
 import subprocess
@@ -15,6 +16,7 @@ import tomllib
 from child_process import child_env  # tests/child_process.py
 from mpi4py import MPI
 
+from petsoft.atomic import temporaries
 from petsoft.dynamics.checkpoint import checkpoint_files
 from petsoft.dynamics.simulate import Simulation
 from petsoft.experiment import experiment_from_dict
@@ -212,15 +214,22 @@ def test_sigkill_during_checkpoint_write_restarts_from_previous(tmp_path):
     env = child_env()
     env["PETSOFT_CHECKPOINT_PAUSE"] = "40:60"
     proc = _cli(["simulate", "exp.toml", "--out", "cut"], tmp_path, env=env, wait=False)
-    partial = tmp_path / "cut" / "checkpoints" / ".checkpoint-00000040.h5.tmp"
+    checkpoints = tmp_path / "cut" / "checkpoints"
+    temporary = temporaries(re.escape("checkpoint-00000040.h5"))
+
+    def partial():
+        return checkpoints.is_dir() and any(temporary.fullmatch(p.name)
+                                            for p in checkpoints.iterdir())
+
     deadline = time.time() + 120
-    while not partial.exists() and time.time() < deadline:
+    while not partial() and time.time() < deadline:
         time.sleep(0.05)
-    assert partial.exists(), "the run never started writing checkpoint 40"
+    assert partial(), "the run never started writing checkpoint 40"
     time.sleep(0.3)  # inside the pause: the file is half written
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=30)
     assert proc.returncode == -signal.SIGKILL
+    assert partial()  # left behind, under a name no reader takes for a checkpoint
     assert [s for s, _ in checkpoint_files(tmp_path / "cut" / "checkpoints")] == [20]
     r = _cli(["simulate", "exp.toml", "--out", "cut", "--restart"], tmp_path)
     assert "restarting from checkpoint-00000020.h5" in r.stdout

@@ -14,8 +14,10 @@ import pytest
 from petsoft.dynamics.rayleigh import NAMES as RAYLEIGH
 from petsoft.dynamics.rayleigh import RayleighLaw
 from petsoft.dynamics.velocity import LAWS, NAMES, VelocityTerms
+from petsoft.experiment import Experiment, experiment_from_dict
+from petsoft.experiment.spec import VELOCITY_TABLES
 from petsoft.physics.velocity_law import VelocitySupport
-from petsoft.terms import TERMS, Key, Parameter, Proposal, Term, builders
+from petsoft.terms import TERMS, Key, Parameter, Proposal, Term, builders, keys_of
 
 
 def support(rng, nnodes=7, pairs=18, speed=0.3):
@@ -171,6 +173,30 @@ def test_each_laws_where_and_settings_are_keys_of_its_term():
         assert len(set(names)) == len(names), t.name
         for _, key in law.settings:
             assert keys[key].type == "number", (t.name, key)
+
+
+def test_a_laws_keys_live_in_its_term():
+    """A built-in law's ``where`` and ``settings`` are its term's ``where_key`` and
+    ``setting_keys``; the experiment's spec of each velocity-law table holds exactly the keys
+    the terms declare there, with their defaults; the reader reads them all (a ``where`` too)
+    and the dict form writes them back."""
+    for t, law in builders("velocity"):
+        assert (law.where, law.settings) == (t.where_key, t.setting_keys), t.name
+    assert TERMS["friction.dry"].where_key == "friction.where"
+    assert TERMS["friction.dry"].setting_keys == (("speed", "friction.speed"),)
+    assert VELOCITY_TABLES == ("drag", "friction")
+    base = {"mesh": {"box": {"size": [1.0, 1.0, 1.0], "cells": [1, 1, 1]}},
+            "material": {"youngs_modulus": 1e5, "poisson_ratio": 0.3, "density": 1000.0}}
+    given = {"number": 0.25, "where": "x > 0.5"}
+    for table in VELOCITY_TABLES:
+        spec = getattr(Experiment, table)
+        declared = {k.key: k.default for k in keys_of(table)}
+        assert {f.name: getattr(spec, f.name) for f in dataclasses.fields(spec)} == declared
+        values = {k.key: given[k.type] for k in keys_of(table)}
+        exp = experiment_from_dict({**base, table: values})
+        d = exp.to_dict()[table]
+        assert d == values, table
+        assert experiment_from_dict({**base, table: d}) == exp
 
 
 class _NodeDamping:

@@ -50,7 +50,8 @@ def _read_series(path):
 
 
 def _leftovers(directory):
-    return sorted(p.name for p in Path(directory).rglob("*") if ".tmp-" in p.name)
+    """Temporaries left behind (petsoft.atomic names them ``.<name>.<hex>.tmp``)."""
+    return sorted(p.name for p in Path(directory).rglob("*") if p.name.endswith(".tmp"))
 
 
 def test_series_round_trip(tmp_path, mesh):

@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import base64
 import html
-import os
 import re
 from collections.abc import Sequence
 from pathlib import Path
+
+from petsoft.atomic import write_text
 
 __all__ = ["FIGURE_SECTIONS", "markdown_to_html", "write_report_html"]
 
@@ -175,7 +176,4 @@ def write_report_html(path: str | Path, md_path: str | Path,
     page = ("<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
             "<title>petsoft diagnosis report</title>\n<style>" + _CSS + "</style>\n</head>\n"
             "<body>\n" + "\n".join(body) + "\n</body>\n</html>\n")
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(page, encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return write_text(path, page)

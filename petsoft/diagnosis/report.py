@@ -3,8 +3,8 @@
 This module owns the report's contract: :func:`build_report` assembles the dict, exactly the keys
 of formats.md section 3; :func:`validate_report` checks one strictly (unknown or missing keys,
 wrong types, non-finite numbers, physics names outside :data:`PHYSICS`) and raises
-:class:`ReportError` naming the key; :func:`write_report` writes it atomically (temporary file +
-:func:`os.replace`, so a reader never sees half a report); :func:`write_report_md` says the
+:class:`ReportError` naming the key; :func:`write_report` writes it atomically
+(:mod:`petsoft.atomic`: a reader never sees half a report); :func:`write_report_md` says the
 evidence in plain words; the ``plot_*`` functions draw the figures (matplotlib, PNG).
 
 Two readings of formats.md that the example leaves open, decided here:
@@ -20,13 +20,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from petsoft.atomic import write_text
 from petsoft.errors import PetsoftError
 from petsoft.terms import TERMS
 
@@ -418,18 +417,8 @@ def write_report(path: str | Path, report: Mapping) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     text = json.dumps(report, indent=2, allow_nan=False) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; every other output is readable by all
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    # readable by everyone whatever the umask: a report is for sharing
+    return write_text(path, text, mode=0o644, fsync=True)
 
 
 def read_report(path: str | Path) -> dict:
@@ -508,10 +497,7 @@ def write_report_md(path: str | Path, report: Mapping, evidence: Mapping | None 
     lines += ["", "</details>"]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text("\n".join(lines) + "\n")
-    os.replace(tmp, path)
-    return path
+    return write_text(path, "\n".join(lines) + "\n")
 
 
 def _md_where_and_when(mm: Mapping) -> list[str]:

@@ -4,8 +4,8 @@ A checkpoint holds everything the rest of the run depends on, in file (mesh) num
 run can restart on any number of ranks: t, step number and step size, q, v, the integrator's
 internal state (e.g. the generalized-alpha acceleration), the energy ledger, the probe history,
 the experiment text and the mesh. Rank 0 writes it to a temporary name, flushes it to disk and
-renames it into place, so a crash (even SIGKILL) during the write leaves the previous checkpoint
-as the latest valid one. The two most recent checkpoints are kept.
+renames it into place (:mod:`petsoft.atomic`), so a crash (even SIGKILL) during the write leaves
+the previous checkpoint as the latest valid one. The two most recent checkpoints are kept.
 
 Layout of ``checkpoint-<step>.h5``::
 
@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from petsoft.atomic import atomic_path
 from petsoft.errors import PetsoftError
 from petsoft.version import __version__
 
@@ -68,8 +69,9 @@ def write_checkpoint(directory: Path, *, step: int, time: float, step_size: floa
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     final = directory / f"checkpoint-{step:08d}.h5"
-    tmp = directory / f".checkpoint-{step:08d}.h5.tmp"
-    with h5py.File(tmp, "w") as f:
+    # flushed to disk before the rename and the directory after it: the checkpoint a run
+    # restarts from must survive a power loss
+    with atomic_path(final, fsync=True) as tmp, h5py.File(tmp, "w") as f:
         f.attrs.update(format=FORMAT, version=VERSION, step=step, time=time,
                        step_size=step_size, integrator=integrator, ranks=ranks,
                        petsoft_version=__version__, complete=0)
@@ -95,21 +97,9 @@ def write_checkpoint(directory: Path, *, step: int, time: float, step_size: floa
         f["mesh/tets"] = mesh.cells
         f["experiment"] = experiment_text
         f.attrs["complete"] = 1
-        f.flush()
-        os.fsync(f.id.get_vfd_handle())
-    os.replace(tmp, final)
-    _fsync_dir(directory)
     for _, old in checkpoint_files(directory)[:-KEEP]:
         old.unlink(missing_ok=True)
     return final
-
-
-def _fsync_dir(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def read_latest(directory: Path) -> dict:

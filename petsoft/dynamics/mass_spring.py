@@ -44,7 +44,6 @@ from petsoft.dynamics.initial import initial_from_expressions
 from petsoft.dynamics.interfaces import SystemDefaults
 from petsoft.dynamics.matrix_free import SpringBlocks
 from petsoft.dynamics.rayleigh import RayleighDamping
-from petsoft.dynamics.velocity import LAWS as VELOCITY_LAWS
 from petsoft.dynamics.velocity import NAMES as VELOCITY_NAMES
 from petsoft.dynamics.velocity import (
     VelocityDamping,
@@ -54,6 +53,7 @@ from petsoft.dynamics.velocity import (
     where_of,
 )
 from petsoft.errors import ExperimentError
+from petsoft.experiment.surface import check_surface_terms
 from petsoft.fem.regions import RegionResolver
 from petsoft.io.recording import read_input_series
 from petsoft.mesh.springs import SpringMesh, read_spring_mesh
@@ -72,7 +72,6 @@ from petsoft.physics.springs import (
     spring_gradient,
     spring_hessian_blocks,
 )
-from petsoft.terms import term
 
 #: A ``[[mass]] at`` point closer than this (relative to the mesh's size) to a node sits on it.
 NODE_TOLERANCE = 1e-9
@@ -267,7 +266,7 @@ def build_mass_spring_model(experiment, comm: PETSc.Comm | None = None, *, mesh=
     point_masses = _point_masses(experiment, pts, size)
     resolver = RegionResolver(mesh, experiment.regions, src)
     conditions = _node_conditions(experiment, resolver, recording)
-    _check_surface_terms(experiment, mesh)
+    check_surface_terms(experiment, mesh)
     if experiment.initial.from_ == "static":
         raise ExperimentError(f"{src}: initial.from = \"static\" is not available for mass-spring "
                               "models; give initial displacement/velocity expressions")
@@ -359,21 +358,6 @@ def _node_conditions(experiment, resolver, recording) -> list:
             raise ExperimentError(f"{src}: {key}.where: selects no node of the mesh")
         conditions.append((mask, b.component_indices, displacement))
     return conditions
-
-
-def _check_surface_terms(experiment, mesh) -> None:
-    """Refuse a velocity law acting on the surface (``on_surface``) on a network without
-    triangles, naming the laws that act on the nodes."""
-    surface = {n: c for n, c in coefficients_of(experiment).items()
-               if c != 0.0 and VELOCITY_LAWS[n].on_surface}
-    if surface and len(mesh.triangles) == 0:
-        name = next(iter(surface))
-        nodal = [n for n, law in VELOCITY_LAWS.items() if not law.on_surface]
-        raise ExperimentError(
-            f"{experiment.source}: {', '.join(f'{n} = {c:g}' for n, c in surface.items())}, but "
-            f"the mesh {mesh.source} has no triangles: {term(name).keys[0].table} needs a surface "
-            f"(triangle cells); use {' or '.join(nodal)} or a Rayleigh damping for a line-only "
-            "spring network")
 
 
 def _check_nodes(src: str, masses: np.ndarray, free: np.ndarray, edges: np.ndarray) -> None:
@@ -505,8 +489,8 @@ class MassSpringSystem(VelocityDamping, SystemDefaults):
         n = lay.nvertices
         node_of = np.full(n, -1, dtype=np.int64)
         node_of[lo:hi] = np.arange(hi - lo)
-        tris = lay.mesh.triangles
-        pairs = face_pairs(self.points, tris, node_of) if len(tris) else None
+        faces = lay.mesh.surface
+        pairs = face_pairs(self.points, faces, node_of) if len(faces) else None
         # each law on the nodes its where selects
         owned = {name: mask[lo:hi] for name, mask in where_of(exp, self.model.resolver).items()}
         self.velocity_terms = VelocityTerms(hi - lo, pairs, self.masses[lo:hi].copy(),

@@ -77,7 +77,7 @@ from petsoft.errors import ExperimentError
 from petsoft.experiment.expressions import FUNCTIONS, Expression, parse_expression
 from petsoft.experiment.gravity_tilt import tilted
 from petsoft.experiment.messages import show_value, suggest, type_name
-from petsoft.experiment.parameters import get_parameter, key_part, read_calibrate
+from petsoft.experiment.parameters import key_part, read_calibrate
 from petsoft.experiment.ranges import (
     ANY,
     INT_NONNEGATIVE,
@@ -101,6 +101,7 @@ from petsoft.experiment.spec import (
     MATERIAL_MODELS,
     SPACE,
     SPACE_TIME,
+    VELOCITY_TABLES,
     BoundarySpec,
     BoxSpec,
     ColliderSpec,
@@ -120,9 +121,10 @@ from petsoft.experiment.spec import (
     ViscoelasticSpec,
     zero_field,
 )
+from petsoft.experiment.surface import check_surface_terms, surface_keys
 from petsoft.experiment.table import TableReader, describe_range
 from petsoft.mesh.springs import read_spring_mesh
-from petsoft.terms import TERMS, keys_of, plugin_tables
+from petsoft.terms import keys_of, plugin_tables
 
 try:
     import tomllib
@@ -299,8 +301,7 @@ def experiment_from_dict(
         _refuse_on_springs(source, f"[viscoelastic] ratio = {format_number(viscoelastic.ratio)}: "
                            "the standard linear solid acts",
                            "; remove [viscoelastic] or set ratio = 0")
-    drag = _read_drag(top.table("drag"))
-    friction = _read_friction(top.table("friction"))
+    velocity = {t: _read_velocity_table(top.table(t), t) for t in VELOCITY_TABLES}
     terms = {t: _read_package_table(top.table(t), t) for t in PACKAGE_TABLES if t in data}
     if terms and springs is not None:
         _refuse_on_springs(source, f"[{next(iter(terms))}]: the terms of other packages act")
@@ -321,8 +322,7 @@ def experiment_from_dict(
         masses=masses,
         colliders=colliders,
         viscoelastic=viscoelastic,
-        drag=drag,
-        friction=friction,
+        **velocity,
         terms=terms,
         format_version=version,
         path=Path(path) if path is not None else None,
@@ -380,31 +380,16 @@ def _refuse_on_springs(source: str, what: str, advice: str = "") -> None:
 
 
 def _check_surface_terms(exp: Experiment) -> None:
-    """Refuse a term that acts on the surface (``Term.surface``: drag; non-zero or calibrated)
-    on a mass-spring mesh without triangles. Reads the mesh's cells (only in that case; spring
-    meshes are small)."""
-    if exp.springs is None or exp.mesh.file is None:
-        return
-    on_surface = [t for t in TERMS.values() if t.surface]
-    keys = [k.dotted for t in on_surface for k in t.keys
-            if get_parameter(exp, k.dotted) != 0.0 or k.dotted in exp.calibrate]
-    if not keys:
+    """Refuse a term that acts on the surface on a mass-spring mesh without one
+    (:mod:`petsoft.experiment.surface`). Reads the mesh's cells (only when such a term is
+    switched on; spring meshes are small)."""
+    if exp.springs is None or exp.mesh.file is None or not surface_keys(exp):
         return
     try:
         mesh = read_spring_mesh(exp.mesh.file, scale=exp.mesh.scale)
     except Exception:  # the model builder reports an unreadable mesh with its own message
         return
-    if len(mesh.triangles) == 0:
-        where = (f"{keys[0]} = {get_parameter(exp, keys[0]):g}" if keys[0] not in exp.calibrate
-                 else f'calibrate."{keys[0]}"')
-        # the terms a rope can carry: those acting on the nodes (velocity laws, Rayleigh)
-        nodal = [f"[{k.table}] {k.key}" for t in TERMS.values()
-                 if t.contributes in ("velocity", "rayleigh") and not t.surface
-                 for k in t.keys[:1]]
-        raise ExperimentError(
-            f"{exp.source}: {where}: {keys[0].split('.')[0]} needs a surface, and the "
-            f"mass-spring mesh {exp.mesh.file} has no triangle cells (a line-only spring "
-            f"network); use {', '.join(nodal[:-1])} or {nodal[-1]} for a rope or pendulum")
+    check_surface_terms(exp, mesh)
 
 
 def _read_mesh(r: TableReader | None, top: TableReader, base: Path) -> MeshSpec:
@@ -548,6 +533,14 @@ def _term_keys(table: str) -> tuple[str, ...]:
     return tuple(k.key for k in keys_of(table))
 
 
+def _term_wheres(r: TableReader, table: str) -> dict[str, Any]:
+    """The ``where`` keys the terms declare in ``[table]``: a region name or a condition of x,
+    y, z; absent, the declared default (a region name or condition), or None, which the term
+    reads as its own choice of place (the friction: every node)."""
+    return {k.key: _read_where(r, k.key) if k.key in r.data else k.default
+            for k in keys_of(table) if k.type == "where"}
+
+
 def _read_package_table(r: TableReader, table: str) -> dict[str, Any]:
     """``[table]`` of a term from another package: every key it declares, checked against its
     declaration (range, unit, choices, a ``where``), its default when absent."""
@@ -557,11 +550,7 @@ def _read_package_table(r: TableReader, table: str) -> dict[str, Any]:
     for k in keys_of(table):
         if k.type == "choice":
             out[k.key] = r.choice(k.key, k.choices, k.default)
-        elif k.type == "where":
-            # absent: the declared default (a region name or condition), or None, which the
-            # term reads as its own choice of place
-            out[k.key] = _read_where(r, k.key) if k.key in r.data else k.default
-    return out
+    return {**out, **_term_wheres(r, table)}
 
 
 def _read_damping(r: TableReader | None) -> DampingSpec:
@@ -578,11 +567,15 @@ def _read_viscoelastic(r: TableReader | None) -> ViscoelasticSpec:
     return ViscoelasticSpec(**_term_values(r, "viscoelastic"))
 
 
-def _read_drag(r: TableReader | None) -> DragSpec:
+def _read_velocity_table(r: TableReader | None, table: str) -> DragSpec | FrictionSpec:
+    """``[table]`` of the velocity laws (:data:`~petsoft.experiment.spec.VELOCITY_TABLES`:
+    ``[drag]``, ``[friction]``) as its spec: every key the terms declare there, checked against
+    its declaration, its default when absent."""
+    spec = type(getattr(Experiment, table))  # the class of the Experiment field's default
     if r is None:
-        return DragSpec()
-    r.check_keys(_term_keys("drag"))
-    return DragSpec(**_term_values(r, "drag"))
+        return spec()
+    r.check_keys(_term_keys(table))
+    return spec(**_term_values(r, table), **_term_wheres(r, table))
 
 
 def _read_where(r: TableReader, k: str) -> str | Expression:
@@ -592,14 +585,6 @@ def _read_where(r: TableReader, k: str) -> str | Expression:
         return text.strip()
     return parse_expression(text, source=f"{r.source}: {r.key(k)}", variables=SPACE,
                             expect="condition")
-
-
-def _read_friction(r: TableReader | None) -> FrictionSpec:
-    if r is None:
-        return FrictionSpec()
-    r.check_keys(_term_keys("friction"))
-    return FrictionSpec(**_term_values(r, "friction"),
-                        where=_read_where(r, "where") if "where" in r.data else None)
 
 
 def _read_gravity(r: TableReader | None) -> GravitySpec:

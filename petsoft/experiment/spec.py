@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from petsoft.experiment.expressions import Expression, parse_expression
-from petsoft.terms import keys_of
+from petsoft.terms import TERMS, keys_of
 
 FORMAT_VERSION = 1
 #: The material laws (declared by the ``material.nonlinear`` term, :mod:`petsoft.terms`).
@@ -33,11 +33,23 @@ INITIAL_FROM = ("static",)
 MATERIAL_PARAMETERS = ("youngs_modulus", "poisson_ratio", "density")
 MATERIAL_KEYS = ("model", *MATERIAL_PARAMETERS)
 
+#: The tables of the velocity laws' keys (``drag``, ``friction``; :mod:`petsoft.terms`), each
+#: read into the :class:`Experiment` field of its name: a spec whose fields are those keys, with
+#: their declared defaults.
+VELOCITY_TABLES = tuple(dict.fromkeys(k.table for t in TERMS.values()
+                                      if t.contributes == "velocity" for k in t.keys))
+
 SPACE = ("x", "y", "z")
 SPACE_TIME = ("x", "y", "z", "t")
 
 Vec3 = tuple[float, float, float]
 Expr3 = tuple[Expression, Expression, Expression]
+
+
+def _declared(dotted: str) -> Any:
+    """The default the terms declare for the key ``table.key`` (:mod:`petsoft.terms`)."""
+    table, key = dotted.split(".")
+    return next(k.default for k in keys_of(table) if k.key == key)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -136,21 +148,23 @@ class ViscoelasticSpec:
 @dataclass(frozen=True)
 class DragSpec:
     """``[drag]``: surface drag per unit area, linear (Pa s/m) and quadratic (kg/m^3) in the
-    normal velocity (both >= 0; see :mod:`petsoft.physics.drag`)."""
+    normal velocity (both >= 0; see :mod:`petsoft.physics.drag`). The keys and their defaults
+    are the terms' (``drag.linear``, ``drag.quadratic``; :data:`VELOCITY_TABLES`)."""
 
-    linear: float = 0.0
-    quadratic: float = 0.0
+    linear: float = _declared("drag.linear")
+    quadratic: float = _declared("drag.quadratic")
 
 
 @dataclass(frozen=True)
 class FrictionSpec:
     """``[friction]``: regularised dry friction ``dry`` (m/s^2, force per unit mass, >= 0) with
     regularisation ``speed`` (m/s, > 0) on the nodes of ``where`` (None: all nodes; see
-    :mod:`petsoft.physics.friction`)."""
+    :mod:`petsoft.physics.friction`). The keys and their defaults are the term's
+    (``friction.dry``; :data:`VELOCITY_TABLES`)."""
 
-    dry: float = 0.0
-    speed: float = 1e-3
-    where: str | Expression | None = None
+    dry: float = _declared("friction.dry")
+    speed: float = _declared("friction.speed")
+    where: str | Expression | None = _declared("friction.where")
 
 
 @dataclass(frozen=True)
@@ -402,8 +416,12 @@ class Experiment:
         checks once it has read the mesh."""
         used = {name for name in self.material if name != "default"}
         used |= {b.region for b in self.boundaries if b.region is not None}
-        if isinstance(self.friction.where, str):
-            used.add(self.friction.where)
+        # a velocity law's where (friction.where): a region name, or a condition
+        for table in VELOCITY_TABLES:
+            for k in keys_of(table):
+                where = getattr(getattr(self, table), k.key)
+                if k.type == "where" and isinstance(where, str):
+                    used.add(where)
         return frozenset(used - set(self.regions))
 
     def material_for(self, region: str | None = None) -> MaterialSpec:
@@ -439,6 +457,14 @@ def _path_text(p: Path, relative_to: str | os.PathLike | None) -> str:
 
 def _literals(exprs: Iterable[Expression]) -> list[str | int | float]:
     return [e.literal for e in exprs]
+
+
+def _term_table(values: dict[str, Any]) -> dict[str, Any]:
+    """A table of terms' keys as TOML holds it: an expression as its text, a vector as a list;
+    a None (absent: the term's own choice, e.g. every node) left out."""
+    return {k: (list(v) if isinstance(v, tuple) else v.literal if isinstance(v, Expression)
+                else v)
+            for k, v in values.items() if v is not None}
 
 
 def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str, Any]:
@@ -481,18 +507,12 @@ def _to_dict(exp: Experiment, relative_to: str | os.PathLike | None) -> dict[str
         d["gravity"].update(tilt_a=exp.gravity.tilt_a, tilt_b=exp.gravity.tilt_b)
     if exp.viscoelastic != ViscoelasticSpec():
         d["viscoelastic"] = dataclasses.asdict(exp.viscoelastic)
-    if exp.drag != DragSpec():
-        d["drag"] = {"linear": exp.drag.linear, "quadratic": exp.drag.quadratic}
-    if exp.friction != FrictionSpec():
-        fr: dict[str, Any] = {"dry": exp.friction.dry, "speed": exp.friction.speed}
-        if exp.friction.where is not None:
-            w = exp.friction.where
-            fr["where"] = w if isinstance(w, str) else w.literal
-        d["friction"] = fr
+    for table in VELOCITY_TABLES:  # written when not all defaults
+        spec = getattr(exp, table)
+        if spec != type(spec)():
+            d[table] = _term_table({k.key: getattr(spec, k.key) for k in keys_of(table)})
     for table, values in exp.terms.items():
-        d[table] = {k: (list(v) if isinstance(v, tuple) else
-                        v.literal if isinstance(v, Expression) else v)
-                    for k, v in values.items() if v is not None}
+        d[table] = _term_table(values)
     if exp.boundaries:
         boundaries = []
         for b in exp.boundaries:

@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from petsoft.atomic import atomic_path
 from petsoft.experiment.spec import Experiment
 
 _BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
@@ -141,24 +142,29 @@ def write_experiment_update(original: Experiment, updated: Experiment,
         if table is not None and key in table and new is not None and table[key] != new:
             table[key] = new
     text = tomlkit.dumps(doc)
-    tmp = target.with_name(f".{target.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
     # An output directory the user left to its default ("out" beside the file) stays so: beside
     # the new file. Everything else must read back exactly as ``updated``.
     implicit_output = "directory" not in doc.get("output", {})
     try:
-        back = load_experiment(tmp).to_dict()
-        if implicit_output:
-            back["output"].pop("directory"), want["output"].pop("directory")
-        same = back == want
-    except Exception:  # noqa: BLE001 -- any failure to read it back means: spell it out
-        same = False
-    if not same:
-        tmp.unlink()
+        with atomic_path(target) as tmp:
+            tmp.write_text(text, encoding="utf-8")
+            try:
+                back = load_experiment(tmp).to_dict()
+                if implicit_output:
+                    back["output"].pop("directory"), want["output"].pop("directory")
+                same = back == want
+            except Exception:  # noqa: BLE001 -- any failure to read it back means: spell it out
+                same = False
+            if not same:
+                raise _SpellOut  # the edited text is dropped, never renamed into place
+    except _SpellOut:
         write_toml(updated, target)
         return "spelled out"
-    os.replace(tmp, target)
     return "edited"
+
+
+class _SpellOut(Exception):
+    """The edited file does not read back as the experiment: write it spelled out instead."""
 
 
 def _apply_changes(doc, old: Mapping[str, Any], new: Mapping[str, Any],

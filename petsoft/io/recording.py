@@ -6,13 +6,13 @@ Any simulation's probes become a recording, so a simulation can serve as data.
 from __future__ import annotations
 
 import os
-import tempfile
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from petsoft.atomic import atomic_path
 from petsoft.errors import ExperimentError, PetsoftError
 
 FORMAT = "petsoft-recording"
@@ -94,8 +94,8 @@ def write_recording(path: Path, reference: np.ndarray, times: np.ndarray,
                     inputs: dict[str, tuple[np.ndarray, np.ndarray]] | None = None) -> Path:
     """Write a recording atomically (a temporary file renamed into place).
 
-    A crash while writing leaves only a hidden ``.<name>.*.tmp`` file, never a file under the
-    final name that looks complete.
+    A crash while writing leaves only a hidden ``.<name>.*.tmp`` file (:mod:`petsoft.atomic`),
+    never a file under the final name that looks complete.
 
     Parameters
     ----------
@@ -144,33 +144,26 @@ def write_recording(path: Path, reference: np.ndarray, times: np.ndarray,
     if names is not None and len(names) != len(reference):
         raise ValueError(f"{len(names)} names for {len(reference)} markers")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    os.close(fd)
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = FORMAT
-            f.attrs["version"] = VERSION
-            for k, v in (attrs or {}).items():
-                f.attrs[k] = v
-            f["markers/reference"] = reference
-            if names is not None:
-                f.create_dataset("markers/name", data=np.array(list(names), dtype=object),
-                                 dtype=h5py.string_dtype("utf-8"))
-            f["frames/time"] = times
-            for key, arr in frames.items():
-                f[f"frames/{key}"] = arr
-            if noise:
-                g = f.create_group("noise")
-                for k, v in noise.items():
-                    g.attrs[k] = float(v)
-            for name, (t_in, v_in) in (inputs or {}).items():
-                f[f"inputs/{name}/time"] = np.asarray(t_in, dtype=np.float64)
-                f[f"inputs/{name}/value"] = np.asarray(v_in, dtype=np.float64).reshape(-1, 3)
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; a recording is shared data
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    # readable by everyone whatever the umask: a recording is shared data
+    with atomic_path(path, mode=0o644) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["format"] = FORMAT
+        f.attrs["version"] = VERSION
+        for k, v in (attrs or {}).items():
+            f.attrs[k] = v
+        f["markers/reference"] = reference
+        if names is not None:
+            f.create_dataset("markers/name", data=np.array(list(names), dtype=object),
+                             dtype=h5py.string_dtype("utf-8"))
+        f["frames/time"] = times
+        for key, arr in frames.items():
+            f[f"frames/{key}"] = arr
+        if noise:
+            g = f.create_group("noise")
+            for k, v in noise.items():
+                g.attrs[k] = float(v)
+        for name, (t_in, v_in) in (inputs or {}).items():
+            f[f"inputs/{name}/time"] = np.asarray(t_in, dtype=np.float64)
+            f[f"inputs/{name}/value"] = np.asarray(v_in, dtype=np.float64).reshape(-1, 3)
     return path
 
 

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 from petsc4py import PETSc
 
+from petsoft.atomic import write_text
 from petsoft.version import __version__
 
 
@@ -28,11 +27,6 @@ def write_summary(directory: Path, command: str, results: dict, solver: dict, wa
         "solver": solver,
         **results,
     }
-    path = directory / "summary.json"
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".summary.", suffix=".json")
-    with os.fdopen(fd, "w") as f:
-        json.dump(data, f, indent=2)
-        f.write("\n")
-    os.chmod(tmp, 0o644)  # mkstemp creates 0600; a summary is for everyone to read
-    os.replace(tmp, path)
-    return path
+    # readable by everyone whatever the umask: a summary is for everyone to read
+    return write_text(directory / "summary.json", json.dumps(data, indent=2) + "\n",
+                      mode=0o644)

@@ -7,11 +7,11 @@ calls it there only.
 
 Crash consistency is the point of the design. Nothing that looks complete is ever half written:
 
-* Every HDF5 file is written under a temporary name and renamed into place, complete or absent:
-  the mesh file (mesh and static cell data) first, then one small file per frame in the
-  directory ``<stem>_frames/`` beside it. An existing ``.xdmf`` of the same name is removed
-  before, and an old series' frame files with it, so an old series never points into new data.
-  (Appending every frame to one HDF5 file was tried and is not crash-safe: a process killed
+* Every HDF5 file is written under a temporary name and renamed into place, complete or absent
+  (:mod:`petsoft.atomic`): the mesh file (mesh and static cell data) first, then one small file per
+  frame in the directory ``<stem>_frames/`` beside it. An existing ``.xdmf`` of the same name is
+  removed before, and an old series' frame files with it, so an old series never points into new
+  data. (Appending every frame to one HDF5 file was tried and is not crash-safe: a process killed
   while HDF5 updates its group metadata leaves a file whose *earlier* frames can no longer be
   opened, "bad heap free list"; measured in tests/test_xdmf.py.)
 * The ``.xdmf`` mentions a frame only after its file is in place, so it only ever references
@@ -72,7 +72,12 @@ from xml.sax.saxutils import escape, quoteattr
 
 import numpy as np
 
+from petsoft.atomic import atomic_path, temporaries, write_bytes
+
 __all__ = ["Series", "XdmfWriter", "read_series", "write_xdmf"]
+
+#: The temporaries of frame files (``<k>.h5``) a killed writer may have left.
+_FRAME_TEMPORARY = temporaries(r"\d+\.h5")
 
 # XDMF number type and precision of each dtype we store (others are converted, see _as_storable).
 _XDMF_TYPES = {
@@ -209,45 +214,19 @@ def _grid(name: str, mesh_xml: str, fields: list[str], time: float | None = None
 
 
 def _replace_text(path: Path, text: str | bytes, fsync: bool) -> None:
-    """Write ``text`` to ``path`` atomically: a temporary file beside it, then os.replace."""
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    data = text.encode("utf-8") if isinstance(text, str) else text
-    try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            if fsync:
-                f.flush()
-                os.fsync(f.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def _fsync_path(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    """Write ``text`` to ``path`` atomically (:mod:`petsoft.atomic`)."""
+    write_bytes(path, text.encode("utf-8") if isinstance(text, str) else text, fsync=fsync)
 
 
 def _write_h5_atomically(path: Path, fill, fsync: bool) -> None:
-    """Create the HDF5 file ``path`` by ``fill(h5file)`` under a temporary name, then rename."""
+    """Create the HDF5 file ``path`` by ``fill(h5file)`` under a temporary name, then rename
+    (:mod:`petsoft.atomic`)."""
     import h5py
 
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = "petsoft-xdmf-data"
-            f.attrs["version"] = 1
-            fill(f)
-        if fsync:
-            _fsync_path(tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_path(path, fsync=fsync) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["format"] = "petsoft-xdmf-data"
+        f.attrs["version"] = 1
+        fill(f)
 
 
 class _DatasetMaker:
@@ -293,7 +272,9 @@ def _remove_old_frames(frames_dir: Path) -> None:
     if not frames_dir.is_dir():
         return
     for f in frames_dir.iterdir():
-        if re.fullmatch(r"\d+\.h5|\.\d+\.h5\.tmp-\d+", f.name):
+        # ``.<k>.h5.tmp-<pid>``: a temporary of petsoft before petsoft.atomic
+        if (re.fullmatch(r"\d+\.h5|\.\d+\.h5\.tmp-\d+", f.name)
+                or _FRAME_TEMPORARY.fullmatch(f.name)):
             f.unlink(missing_ok=True)
     try:
         frames_dir.rmdir()

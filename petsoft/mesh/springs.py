@@ -1,8 +1,9 @@
 """Meshes of nodes, lines and triangles: what a mass-spring model is built from.
 
 Reading and writing them (any file meshio reads: gmsh ``.msh``, ``.vtu``, ...) is mesh work, not
-dynamics: the experiment reader looks at a spring mesh's triangles before any model exists, and
-:mod:`petsoft.dynamics.mass_spring` builds its springs from the cells.
+dynamics: the experiment reader looks at a spring mesh's surface (its triangles,
+:attr:`SpringMesh.surface`) before any model exists, and :mod:`petsoft.dynamics.mass_spring`
+builds its springs from the cells.
 """
 
 from __future__ import annotations
@@ -30,6 +31,13 @@ class SpringMesh:
     source: str = "<mesh>"
     regions: dict = field(default_factory=dict)
     facet_groups: dict = field(default_factory=dict)
+
+    @property
+    def surface(self) -> np.ndarray:
+        """(F, 3) the faces of the body's surface, those a surface term (the drag) acts
+        through: the triangle cells, each once (a cloth's two sides together); none for a
+        network of lines (:mod:`petsoft.experiment.surface`)."""
+        return self.triangles
 
     @property
     def tets(self) -> np.ndarray:

@@ -117,8 +117,8 @@ class LinearDrag:
     linear = True
     on_surface = term("drag.linear").surface
     mass_proportional = False
-    where = ""
-    settings = ()
+    where = term("drag.linear").where_key
+    settings = term("drag.linear").setting_keys
 
     def __init__(self, support):
         self.S = linear_blocks(support.node, support.weight, support.normal, support.nnodes)
@@ -153,8 +153,8 @@ class QuadraticDrag:
     linear = False
     on_surface = term("drag.quadratic").surface
     mass_proportional = False
-    where = ""
-    settings = ()
+    where = term("drag.quadratic").where_key
+    settings = term("drag.quadratic").setting_keys
 
     def __init__(self, support):
         self.pairs = (support.node, support.weight, support.normal)

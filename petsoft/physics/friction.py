@@ -64,8 +64,8 @@ class DryFriction:
     linear = False
     on_surface = term("friction.dry").surface
     mass_proportional = True
-    where = "friction.where"
-    settings = (("speed", "friction.speed"),)
+    where = term("friction.dry").where_key
+    settings = term("friction.dry").setting_keys
 
     def __init__(self, support):
         self.mass, self.speed = support.mass, support.settings["speed"]

@@ -20,10 +20,15 @@ A term whose force depends on the velocity (``drag.linear``, ``drag.quadratic``,
 ``where``            the dotted experiment key (of its term) that selects the nodes it acts on
                      (``"friction.where"``), ``""`` when it acts on every node (or its whole
                      surface); the key's value None: every node. Its support holds the masses
-                     and the surface pairs of those nodes only
+                     and the surface pairs of those nodes only. A built-in law's is its term's
+                     ``where_key``: its term's key of type ``"where"``
 ``settings``         ``((name, dotted key), ...)``: the experiment's numbers it is built with
                      besides its coefficient (``(("speed", "friction.speed"),)``), handed to it
-                     as ``support.settings[name]``
+                     as ``support.settings[name]``. A built-in law's are its term's
+                     ``setting_keys``: its term's number keys after the first
+
+A law's keys live in its term's declaration (:mod:`petsoft.terms`): the experiment reader, the
+spec and its dict form read them there, and the law's ``where`` and ``settings`` name them.
 
 :class:`petsoft.dynamics.velocity.VelocityTerms` sums the laws the registry declares, each
 times its coefficient, each on its own support: the systems read ``where`` and ``settings``

@@ -204,6 +204,21 @@ class Term:
     builds: str = ""
     surface: bool = False
 
+    @property
+    def where_key(self) -> str:
+        """The dotted key of its ``"where"`` key in a table of its own (``"friction.where"``):
+        the nodes it acts on; ``""`` when it has none. A velocity law's ``where``
+        (:mod:`petsoft.physics.velocity_law`)."""
+        return next((k.dotted for k in self.keys if k.type == "where" and k.section == "table"),
+                    "")
+
+    @property
+    def setting_keys(self) -> tuple[tuple[str, str], ...]:
+        """``((key, dotted key), ...)`` of its number keys after the first, its coefficient
+        (``(("speed", "friction.speed"),)``): the numbers a velocity law is built with besides
+        its coefficient, its ``settings`` (:mod:`petsoft.physics.velocity_law`)."""
+        return tuple((k.key, k.dotted) for k in self.keys[1:] if k.type == "number")
+
     def hint(self, evidence: str, **values) -> str:
         """The hint's words for ``evidence`` with ``values`` filled in; a KeyError names the
         evidence this term declares."""

@@ -29,7 +29,7 @@ from pathlib import Path
 #: The declared architecture, lowest layer first. A module may import from its own package and
 #: from any lower layer; packages on the same line are independent of each other.
 LAYERS: list[set[str]] = [
-    {"errors", "version", "blas_threads", "carrays", "results"},
+    {"errors", "version", "blas_threads", "carrays", "results", "atomic"},
     {"dependencies"},
     {"terms"},
     {"mesh"},
