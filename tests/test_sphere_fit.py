@@ -92,8 +92,18 @@ def test_a_trial_keeps_the_added_mass(recording):
 
 def test_the_search_moves_a_misplaced_sphere_towards_the_truth(recording):
     diag, fit, cand = _start(recording, (0.225, 0.02, 0.02), "misplaced.toml")
+    said = []
+    diag.say = said.append
     moved = fit_sphere(diag, fit, cand)
     assert moved is not None
+    if MPI.COMM_WORLD.rank == 0:
+        # its scale (where a second search starts) is the step of the last poll that moved it
+        polls = [line for line in said if ": poll " in line]
+        best = [f"{np.round(cand.region['center'], 4).tolist()} r {RADIUS:.4g}"] + [
+            line.split("best centre ", 1)[1].split(", chi2", 1)[0] for line in polls]
+        last = max(i for i in range(len(polls)) if best[i + 1] != best[i])
+        h, f = moved.scale
+        assert f"(centre step {h:.3g} m, radius x {f:.3g})" in polls[last], (polls, last)
     # along the bar (what its motion tells apart; across, a wider sphere of less density
     # holds much the same mass) the sphere moves towards the truth's
     assert abs(moved.region["center"][0] - TRUE_CENTRE[0]) < 0.5 * abs(0.225 - TRUE_CENTRE[0])
@@ -324,3 +334,37 @@ def test_a_poll_is_costed_by_its_rounds_at_the_longest_round_so_far():
     needs, words = _poll_needs(diag, fit, 7)
     assert needs == pytest.approx(12.0 * rounds + 60.0)
     assert f"{rounds} round(s) side by side, as the polls so far" in words
+
+
+def test_a_second_search_starts_from_the_step_that_last_moved_the_sphere(recording,
+                                                                           monkeypatch):
+    """refit_added_sphere starts its second search at the first's last moving step
+    (SphereFit.scale); fit_sphere given a step starts its polls there, at most at a fresh
+    search's."""
+    import dataclasses
+
+    from petsoft.diagnosis import geometry
+    from petsoft.diagnosis.geometry import RADIUS_FACTOR, SphereFit
+
+    diag, fit, cand = _start(recording, (0.225, 0.02, 0.02), "scale.toml")
+    said = []
+    diag.say = said.append
+    fit_sphere(diag, fit, cand, max_polls=1, scale=(0.011, 1.2))
+    fit_sphere(diag, fit, cand, max_polls=1, scale=(1.0, 3.0))
+    if MPI.COMM_WORLD.rank == 0:
+        polls = [line for line in said if ": poll 1:" in line]
+        assert "(centre step 0.011 m, radius x 1.2)" in polls[0], said
+        h0 = max(0.5 * RADIUS, _Sphere(diag, fit, cand).cell)
+        assert f"(centre step {h0:.3g} m, radius x {RADIUS_FACTOR:.3g})" in polls[1], said
+    scales = []
+    first = SphereFit(cand, fit, cand.region, "sphere fitted: here", scale=(0.011, 1.2))
+
+    def searched(*args, scale=None, **kwargs):
+        scales.append(scale)
+        return first if len(scales) == 1 else None
+
+    monkeypatch.setattr(geometry, "fit_sphere", searched)
+    entry = AddedTerm(physics=cand.physics, parameters={}, std={}, score=1.0,
+                      rms_after=fit.rms, evidence="score test", region=cand.region)
+    refit_added_sphere(diag, entry, dataclasses.replace(fit), cand)
+    assert scales == [None, (0.011, 1.2)]

@@ -23,6 +23,17 @@ only if it passes the tests a term passes to be added
 (:func:`~petsoft.diagnosis.selection.judge`): a significant likelihood ratio for its four
 geometry parameters **and** a better held-out prediction.
 
+A second search (:func:`refit_added_sphere`, :data:`MAX_SEARCHES`) runs from the calibrated
+sphere of the first, whose recalibration changed the sensitivities that score a trial. It
+starts at the step (centre step and radius factor) of the first search's last poll that moved
+the sphere, not at half the new radius: the first search tried the coarser steps around
+nearly the same sphere and ended below that step, and the recalibration moves the optimum by
+about what that step resolves. Measured on the realistic payload case (issue 40, 711 tets)
+before this rule, the second search restarted at 0.019 m (half its radius) where the first had
+last moved at 0.0136 m, and its polls at 0.038 m (twice that) moved nothing. Trial scores are
+not reused across searches: a trial's linearised refit depends on the model it starts from
+(its residual and the other parameters' columns), which the recalibration changed.
+
 **The time budget** (:mod:`petsoft.diagnosis.budget`). Neither a search nor a poll starts
 when it could not end inside the budget together with the search's closing calibration: a
 poll is costed by the rounds of trial runs it makes (its trials over the ranks, side by side)
@@ -88,12 +99,15 @@ SEARCH_RISK = ("the sphere stays where the last search left it (the map's placem
 @dataclasses.dataclass
 class SphereFit:
     """A spatial term's fitted sphere: the new candidate (region moved), its calibrated fit
-    and what the search did (for the report)."""
+    and what the search did (for the report); ``scale``: the centre step and radius factor
+    of the last poll that moved the sphere (where a next search starts,
+    :func:`refit_added_sphere`)."""
 
     candidate: object
     fit: Fit
     region: dict
     summary: str
+    scale: tuple[float, float] | None = None
 
 
 class _Sphere:
@@ -246,7 +260,8 @@ def _poll_needs(diag: Diagnosis, fit: Fit, trials: int) -> tuple[float, str]:
 
 
 def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
-               notes: list | None = None) -> SphereFit | None:
+               notes: list | None = None,
+               scale: tuple[float, float] | None = None) -> SphereFit | None:
     """Fit the centre and radius of ``candidate``'s sphere (module docstring).
 
     Parameters
@@ -261,6 +276,11 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
     notes : list, optional
         With ``diag.reduced_trials``, what the reduced trials did is appended here
         (:meth:`~petsoft.diagnosis.reduced_trials.ReducedTrials.note`).
+    scale : (float, float), optional
+        The centre step and radius factor to start from (a previous search's
+        :attr:`SphereFit.scale`), at most a fresh search's; they grow to at most twice (the
+        factor squared) that. None: a fresh search's (half the radius, at least a cell;
+        :data:`RADIUS_FACTOR`).
 
     Returns
     -------
@@ -275,8 +295,13 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
                                          np.asarray(fit.values, dtype=float))
     best_values = dict(zip(search.names, map(float, fit.values), strict=True))
     seen = {search.cells(best).tobytes()}
-    h0 = h = max(0.5 * float(best["radius"]), search.cell)
-    f = RADIUS_FACTOR
+    h0, f0 = max(0.5 * float(best["radius"]), search.cell), RADIUS_FACTOR
+    if scale is not None:
+        h0, f0 = min(float(scale[0]), h0), min(float(scale[1]), f0)
+        diag.tell(f"  {label}: from the last step that moved it (centre step {h0:.3g} m, "
+                  f"radius x {f0:.3g})")
+    h, f = h0, f0
+    moved_at = None
     min_h = 0.25 * search.cell
     start_chi2 = best_chi2
     reduced = None
@@ -331,7 +356,8 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
                   f"{best_chi2:.6g} (linearised refit)"
                   + (reduced.poll_words(poll) if reduced is not None else ""))
         if moved:               # a step that worked may be too short: try a longer one next
-            h, f = min(2.0 * h, 2.0 * h0), min(f * f, RADIUS_FACTOR ** 2)
+            moved_at = (h, f)
+            h, f = min(2.0 * h, 2.0 * h0), min(f * f, f0 ** 2)
         else:
             h, f = 0.5 * h, float(np.sqrt(f))
     if reduced is not None:
@@ -363,7 +389,7 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
     placed = dataclasses.replace(
         candidate, region=region,
         regions={search.name: sphere_condition(region["center"], region["radius"])})
-    return SphereFit(placed, new, region, f"sphere fitted: {what}")
+    return SphereFit(placed, new, region, f"sphere fitted: {what}", scale=moved_at)
 
 
 #: At most this many searches in a row (each from the last calibrated sphere: the
@@ -375,9 +401,10 @@ def refit_added_sphere(diag: Diagnosis, entry: AddedTerm, fit: Fit, candidate,
                        searches: int = MAX_SEARCHES) -> tuple[AddedTerm, Fit, object]:
     """The added spatial term ``candidate`` (``entry``, calibrated ``fit``) with
     its sphere fitted by up to ``searches`` runs of :func:`fit_sphere`, each from the last
-    one's sphere; the entry's values, region and evidence follow. A search whose first poll
-    and closing calibration would not end inside the time budget is not started (a
-    ``skipped`` entry). A term without a region is returned as it is."""
+    one's sphere and the step that last moved it (module docstring); the entry's values,
+    region and evidence follow. A search whose first poll and closing calibration would not
+    end inside the time budget is not started (a ``skipped`` entry). A term without a region
+    is returned as it is."""
     if candidate.region is None:
         return entry, fit, candidate
     if diag.all_differenced(fit.experiment):
@@ -387,6 +414,7 @@ def refit_added_sphere(diag: Diagnosis, entry: AddedTerm, fit: Fit, candidate,
                   "viscoelastic branch under this integrator)")
         return entry, fit, candidate
     said, notes = [], []
+    scale = None
     for search in range(1, searches + 1):
         # not started when its first poll and its closing calibration would end past the
         # budget (a poll's trials are at most POLL_TRIALS)
@@ -394,10 +422,10 @@ def refit_added_sphere(diag: Diagnosis, entry: AddedTerm, fit: Fit, candidate,
         if diag.budget.stops(f"{candidate.physics}'s sphere search {search} of {searches}",
                              SEARCH_RISK, diag.tell, needs=needs, needs_for=needs_for):
             break
-        moved = fit_sphere(diag, fit, candidate, notes=notes)
+        moved = fit_sphere(diag, fit, candidate, notes=notes, scale=scale)
         if moved is None:
             break
-        fit, candidate = moved.fit, moved.candidate
+        fit, candidate, scale = moved.fit, moved.candidate, moved.scale
         said.append(moved.summary)
     # (notes: the reduced trials' words, only with diag.reduced_trials)
     tail = "".join(f"; {words}" for words in (["; then ".join(said)] if said else []) + notes)
