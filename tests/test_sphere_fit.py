@@ -35,10 +35,10 @@ def _model(centre, density: float, calibrate: str = "") -> str:
     return text.replace("cells = [6, 1, 1]", "cells = [12, 2, 2]")
 
 
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory):
+def record_truth(d: Path) -> None:
+    """The truth's model and recording (``truth.h5``) in ``d`` (collective; the first rank
+    writes). Also scripts/benchmarks/sphere_search_work.py's case."""
     comm = MPI.COMM_WORLD
-    d = Path(comm.bcast(str(tmp_path_factory.mktemp("sphere")) if comm.rank == 0 else None))
     if comm.rank == 0:
         (d / "truth.toml").write_text(_model(TRUE_CENTRE, 5000.0))
     comm.Barrier()
@@ -46,6 +46,13 @@ def recording(tmp_path_factory):
                                                           markers=12, dropout=0.0, refine=1,
                                                           seed=7))
     comm.Barrier()
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    comm = MPI.COMM_WORLD
+    d = Path(comm.bcast(str(tmp_path_factory.mktemp("sphere")) if comm.rank == 0 else None))
+    record_truth(d)
     return d
 
 
@@ -85,8 +92,18 @@ def test_a_trial_keeps_the_added_mass(recording):
 
 def test_the_search_moves_a_misplaced_sphere_towards_the_truth(recording):
     diag, fit, cand = _start(recording, (0.225, 0.02, 0.02), "misplaced.toml")
+    said = []
+    diag.say = said.append
     moved = fit_sphere(diag, fit, cand)
     assert moved is not None
+    if MPI.COMM_WORLD.rank == 0:
+        # its scale (where a second search starts) is the step of the last poll that moved it
+        polls = [line for line in said if ": poll " in line]
+        best = [f"{np.round(cand.region['center'], 4).tolist()} r {RADIUS:.4g}"] + [
+            line.split("best centre ", 1)[1].split(", chi2", 1)[0] for line in polls]
+        last = max(i for i in range(len(polls)) if best[i + 1] != best[i])
+        h, f = moved.scale
+        assert f"(centre step {h:.3g} m, radius x {f:.3g})" in polls[last], (polls, last)
     # along the bar (what its motion tells apart; across, a wider sphere of less density
     # holds much the same mass) the sphere moves towards the truth's
     assert abs(moved.region["center"][0] - TRUE_CENTRE[0]) < 0.5 * abs(0.225 - TRUE_CENTRE[0])
@@ -170,3 +187,184 @@ def test_a_sphere_search_stops_polling_once_the_budget_is_spent(recording):
     # the report names the polls left out
     [left] = diag.budget.skipped
     assert left["check"] == "mass.added sphere's polls 2-8" and "best of the polls" in left["risk"]
+
+
+# -- the time budget's foresight (issue 40) ---------------------------------------------------
+TRIAL_SECONDS, CALIBRATION_SECONDS = 10.0, 30.0
+
+
+class _FakeClock:
+    """A TimeBudget of ``seconds`` whose clock (each rank's own) advances TRIAL_SECONDS a trial
+    run on the rank that ran it, and CALIBRATION_SECONDS a calibration of the diagnosis (on
+    the first rank, where a small model's calibration runs): what the budget decides does not
+    depend on the machine's speed. ``lag``: the other ranks' clocks start that far behind (the
+    first rank's decides)."""
+
+    def __new__(cls, seconds: float, monkeypatch, diag, lag: float = 0.0):
+        from petsoft.diagnosis import geometry
+        from petsoft.diagnosis.budget import TimeBudget
+
+        class Clocked(TimeBudget):
+            now = 0.0 if MPI.COMM_WORLD.rank == 0 else -lag
+
+            def elapsed(self):
+                return self.now
+
+        budget = Clocked(seconds, 0.0, PETSc.COMM_WORLD)
+        trial = geometry._Sphere.trial
+
+        def timed_trial(self, region, comm):
+            budget.now += TRIAL_SECONDS
+            return trial(self, region, comm)
+
+        calibrate = diag.calibrate
+
+        def timed_calibrate(*args, comm=None, **kwargs):
+            if comm is not None:            # (the ranks' own call: placement.alone's task)
+                budget.now += CALIBRATION_SECONDS
+            return calibrate(*args, comm=comm, **kwargs)
+
+        monkeypatch.setattr(geometry._Sphere, "trial", timed_trial)
+        monkeypatch.setattr(diag, "calibrate", timed_calibrate)
+        return budget
+
+
+def _timed(fit):
+    """``fit`` as if its calibration took CALIBRATION_SECONDS over 3 runs (TRIAL_SECONDS a
+    run): the closing calibration's and, before any poll, a trial round's foreseen cost."""
+    import dataclasses
+
+    return dataclasses.replace(fit, seconds=CALIBRATION_SECONDS, evaluations=3)
+
+
+def _first_poll_trials(diag, fit, cand) -> int:
+    """The new cell sets of a fresh search's first poll around ``cand``'s sphere."""
+    from petsoft.diagnosis.geometry import RADIUS_FACTOR
+
+    search = _Sphere(diag, fit, cand)
+    h0 = max(0.5 * RADIUS, search.cell)
+    keys = {search.cells(r).tobytes() for r in _polls(cand.region, h0, RADIUS_FACTOR)
+            if search.cells(r).any()}
+    return len(keys - {search.cells(cand.region).tobytes()})
+
+
+def test_a_search_that_cannot_end_inside_the_budget_is_not_started(recording, monkeypatch):
+    """A search is costed at its first poll (8 trials, in rounds side by side on the ranks, at
+    a run of the last calibration's) and its closing calibration: 5 s short of that it is not
+    started (a skipped entry saying what it needed, the budget not spent); 5 s more than
+    that, it starts."""
+    from petsoft.diagnosis import geometry
+
+    diag, fit, cand = _start(recording, (0.225, 0.02, 0.02), "foresee.toml")
+    fit = _timed(fit)
+    rounds = -(-8 // MPI.COMM_WORLD.size)
+    needs = TRIAL_SECONDS * rounds + CALIBRATION_SECONDS
+    started = []
+    monkeypatch.setattr(geometry, "fit_sphere", lambda *a, **k: started.append(k) or None)
+    entry = AddedTerm(physics=cand.physics, parameters={}, std={}, score=1.0,
+                      rms_after=fit.rms, evidence="score test", region=cand.region)
+    diag.budget = _FakeClock(needs - 5.0, monkeypatch, diag, lag=1000.0)
+    assert refit_added_sphere(diag, entry, fit, cand) == (entry, fit, cand)
+    assert started == []
+    [skipped] = diag.budget.skipped
+    assert skipped["check"] == "mass.added's sphere search 1 of 2"
+    assert "first guess" in skipped["risk"]
+    assert (f"had {needs - 5.0:.0f} s left at 0 s, less than the ~{needs:.0f} s a poll of 8 "
+            f"trial run(s) (~{TRIAL_SECONDS * rounds:.0f} s, {rounds} round(s)"
+            in skipped["why"]), skipped
+    assert "closing calibration (~30 s" in skipped["why"]
+    assert not diag.budget.summary()["spent"]
+    diag.budget = _FakeClock(needs + 5.0, monkeypatch, diag)
+    assert refit_added_sphere(diag, entry, fit, cand) == (entry, fit, cand)
+    assert len(started) == 1 and diag.budget.skipped == []
+
+
+def test_a_poll_that_cannot_end_inside_the_budget_is_not_made(recording, monkeypatch):
+    """A budget that holds the first poll and the closing calibration with 5 s to spare: the
+    second poll (a round at least, at the first's cost a round) is not made, the report says
+    why, the search keeps what the first poll found and its closing calibration ends inside
+    the budget. The other ranks' clocks lag by 1000 s: the first rank's decides for all."""
+    diag, fit, cand = _start(recording, (0.225, 0.02, 0.02), "foresee_polls.toml")
+    fit = _timed(fit)
+    first = TRIAL_SECONDS * -(-_first_poll_trials(diag, fit, cand) // MPI.COMM_WORLD.size)
+    seconds = first + CALIBRATION_SECONDS + 5.0
+    said = []
+    diag.say = said.append
+    diag.budget = _FakeClock(seconds, monkeypatch, diag, lag=1000.0)
+    moved = fit_sphere(diag, fit, cand)
+    # (as test_a_sphere_search_stops_polling_once_the_budget_is_spent: poll 1 moved it)
+    assert moved is not None
+    assert abs(moved.region["center"][0] - TRUE_CENTRE[0]) < abs(0.225 - TRUE_CENTRE[0])
+    [left] = diag.budget.skipped
+    assert left["check"] == "mass.added sphere's polls 2-8" and "best of the polls" in left["risk"]
+    assert f"had 35 s left at {first:.0f} s, less than the ~" in left["why"], left
+    assert "round(s) side by side, as the polls so far)" in left["why"], left
+    assert MPI.COMM_WORLD.allgather(diag.budget.skipped) == [diag.budget.skipped] * \
+        MPI.COMM_WORLD.size
+    assert not diag.budget.summary()["spent"]
+    if MPI.COMM_WORLD.rank == 0:
+        polls = [line for line in said if ": poll " in line]
+        assert len(polls) == 1 and ": poll 1:" in polls[0], said
+        assert any("stopped after poll 1 of at most 8: the next poll and the closing "
+                   "calibration would end past the time budget" in line for line in said), said
+        # the poll and the calibration (on this rank) ended inside the budget
+        assert diag.budget.elapsed() == pytest.approx(first + CALIBRATION_SECONDS)
+        assert diag.budget.elapsed() <= seconds
+
+
+def test_a_poll_is_costed_by_its_rounds_at_the_longest_round_so_far():
+    """What a poll and the closing calibration are foreseen to need: before any poll, a round
+    at a run of the last calibration's (its wall time over its runs); then at the longest
+    round so far; a poll's trials run in rounds side by side, one a rank."""
+    from types import SimpleNamespace
+
+    from petsoft.diagnosis.budget import TimeBudget
+    from petsoft.diagnosis.geometry import TRIAL_ROUND, _poll_needs
+
+    ranks = MPI.COMM_WORLD.size
+    diag = SimpleNamespace(budget=TimeBudget(100.0, 0.0, PETSc.COMM_WORLD),
+                           comm=PETSc.COMM_WORLD)
+    fit = SimpleNamespace(seconds=60.0, evaluations=6)
+    rounds = -(-7 // ranks)
+    needs, words = _poll_needs(diag, fit, 7)
+    assert needs == pytest.approx(10.0 * rounds + 60.0)
+    assert "a run each as the last calibration's" in words
+    diag.budget.record(TRIAL_ROUND, 48.0, 4)
+    diag.budget.record(TRIAL_ROUND, 20.0, 2)
+    needs, words = _poll_needs(diag, fit, 7)
+    assert needs == pytest.approx(12.0 * rounds + 60.0)
+    assert f"{rounds} round(s) side by side, as the polls so far" in words
+
+
+def test_a_second_search_starts_from_the_step_that_last_moved_the_sphere(recording,
+                                                                           monkeypatch):
+    """refit_added_sphere starts its second search at the first's last moving step
+    (SphereFit.scale); fit_sphere given a step starts its polls there, at most at a fresh
+    search's."""
+    import dataclasses
+
+    from petsoft.diagnosis import geometry
+    from petsoft.diagnosis.geometry import RADIUS_FACTOR, SphereFit
+
+    diag, fit, cand = _start(recording, (0.225, 0.02, 0.02), "scale.toml")
+    said = []
+    diag.say = said.append
+    fit_sphere(diag, fit, cand, max_polls=1, scale=(0.011, 1.2))
+    fit_sphere(diag, fit, cand, max_polls=1, scale=(1.0, 3.0))
+    if MPI.COMM_WORLD.rank == 0:
+        polls = [line for line in said if ": poll 1:" in line]
+        assert "(centre step 0.011 m, radius x 1.2)" in polls[0], said
+        h0 = max(0.5 * RADIUS, _Sphere(diag, fit, cand).cell)
+        assert f"(centre step {h0:.3g} m, radius x {RADIUS_FACTOR:.3g})" in polls[1], said
+    scales = []
+    first = SphereFit(cand, fit, cand.region, "sphere fitted: here", scale=(0.011, 1.2))
+
+    def searched(*args, scale=None, **kwargs):
+        scales.append(scale)
+        return first if len(scales) == 1 else None
+
+    monkeypatch.setattr(geometry, "fit_sphere", searched)
+    entry = AddedTerm(physics=cand.physics, parameters={}, std={}, score=1.0,
+                      rms_after=fit.rms, evidence="score test", region=cand.region)
+    refit_added_sphere(diag, entry, dataclasses.replace(fit), cand)
+    assert scales == [None, (0.011, 1.2)]

@@ -8,9 +8,9 @@ stopped. The budget bounds that: once it is spent, the diagnosis starts no new p
 reconsideration), the report is written from the model reached so far, and every piece left
 out is said in the report's ``skipped`` list with what it risks. The budget is checked between
 pieces of work, between the polls of a sphere search (which then keeps its best sphere so far),
-and inside a round of candidate fits, so a run ends after it by at most a poll and the
-calibration that ends a search, or an iteration of each candidate fit under way (a minute or
-two on such a case).
+and inside a round of candidate fits, so a run ends after it by at most a piece under way, or
+an iteration of each candidate fit under way (a minute or two on such a case); a sphere's poll
+and search are not started unless they are foreseen to end inside it (below).
 
 **A round's candidate fits.** Measured before this rule: the realistic payload case with
 ``--reduced-trials`` entered its second round inside its 900 s budget, and that round's fits
@@ -26,6 +26,18 @@ its place: a finished fit that passes both tests predicts the held-out data to t
 fewer parameters than every unfinished candidate; otherwise it adds nothing and says so (a
 ``round N's choice`` entry naming the finished fits that passed both tests), and the model is
 the one the round started from (:mod:`petsoft.diagnosis.partial_round`).
+
+**A piece that cannot finish.** Checking only whether the budget is spent lets a piece
+started just before it ends run its whole length past it: the realistic payload case (issue 40)
+started a sphere poll (~35 s) at 881 s and then the search's closing calibration (~84 s), and
+ended at 995 s of a 900 s budget. A piece whose cost can be foreseen is therefore not started
+when what is left of the budget is less than that cost (:meth:`TimeBudget.stops` with
+``needs``); the costs are learnt from the pieces of the same kind already made in this run
+(:meth:`TimeBudget.record`, :meth:`TimeBudget.cost`: each rank measures its own, the first
+rank's decide). Such a piece is a ``skipped`` entry too, whose ``why`` says what was left and
+what the piece needed; the budget is then *not* spent (``spent`` stays false in the report
+until the clock reaches it): a shorter piece may still fit. The sphere search
+(:mod:`petsoft.diagnosis.geometry`) uses it for its polls and its searches.
 
 Every rank of the diagnosis must take the same decision at the same point (the pieces are
 collective), so the first rank's clock decides and the decision is broadcast; once spent, a
@@ -71,6 +83,8 @@ class TimeBudget:
         self.spent_at: float | None = None
         #: report.json ``skipped`` entries of the work left out
         self.skipped: list[dict] = []
+        #: seconds per unit of the pieces made, by kind (:meth:`record`; this rank's clock)
+        self._costs: dict[str, list[float]] = {}
 
     def elapsed(self) -> float:
         """Seconds since ``start`` on this rank."""
@@ -106,29 +120,70 @@ class TimeBudget:
         self._spent = True
         self.spent_at = float(mpi.bcast(found_at, root=0) if mpi.Get_size() > 1 else found_at)
 
-    def stops(self, check: str, risk: str, tell=None, when: bool = True) -> bool:
-        """Whether the budget is spent (collective, as :meth:`spent`); if so and ``when``,
-        ``check`` is recorded as left out with ``risk`` (:meth:`skip`) and, with ``tell``, said
-        (``time budget: <check> not started (<why>)``). ``when`` False: the piece would not
-        run anyway, so nothing is recorded."""
-        if not self.spent():
+    def short(self, needs: float) -> tuple[bool, float, float]:
+        """Whether a piece of work of ``needs`` seconds, started now, would end past the
+        budget (collective on the budget's communicator: call it on every rank at the same
+        point). The first rank's clock and ``needs`` decide (each rank may have measured
+        its own costs): ``(short, at, needs)``, the first rank's on every rank, ``at`` its
+        seconds from ``start``. No budget: never short. It does not spend the budget."""
+        if self.seconds is None:
+            return False, self.elapsed(), float(needs)
+        at = self.elapsed()
+        decision = (at + float(needs) > self.seconds, at, float(needs))
+        mpi = _mpi(self.comm)
+        return tuple(mpi.bcast(decision, root=0)) if mpi.Get_size() > 1 else decision
+
+    def stops(self, check: str, risk: str, tell=None, when: bool = True,
+              needs: float | None = None, needs_for: str = "") -> bool:
+        """Whether ``check`` is not to start: the budget is spent (collective, as
+        :meth:`spent`) or, with ``needs`` (seconds), what is left of it is less than that
+        (:meth:`short`). If so and ``when``, ``check`` is recorded as left out with ``risk``
+        (:meth:`skip`; ``needs_for`` says in its ``why`` what the seconds are) and, with
+        ``tell``, said (``time budget: <check> not started (<why>)``). ``when`` False: the
+        piece would not run anyway, so nothing is recorded. ``needs`` must be given on every
+        rank or on none (it decides whether the ranks meet in :meth:`short`)."""
+        if self.spent():
+            why = None
+        elif needs is None:
             return False
+        else:
+            short, at, needs = self.short(needs)
+            if not short:
+                return False
+            why = (f"the time budget ({self.seconds:g} s, petsoft diagnose --budget) had "
+                   f"{max(self.seconds - at, 0.0):.0f} s left at {at:.0f} s, less than the "
+                   f"~{needs:.0f} s " + (needs_for or "the piece needs"))
         if when:
-            entry = self.skip(check, risk)
+            entry = self.skip(check, risk, why=why)
             if tell is not None:
                 tell(f"time budget: {check} not started ({entry['why']})")
         return True
 
-    def skip(self, check: str, risk: str, detail: str = "") -> dict:
+    def skip(self, check: str, risk: str, detail: str = "", why: str | None = None) -> dict:
         """Record ``check`` as left out for the budget (report.json ``skipped``), with the
         ``risk`` a reader takes by it and, in its ``why``, the ``detail`` of what was done of
-        it; returns the entry."""
-        entry = {"check": check,
-                 "why": f"the time budget ({self.seconds:g} s, petsoft diagnose --budget) was "
-                        f"spent at {self.spent_at:.0f} s" + (f": {detail}" if detail else ""),
-                 "risk": risk}
+        it; returns the entry. ``why`` None: the budget was spent (when); else the ``why``
+        itself (a piece left out because it would not have fitted, :meth:`stops`)."""
+        if why is None:
+            why = (f"the time budget ({self.seconds:g} s, petsoft diagnose --budget) was "
+                   f"spent at {self.spent_at:.0f} s")
+        entry = {"check": check, "why": why + (f": {detail}" if detail else ""), "risk": risk}
         self.skipped.append(entry)
         return entry
+
+    def record(self, kind: str, seconds: float, units: float = 1.0) -> None:
+        """A piece of work of ``kind`` was made: it took ``seconds`` (this rank's clock,
+        :meth:`elapsed` differences) for ``units`` of it (e.g. rounds of runs side by side), so
+        that :meth:`cost` foresees the next of its kind. Rank-local: no communication."""
+        if units > 0:
+            self._costs.setdefault(kind, []).append(float(seconds) / float(units))
+
+    def cost(self, kind: str) -> float | None:
+        """The seconds a unit of ``kind`` took at most so far on this rank (:meth:`record`:
+        the longest, since the machine's load varies and the budget is a bound), None before
+        any was made."""
+        made = self._costs.get(kind)
+        return max(made) if made else None
 
     def summary(self) -> dict:
         """report.json ``budget``: the budget, whether and when it was spent, what was left

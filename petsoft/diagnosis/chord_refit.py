@@ -174,7 +174,8 @@ def chord_refit(diag: Diagnosis, experiment, cols: np.ndarray, moved: np.ndarray
         calibrated = with_parameters(experiment, dict(zip(names, map(float, p), strict=True)))
         sim = diag.simulate(calibrated, comm=comm)
         final_runs = 2
-    diag.fit_seconds.append(time.perf_counter() - started)
+    seconds = time.perf_counter() - started
+    diag.fit_seconds.append(seconds)
     return Fit(experiment=calibrated, names=list(names), values=p, std=std,
                chi2=chi2(sim[ident], data, diag.sigma), rms=rms(sim[ident], data) or 0.0,
                heldout_rms=rms(sim[diag.held], diag.data[diag.held]) if diag.held.any()
@@ -182,4 +183,5 @@ def chord_refit(diag: Diagnosis, experiment, cols: np.ndarray, moved: np.ndarray
                by=f"chord Gauss-Newton on the current model's sensitivities ({runs} forward "
                   f"run(s), no sensitivity run"
                   + (", its last step checked by the run of the whole record"
-                     if before is not None else "") + ")")
+                     if before is not None else "") + ")",
+               seconds=seconds)

@@ -91,6 +91,9 @@ class Fit:
     stopped: str = ""
     #: how the fit was made when not by a calibration (:mod:`petsoft.diagnosis.chord_refit`)
     by: str = ""
+    #: its wall time (s) on the first rank of the ranks that made it (travels with the fit
+    #: gathered from a group: the time budget foresees a calibration by it, geometry.py)
+    seconds: float = 0.0
 
 
 def term_values(fit: Fit, names) -> tuple[dict, dict]:
@@ -417,14 +420,16 @@ class Diagnosis:
         names, _, _ = calibration_parameters(experiment)
         calibrated = with_parameters(experiment, dict(zip(names, res.values, strict=True)))
         sim = self.simulate(calibrated, comm=comm)
-        self.fit_seconds.append(time.perf_counter() - started)
+        seconds = time.perf_counter() - started
+        self.fit_seconds.append(seconds)
         return Fit(experiment=calibrated, names=names, values=np.asarray(res.values),
                    std=np.asarray(res.std), chi2=chi2(sim[self.ident], self.data[self.ident],
                                                         self.sigma),
                    rms=rms(sim[self.ident], self.data[self.ident]) or 0.0,
                    heldout_rms=rms(sim[self.held], self.data[self.held]) if self.held.any()
                    else None, sim=sim, iterations=res.iterations, evaluations=res.evaluations,
-                   stopped=stop.why if stop is not None and res.reason == STOPPED else "")
+                   stopped=stop.why if stop is not None and res.reason == STOPPED else "",
+                   seconds=seconds)
 
     def round_estimate(self, names: list[str]) -> str:
         """A line announcing a round of fits and roughly how long it takes: the fits so far

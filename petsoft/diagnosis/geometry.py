@@ -23,6 +23,30 @@ only if it passes the tests a term passes to be added
 (:func:`~petsoft.diagnosis.selection.judge`): a significant likelihood ratio for its four
 geometry parameters **and** a better held-out prediction.
 
+A second search (:func:`refit_added_sphere`, :data:`MAX_SEARCHES`) runs from the calibrated
+sphere of the first, whose recalibration changed the sensitivities that score a trial. It
+starts at the step (centre step and radius factor) of the first search's last poll that moved
+the sphere, at most a fresh search's (half the new radius), and grows to at most twice it: the
+first search has tried the coarser steps around nearly the same sphere, and the second is
+there to follow what the recalibration moved, not to explore again. On the realistic payload
+case (issue 40, 711 tets, 2 ranks) the second search restarted at 0.019 m (half its radius)
+where the first had last moved at 0.0136 m, and its two polls at 0.038 m moved nothing; from
+0.0136 m it made 43 trial runs in 8 polls (24 rounds on 2 ranks) instead of 53 (29 rounds),
+and ended at another sphere (held-out rms 0.1331 instead of 0.1375 mm, noise 0.1 mm; its
+closing calibration 9 iterations instead of 7). On the sphere tests' 288-tet bar
+(``scripts/benchmarks/sphere_search_work.py``) the two searches made 92 and 105 runs instead
+of 102 and 101. Trial scores are not reused across searches: a trial's linearised refit
+depends on the model it starts from (its residual and the other parameters' columns), which
+the recalibration changed.
+
+**The time budget** (:mod:`petsoft.diagnosis.budget`). Neither a search nor a poll starts
+when it could not end inside the budget together with the search's closing calibration: a
+poll is costed by the rounds of trial runs it makes (its trials over the ranks, side by side)
+at the longest a round took in this run's polls so far, and the closing calibration by the
+calibration of the model the search starts from (:func:`_poll_needs` says why). A search or
+polls left out are ``skipped`` entries of the report; a search stopped between polls keeps its
+best sphere so far.
+
 With ``diagnose --reduced-trials`` (``Diagnosis.reduced_trials``; off by default) the trials
 are scored by a reduced-order model of the fitted model and only each poll's best is run on the
 full model, which decides, and only when it would move the sphere
@@ -64,15 +88,31 @@ MAX_POLLS = 8
 RADIUS_FACTOR = 1.4
 
 
+#: The budget's kind (:meth:`~petsoft.diagnosis.budget.TimeBudget.record`) of a round of a
+#: poll's trial runs (one trial per group of ranks, side by side).
+TRIAL_ROUND = "sphere trial runs"
+#: A poll's trials at most (:func:`_polls`): what a search not started yet is costed at.
+POLL_TRIALS = 8
+#: What a poll the budget leaves out risks.
+POLLS_RISK = ("the sphere is the best of the polls made: its centre and size may be further "
+              "from the data's than a full search would find")
+#: What a search the budget leaves out risks.
+SEARCH_RISK = ("the sphere stays where the last search left it (the map's placement if none "
+               "ran): its centre and size are a first guess")
+
+
 @dataclasses.dataclass
 class SphereFit:
     """A spatial term's fitted sphere: the new candidate (region moved), its calibrated fit
-    and what the search did (for the report)."""
+    and what the search did (for the report); ``scale``: the centre step and radius factor
+    of the last poll that moved the sphere (where a next search starts,
+    :func:`refit_added_sphere`)."""
 
     candidate: object
     fit: Fit
     region: dict
     summary: str
+    scale: tuple[float, float] | None = None
 
 
 class _Sphere:
@@ -189,8 +229,44 @@ def _polls(region: dict, h: float, f: float) -> list[dict]:
     return out
 
 
+def _rounds(trials: int, ranks: int) -> int:
+    """Rounds of ``trials`` runs side by side on ``ranks`` ranks
+    (:func:`~petsoft.calibration.groups.map_on_groups`: at most one group a rank, task i on
+    group i mod groups)."""
+    return -(-int(trials) // max(int(ranks), 1))
+
+
+def _poll_needs(diag: Diagnosis, fit: Fit, trials: int) -> tuple[float, str]:
+    """(seconds, what they are) a poll of ``trials`` trial runs and the search's closing
+    calibration need, to decide whether they fit in the time budget (module docstring).
+
+    A poll costs its rounds of runs side by side (:func:`_rounds`) at the longest a round took
+    in this run's polls so far (each rank's own clock; the first rank's decides); before any
+    poll, at a run of ``fit``'s calibration (its wall time over its runs: a calibration's
+    iteration is a run with sensitivities, as a trial is). The closing calibration is
+    foreseen by ``fit``'s own, the calibration of the model the search starts from: the
+    term's candidate fit for a first search, the previous search's closing calibration for a
+    second (the same model, calibrated from a sphere's linearised refit, as the next one
+    will be). The candidate fit started from the term's default value, further from its
+    optimum, so it errs long (the payload case: 114 s for a closing calibration of 70 s);
+    the previous search's is the nearest measure of the next, though the machine's load may
+    make it err short (70 s for the next 84 s)."""
+    per = diag.budget.cost(TRIAL_ROUND)
+    basis = "as the polls so far"
+    if per is None:
+        per = fit.seconds / max(int(fit.evaluations), 1)
+        basis = "a run each as the last calibration's"
+    rounds = _rounds(trials, diag.comm.getSize())
+    poll = per * rounds
+    return poll + fit.seconds, (f"a poll of {trials} trial run(s) (~{poll:.0f} s, {rounds} "
+                                f"round(s) side by side, {basis}) and the search's closing "
+                                f"calibration (~{fit.seconds:.0f} s, as the last "
+                                "calibration's) need")
+
+
 def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
-               notes: list | None = None) -> SphereFit | None:
+               notes: list | None = None,
+               scale: tuple[float, float] | None = None) -> SphereFit | None:
     """Fit the centre and radius of ``candidate``'s sphere (module docstring).
 
     Parameters
@@ -205,6 +281,11 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
     notes : list, optional
         With ``diag.reduced_trials``, what the reduced trials did is appended here
         (:meth:`~petsoft.diagnosis.reduced_trials.ReducedTrials.note`).
+    scale : (float, float), optional
+        The centre step and radius factor to start from (a previous search's
+        :attr:`SphereFit.scale`), at most a fresh search's; they grow to at most twice (the
+        factor squared) that. None: a fresh search's (half the radius, at least a cell;
+        :data:`RADIUS_FACTOR`).
 
     Returns
     -------
@@ -219,8 +300,13 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
                                          np.asarray(fit.values, dtype=float))
     best_values = dict(zip(search.names, map(float, fit.values), strict=True))
     seen = {search.cells(best).tobytes()}
-    h0 = h = max(0.5 * float(best["radius"]), search.cell)
-    f = RADIUS_FACTOR
+    h0, f0 = max(0.5 * float(best["radius"]), search.cell), RADIUS_FACTOR
+    if scale is not None:
+        h0, f0 = min(float(scale[0]), h0), min(float(scale[1]), f0)
+        diag.tell(f"  {label}: from the last step that moved it (centre step {h0:.3g} m, "
+                  f"radius x {f0:.3g})")
+    h, f = h0, f0
+    moved_at = None
     min_h = 0.25 * search.cell
     start_chi2 = best_chi2
     reduced = None
@@ -239,14 +325,6 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
     for poll in range(1, max_polls + 1):
         if h < min_h:
             break
-        if poll > 1 and diag.budget.stops(
-                f"{label}'s polls {poll}-{max_polls}",
-                "the sphere is the best of the polls made: its centre and size may be further "
-                "from the data's than a full search would find"):
-            # the search so far is kept (its best sphere calibrated below): a poll is ~8 runs
-            diag.tell(f"  {label}: stopped after poll {poll - 1} of at most {max_polls}: the "
-                      "time budget is spent")
-            break
         trials = []
         for region in _polls(best, h, f):
             cells = search.cells(region)
@@ -254,10 +332,24 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
             if cells.any() and key not in seen:
                 seen.add(key)
                 trials.append(region)
+        # the first poll was decided by the caller; a poll without trials costs nothing more
+        needs, needs_for = _poll_needs(diag, fit, len(trials)) if trials else (None, "")
+        if poll > 1 and diag.budget.stops(f"{label}'s polls {poll}-{max_polls}", POLLS_RISK,
+                                          needs=needs, needs_for=needs_for):
+            # the search so far is kept (its best sphere calibrated below)
+            diag.tell(f"  {label}: stopped after poll {poll - 1} of at most {max_polls}: "
+                      + ("the time budget is spent" if diag.budget.spent_at is not None else
+                         "the next poll and the closing calibration would end past the time "
+                         "budget"))
+            break
+        started = diag.budget.elapsed()
         if reduced is not None and reduced.active:
             scored = reduced.poll(poll, trials, full_trials, best, best_chi2)
         else:
             scored = full_trials(trials)
+        if trials:
+            diag.budget.record(TRIAL_ROUND, diag.budget.elapsed() - started,
+                               _rounds(len(trials), diag.comm.getSize()))
         moved = False
         if scored:
             c2, step, values, region = min(scored, key=lambda t: t[0])
@@ -269,7 +361,8 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
                   f"{best_chi2:.6g} (linearised refit)"
                   + (reduced.poll_words(poll) if reduced is not None else ""))
         if moved:               # a step that worked may be too short: try a longer one next
-            h, f = min(2.0 * h, 2.0 * h0), min(f * f, RADIUS_FACTOR ** 2)
+            moved_at = (h, f)
+            h, f = min(2.0 * h, 2.0 * h0), min(f * f, f0 ** 2)
         else:
             h, f = 0.5 * h, float(np.sqrt(f))
     if reduced is not None:
@@ -301,7 +394,7 @@ def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
     placed = dataclasses.replace(
         candidate, region=region,
         regions={search.name: sphere_condition(region["center"], region["radius"])})
-    return SphereFit(placed, new, region, f"sphere fitted: {what}")
+    return SphereFit(placed, new, region, f"sphere fitted: {what}", scale=moved_at)
 
 
 #: At most this many searches in a row (each from the last calibrated sphere: the
@@ -313,8 +406,10 @@ def refit_added_sphere(diag: Diagnosis, entry: AddedTerm, fit: Fit, candidate,
                        searches: int = MAX_SEARCHES) -> tuple[AddedTerm, Fit, object]:
     """The added spatial term ``candidate`` (``entry``, calibrated ``fit``) with
     its sphere fitted by up to ``searches`` runs of :func:`fit_sphere`, each from the last
-    one's sphere; the entry's values, region and evidence follow. A term without a region is
-    returned as it is."""
+    one's sphere and the step that last moved it (module docstring); the entry's values,
+    region and evidence follow. A search whose first poll and closing calibration would not
+    end inside the time budget is not started (a ``skipped`` entry). A term without a region
+    is returned as it is."""
     if candidate.region is None:
         return entry, fit, candidate
     if diag.all_differenced(fit.experiment):
@@ -324,16 +419,18 @@ def refit_added_sphere(diag: Diagnosis, entry: AddedTerm, fit: Fit, candidate,
                   "viscoelastic branch under this integrator)")
         return entry, fit, candidate
     said, notes = [], []
+    scale = None
     for search in range(1, searches + 1):
-        if diag.budget.stops(
-                f"{candidate.physics}'s sphere search {search} of {searches}",
-                "the sphere stays where the last search left it (the map's placement if none "
-                "ran): its centre and size are a first guess", diag.tell):
+        # not started when its first poll and its closing calibration would end past the
+        # budget (a poll's trials are at most POLL_TRIALS)
+        needs, needs_for = _poll_needs(diag, fit, POLL_TRIALS)
+        if diag.budget.stops(f"{candidate.physics}'s sphere search {search} of {searches}",
+                             SEARCH_RISK, diag.tell, needs=needs, needs_for=needs_for):
             break
-        moved = fit_sphere(diag, fit, candidate, notes=notes)
+        moved = fit_sphere(diag, fit, candidate, notes=notes, scale=scale)
         if moved is None:
             break
-        fit, candidate = moved.fit, moved.candidate
+        fit, candidate, scale = moved.fit, moved.candidate, moved.scale
         said.append(moved.summary)
     # (notes: the reduced trials' words, only with diag.reduced_trials)
     tail = "".join(f"; {words}" for words in (["; then ".join(said)] if said else []) + notes)
