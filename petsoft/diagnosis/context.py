@@ -261,8 +261,8 @@ class Diagnosis:
         self.held = ~ident
         self.base_experiment = experiment
         self.model_error = {}
-        #: mesh refinements measured by one run (too large to fit), per (label, mesh): the
-        #: numerics rounds' entries (:func:`petsoft.diagnosis.numerics.measure_refinement`)
+        #: mesh refinements measured by one run (too large to fit), per (label, mesh): their
+        #: options in the numerics rounds (:func:`petsoft.diagnosis.numerics.measure_refinement`)
         self.measured_meshes: dict = {}
         #: typical mass, area, speed... of the model (candidate parameter scales), fixed by
         #: :meth:`fix_scales` once the base model's numerics are settled

@@ -74,7 +74,8 @@ from petsoft.diagnosis.numerics import (  # noqa: F401
     numerics_check,
     numerics_due,
 )
-from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings, refinement_words
+from petsoft.diagnosis.numerics_findings import numerics_findings, refinement_words
+from petsoft.diagnosis.numerics_records import NumericsOutcome
 from petsoft.diagnosis.outputs import build_diagnosis_report, write_outputs
 from petsoft.diagnosis.partial_round import conclude
 from petsoft.diagnosis.placement import ONE_RANK_DOFS
@@ -385,27 +386,27 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     final_check = numerics and not over_budget(diag, "numerics check of the final model",
                                                NUMERICS_RISK)
     num = (numerics_check(diag, current, final_estimates(diag, checks.refinements, current))
-           if final_check else {})
-    if checks.refinements:
-        num["refinements"] = checks.refinements
-    if diag.model_error:
-        num["model_error"] = dict(diag.model_error)
-        num["sigma_verdict"] = diag.sigma_verdict
+           if final_check else None)
+    findings = None
     if numerics:
-        num.update(numerics_findings(diag, num, checks.refinements, base, current))
+        findings = numerics_findings(diag, num, checks.refinements, base, current)
         # one sentence per refinement (the rounds' own findings are in the report's appendix)
-        for line in num["summary"] + [num["recommendation"] or ""]:
+        for line in findings.summary + [findings.recommendation or ""]:
             if line:
                 diag.tell(f"numerics: {line}")
+    outcome = NumericsOutcome(final=num, rounds=list(checks.refinements),
+                              model_error=dict(diag.model_error),
+                              sigma_verdict=diag.sigma_verdict, findings=findings)
     # a check not made is said in the verdict box and on the console, with what it risks
     skipped = ([] if numerics else [skipped_numerics()]) + diag.budget.skipped
-    for label, why in num.get("unchecked", {}).items():
+    for label, why in (findings.unchecked if findings is not None else {}).items():
         noun = refinement_words(label)[1]
         skipped.append({"check": f"{noun} refinement", "why": why,
                         "risk": f"the {noun}'s error is not known: a mismatch it causes may be "
                                 "blamed on physics"})
     report = build_diagnosis_report(diag, base, current, base_ev, ev, added, rejected,
-                                    numerics={k: num[k] for k in REPORT_KEYS if k in num},
+                                    numerics=(findings.as_report() if findings is not None
+                                              else None),
                                     skipped=skipped)
     # where the time went (report.json ``timings``): the report and figures are written after
     # this split is taken, so ``final`` leaves them out and ``total`` is the run up to here
@@ -415,7 +416,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                             report=report, base=base, final=current,
                             added=[a.as_report() for a in added],
                             rejected=rejected, scores=all_scores,
-                            not_modelled=not_modelled, numerics=num, evidence=ev)
+                            not_modelled=not_modelled, numerics=outcome.as_report(),
+                            evidence=ev)
     # Collect the garbage of this run's PETSc objects on every rank *now*, at the same point:
     # freeing the last object of a communicator is collective (PETSc's garbage cleanup), and
     # rank 0's plotting alone would otherwise trigger Python's collector there only (observed:
