@@ -279,7 +279,7 @@ def test_the_final_recheck_is_not_made_again_on_the_fit_the_last_check_measured(
     diag.model_error.update(booked)
     diag.tell = said.append
     try:
-        ev = {**evidence_of(diag, fit), "verdict": "consistent"}
+        ev = dataclasses.replace(evidence_of(diag, fit), verdict="consistent")
         out, _, ran = checks.recheck_final(fit, ev, 0)
     finally:
         diag.model_error.clear()

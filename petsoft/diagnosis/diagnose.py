@@ -80,7 +80,7 @@ from petsoft.diagnosis.outputs import build_diagnosis_report, write_outputs
 from petsoft.diagnosis.partial_round import conclude
 from petsoft.diagnosis.placement import ONE_RANK_DOFS
 from petsoft.diagnosis.reconsider import Added, reconsider
-from petsoft.diagnosis.records import AddedTerm, ScoreEntry
+from petsoft.diagnosis.records import AddedTerm, Evidence, ScoreEntry
 from petsoft.diagnosis.result import DiagnoseResult
 from petsoft.diagnosis.selection import (
     choose,
@@ -234,8 +234,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     diag.tell(f"base fit: {format_values(base.names, base.values)}; chi2/dof "
               f"{base.chi2 / dof:.4g}, held-out rms {fmt(base.heldout_rms)} m")
     ev = base_ev = evidence_of(diag, base)
-    diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g}, "
-              f"whiteness p {ev['noise_test'].whiteness_p_value:.3g})")
+    diag.tell(f"verdict: {ev.verdict} (chi2/dof {ev.noise_test.chi2_per_dof:.4g}, "
+              f"whiteness p {ev.noise_test.whiteness_p_value:.3g})")
     current = base
     added: list[AddedTerm] = []
     history: list[Added] = []
@@ -252,24 +252,24 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     diag.fix_scales(current, ev)
     rechecked = False
     while True:
-        if ev["verdict"] == "consistent" or len(added) >= max_additions:
+        if ev.verdict == "consistent" or len(added) >= max_additions:
             if rechecked or over_budget(
                     diag, "numerics check again on the final model", RECHECK_RISK,
-                    when=numerics and bool(diag.model_error) and ev["verdict"] == "consistent"):
+                    when=numerics and bool(diag.model_error) and ev.verdict == "consistent"):
                 break
             rechecked = True
             with clock.phase("numerics"):
                 current, ev, ran = checks.recheck_final(current, ev, len(added))
-            if not (ran and ev["verdict"] != "consistent" and len(added) < max_additions):
+            if not (ran and ev.verdict != "consistent" and len(added) < max_additions):
                 break
         rnd = len(added) + 1
         if over_budget(diag, f"round {rnd} of candidate physics", ROUND_RISK.format(
-                verdict=ev["verdict"], chi2=ev["noise_test"].chi2_per_dof)):
+                verdict=ev.verdict, chi2=ev.noise_test.chi2_per_dof)):
             break
         if rnd > 1:
             with clock.phase("numerics"):
                 current, ev = checks.first(current, ev, len(added))
-            if ev["verdict"] == "consistent":
+            if ev.verdict == "consistent":
                 break
         clock.switch("scoring")
         plane = escape_plane(diag.data[diag.ident], current.sim[diag.ident], diag.sigma)
@@ -360,7 +360,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                              candidate.zero_values(current.experiment), untried=left_out))
         current = fitted
         ev = evidence_of(diag, current)
-        diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
+        diag.tell(f"verdict: {ev.verdict} (chi2/dof {ev.noise_test.chi2_per_dof:.4g})")
         if len(history) > 1:
             # before the next round: a term an earlier round took for the one just added
             # must not call for a third (reconsider.py); a piece of work as the one after the
@@ -412,7 +412,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     # this split is taken, so ``final`` leaves them out and ``total`` is the run up to here
     report["timings"] = clock.seconds()
     report["budget"] = diag.budget.summary()
-    result = DiagnoseResult(verdict=base_ev["verdict"], final_verdict=ev["verdict"],
+    result = DiagnoseResult(verdict=base_ev.verdict, final_verdict=ev.verdict,
                             report=report, base=base, final=current,
                             added=[a.as_report() for a in added],
                             rejected=rejected, scores=all_scores,
@@ -456,17 +456,17 @@ def _reconsidered(diag, current, history, rejected, added, ev):
     if [h.candidate.physics for h in history] != before:
         added = [h.entry for h in history]
         ev = evidence_of(diag, current)
-        diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
+        diag.tell(f"verdict: {ev.verdict} (chi2/dof {ev.noise_test.chi2_per_dof:.4g})")
     return current, added, ev
 
 
-def _round_candidates(diag, current, ev: dict, plane, maps: dict) -> tuple[list, dict]:
+def _round_candidates(diag, current, ev: Evidence, plane, maps: dict) -> tuple[list, dict]:
     """A round's candidates for ``current`` (:func:`build_candidates`) with the sensitivity
     regions ``maps`` (:data:`NO_REGIONS`: the non-spatial ones and the evidence's)."""
     from petsoft.diagnosis.candidates import build_candidates
 
     return build_candidates(
-        current.experiment, evidence_region=ev["region"], stiffness_region=maps["stiffness"],
+        current.experiment, evidence_region=ev.region, stiffness_region=maps["stiffness"],
         density_region=maps["density"], centroids=diag.centroids, scales=diag.scales,
         plane=plane)
 
@@ -477,7 +477,7 @@ def _candidate_key(candidate) -> bytes:
     return pickle.dumps(candidate)
 
 
-def _score_early(diag, current, ev: dict, plane, kind: str, maps: dict, sub) -> dict:
+def _score_early(diag, current, ev: Evidence, plane, kind: str, maps: dict, sub) -> dict:
     """The scores one group makes right after its job of
     :meth:`~petsoft.diagnosis.context.Diagnosis.regions_and_shared_scores` (``kind``): after
     the sensitivity maps the spatial candidates (placed by them), after the shared scoring run

@@ -39,6 +39,7 @@ from petsoft.diagnosis.numerics_records import (
     Option,
     RefittedOption,
 )
+from petsoft.diagnosis.records import Evidence
 from petsoft.dynamics.factory import system_class
 from petsoft.errors import PetsoftError
 from petsoft.experiment import get_parameter
@@ -474,7 +475,7 @@ def numerics_due(checked_excess: float | None, excess: float,
     return None
 
 
-def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
+def resolve_numerics(diag: Diagnosis, fit: Fit, ev: Evidence, max_rounds: int = 3,
                      mesh_done: bool = False):
     """Rule out numerics before blaming physics (issue 6, step 5; issue 14 for mesh files).
 
@@ -519,9 +520,9 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
             break
         entry, fit, ev = _adopt(diag, entry, *best)
         rounds.append(entry)
-        if ev["verdict"] == "consistent":
+        if ev.verdict == "consistent":
             break
-    if (ev["verdict"] != "consistent" and not mesh_done
+    if (ev.verdict != "consistent" and not mesh_done
             and fit.rms <= MEASURE_BELOW_RMS * diag.sigma and measure_untried(diag, fit, rounds)):
         ev = evidence_of(diag, fit)
     return fit, ev, rounds
@@ -701,7 +702,7 @@ def _outcome(gain: float, excess: float, change: float, matters: bool, later: bo
 
 
 def _adopt(diag: Diagnosis, entry: NumericsRound, r, gain: float, fit: Fit
-           ) -> tuple[NumericsRound, Fit, dict]:
+           ) -> tuple[NumericsRound, Fit, Evidence]:
     """Adopt refinement ``r`` (its fit ``fit``) as the best of round ``entry``: its remaining
     error bounded and counted when the next round cannot (or need not) measure it; (the round
     with its adoption, fit, its evidence)."""
@@ -722,7 +723,7 @@ def _adopt(diag: Diagnosis, entry: NumericsRound, r, gain: float, fit: Fit
         entry = replace(entry, remaining_counted=again)
     ev = evidence_of(diag, fit)
     diag.tell(f"numerics: adopted {r.label} (step {fit.experiment.time.step:.4g} s); verdict "
-              f"{ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
+              f"{ev.verdict} (chi2/dof {ev.noise_test.chi2_per_dof:.4g})")
     return entry, fit, ev
 
 
@@ -1056,12 +1057,12 @@ class NumericsChecks:
         #: a model switch added since the last check (it may need a finer step)
         self.switch_since_check: str | None = None
 
-    def first(self, fit: Fit, ev: dict, added: int):
+    def first(self, fit: Fit, ev: Evidence, added: int):
         """Rule out numerics before blaming physics, when :func:`numerics_due` says a check is
         due; returns the (possibly refined) fit and its evidence."""
         if not self.enabled:
             return fit, ev
-        if ev["verdict"] == "consistent":
+        if ev.verdict == "consistent":
             # a mesh file is checked before anything else even then: a coarse mesh's stiffness
             # hides in the calibrated parameters (issue 14: E 26 % low)
             if self.checked_excess is None and is_mesh_file(fit.experiment):
@@ -1071,7 +1072,7 @@ class NumericsChecks:
         why = numerics_due(self.checked_excess, self.diag.excess(fit), self.switch_since_check)
         return self.refine(fit, ev, why, added) if why else (fit, ev)
 
-    def refine(self, fit: Fit, ev: dict, why: str, added: int, final: bool = False):
+    def refine(self, fit: Fit, ev: Evidence, why: str, added: int, final: bool = False):
         """:func:`resolve_numerics`, its rounds recorded, and the excess it leaves remembered so
         that the next round's :meth:`first` does not repeat it at once."""
         fit, ev, rounds = resolve_numerics(self.diag, fit, ev)
@@ -1081,7 +1082,7 @@ class NumericsChecks:
         self.switch_since_check = None
         return fit, ev
 
-    def recheck_final(self, fit: Fit, ev: dict, added: int):
+    def recheck_final(self, fit: Fit, ev: Evidence, added: int):
         """Measure an estimated discretisation error again on the final model.
 
         A consistent verdict may lean on a discretisation error estimated while a large
@@ -1091,7 +1092,7 @@ class NumericsChecks:
         2.2 x the noise. Returns (fit, ev, whether it ran).
         """
         diag = self.diag
-        if not (self.enabled and diag.model_error and ev["verdict"] == "consistent"):
+        if not (self.enabled and diag.model_error and ev.verdict == "consistent"):
             return fit, ev, False
         counted = ("numerics: the verdict counts an estimated discretisation error ("
                    + ", ".join(f"{k} {v:.3g} m" for k, v in diag.model_error.items()) + ")")
