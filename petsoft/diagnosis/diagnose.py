@@ -449,12 +449,13 @@ def over_budget(diag, what: str, risk: str, when: bool = True) -> bool:
 
 def _reconsidered(diag, current, history, rejected, added, ev):
     """(fit, added entries, evidence) after :func:`reconsider` tried each earlier term's
-    runners-up in its place beside the later ones (the entries and the verdict are new only
-    when a term was replaced or taken out)."""
+    runners-up in its place beside the later ones (the verdict is new only when a term was
+    replaced or taken out; the entries are the history's, which may also have said a tie)."""
     before = [h.candidate.physics for h in history]
     current = reconsider(diag, current, history, rejected)
+    # (the entries are frozen: reconsider puts a changed copy in the history)
+    added = [h.entry for h in history]
     if [h.candidate.physics for h in history] != before:
-        added = [h.entry for h in history]
         ev = evidence_of(diag, current)
         diag.tell(f"verdict: {ev.verdict} (chi2/dof {ev.noise_test.chi2_per_dof:.4g})")
     return current, added, ev

@@ -32,6 +32,11 @@ if TYPE_CHECKING:       # (context.py makes score entries: importing it here wou
 class ScoreEntry:
     """One candidate's score entry in one round of the diagnosis.
 
+    The one record here that stays mutable: each step of the round sets its own fields on the
+    same entry (below: who sets which), and the round's lists (the report's order, the ranking,
+    the shortlist, the contenders, a later round's runners-up) hold that one entry, recognised
+    by identity. A frozen entry would have to be replaced in each of those lists at each step.
+
     Attributes
     ----------
     physics : str
@@ -149,14 +154,16 @@ class ScoreEntry:
 
 
 # eq=False: as a ScoreEntry, one round's addition, recognised by identity
-@dataclass(eq=False)
+@dataclass(frozen=True, eq=False)
 class AddedTerm:
     """A physics term a round added: report.json's ``added`` entry while the run goes on.
 
     Made by :func:`~petsoft.diagnosis.selection.judge` when the candidate passes both tests;
     :func:`~petsoft.diagnosis.selection.choose` and :func:`~petsoft.diagnosis.reconsider.
     reconsider` extend its ``evidence``; :func:`~petsoft.diagnosis.geometry.refit_added_sphere`
-    and ``reconsider`` replace it (a fitted sphere, a replacement term) or its values.
+    and ``reconsider`` replace it (a fitted sphere, a replacement term) or its values. Each
+    makes a changed copy (:func:`dataclasses.replace`): the round's history
+    (:class:`~petsoft.diagnosis.reconsider.Added`) holds the current one.
 
     Attributes
     ----------
