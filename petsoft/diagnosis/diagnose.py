@@ -405,8 +405,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                         "risk": f"the {noun}'s error is not known: a mismatch it causes may be "
                                 "blamed on physics"})
     report = build_diagnosis_report(diag, base, current, base_ev, ev, added, rejected,
-                                    numerics=(findings.as_report() if findings is not None
-                                              else None),
+                                    numerics=findings.as_report() if findings else None,
                                     skipped=skipped)
     # where the time went (report.json ``timings``): the report and figures are written after
     # this split is taken, so ``final`` leaves them out and ``total`` is the run up to here
