@@ -283,7 +283,8 @@ class FinalChange:
 
 @dataclass(frozen=True)
 class FinalCheck:
-    """:func:`~petsoft.diagnosis.numerics.numerics_check` of the final model.
+    """:func:`~petsoft.diagnosis.numerics.numerics_check` of the final model: what each
+    refinement changes on it without a refit, or why it was not made.
 
     Attributes
     ----------
