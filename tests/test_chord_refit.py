@@ -143,16 +143,16 @@ def test_the_numerics_check_refits_the_step_by_the_chord_at_a_quarter(case):
     diag, fit, half, moved, _, said = case
     diag.model_error["step/2"] = 0.5 * diag.sigma     # as an earlier round would have booked
     _, _, rounds = resolve_numerics(diag, fit, evidence_of(diag, fit), max_rounds=1)
-    options = rounds[0]["options"]
+    options = rounds[0].options
     assert "step/2" not in options
     # the quarter step measured the step's error afresh: the halved step's estimate is out of
     # the verdict's noise budget (else counted twice)
     assert "step/2" not in diag.model_error
     step = options["step/4"]
-    assert step["refit"].startswith("chord Gauss-Newton")
-    assert step["matters"] and rounds[0]["adopted"] == "step/4"
-    assert step["same_parameters_from"] == "step/2"
-    assert step["how"] == "step 0.008 s -> 0.002 s"
+    assert step.refit.startswith("chord Gauss-Newton")
+    assert step.matters and rounds[0].adopted == "step/4"
+    assert step.same_parameters_from == "step/2"
+    assert step.how == "step 0.008 s -> 0.002 s"
     if MPI.COMM_WORLD.rank == 0:
         assert any("numerics step/4: it" in line and "run(s)" in line for line in said), said
         assert any("refitting at a quarter of the step" in line for line in said), said
@@ -161,10 +161,10 @@ def test_the_numerics_check_refits_the_step_by_the_chord_at_a_quarter(case):
     quarter = refined(half, "step/2")
     assert quarter.time.step == pytest.approx(0.002)
     full = diag.calibrate(quarter)
-    assert abs(step["parameters"]["material.youngs_modulus"] - full.values[0]) \
+    assert abs(step.parameters["material.youngs_modulus"] - full.values[0]) \
         < 0.2 * full.std[0]
     # the estimated same-parameter change against the quarter step's real run at the fit's E
     seen = np.isfinite(diag.data[diag.ident])
     real = diag.simulate_identification(quarter)
     actual = np.sqrt(np.mean((real[diag.ident][seen] - fit.sim[diag.ident][seen]) ** 2))
-    assert step["change_same_parameters"] == pytest.approx(actual, rel=0.1)
+    assert step.change_same_parameters == pytest.approx(actual, rel=0.1)

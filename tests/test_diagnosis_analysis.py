@@ -418,18 +418,19 @@ def test_collect_evidence_planted_point_to_valid_report(tmp_path):
     pts = np.array(np.meshgrid(g, g, [-0.01, 0.01], indexing="ij")).reshape(3, -1).T
     ev = evidence.collect_evidence(data, sim, t, ref, names, points=pts,
                                    tets=Delaunay(pts).simplices, out=tmp_path)
-    assert ev["noise_std"] == pytest.approx(sigma, rel=0.1)        # estimated: no sigma given
-    assert ev["verdict"] == "missing-physics"
-    assert ev["mismatch"]["markers"][0] == names[np.argmin(np.linalg.norm(ref - point, axis=1))]
-    assert np.linalg.norm(np.array(ev["region"]["center"]) - point) < 0.02
-    assert any(abs(f - 3.0) < 0.03 for f in ev["frequencies_hz"])  # the planted 3 Hz
-    assert ev["field"].exists()
+    assert ev.noise_std == pytest.approx(sigma, rel=0.1)        # estimated: no sigma given
+    assert ev.verdict == "missing-physics"
+    assert ev.mismatch["markers"][0] == names[np.argmin(np.linalg.norm(ref - point, axis=1))]
+    assert np.linalg.norm(np.array(ev.region["center"]) - point) < 0.02
+    assert any(abs(f - 3.0) < 0.03 for f in ev.frequencies_hz)  # the planted 3 Hz
+    assert ev.field.exists()
     figs = evidence.write_figures(tmp_path, ev, t, data, sim)
     assert all(f.exists() for f in figs)
-    rep = report.build_report(verdict=ev["verdict"], noise_std=ev["noise_std"], base=ev["fit"],
-                              final=ev["fit"], parameters={}, **ev["mismatch"])
+    rep = report.build_report(verdict=ev.verdict, noise_std=ev.noise_std, base=ev.fit,
+                              final=ev.fit, parameters={}, **ev.mismatch)
     report.write_report(tmp_path / "report.json", rep)
-    md = report.write_report_md(tmp_path / "report.md", rep, ev, [f.name for f in figs])
+    md = report.write_report_md(tmp_path / "report.md", rep, ev.as_report(),
+                                [f.name for f in figs])
     assert "Markers that stand out" in md.read_text()
 
 
@@ -442,10 +443,10 @@ def test_collect_evidence_on_pure_noise_is_consistent():
     sim = ref[None] + 0.01 * np.sin(2 * np.pi * t)[:, None, None]
     data = sim + rng.normal(0, 1e-4, sim.shape)
     ev = evidence.collect_evidence(data, sim, t, ref, names, sigma=1e-4)
-    assert ev["verdict"] == "consistent" and ev["noise_source"] == "given by the recording"
-    assert ev["mismatch"] == {"markers": [], "time_windows": [], "frequencies_hz": [],
+    assert ev.verdict == "consistent" and ev.noise_source == "given by the recording"
+    assert ev.mismatch == {"markers": [], "time_windows": [], "frequencies_hz": [],
                               "region": None}
-    assert ev["fit"]["chi2_per_dof"] == pytest.approx(1.0, abs=0.05)
+    assert ev.fit["chi2_per_dof"] == pytest.approx(1.0, abs=0.05)
 
 
 # --------------------------------------------------------------------------- the real pendulum

@@ -5,12 +5,16 @@
 ``estimated`` entry instead of simulating, and the report's sentences say it was estimated.
 """
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from _numerics_records import linearised, numerics_round
+from _numerics_records import refitted as refitted_option
 
 from petsoft.diagnosis.numerics import ESTIMATE_FINAL_BELOW, final_estimates
+from petsoft.diagnosis.numerics_records import FinalChange, FinalCheck
 
 SIGMA = 1e-4
 
@@ -18,12 +22,13 @@ SIGMA = 1e-4
 def _rounds(label="step/2", same=0.36, refitted=0.23, share=1.0 / 3.0, params=None):
     """A last numerics round that adopted ``label``: its change at the same parameters and
     refitted (in noise units) and Richardson's share (remaining_estimate / change_rms)."""
-    option = {"change_same_parameters": same * SIGMA, "change_rms": refitted * SIGMA,
-              "remaining_estimate": refitted * SIGMA * share,
-              "parameters": params if params is not None
-              else {"material.youngs_modulus": 2.0e7}}
-    return [{"options": {"P2": {}}, "adopted": "P2"},
-            {"options": {label: option}, "adopted": label}]
+    option = refitted_option(change_same_parameters=same * SIGMA, change_rms=refitted * SIGMA,
+                       remaining_estimate=refitted * SIGMA * share,
+                       parameters=params if params is not None
+                       else {"material.youngs_modulus": 2.0e7})
+    return [numerics_round({"P2": refitted_option()}, adopted="P2"),
+            numerics_round({label: option}, adopted=label)]
+
 
 
 def _fit(e=2.0e7):
@@ -46,7 +51,7 @@ def test_what_is_not_estimated():
     assert final_estimates(DIAG, _rounds(), _fit(2.1e7)) == {}
     # the last round adopted a mesh, not a step; or nothing; or there was no round
     assert final_estimates(DIAG, _rounds(label="mesh x2"), _fit()) == {}
-    assert final_estimates(DIAG, [{"options": {}}], _fit()) == {}
+    assert final_estimates(DIAG, [numerics_round({})], _fit()) == {}
     assert final_estimates(DIAG, [], _fit()) == {}
 
 
@@ -54,19 +59,20 @@ def test_the_report_says_the_final_change_was_estimated():
     from petsoft.diagnosis.numerics_findings import numerics_summary
 
     rounds = _rounds()
-    rounds[-1]["options"]["step/2"].update(
-        {"how": "step 0.001 s -> 0.0005 s", "change_over_noise": 0.23, "matters": True})
-    rounds[0]["options"]["P2"].update({"how": "4-node -> 10-node", "change_over_noise": 27.0,
-                                       "matters": True})
-    num = {"step/2": {"rms": None, "change": 0.12 * SIGMA, "change_over_noise": 0.12,
-                      "how": "step 0.0005 s -> 0.00025 s", "resolved": True,
-                      "estimated": True}}
+    step = replace(rounds[-1].options["step/2"], how="step 0.001 s -> 0.0005 s",
+                   change_over_noise=0.23, change_same_parameters_over_noise=0.23, matters=True)
+    rounds[-1] = replace(rounds[-1], options={"step/2": step})
+    p2 = refitted_option(how="4-node -> 10-node", change_over_noise=27.0, matters=True)
+    rounds[0] = replace(rounds[0], options={"P2": p2})
+    change = FinalChange(rms=None, change=0.12 * SIGMA, change_over_noise=0.12,
+                         how="step 0.0005 s -> 0.00025 s", resolved=True, estimated=True)
+    num = FinalCheck(base_rms_all=SIGMA, changes={"step/2": change})
     final = SimpleNamespace(experiment=SimpleNamespace(
         time=SimpleNamespace(step=0.0005), mesh=SimpleNamespace(order=2)))
     summary, adopted, _ = numerics_summary(num, rounds, final, SIGMA)
     (step,) = [s for s in summary if s.startswith("Time step")]
     assert "would change the simulation by an estimated 0.12x" in step and "not simulated" in step
-    num["step/2"]["estimated"] = False
+    num = FinalCheck(base_rms_all=SIGMA, changes={"step/2": replace(change, estimated=False)})
     (step,) = [s for s in numerics_summary(num, rounds, final, SIGMA)[0]
                if s.startswith("Time step")]
     assert "changes the simulation by 0.12x" in step and "estimated" not in step
@@ -78,31 +84,36 @@ def test_the_summary_says_a_counted_mesh_error_is_counted():
     taper: 10.6x, 0.295x refitted, 0.39x counted), is not said to have come no closer."""
     from petsoft.diagnosis.numerics_findings import numerics_summary
 
-    mesh = {"how": "every tet split 1->8", "change_over_noise": 0.295,
-            "change_same_parameters_over_noise": 10.6, "matters": True, "gain": 2019.0,
-            "error_estimate": 0.394 * SIGMA, "measured_only": True}
-    rounds = [{"options": {"mesh x2": mesh}}]
+    mesh = linearised(how="every tet split 1->8", change_over_noise=0.295,
+                      change_same_parameters_over_noise=10.6, matters=True, gain=2019.0,
+                      error_estimate=0.394 * SIGMA, measured_only=True)
+    rounds = [numerics_round({"mesh x2": mesh})]
     final = SimpleNamespace(experiment=SimpleNamespace(
         time=SimpleNamespace(step=0.002), mesh=SimpleNamespace(order=1)))
-    (said,) = [s for s in numerics_summary({}, rounds, final, SIGMA)[0] if s.startswith("Mesh")]
+
+    def mesh_said(rounds):
+        (said,) = [s for s in numerics_summary(None, rounds, final, SIGMA)[0]
+                   if s.startswith("Mesh")]
+        return said
+
+    said = mesh_said(rounds)
     assert "changes the simulation by 11x the noise, 0.29x after a refit" in said, said
     assert "estimated at 0.39x the noise, is counted" in said and "no closer" not in said
     # no error counted (the refit came no closer): said so
-    mesh.update(error_estimate=0.0, gain=-5.0, matters=False)
-    (said,) = [s for s in numerics_summary({}, rounds, final, SIGMA)[0] if s.startswith("Mesh")]
+    mesh = replace(mesh, error_estimate=0.0, gain=-5.0, matters=False)
+    said = mesh_said([numerics_round({"mesh x2": mesh})])
     assert "came no closer to the data" in said, said
     # closer to the data but neither counted nor adopted (another refinement was adopted in
     # its round): not said to have come no closer
-    mesh.update(gain=40.0, matters=True)
-    rounds[0]["adopted"] = "P2"
-    rounds[0]["options"]["P2"] = {"how": "4-node -> 10-node", "change_over_noise": 30.0,
-                                  "matters": True}
-    (said,) = [s for s in numerics_summary({}, rounds, final, SIGMA)[0] if s.startswith("Mesh")]
+    mesh = replace(mesh, gain=40.0, matters=True)
+    p2 = refitted_option(how="4-node -> 10-node", change_over_noise=30.0, matters=True)
+    rounds = [numerics_round({"mesh x2": mesh, "P2": p2}, adopted="P2")]
+    said = mesh_said(rounds)
     assert "brought it closer to the data, but it was not adopted" in said, said
     assert "no closer" not in said
     # an earlier round's closer refit does not speak for the last one, which came no closer
-    rounds.append({"options": {"mesh x2": {**mesh, "gain": -3.0, "matters": False}}})
-    (said,) = [s for s in numerics_summary({}, rounds, final, SIGMA)[0] if s.startswith("Mesh")]
+    rounds.append(numerics_round({"mesh x2": replace(mesh, gain=-3.0, matters=False)}))
+    said = mesh_said(rounds)
     assert "came no closer to the data" in said, said
 
 
@@ -110,13 +121,13 @@ def test_a_small_remaining_step_error_is_counted_instead_of_halving_again():
     from petsoft.diagnosis.numerics import estimated_instead, next_halving_estimate
 
     rounds = _rounds(same=0.77, refitted=0.25)
-    o = rounds[-1]["options"]["step/2"]
+    o = rounds[-1].options["step/2"]
     # Richardson: the adopting change at the same parameters times the share, 0.77 / 3
     assert next_halving_estimate(o, SIGMA) == pytest.approx(0.77 / 3.0)
     why = estimated_instead(o, SIGMA)
     assert why is not None and "0.26x the noise" in why and "not simulated" in why
     # the threshold is the final check's: above it, the step is halved again
-    above = _rounds(same=3.01 * ESTIMATE_FINAL_BELOW)[-1]["options"]["step/2"]
+    above = _rounds(same=3.01 * ESTIMATE_FINAL_BELOW)[-1].options["step/2"]
     assert estimated_instead(above, SIGMA) is None
-    below = _rounds(same=2.99 * ESTIMATE_FINAL_BELOW)[-1]["options"]["step/2"]
+    below = _rounds(same=2.99 * ESTIMATE_FINAL_BELOW)[-1].options["step/2"]
     assert estimated_instead(below, SIGMA) is not None

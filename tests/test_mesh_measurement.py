@@ -10,10 +10,12 @@ change and Young's modulus must agree with an actual calibration of the split mo
 error is counted in the verdict's noise budget as Richardson's k / (k - 1) of that change.
 """
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _numerics_records import linearised, numerics_round
 from _taper import CALIBRATE, taper, taper_diagnosis, write_taper_mesh
 from mpi4py import MPI
 from petsc4py import PETSc
@@ -24,6 +26,7 @@ from petsoft.diagnosis import numerics
 from petsoft.diagnosis.context import Diagnosis
 from petsoft.diagnosis.numerics import measurable, measure_untried
 from petsoft.diagnosis.numerics_findings import numerics_findings
+from petsoft.diagnosis.numerics_records import LinearisedOption, NumericsFindings, NumericsRound
 from petsoft.experiment import load_experiment
 from petsoft.io.recording import read_recording
 from petsoft.solvers.linear import direct_solve_up_to
@@ -52,13 +55,13 @@ def test_one_run_of_a_mesh_too_large_to_fit_measures_what_a_refit_would_leave(tm
     # 10-node elements on 192 tets split 1->8: as many nodes as 12288 4-node tets, over the
     # fitting limit, under the measuring one
     assert measurable(split, fit.experiment)
-    rounds: list[dict] = []
+    rounds: list[NumericsRound] = []
     assert measure_untried(diag, fit, rounds)
-    entry = rounds[-1]["options"]["mesh x2"]
-    assert entry["measured_only"]
+    entry = rounds[-1].options["mesh x2"]
+    assert entry.measured_only
     # once per mesh: asked again (the final recheck), the measurement is reused, not repeated
     assert measure_untried(diag, fit, rounds)
-    assert rounds[-1]["options"]["mesh x2"] is entry
+    assert rounds[-1].options["mesh x2"] is entry
     assert sum(key[0] == "mesh x2" for key in diag.measured_meshes) == 1
 
     with direct_solve_up_to(60000):
@@ -68,34 +71,34 @@ def test_one_run_of_a_mesh_too_large_to_fit_measures_what_a_refit_would_leave(tm
                                     - fit.sim[diag.ident][seen]) ** 2)))
     # the mesh shows here (the recording is the split mesh at half the step; the noise is
     # small: the 10-node taper converges fast, 9x the noise at the same parameters) ...
-    assert entry["change_same_parameters"] > 2.0 * NOISE
+    assert entry.change_same_parameters > 2.0 * NOISE
     # ... a refit absorbs most of it into E, and the linearised refit says how much
-    assert entry["change_rms"] < 0.7 * entry["change_same_parameters"]
+    assert entry.change_rms < 0.7 * entry.change_same_parameters
     # (measured: 2.391e-6 vs 2.408e-6 m; E 20.220 vs 20.219 MPa from 20.045; chi2 within 1 %)
-    assert entry["change_rms"] == pytest.approx(actual, rel=0.05)
-    e_lin = entry["parameters"]["material.youngs_modulus"]
+    assert entry.change_rms == pytest.approx(actual, rel=0.05)
+    e_lin = entry.parameters["material.youngs_modulus"]
     e_fit, e_ref = fit.values[0], refit.values[0]
     assert abs(e_lin - e_ref) < 0.05 * abs(e_ref - e_fit)
-    assert entry["chi2"] == pytest.approx(refit.chi2, rel=0.03)
+    assert entry.chi2 == pytest.approx(refit.chi2, rel=0.03)
     # closer to the data: counted in the verdict's budget as the current mesh's error
-    assert entry["gain"] > 0.0
-    assert entry["error_estimate"] == pytest.approx(entry["change_rms"] * 8.0 / 7.0)
-    assert diag.model_error["mesh x2"] == entry["error_estimate"]
+    assert entry.gain > 0.0
+    assert entry.error_estimate == pytest.approx(entry.change_rms * 8.0 / 7.0)
+    assert diag.model_error["mesh x2"] == entry.error_estimate
     assert diag.sigma_verdict > diag.sigma
     # the words: what the one run found, and a mesh to use since the error exceeds the noise
-    said = numerics_findings(diag, {}, rounds, fit, fit)
+    said = numerics_findings(diag, None, rounds, fit, fit)
     words_and_recommendation(said, entry)
 
     MPI.COMM_WORLD.Barrier()
 
 
-def words_and_recommendation(said: dict, entry: dict) -> None:
+def words_and_recommendation(said: NumericsFindings, entry: LinearisedOption) -> None:
     """The findings of a measured split mesh name its counted error and recommend a mesh."""
-    x = f"{entry['error_estimate'] / NOISE:.2g}"
+    x = f"{entry.error_estimate / NOISE:.2g}"
     assert any("simulated once (over diagnose's fitting limit)" in f
                and f"counted as a mesh error of {x}x the noise" in f
-               for f in said["findings"]), said["findings"]
-    assert said["recommendation"].startswith(
+               for f in said.findings), said.findings
+    assert said.recommendation.startswith(
         f"Refine the mesh (192 tets): one run of the split mesh measured an error of {x}x the "
         "noise on the final model."), said
 
@@ -127,20 +130,20 @@ def test_a_mesh_far_off_is_refitted_from_a_frequency_matched_start(tmp_path):
     lin = numerics.linearised_refit(diag, fit, split, moved, cols)
     assert not numerics.linearisation_trusted(lin, diag.sigma)     # no closer, 40x the noise
     entry = numerics.measure_refinement(diag, fit, split, moved)
-    assert entry["refit"].startswith("linearised refit from a frequency-matched start")
+    assert entry.refit.startswith("linearised refit from a frequency-matched start")
     calibrated = diag.calibrate(diag.frequency_matched(split.make(fit.experiment),
                                                        target=diag.frequency_ratio(fit.sim)))
     seen = np.isfinite(diag.data[diag.ident])
     actual = float(np.sqrt(np.mean((calibrated.sim[diag.ident][seen]
                                     - fit.sim[diag.ident][seen]) ** 2)))
-    assert calibrated.chi2 < fit.chi2 and entry["gain"] > 0.0       # closer, as it is
+    assert calibrated.chi2 < fit.chi2 and entry.gain > 0.0       # closer, as it is
     # (measured: 7.93x vs 7.17x the noise; E 19.7 vs 20.1 MPa from 10.4)
-    assert entry["change_rms"] == pytest.approx(actual, rel=0.15)
-    e = entry["parameters"]["material.youngs_modulus"]
+    assert entry.change_rms == pytest.approx(actual, rel=0.15)
+    e = entry.parameters["material.youngs_modulus"]
     assert abs(e - calibrated.values[0]) < 0.1 * abs(calibrated.values[0] - fit.values[0])
-    assert entry["change_same_parameters"] == lin["change_same_parameters"]
+    assert entry.change_same_parameters == lin.change_same_parameters
     # counted: the 4-node mesh's error, Richardson's k / (k - 1) = 4 / 3 of the change
-    assert entry["error_estimate"] == pytest.approx(entry["change_rms"] * 4.0 / 3.0)
+    assert entry.error_estimate == pytest.approx(entry.change_rms * 4.0 / 3.0)
     MPI.COMM_WORLD.Barrier()
 
 
@@ -148,11 +151,13 @@ def test_a_linearised_refit_is_trusted_unless_a_large_change_comes_no_closer():
     """numerics.linearisation_trusted: only "no closer" after a change over SCREEN_BELOW x
     the noise is refitted (that verdict keeps a mesh error out of the noise budget)."""
     s, k = 1e-4, numerics.SCREEN_BELOW
-    assert numerics.linearisation_trusted({"gain": 5.0, "change_same_parameters": 10 * k * s}, s)
-    assert numerics.linearisation_trusted({"gain": -5.0, "change_same_parameters": k * s}, s)
-    assert not numerics.linearisation_trusted({"gain": -5.0,
-                                               "change_same_parameters": 1.01 * k * s}, s)
-    assert not numerics.linearisation_trusted({"gain": 0.0, "change_same_parameters": 10 * s}, s)
+    assert numerics.linearisation_trusted(linearised(gain=5.0, change_same_parameters=10 * k * s),
+                                          s)
+    assert numerics.linearisation_trusted(linearised(gain=-5.0, change_same_parameters=k * s), s)
+    assert not numerics.linearisation_trusted(
+        linearised(gain=-5.0, change_same_parameters=1.01 * k * s), s)
+    assert not numerics.linearisation_trusted(
+        linearised(gain=0.0, change_same_parameters=10 * s), s)
 
 
 def test_the_split_mesh_alone_and_at_half_the_step_are_simulated_side_by_side(
@@ -180,12 +185,13 @@ def test_the_split_mesh_alone_and_at_half_the_step_are_simulated_side_by_side(
             # the same one-rank run, bit for bit
             np.testing.assert_array_equal(made[r.label].value, alone)
     # measured only once per model: nothing is run ahead for a model measured before
-    rounds = [{"options": {"step/2": {"gain": -1.0}}}]      # the step/2 refit: no closer
+    no_closer = numerics_round({"step/2": linearised(gain=-1.0)})   # the step/2 refit
+    rounds = [no_closer]
     assert measure_untried(diag, fit, rounds)
-    options = rounds[-1]["options"]
-    assert options["mesh x2"]["measured_only"]
+    options = rounds[-1].options
+    assert options["mesh x2"].measured_only
     # the combined refinement is booked iff the split mesh alone came no closer
-    assert ("mesh x2 + step/2" in options) == (options["mesh x2"]["gain"] <= 0.0)
+    assert ("mesh x2 + step/2" in options) == (options["mesh x2"].gain <= 0.0)
     booked = {key[0] for key in diag.measured_meshes if isinstance(key[0], str)}
     assert ("mesh x2 + step/2" in booked) == ("mesh x2 + step/2" in options)
     # asked again (the final recheck), nothing is run ahead: what is needed was measured
@@ -193,15 +199,15 @@ def test_the_split_mesh_alone_and_at_half_the_step_are_simulated_side_by_side(
     # a split mesh that came closer to the data (its measurement kept from before, gain > 0):
     # the combined refinement is not booked, though the step/2 refit was no closer
     diag.measured_meshes.clear()
-    closer = {**options["mesh x2"], "gain": 1.0}
+    closer = dataclasses.replace(options["mesh x2"], gain=1.0)
     diag.measured_meshes[numerics._measuring_key(split, fit.experiment)] = closer
-    kept = [{"options": {"step/2": {"gain": -1.0}}}]
+    kept = [no_closer]
     assert measure_untried(diag, fit, kept)
-    assert kept[-1]["options"]["mesh x2"] is closer
-    assert "mesh x2 + step/2" not in kept[-1]["options"]
+    assert kept[-1].options["mesh x2"] is closer
+    assert "mesh x2 + step/2" not in kept[-1].options
     # with the step/2 refit closer to the data, the combined run is neither made nor booked
-    fresh = [{"options": {"step/2": {"gain": 1.0}}}]
+    fresh = [numerics_round({"step/2": linearised(gain=1.0)})]
     diag.measured_meshes.clear()
     assert measure_untried(diag, fit, fresh)
-    assert "mesh x2 + step/2" not in fresh[-1]["options"]
+    assert "mesh x2 + step/2" not in fresh[-1].options
     MPI.COMM_WORLD.Barrier()

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _numerics_records import linearised, numerics_round
 from _taper import CALIBRATE, taper, taper_diagnosis
 from mpi4py import MPI
 
@@ -27,6 +28,7 @@ from petsoft.diagnosis.numerics import (
     too_small_to_adopt,
 )
 from petsoft.diagnosis.numerics_findings import numerics_findings
+from petsoft.diagnosis.numerics_records import FailedOption
 
 NOISE = 2e-5
 
@@ -45,36 +47,36 @@ def checked(tmp_path_factory):
 
 def test_a_small_refinement_no_closer_after_a_linearised_refit_is_not_refitted(checked):
     diag, fit, rounds, said = checked
-    options = rounds[0]["options"]
+    options = rounds[0].options
     step = options["step/2"]
     # the halved step moves the simulation by a few times the noise: screened ...
-    assert 1.0 < step["change_same_parameters_over_noise"] <= SCREEN_BELOW
-    assert step.get("screened") and step["refit"] == "linearised refit"
-    assert step["gain"] < 0.0 and not step["matters"]
+    assert 1.0 < step.change_same_parameters_over_noise <= SCREEN_BELOW
+    assert step.screened and step.refit == "linearised refit"
+    assert step.gain < 0.0 and not step.matters
     assert "step/2" not in diag.model_error
     # ... while the order refinement, which moves it by tens of times the noise, is refitted
     # for real (the linearisation would not hold there); the 1->8 split, whose nodes are the
     # 10-node elements', is not fitted beside it
-    assert options["P2"]["change_same_parameters_over_noise"] > 10.0
-    assert "screened" not in options["P2"]
-    assert "mesh x2" not in options and "mesh x2" in rounds[0]["not_tried"]
+    assert options["P2"].change_same_parameters_over_noise > 10.0
+    assert not options["P2"].screened
+    assert "mesh x2" not in options and "mesh x2" in rounds[0].not_tried
 
     # the real refit agrees: no closer to the data, and the linearised chi2 and E are close
     # (measured: chi2 1202 linearised vs 1245 refitted from 787; E 19.29 MPa both)
     refit = diag.calibrate(refined(fit.experiment, "step/2"))
     assert refit.chi2 > fit.chi2
-    assert step["chi2"] == pytest.approx(refit.chi2, rel=0.1)
-    e_lin = step["parameters"]["material.youngs_modulus"]
+    assert step.chi2 == pytest.approx(refit.chi2, rel=0.1)
+    e_lin = step.parameters["material.youngs_modulus"]
     assert abs(e_lin - refit.values[0]) < 0.1 * abs(refit.values[0] - fit.values[0])
     seen = np.isfinite(diag.data[diag.ident])
     actual = float(np.sqrt(np.mean((refit.sim[diag.ident][seen]
                                     - fit.sim[diag.ident][seen]) ** 2)))
-    assert step["change_rms"] == pytest.approx(actual, rel=0.1)
+    assert step.change_rms == pytest.approx(actual, rel=0.1)
 
     # the words: the log line and the report's finding say it was not refitted
     if MPI.COMM_WORLD.rank == 0:
         assert any("numerics: step/2" in line and "not refitted" in line for line in said)
-    findings = numerics_findings(diag, {}, rounds, fit, fit)["findings"]
+    findings = numerics_findings(diag, None, rounds, fit, fit).findings
     assert any("when the time step is halved" in f and "linearised refit is no closer" in f
                and f.endswith("(not refitted).") for f in findings), findings
     MPI.COMM_WORLD.Barrier()
@@ -86,19 +88,19 @@ def test_a_measured_mesh_error_below_the_noise_is_named_in_the_recommendation(ch
     the recommendation now says that number."""
     diag, fit, rounds, _ = checked
     sigma = diag.sigma
-    measured = {"measured_only": True, "matters": False, "gain": 12.0, "how": "split",
-                "change_rms": 0.4 * sigma, "change_over_noise": 0.4,
-                "change_same_parameters_over_noise": 0.6, "refit": "linearised refit",
-                "chi2_per_dof": 1.0, "parameters": {}, "error_estimate": 0.56 * sigma}
-    extra = {"chi2": fit.chi2, "dof": diag.dof(1), "options": {"mesh x2 + step/2": measured},
-             "parameters": {}, "measured_only": True}
-    said = numerics_findings(diag, {}, rounds + [extra], fit, fit)
-    assert said["recommendation"].startswith(
+    measured = linearised(measured_only=True, matters=False, gain=12.0, how="split",
+                          change_rms=0.4 * sigma, change_over_noise=0.4,
+                          change_same_parameters_over_noise=0.6, chi2_per_dof=1.0,
+                          error_estimate=0.56 * sigma)
+    extra = numerics_round({"mesh x2 + step/2": measured}, chi2=fit.chi2, dof=diag.dof(1),
+                           measured_only=True)
+    said = numerics_findings(diag, None, rounds + [extra], fit, fit)
+    assert said.recommendation.startswith(
         "Your mesh (192 tets) is fine for this recording: one run of the split mesh at half the "
         "step measured an error of 0.56x the noise on the final model, below the noise and "
-        "counted in the verdict's noise budget."), said["recommendation"]
+        "counted in the verdict's noise budget."), said.recommendation
     # without a measurement the sentence stays as it was
-    plain = numerics_findings(diag, {}, rounds, fit, fit)["recommendation"]
+    plain = numerics_findings(diag, None, rounds, fit, fit).recommendation
     assert plain.startswith("Your mesh (192 tets) is fine for this recording."), plain
 
 
@@ -136,7 +138,8 @@ def test_a_refinement_changing_the_simulation_by_less_than_a_tenth_of_the_noise_
     assert not too_small_to_adopt(5.0, excess, 0.05 * sigma, sigma)   # gains too little anyway
 
     def lin(change):
-        return {"change_same_parameters": 0.5 * sigma, "gain": gain, "change_rms": change * sigma}
+        return linearised(change_same_parameters=0.5 * sigma, gain=gain,
+                          change_rms=change * sigma)
 
     assert screened(lin(0.04), excess, sigma)        # twice 0.04 is under a tenth
     assert not screened(lin(0.06), excess, sigma)    # twice 0.06 is over: refitted
@@ -161,9 +164,9 @@ def test_a_small_refinement_is_screened_also_when_the_fit_is_far_from_the_data(d
     noise, was refitted for 270 s, to no gain."""
     diag, fit, rounds = damped
     assert fit.rms > 3.0 * diag.sigma, fit.rms / diag.sigma
-    step = rounds[0]["options"]["step/2"]
-    assert step["change_same_parameters_over_noise"] <= SCREEN_BELOW
-    assert step.get("screened") and step["gain"] <= 0.0 and not step["matters"]
+    step = rounds[0].options["step/2"]
+    assert step.change_same_parameters_over_noise <= SCREEN_BELOW
+    assert step.screened and step.gain <= 0.0 and not step.matters
     # the real refit agrees: no closer to the data (measured: rms 5.9x the noise; step/2
     # moves 1.98x, linearised chi2 27025 -> 27337, refitted -> 29724)
     refit = diag.calibrate(refined(fit.experiment, "step/2"))
@@ -186,24 +189,24 @@ def test_a_refit_under_the_adoption_floor_is_counted_not_adopted(tmp_path_factor
                                 seed=7, noise=NOISE, say=said.append)
     fit = diag.calibrate(exp)
     _, _, rounds = resolve_numerics(diag, fit, evidence_of(diag, fit), max_rounds=1)
-    p2 = rounds[0]["options"]["P2"]
-    assert rounds[0].get("adopted") == "P2" and p2["matters"], rounds[0]
-    assert p2["gain"] > 10.0 and p2["change_over_noise"] >= 0.1
+    p2 = rounds[0].options["P2"]
+    assert rounds[0].adopted == "P2" and p2.matters, rounds[0]
+    assert p2.gain > 10.0 and p2.change_over_noise >= 0.1
 
-    monkeypatch.setattr(numerics, "ADOPT_CHANGE", 2.0 * p2["change_over_noise"])
+    monkeypatch.setattr(numerics, "ADOPT_CHANGE", 2.0 * p2.change_over_noise)
     diag.model_error.clear()
     said.clear()
     _, _, rounds = resolve_numerics(diag, fit, evidence_of(diag, fit), max_rounds=1)
-    o = rounds[0]["options"]["P2"]
-    assert "adopted" not in rounds[0] and not o["matters"]
-    assert o["gain"] == pytest.approx(p2["gain"]) and o["change_rms"] == p2["change_rms"]
+    o = rounds[0].options["P2"]
+    assert rounds[0].adopted is None and not o.matters
+    assert o.gain == pytest.approx(p2.gain) and o.change_rms == p2.change_rms
     current = refinement("P2").error_factors(fit.experiment, diag.integrator)[0]
-    assert diag.model_error["P2"] == pytest.approx(o["change_rms"] * current)
-    assert o["error_estimate"] == diag.model_error["P2"]
+    assert diag.model_error["P2"] == pytest.approx(o.change_rms * current)
+    assert o.error_estimate == diag.model_error["P2"]
     if MPI.COMM_WORLD.rank == 0:
         assert any("numerics: P2" in line and "counted, not adopted" in line
                    for line in said), said
-    findings = numerics_findings(diag, {}, rounds, fit, fit)["findings"]
+    findings = numerics_findings(diag, None, rounds, fit, fit).findings
     assert any("raised to order 2" in f and "a refinement is adopted from" in f
                and "element order error of" in f for f in findings), findings
     MPI.COMM_WORLD.Barrier()
@@ -217,7 +220,8 @@ def test_a_small_refinement_closer_by_too_little_to_matter_is_not_refitted():
     sigma, excess = 1e-4, 1e5
 
     def lin(moved, gain, change):
-        return {"change_same_parameters": moved * sigma, "gain": gain, "change_rms": change * sigma}
+        return linearised(change_same_parameters=moved * sigma, gain=gain,
+                          change_rms=change * sigma)
 
     small = 0.9 * SCREEN_BELOW
     assert screened(lin(small, 0.04 * excess, 0.4), excess, sigma)     # closer, by too little
@@ -252,18 +256,19 @@ def test_the_final_recheck_is_not_made_again_on_the_fit_the_last_check_measured(
 
     diag, fit, rounds, _ = checked
     last = rounds[-1]
-    assert "adopted" not in last
-    booked = {label: 1e-6 for label in last["options"]}
+    assert last.adopted is None
+    booked = {label: 1e-6 for label in last.options}
     assert measured_on(last, fit, booked)
     assert measured_on(last, fit, {})
     moved = dataclasses.replace(fit, chi2=fit.chi2 * (1 + 1e-9))
     assert not measured_on(last, moved, booked)
     other = dataclasses.replace(fit, values=fit.values * (1 + 1e-9))
     assert not measured_on(last, other, booked)
-    assert not measured_on({**last, "adopted": "P2"}, fit, booked)
+    assert not measured_on(dataclasses.replace(last, adopted="P2"), fit, booked)
     assert not measured_on(last, fit, {**booked, "mesh x2": 1e-6})
-    label = next(iter(last["options"]))
-    failed = {**last, "options": {**last["options"], label: {"error": "the run failed"}}}
+    label = next(iter(last.options))
+    failed = dataclasses.replace(last, options={**last.options,
+                                                label: FailedOption("the run failed")})
     assert not measured_on(failed, fit, booked)
 
     checks = NumericsChecks(diag, True)
@@ -274,7 +279,7 @@ def test_the_final_recheck_is_not_made_again_on_the_fit_the_last_check_measured(
     diag.model_error.update(booked)
     diag.tell = said.append
     try:
-        ev = {**evidence_of(diag, fit), "verdict": "consistent"}
+        ev = dataclasses.replace(evidence_of(diag, fit), verdict="consistent")
         out, _, ran = checks.recheck_final(fit, ev, 0)
     finally:
         diag.model_error.clear()

@@ -5,10 +5,14 @@
 round's working fields (the fit, the score direction, why a fit was skipped) stay out of it.
 """
 
+import dataclasses
+
 import numpy as np
+import pytest
 
 from petsoft.diagnosis.candidates import Candidate
-from petsoft.diagnosis.records import AddedTerm, Judgement, ScoreEntry
+from petsoft.diagnosis.evidence import collect_evidence
+from petsoft.diagnosis.records import AddedTerm, Evidence, Judgement, ScoreEntry
 
 #: The report's keys in their order, each as the round sets it.
 REPORTED = ["physics", "parameters", "region", "kind", "score", "dof", "p_value", "log10_p",
@@ -87,3 +91,30 @@ def test_a_judgement_adds_its_term_or_says_why_not():
     assert Judgement(term).added and Judgement(term).reason == ""
     no = Judgement(reason="held-out rms did not improve")
     assert not no.added and no.entry is None
+
+
+#: The evidence's keys in their order, as collect_evidence's dict had them (issue 38).
+EVIDENCE = ["noise_std", "noise_source", "noise_summary", "noise_test", "verdict", "fit",
+            "markers", "region", "windows", "data_modes", "sim_modes", "modes",
+            "residual_modes", "frequencies_hz", "envelope", "friction_terms",
+            "sim_friction_terms", "notes", "field", "mismatch", "offset", "offset_z",
+            "axis_rms", "offset_halves", "duration"]
+
+
+def test_the_evidence_reports_every_field_under_its_name_in_order():
+    """report.md's writer and the figures read Evidence.as_report(): the same objects under
+    the names collect_evidence's dict gave them; a verdict changed is a new record."""
+    rng = np.random.default_rng(9)
+    t = np.linspace(0.0, 2.0, 200)
+    ref = rng.uniform(0.0, 0.1, (4, 3))
+    sim = ref[None] + 0.01 * np.sin(2 * np.pi * t)[:, None, None]
+    ev = collect_evidence(sim + rng.normal(0.0, 1e-4, sim.shape), sim, t, ref,
+                          ["a", "b", "c", "d"], sigma=1e-4)
+    assert isinstance(ev, Evidence)
+    out = ev.as_report()
+    assert list(out) == EVIDENCE
+    assert all(out[k] is getattr(ev, k) for k in EVIDENCE)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        ev.verdict = "consistent"
+    changed = dataclasses.replace(ev, verdict="missing-physics")
+    assert changed.verdict == "missing-physics" and ev.as_report()["verdict"] == ev.verdict

@@ -13,7 +13,7 @@ import functools
 import gc
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from petsc4py import PETSc
@@ -31,7 +31,7 @@ from petsoft.calibration.optimize import STOPPED, iteration_limit
 from petsoft.diagnosis.budget import FitStop, TimeBudget, Unfinished
 from petsoft.diagnosis.pace import CannotWin
 from petsoft.diagnosis.placement import ONE_RANK_DOFS, Placement
-from petsoft.diagnosis.records import ScoreEntry
+from petsoft.diagnosis.records import Evidence, ScoreEntry
 from petsoft.dynamics.factory import system_class
 from petsoft.dynamics.integrators import scheme
 from petsoft.dynamics.parameters import VISCOELASTIC
@@ -158,7 +158,7 @@ def gradient_for(experiment, default: str, integrator: str | None = None) -> str
 
 
 def model_scales(experiment, times: np.ndarray, data: np.ndarray,
-                 evidence: dict | None = None) -> dict:
+                 evidence: Evidence | None = None) -> dict:
     """Sizes that bound the candidates' new parameters (:func:`~petsoft.diagnosis.candidates.
     build_candidates`): ``mass`` (kg), ``area`` (exterior surface, m^2), ``length`` (bounding-box
     diagonal, m), ``cell`` (mean cell size, m) of the model; ``speed``/``speed_max`` (rms and
@@ -174,7 +174,7 @@ def model_scales(experiment, times: np.ndarray, data: np.ndarray,
     out["speed_max"] = float(speed.max()) if speed.size else 1.0
     out["speed"] = out["speed"] or 1.0
     out["speed_max"] = out["speed_max"] or 1.0
-    modes = (evidence or {}).get("data_modes") or []
+    modes = (evidence.data_modes if evidence is not None else None) or []
     osc = [m for m in modes if m["frequency_hz"] > 0]
     out["frequency"] = (float(max(osc, key=lambda m: m["amplitude"])["frequency_hz"])
                         if osc else None)
@@ -264,8 +264,8 @@ class Diagnosis:
         self.held = ~ident
         self.base_experiment = experiment
         self.model_error = {}
-        #: mesh refinements measured by one run (too large to fit), per (label, mesh): the
-        #: numerics rounds' entries (:func:`petsoft.diagnosis.numerics.measure_refinement`)
+        #: mesh refinements measured by one run (too large to fit), per (label, mesh): their
+        #: options in the numerics rounds (:func:`petsoft.diagnosis.numerics.measure_refinement`)
         self.measured_meshes: dict = {}
         #: typical mass, area, speed... of the model (candidate parameter scales), fixed by
         #: :meth:`fix_scales` once the base model's numerics are settled
@@ -295,7 +295,7 @@ class Diagnosis:
         explain is no evidence of missing physics."""
         return float(np.sqrt(self.sigma**2 + sum(e**2 for e in self.model_error.values())))
 
-    def fix_scales(self, fit: Fit, ev: dict) -> None:
+    def fix_scales(self, fit: Fit, ev: Evidence) -> None:
         """The candidates' parameter scales, from ``fit`` on the identification window."""
         self.scales = model_scales(fit.experiment, self.times[self.ident], self.data[self.ident],
                                    ev)
@@ -843,22 +843,21 @@ class Diagnosis:
 NO_REGIONS = {"stiffness": None, "density": None}
 
 
-def evidence_of(diag: Diagnosis, fit: Fit) -> dict:
+def evidence_of(diag: Diagnosis, fit: Fit) -> Evidence:
     from petsoft.diagnosis.evidence import collect_evidence
 
     rec = diag.recording
     ev = collect(diag, fit, collect_evidence, rec)
-    if diag.model_error and ev["verdict"] != "consistent" and ev["noise_test"].level_ok:
+    if diag.model_error and ev.verdict != "consistent" and ev.noise_test.level_ok:
         # a discretisation error of the size measured is smooth in time, so the residual
         # cannot be white: with it in the budget only the chi-square level can be tested
-        ev["verdict"] = "consistent"
-        ev.setdefault("notes", []).append(
-            "verdict from the chi-square level only: the residual includes the measured "
-            "discretisation error, which is not white")
+        ev = replace(ev, verdict="consistent", notes=[
+            *ev.notes, "verdict from the chi-square level only: the residual includes the "
+            "measured discretisation error, which is not white"])
     return ev
 
 
-def collect(diag, fit, collect_evidence, rec) -> dict:
+def collect(diag, fit, collect_evidence, rec) -> Evidence:
     return collect_evidence(diag.data[diag.ident], fit.sim[diag.ident], diag.times[diag.ident],
                             rec.reference, rec.names, sigma=diag.sigma_verdict,
                             num_parameters=len(fit.names), alpha=diag.alpha)

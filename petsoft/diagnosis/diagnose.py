@@ -74,12 +74,13 @@ from petsoft.diagnosis.numerics import (  # noqa: F401
     numerics_check,
     numerics_due,
 )
-from petsoft.diagnosis.numerics_findings import REPORT_KEYS, numerics_findings, refinement_words
+from petsoft.diagnosis.numerics_findings import numerics_findings, refinement_words
+from petsoft.diagnosis.numerics_records import NumericsOutcome
 from petsoft.diagnosis.outputs import build_diagnosis_report, write_outputs
 from petsoft.diagnosis.partial_round import conclude
 from petsoft.diagnosis.placement import ONE_RANK_DOFS
 from petsoft.diagnosis.reconsider import Added, reconsider
-from petsoft.diagnosis.records import AddedTerm, ScoreEntry
+from petsoft.diagnosis.records import AddedTerm, Evidence, ScoreEntry
 from petsoft.diagnosis.result import DiagnoseResult
 from petsoft.diagnosis.selection import (
     choose,
@@ -233,8 +234,8 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     diag.tell(f"base fit: {format_values(base.names, base.values)}; chi2/dof "
               f"{base.chi2 / dof:.4g}, held-out rms {fmt(base.heldout_rms)} m")
     ev = base_ev = evidence_of(diag, base)
-    diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g}, "
-              f"whiteness p {ev['noise_test'].whiteness_p_value:.3g})")
+    diag.tell(f"verdict: {ev.verdict} (chi2/dof {ev.noise_test.chi2_per_dof:.4g}, "
+              f"whiteness p {ev.noise_test.whiteness_p_value:.3g})")
     current = base
     added: list[AddedTerm] = []
     history: list[Added] = []
@@ -251,24 +252,24 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     diag.fix_scales(current, ev)
     rechecked = False
     while True:
-        if ev["verdict"] == "consistent" or len(added) >= max_additions:
+        if ev.verdict == "consistent" or len(added) >= max_additions:
             if rechecked or over_budget(
                     diag, "numerics check again on the final model", RECHECK_RISK,
-                    when=numerics and bool(diag.model_error) and ev["verdict"] == "consistent"):
+                    when=numerics and bool(diag.model_error) and ev.verdict == "consistent"):
                 break
             rechecked = True
             with clock.phase("numerics"):
                 current, ev, ran = checks.recheck_final(current, ev, len(added))
-            if not (ran and ev["verdict"] != "consistent" and len(added) < max_additions):
+            if not (ran and ev.verdict != "consistent" and len(added) < max_additions):
                 break
         rnd = len(added) + 1
         if over_budget(diag, f"round {rnd} of candidate physics", ROUND_RISK.format(
-                verdict=ev["verdict"], chi2=ev["noise_test"].chi2_per_dof)):
+                verdict=ev.verdict, chi2=ev.noise_test.chi2_per_dof)):
             break
         if rnd > 1:
             with clock.phase("numerics"):
                 current, ev = checks.first(current, ev, len(added))
-            if ev["verdict"] == "consistent":
+            if ev.verdict == "consistent":
                 break
         clock.switch("scoring")
         plane = escape_plane(diag.data[diag.ident], current.sim[diag.ident], diag.sigma)
@@ -359,7 +360,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                              candidate.zero_values(current.experiment), untried=left_out))
         current = fitted
         ev = evidence_of(diag, current)
-        diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
+        diag.tell(f"verdict: {ev.verdict} (chi2/dof {ev.noise_test.chi2_per_dof:.4g})")
         if len(history) > 1:
             # before the next round: a term an earlier round took for the one just added
             # must not call for a third (reconsider.py); a piece of work as the one after the
@@ -385,37 +386,37 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
     final_check = numerics and not over_budget(diag, "numerics check of the final model",
                                                NUMERICS_RISK)
     num = (numerics_check(diag, current, final_estimates(diag, checks.refinements, current))
-           if final_check else {})
-    if checks.refinements:
-        num["refinements"] = checks.refinements
-    if diag.model_error:
-        num["model_error"] = dict(diag.model_error)
-        num["sigma_verdict"] = diag.sigma_verdict
+           if final_check else None)
+    findings = None
     if numerics:
-        num.update(numerics_findings(diag, num, checks.refinements, base, current))
+        findings = numerics_findings(diag, num, checks.refinements, base, current)
         # one sentence per refinement (the rounds' own findings are in the report's appendix)
-        for line in num["summary"] + [num["recommendation"] or ""]:
+        for line in findings.summary + [findings.recommendation or ""]:
             if line:
                 diag.tell(f"numerics: {line}")
+    outcome = NumericsOutcome(final=num, rounds=list(checks.refinements),
+                              model_error=dict(diag.model_error),
+                              sigma_verdict=diag.sigma_verdict, findings=findings)
     # a check not made is said in the verdict box and on the console, with what it risks
     skipped = ([] if numerics else [skipped_numerics()]) + diag.budget.skipped
-    for label, why in num.get("unchecked", {}).items():
+    for label, why in (findings.unchecked if findings is not None else {}).items():
         noun = refinement_words(label)[1]
         skipped.append({"check": f"{noun} refinement", "why": why,
                         "risk": f"the {noun}'s error is not known: a mismatch it causes may be "
                                 "blamed on physics"})
     report = build_diagnosis_report(diag, base, current, base_ev, ev, added, rejected,
-                                    numerics={k: num[k] for k in REPORT_KEYS if k in num},
+                                    numerics=findings.as_report() if findings else None,
                                     skipped=skipped)
     # where the time went (report.json ``timings``): the report and figures are written after
     # this split is taken, so ``final`` leaves them out and ``total`` is the run up to here
     report["timings"] = clock.seconds()
     report["budget"] = diag.budget.summary()
-    result = DiagnoseResult(verdict=base_ev["verdict"], final_verdict=ev["verdict"],
+    result = DiagnoseResult(verdict=base_ev.verdict, final_verdict=ev.verdict,
                             report=report, base=base, final=current,
                             added=[a.as_report() for a in added],
                             rejected=rejected, scores=all_scores,
-                            not_modelled=not_modelled, numerics=num, evidence=ev)
+                            not_modelled=not_modelled, numerics=outcome.as_report(),
+                            evidence=ev)
     # Collect the garbage of this run's PETSc objects on every rank *now*, at the same point:
     # freeing the last object of a communicator is collective (PETSc's garbage cleanup), and
     # rank 0's plotting alone would otherwise trigger Python's collector there only (observed:
@@ -447,24 +448,25 @@ def over_budget(diag, what: str, risk: str, when: bool = True) -> bool:
 
 def _reconsidered(diag, current, history, rejected, added, ev):
     """(fit, added entries, evidence) after :func:`reconsider` tried each earlier term's
-    runners-up in its place beside the later ones (the entries and the verdict are new only
-    when a term was replaced or taken out)."""
+    runners-up in its place beside the later ones (the verdict is new only when a term was
+    replaced or taken out; the entries are the history's, which may also have said a tie)."""
     before = [h.candidate.physics for h in history]
     current = reconsider(diag, current, history, rejected)
+    # (the entries are frozen: reconsider puts a changed copy in the history)
+    added = [h.entry for h in history]
     if [h.candidate.physics for h in history] != before:
-        added = [h.entry for h in history]
         ev = evidence_of(diag, current)
-        diag.tell(f"verdict: {ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
+        diag.tell(f"verdict: {ev.verdict} (chi2/dof {ev.noise_test.chi2_per_dof:.4g})")
     return current, added, ev
 
 
-def _round_candidates(diag, current, ev: dict, plane, maps: dict) -> tuple[list, dict]:
+def _round_candidates(diag, current, ev: Evidence, plane, maps: dict) -> tuple[list, dict]:
     """A round's candidates for ``current`` (:func:`build_candidates`) with the sensitivity
     regions ``maps`` (:data:`NO_REGIONS`: the non-spatial ones and the evidence's)."""
     from petsoft.diagnosis.candidates import build_candidates
 
     return build_candidates(
-        current.experiment, evidence_region=ev["region"], stiffness_region=maps["stiffness"],
+        current.experiment, evidence_region=ev.region, stiffness_region=maps["stiffness"],
         density_region=maps["density"], centroids=diag.centroids, scales=diag.scales,
         plane=plane)
 
@@ -475,7 +477,7 @@ def _candidate_key(candidate) -> bytes:
     return pickle.dumps(candidate)
 
 
-def _score_early(diag, current, ev: dict, plane, kind: str, maps: dict, sub) -> dict:
+def _score_early(diag, current, ev: Evidence, plane, kind: str, maps: dict, sub) -> dict:
     """The scores one group makes right after its job of
     :meth:`~petsoft.diagnosis.context.Diagnosis.regions_and_shared_scores` (``kind``): after
     the sensitivity maps the spatial candidates (placed by them), after the shared scoring run

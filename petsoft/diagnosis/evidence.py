@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from petsoft.diagnosis import locate, noise, report, spectral
+from petsoft.diagnosis.records import Evidence
 from petsoft.terms import TERMS
 
 __all__ = ["collect_evidence", "suggest_physics", "write_figures"]
@@ -30,7 +31,7 @@ def collect_evidence(data: np.ndarray, sim: np.ndarray, times: np.ndarray,
                      reference: np.ndarray, names: list[str], *, sigma: float | None = None,
                      num_parameters: int = 0, alpha: float = 0.01,
                      points: np.ndarray | None = None, tets: np.ndarray | None = None,
-                     out: str | Path | None = None, min_share: float = 0.1) -> dict:
+                     out: str | Path | None = None, min_share: float = 0.1) -> Evidence:
     """Analyse ``data - sim``: noise, verdict, markers, region, time windows, frequencies.
 
     Parameters
@@ -62,7 +63,7 @@ def collect_evidence(data: np.ndarray, sim: np.ndarray, times: np.ndarray,
 
     Returns
     -------
-    dict
+    Evidence
         ``noise_std``, ``noise_source``, ``noise_summary``, ``noise_test``
         (:class:`~petsoft.diagnosis.noise.ChiSquareResult`), ``verdict``, ``fit``
         ({rms, chi2_per_dof}), ``markers`` (:class:`~petsoft.diagnosis.locate.MarkerResiduals`),
@@ -136,19 +137,17 @@ def collect_evidence(data: np.ndarray, sim: np.ndarray, times: np.ndarray,
                 "frequencies_hz": freqs, "region": region}
     if verdict == "consistent":      # nothing to locate when the residual is noise
         mismatch = {"markers": [], "time_windows": [], "frequencies_hz": [], "region": None}
-    return {"noise_std": float(sigma), "noise_source": source, "noise_summary": summary,
-            "noise_test": test, "verdict": verdict, "fit": fit, "markers": res,
-            "region": region, "windows": windows, "data_modes": data_modes,
-            "sim_modes": sim_modes, "modes": modes, "residual_modes": residual_modes,
-            "frequencies_hz": freqs, "envelope": env, "friction_terms": terms,
-            "sim_friction_terms": sim_terms,
-            "notes": notes, "field": field, "mismatch": mismatch,
-            "offset": offset, "offset_z": offset_z, "axis_rms": axis_rms,
-            "offset_halves": np.array(halves),
-            "duration": float(t[-1] - t[0])}
+    return Evidence(noise_std=float(sigma), noise_source=source, noise_summary=summary,
+                    noise_test=test, verdict=verdict, fit=fit, markers=res, region=region,
+                    windows=windows, data_modes=data_modes, sim_modes=sim_modes, modes=modes,
+                    residual_modes=residual_modes, frequencies_hz=freqs, envelope=env,
+                    friction_terms=terms, sim_friction_terms=sim_terms, notes=notes,
+                    field=field, mismatch=mismatch, offset=offset, offset_z=offset_z,
+                    axis_rms=axis_rms, offset_halves=np.array(halves),
+                    duration=float(t[-1] - t[0]))
 
 
-def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
+def suggest_physics(evidence: Evidence, *, offset_z: float = 10.0) -> list[dict]:
     """A first ordering of candidate physics from the evidence, each with its reason.
 
     This is a prior for the candidate search, not its result: ``petsoft diagnose`` adds each
@@ -175,7 +174,7 @@ def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
         ``{"physics", "reason", "strength"}``, strongest first, each physics once; empty when
         the verdict is ``consistent``.
     """
-    if evidence["verdict"] == "consistent":
+    if evidence.verdict == "consistent":
         return []
     out: dict[str, dict] = {}
 
@@ -185,7 +184,7 @@ def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
             out[name] = {"physics": name, "reason": TERMS[name].hint(evidence, **values),
                          "strength": float(strength)}
 
-    modes = evidence.get("modes")
+    modes = evidence.modes
     if modes and modes["matched"]:
         faster = [m for m in modes["matched"]
                   if m["decay_shift"] > 0.1 * max(abs(m["sim_decay"]), 0.01 * 2 * np.pi
@@ -203,7 +202,7 @@ def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
         ratio = modes["frequency_ratio"]
         if np.isfinite(ratio) and abs(ratio - 1) > 0.005:
             shift = f"data frequencies {ratio:.4f} x the model's after calibration"
-            if evidence.get("region") is not None:
+            if evidence.region is not None:
                 add("material.heterogeneous", 2.5, "localised shift", shift=shift)
                 add("mass.added", 2.4 if ratio < 1 else 1.2, "localised shift", shift=shift)
             if ratio < 1:
@@ -211,19 +210,19 @@ def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
                 add("mass.added", 1.8, "lower frequencies", shift=shift)
             else:
                 add("material.nonlinear", 1.8, "higher frequencies", shift=shift)
-    terms = evidence.get("friction_terms")
+    terms = evidence.friction_terms
     if terms is not None:
         # Only what the data's decay has beyond the simulation's: each term's share of the
         # data's decay rate at its mean amplitude.
         coef = terms["coefficients"]
-        sim_coef = (evidence.get("sim_friction_terms") or {}).get("coefficients",
-                                                                   dict.fromkeys(coef, 0.0))
-        amp = float(np.mean(evidence["envelope"]["amplitudes"]))
+        sim_coef = (evidence.sim_friction_terms or {}).get("coefficients",
+                                                           dict.fromkeys(coef, 0.0))
+        amp = float(np.mean(evidence.envelope["amplitudes"]))
         powers = {"dry": 1.0, "viscous": amp, "quadratic": amp * amp}
         rate = sum(coef[k] * p for k, p in powers.items())
         share = {k: (coef[k] - sim_coef[k]) * p / rate if rate > 0 else 0.0
                  for k, p in powers.items()}
-        law = evidence["envelope"]["best"]
+        law = evidence.envelope["best"]
         if share["dry"] > 0.1:
             add("friction.dry", 3.0 + share["dry"] + (law == "linear"), "constant envelope",
                 share=share["dry"], law=law)
@@ -236,40 +235,38 @@ def suggest_physics(evidence: dict, *, offset_z: float = 10.0) -> list[dict]:
             add("drag.linear", 1.5 + share["viscous"] / 2, "viscous envelope")
     # A common offset: significant against white noise (offset_z) and a fifth of the
     # residual's rms along that axis (a correlated residual's mean alone is no offset).
-    oz = np.asarray(evidence.get("offset_z", np.zeros(3)), dtype=float)
-    big = np.abs(np.asarray(evidence.get("offset", np.zeros(3)))) > 0.2 * np.asarray(
-        evidence.get("axis_rms", np.full(3, np.inf)))
+    oz = np.asarray(evidence.offset_z, dtype=float)
+    big = np.abs(np.asarray(evidence.offset)) > 0.2 * np.asarray(evidence.axis_rms)
     # ... and the same in both halves of the record: a wrong body force shifts the equilibrium
     # for good, while an amplitude error of a rotating body shifts the mean of its vertical
     # coordinate by an amount that changes as the amplitudes drift apart.
-    halves = np.asarray(evidence.get("offset_halves", np.zeros((2, 3))))
-    steady = np.abs(halves[0] - halves[1]) < 0.5 * np.abs(np.asarray(
-        evidence.get("offset", np.zeros(3))))
+    halves = np.asarray(evidence.offset_halves)
+    steady = np.abs(halves[0] - halves[1]) < 0.5 * np.abs(np.asarray(evidence.offset))
     oz = np.where(big & steady, oz, 0.0)
     if np.max(np.abs(oz)) > offset_z:
         axis = "xyz"[int(np.argmax(np.abs(oz)))]
         add("gravity", 2.0 + min(np.max(np.abs(oz)) / 100.0, 2.0), "offset", axis=axis,
-            offset=evidence["offset"][int(np.argmax(np.abs(oz)))])
-    windows = evidence.get("windows", {}).get("intervals", [])
+            offset=evidence.offset[int(np.argmax(np.abs(oz)))])
+    windows = evidence.windows.get("intervals", [])
     covered = sum(b - a for a, b in windows)
-    if windows and covered < 0.5 * evidence.get("duration", np.inf):
+    if windows and covered < 0.5 * evidence.duration:
         add("contact.plane", 1.0, "intermittent", count=len(windows), covered=covered,
-            duration=evidence["duration"])
+            duration=evidence.duration)
     return sorted(out.values(), key=lambda c: -c["strength"])
 
 
-def write_figures(out: str | Path, evidence: dict, times: np.ndarray, data: np.ndarray,
+def write_figures(out: str | Path, evidence: Evidence, times: np.ndarray, data: np.ndarray,
                   sim: np.ndarray, modes: bool = True) -> list[Path]:
     """The evidence's figures (residual per marker, over time, the identification window's
     spectra with the fitted modes) from :func:`collect_evidence` output; returns the PNGs.
     The diagnosis adds its own (:mod:`petsoft.diagnosis.figures`) and asks for no modes.png
     (``modes=False``): its spectra.png marks the modes."""
     out = Path(out)
-    figs = [report.plot_marker_residuals(out / "residual_markers.png", evidence["markers"],
-                                         evidence["noise_std"])["path"],
+    figs = [report.plot_marker_residuals(out / "residual_markers.png", evidence.markers,
+                                         evidence.noise_std)["path"],
             report.plot_residual_time(out / "residual_time.png", times,
-                                      evidence["windows"])["path"]]
-    if modes and evidence["data_modes"] is not None and evidence["sim_modes"] is not None:
+                                      evidence.windows)["path"]]
+    if modes and evidence.data_modes is not None and evidence.sim_modes is not None:
         figs.append(report.plot_spectra(out / "modes.png", times, data, sim,
-                                        evidence["data_modes"], evidence["sim_modes"]))
+                                        evidence.data_modes, evidence.sim_modes))
     return figs

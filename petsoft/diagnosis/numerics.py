@@ -15,6 +15,7 @@ calibrated parameters. :func:`numerics_due` says when the check must run again;
 from __future__ import annotations
 
 import gc
+from dataclasses import replace
 
 import numpy as np
 
@@ -29,6 +30,16 @@ from petsoft.calibration.refinement import (
 )
 from petsoft.diagnosis.chord_refit import chord_refit, refit_step
 from petsoft.diagnosis.context import Diagnosis, Fit, evidence_of, petsc_comm, rms
+from petsoft.diagnosis.numerics_records import (
+    FailedOption,
+    FinalChange,
+    FinalCheck,
+    LinearisedOption,
+    NumericsRound,
+    Option,
+    RefittedOption,
+)
+from petsoft.diagnosis.records import Evidence
 from petsoft.dynamics.factory import system_class
 from petsoft.errors import PetsoftError
 from petsoft.experiment import get_parameter
@@ -106,16 +117,17 @@ def is_mesh_file(experiment) -> bool:
 ESTIMATE_FINAL_BELOW = 0.3
 
 
-def final_estimates(diag: Diagnosis, rounds: list[dict], fit: Fit) -> dict[str, float]:
+def final_estimates(diag: Diagnosis, rounds: list[NumericsRound], fit: Fit
+                    ) -> dict[str, float]:
     """{label: estimated change over the noise} of the refinements the final check of ``fit``
     may take from Richardson's estimate instead of a run (:data:`ESTIMATE_FINAL_BELOW`): a
     halved step adopted by the last numerics round whose refit is ``fit`` (nothing added or
     refitted after it)."""
-    label = rounds[-1].get("adopted") if rounds else None
+    label = rounds[-1].adopted if rounds else None
     if label is None or refinement(label).kind != "step":
         return {}
-    o = rounds[-1]["options"][label]
-    if o.get("parameters") != dict(zip(fit.names, map(float, fit.values), strict=True)):
+    o = rounds[-1].options[label]
+    if o.parameters != dict(zip(fit.names, map(float, fit.values), strict=True)):
         return {}
     x = next_halving_estimate(o, diag.sigma)
     # the final check's refinement is the halving of the final model's step, whichever
@@ -123,17 +135,17 @@ def final_estimates(diag: Diagnosis, rounds: list[dict], fit: Fit) -> dict[str, 
     return {STEP_HALVED.label: x} if x < ESTIMATE_FINAL_BELOW else {}
 
 
-def next_halving_estimate(o: dict, sigma: float) -> float:
+def next_halving_estimate(o: RefittedOption, sigma: float) -> float:
     """What halving the step once more would change (over the noise ``sigma``, at the same
-    parameters), by Richardson from the round entry ``o`` of the halving just adopted: its change
+    parameters), by Richardson from the round's option ``o`` of the halving just adopted: its change
     at the same parameters times the share of it the next halving makes (1/3 for a
     second-order scheme)."""
-    share = o["remaining_estimate"] / o["change_rms"] if o["change_rms"] > 0.0 else 0.0
-    return o["change_same_parameters"] * share / sigma
+    share = o.remaining_estimate / o.change_rms if o.change_rms > 0.0 else 0.0
+    return o.change_same_parameters * share / sigma
 
 
-def estimated_instead(o: dict, sigma: float) -> str | None:
-    """Why the error a just-adopted halved step leaves (round entry ``o``) is estimated and
+def estimated_instead(o: RefittedOption, sigma: float) -> str | None:
+    """Why the error a just-adopted halved step leaves (its option ``o``) is estimated and
     counted instead of measured by halving it again, or None when it is measured.
 
     Each halving costs twice the last, and the next one was made whenever the verdict was still
@@ -193,7 +205,7 @@ def quartered_run(experiment, integrator: str | None, current: np.ndarray,
 
 
 def numerics_check(diag: Diagnosis, fit: Fit, estimated: dict[str, float] | None = None
-                   ) -> dict:
+                   ) -> FinalCheck:
     """Residual change of ``fit``'s model (no re-fit) under each refinement that can be made.
 
     ``estimated``: {label: change over the noise} of refinements not simulated but taken from
@@ -201,14 +213,14 @@ def numerics_check(diag: Diagnosis, fit: Fit, estimated: dict[str, float] | None
 
     Returns
     -------
-    dict
-        Per refinement label: ``rms`` of the refined model's residual over all frames,
-        ``change`` = rms of (refined - original simulation) over the seen samples,
-        ``change_over_noise``, ``resolved`` (change below the noise), ``how``, and
-        ``estimated`` (True: not simulated, ``rms`` None); or a string "not done: why" when
-        it was not made.
+    FinalCheck
+        Per refinement label a :class:`~petsoft.diagnosis.numerics_records.FinalChange`:
+        ``rms`` of the refined model's residual over all frames, ``change`` = rms of (refined -
+        original simulation) over the seen samples, ``change_over_noise``, ``resolved`` (change
+        below the noise), ``how``, and ``estimated`` (True: not simulated, ``rms`` None); or a
+        string "not done: why" when it was not made.
     """
-    out = {"base_rms_all": rms(fit.sim, diag.data)}
+    out: dict[str, FinalChange | str] = {}
     exp = fit.experiment
     seen = np.isfinite(diag.data)
     for r in REFINEMENTS:
@@ -218,9 +230,9 @@ def numerics_check(diag: Diagnosis, fit: Fit, estimated: dict[str, float] | None
             continue
         if r.label in (estimated or {}):
             x = float(estimated[r.label])
-            out[r.label] = {"rms": None, "change": x * diag.sigma, "change_over_noise": x,
-                            "how": r.describe(exp), "resolved": bool(x < 1.0),
-                            "estimated": True}
+            out[r.label] = FinalChange(rms=None, change=x * diag.sigma, change_over_noise=x,
+                                       how=r.describe(exp), resolved=bool(x < 1.0),
+                                       estimated=True)
             continue
         try:
             sim = diag.simulate(r.make(exp))
@@ -228,11 +240,11 @@ def numerics_check(diag: Diagnosis, fit: Fit, estimated: dict[str, float] | None
             out[r.label] = f"not done: the refined simulation failed ({err})"
             continue
         change = float(np.sqrt(np.mean((sim[seen] - fit.sim[seen]) ** 2)))
-        out[r.label] = {"rms": rms(sim, diag.data), "change": change,
-                        "change_over_noise": change / diag.sigma, "how": r.describe(exp),
-                        # below the noise, the refinement cannot move the verdict
-                        "resolved": bool(change < diag.sigma)}
-    return out
+        out[r.label] = FinalChange(rms=rms(sim, diag.data), change=change,
+                                   change_over_noise=change / diag.sigma, how=r.describe(exp),
+                                   # below the noise, the refinement cannot move the verdict
+                                   resolved=bool(change < diag.sigma))
+    return FinalCheck(base_rms_all=rms(fit.sim, diag.data), changes=out)
 
 
 def measurable(r, experiment) -> bool:
@@ -249,7 +261,8 @@ def _mesh_key(experiment) -> tuple:
     return (str(m.file), m.refine, m.order, tuple(m.box.cells) if m.box is not None else None)
 
 
-def measure_refinement(diag: Diagnosis, fit: Fit, r, moved: np.ndarray | None = None) -> dict:
+def measure_refinement(diag: Diagnosis, fit: Fit, r, moved: np.ndarray | None = None
+                       ) -> LinearisedOption:
     """The error ``fit``'s mesh leaves, measured by one run of the refined mesh (not fitted).
 
     The refined model is simulated at ``fit``'s parameters; its re-calibration is linearised:
@@ -263,8 +276,7 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r, moved: np.ndarray | None = 
     ``moved``: the refined model's identification-window simulation when it was already made
     (:func:`_simulated_side_by_side`); else it is simulated here.
 
-    Returns the round entry of the refinement (``measured_only``: True), in the keys of a
-    fitted one.
+    Returns the refinement's option in a round (``measured_only``: True).
     """
     exp = fit.experiment
     if moved is None:
@@ -281,16 +293,15 @@ def measure_refinement(diag: Diagnosis, fit: Fit, r, moved: np.ndarray | None = 
         o = refit_measured(diag, fit, r, moved, cols, o)
     current = r.error_factors(exp, diag.integrator)[0]
     diag.tell(f"numerics: {r.label} measured: the simulation changes by "
-              f"{o['change_same_parameters_over_noise']:.3g}x the noise "
-              f"({o['change_over_noise']:.3g}x after a {o['refit']}); chi2 {fit.chi2:.5g} -> "
-              f"{o['chi2']:.5g}; the current mesh's error is estimated at "
-              f"{o['change_rms'] * current / diag.sigma:.3g}x the noise"
-              + (", counted" if o["gain"] > 0.0 else ", not counted (no closer to the data)"))
-    o["measured_only"] = True
-    return o
+              f"{o.change_same_parameters_over_noise:.3g}x the noise "
+              f"({o.change_over_noise:.3g}x after a {o.refit}); chi2 {fit.chi2:.5g} -> "
+              f"{o.chi2:.5g}; the current mesh's error is estimated at "
+              f"{o.change_rms * current / diag.sigma:.3g}x the noise"
+              + (", counted" if o.gain > 0.0 else ", not counted (no closer to the data)"))
+    return replace(o, measured_only=True)
 
 
-def linearisation_trusted(o: dict, sigma: float) -> bool:
+def linearisation_trusted(o: LinearisedOption, sigma: float) -> bool:
     """Whether a measured mesh's linearised refit ``o`` (:func:`linearised_refit`) can be taken
     as its refit: unless it finds the refined mesh no closer to the data after a change at the
     same parameters of more than :data:`SCREEN_BELOW` times the noise ``sigma``.
@@ -304,11 +315,11 @@ def linearisation_trusted(o: dict, sigma: float) -> bool:
     "no closer", and a second round looked for physics that was not there for over 10 minutes.
     The same bound decides whether a fitted refinement is refitted at all
     (:func:`screened`)."""
-    return o["gain"] > 0.0 or o["change_same_parameters"] <= SCREEN_BELOW * sigma
+    return o.gain > 0.0 or o.change_same_parameters <= SCREEN_BELOW * sigma
 
 
 def refit_measured(diag: Diagnosis, fit: Fit, r, moved: np.ndarray, cols: np.ndarray,
-                   linearised: dict) -> dict:
+                   linearised: LinearisedOption) -> LinearisedOption:
     """The measured mesh refinement ``r`` of ``fit``'s model refitted from a frequency-matched
     start, where its linearised refit ``linearised`` from ``fit``'s parameters (at which its
     run is ``moved``) is not trusted (:func:`linearisation_trusted`).
@@ -323,12 +334,12 @@ def refit_measured(diag: Diagnosis, fit: Fit, r, moved: np.ndarray, cols: np.nda
     90 s on 2 ranks, and the chord iteration from the current parameters was still at chi2
     3.4e5 (from 2.6e6) after two.
 
-    Returns its round entry in the keys of :func:`linearised_refit` (``change_same_parameters``
-    the measuring run's); ``linearised`` when the rescaling does not lower the misfit."""
+    Returns its option as :func:`linearised_refit` makes it (``change_same_parameters`` the
+    measuring run's); ``linearised`` when the rescaling does not lower the misfit."""
     exp = fit.experiment
     label = f"numerics {r.label}"
     diag.tell(f"numerics: {r.label}: a linearised refit of a change of "
-              f"{linearised['change_same_parameters_over_noise']:.3g}x the noise is no closer "
+              f"{linearised.change_same_parameters_over_noise:.3g}x the noise is no closer "
               "to the data; refitting it from a frequency-matched start")
     target = diag.frequency_ratio(fit.sim) or 1.0
     start, sim = diag.frequency_matched(r.make(exp), moved, comm=diag.comm, label=label,
@@ -338,16 +349,17 @@ def refit_measured(diag: Diagnosis, fit: Fit, r, moved: np.ndarray, cols: np.nda
         return linearised
     values = np.array([get_parameter(start, n) for n in fit.names], dtype=float)
     o = linearised_refit(diag, fit, r, sim, cols, values=values)
-    return {**o, "change_same_parameters": linearised["change_same_parameters"],
-            "change_same_parameters_over_noise":
-                linearised["change_same_parameters_over_noise"],
-            "refit": f"linearised refit from a frequency-matched start (E {fit.values[0]:.4g} "
-                     f"-> {values[0]:.4g} Pa)" if fit.names[0] == "material.youngs_modulus"
-                     else "linearised refit from a frequency-matched start"}
+    return replace(
+        o, change_same_parameters=linearised.change_same_parameters,
+        change_same_parameters_over_noise=linearised.change_same_parameters_over_noise,
+        refit=f"linearised refit from a frequency-matched start (E {fit.values[0]:.4g} "
+              f"-> {values[0]:.4g} Pa)" if fit.names[0] == "material.youngs_modulus"
+              else "linearised refit from a frequency-matched start")
 
 
 def linearised_refit(diag: Diagnosis, fit: Fit, r, moved: np.ndarray,
-                     cols: np.ndarray | None, values: np.ndarray | None = None) -> dict:
+                     cols: np.ndarray | None, values: np.ndarray | None = None
+                     ) -> LinearisedOption:
     """The refit of refinement ``r`` of ``fit``'s model, linearised: the change the refined
     simulation ``moved`` (at ``fit``'s parameters) makes, less its least-squares part in the
     span of ``cols``, the current model's sensitivities on the identification window
@@ -355,9 +367,9 @@ def linearised_refit(diag: Diagnosis, fit: Fit, r, moved: np.ndarray,
     them). Without ``cols`` (no exact sensitivities) the change at the same parameters, an
     upper bound.
 
-    Returns a round entry in the keys of a fitted refinement (``refit`` names how it was
-    refitted; ``error_estimate``: the current model's error, change x Richardson's k / (k - 1),
-    when the linearised refit is closer to the data, else 0; :func:`_count_error` books it).
+    Returns the refinement's option in a round (``refit`` names how it was refitted;
+    ``error_estimate``: the current model's error, change x Richardson's k / (k - 1), when the
+    linearised refit is closer to the data, else 0; :func:`_count_error` books it).
     ``values``: the parameters ``moved`` was simulated at, when not ``fit``'s
     (:func:`refit_measured`)."""
     exp = fit.experiment
@@ -379,16 +391,16 @@ def linearised_refit(diag: Diagnosis, fit: Fit, r, moved: np.ndarray,
     dof = diag.dof(len(fit.names))
     gain = fit.chi2 - chi2_lin
     current, remaining = r.error_factors(exp, diag.integrator)
-    return {"chi2": chi2_lin, "chi2_per_dof": chi2_lin / dof, "gain": gain,
-            "matters": refinement_matters(gain, diag.excess(fit), change, diag.sigma),
-            "change_rms": change, "change_over_noise": change / diag.sigma,
-            "change_same_parameters": fixed,
-            "change_same_parameters_over_noise": fixed / diag.sigma,
-            "how": r.describe(exp), "refit": how,
-            "parameters": dict(zip(fit.names, map(float, np.asarray(
-                fit.values if values is None else values) + step), strict=True)),
-            "error_estimate": change * current if gain > 0.0 else 0.0,
-            "remaining_estimate": change * remaining}
+    return LinearisedOption(
+        chi2=chi2_lin, chi2_per_dof=chi2_lin / dof, gain=gain,
+        matters=refinement_matters(gain, diag.excess(fit), change, diag.sigma),
+        change_rms=change, change_over_noise=change / diag.sigma,
+        change_same_parameters=fixed, change_same_parameters_over_noise=fixed / diag.sigma,
+        how=r.describe(exp), refit=how,
+        parameters=dict(zip(fit.names, map(float, np.asarray(
+            fit.values if values is None else values) + step), strict=True)),
+        error_estimate=change * current if gain > 0.0 else 0.0,
+        remaining_estimate=change * remaining)
 
 
 def _sensitivities_key(fit: Fit) -> tuple:
@@ -463,7 +475,7 @@ def numerics_due(checked_excess: float | None, excess: float,
     return None
 
 
-def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
+def resolve_numerics(diag: Diagnosis, fit: Fit, ev: Evidence, max_rounds: int = 3,
                      mesh_done: bool = False):
     """Rule out numerics before blaming physics (issue 6, step 5; issue 14 for mesh files).
 
@@ -488,26 +500,29 @@ def resolve_numerics(diag: Diagnosis, fit: Fit, ev: dict, max_rounds: int = 3,
 
     Returns the (possibly refined) fit, its evidence and a list of what each round measured.
     """
-    rounds: list[dict] = []
+    rounds: list[NumericsRound] = []
     for _ in range(max_rounds):
         tried, superseded = _refinements_tried(fit.experiment, mesh_done)
         runs, fits, seen = _simulate_and_refit(diag, fit, tried)
         excess = diag.excess(fit)
-        entry = _round_entry(diag, fit, tried, superseded, mesh_done)
+        dof = diag.dof(len(fit.names))
+        options: dict[str, Option] = {}
         best = None
         for r, run, res in zip(tried, runs, fits, strict=True):
-            judged = _judge(diag, fit, entry, r, run, res, seen, excess)
+            label, options[label], judged = _judge(diag, fit, dof, r, run, res, seen, excess)
             if judged is not None and (best is None or _better(*judged[:2], *best[:2])):
                 best = judged
-        rounds.append(entry)
+        entry = _round_entry(diag, fit, tried, superseded, mesh_done, options)
         if best is None:
+            rounds.append(entry)
             # the verdict again: this round may have counted an error in its budget
             ev = evidence_of(diag, fit)
             break
-        fit, ev = _adopt(diag, entry, *best)
-        if ev["verdict"] == "consistent":
+        entry, fit, ev = _adopt(diag, entry, *best)
+        rounds.append(entry)
+        if ev.verdict == "consistent":
             break
-    if (ev["verdict"] != "consistent" and not mesh_done
+    if (ev.verdict != "consistent" and not mesh_done
             and fit.rms <= MEASURE_BELOW_RMS * diag.sigma and measure_untried(diag, fit, rounds)):
         ev = evidence_of(diag, fit)
     return fit, ev, rounds
@@ -567,30 +582,28 @@ def _simulate_and_refit(diag: Diagnosis, fit: Fit, tried: list):
 
 
 def _round_entry(diag: Diagnosis, fit: Fit, tried: list, superseded: dict[str, str],
-                 mesh_done: bool) -> dict:
-    """The record of a round of :func:`resolve_numerics` before its options are judged: the
-    current fit, its step (and tets), and the refinements not tried with the reason."""
+                 mesh_done: bool, options: dict[str, Option]) -> NumericsRound:
+    """The record of a round of :func:`resolve_numerics` whose refinements ``options`` were
+    judged: the current fit, its step (and tets), and the refinements not tried with the
+    reason."""
     exp = fit.experiment
-    entry = {"chi2": fit.chi2, "dof": diag.dof(len(fit.names)), "step": exp.time.step,
-             "options": {},
-             "parameters": dict(zip(fit.names, map(float, fit.values), strict=True))}
-    if system_class(exp).volume_cells:
-        entry["tets"] = mesh_cells(exp)
     not_tried = {r.label: superseded.get(r.label) or _why_not(r, exp) for r in REFINEMENTS
                  if r not in tried and not (r.kind == "mesh" and mesh_done)}
-    if not_tried:
-        entry["not_tried"] = not_tried
-    return entry
+    return NumericsRound(
+        chi2=fit.chi2, dof=diag.dof(len(fit.names)), step=exp.time.step, options=options,
+        parameters=dict(zip(fit.names, map(float, fit.values), strict=True)),
+        tets=mesh_cells(exp) if system_class(exp).volume_cells else None,
+        not_tried=not_tried or None)
 
 
-def _judge(diag: Diagnosis, fit: Fit, entry: dict, r, run, res, seen: np.ndarray,
-           excess: float):
-    """Refinement ``r`` of a round, from its run at the current parameters and its refit:
-    recorded in ``entry["options"]``, said, its error counted or not; (the refinement, its
-    chi2 gain, its fit) when it matters (the round adopts the best), else None."""
+def _judge(diag: Diagnosis, fit: Fit, dof: int, r, run, res, seen: np.ndarray,
+           excess: float) -> tuple[str, Option, tuple | None]:
+    """Refinement ``r`` of a round (of ``dof`` degrees of freedom), from its run at the
+    current parameters and its refit: said, its error counted or not. Returns (the label it
+    is recorded under, its option, and (the refinement, its chi2 gain, its fit) when it
+    matters (the round adopts the best), else None)."""
     if not (run.ok and res.ok):
-        entry["options"][r.label] = {"error": run.error if not run.ok else res.error}
-        return None
+        return r.label, FailedOption(run.error if not run.ok else res.error), None
     refit, moved, lin, what = res.value
     jumped = what != r.label      # refitted at a quarter of the step (step_jump)
     r = refinement(what)
@@ -602,36 +615,37 @@ def _judge(diag: Diagnosis, fit: Fit, entry: dict, r, run, res, seen: np.ndarray
             if other != what:
                 diag.model_error.pop(other, None)
     if lin is not None:
-        _judge_linearised(diag, fit, entry, r, lin)
-        return None
-    return _judge_refit(diag, fit, entry, r, refit, moved, jumped, seen, excess)
+        _judge_linearised(diag, fit, r, lin)
+        return r.label, lin, None
+    return _judge_refit(diag, fit, dof, r, refit, moved, jumped, seen, excess)
 
 
-def _judge_linearised(diag: Diagnosis, fit: Fit, entry: dict, r, lin: dict) -> None:
+def _judge_linearised(diag: Diagnosis, fit: Fit, r, lin: LinearisedOption) -> None:
     """A refinement screened by its linearised refit (:func:`linearised_refit`), not refitted:
     counted like a fitted one that does not matter, only when closer to the data."""
-    closer = lin["gain"] > 0.0
+    closer = lin.gain > 0.0
     _count_error(diag, r.label, lin)
-    entry["options"][r.label] = lin
     why = ("closer to the data by too little to matter: counted, " if closer
            else "no closer to the data: ")
-    if lin.get("deferred"):
+    if lin.deferred:
         why = (f"closer to the data, but the fit misses it by "
-               f"{lin['deferred']:.3g}x the noise: counted, checked again when the "
+               f"{lin.deferred:.3g}x the noise: counted, checked again when the "
                "misfit is smaller, ")
     diag.tell(f"numerics: {r.label} ({r.describe(fit.experiment)}): the simulation changes by "
-              f"{lin['change_same_parameters_over_noise']:.3g}x the noise "
-              f"({lin['change_over_noise']:.3g}x after a linearised refit, {why}"
-              f"not refitted); chi2 {fit.chi2:.5g} -> {lin['chi2']:.5g} "
-              + ("(deferred)" if lin.get("deferred") else
+              f"{lin.change_same_parameters_over_noise:.3g}x the noise "
+              f"({lin.change_over_noise:.3g}x after a linearised refit, {why}"
+              f"not refitted); chi2 {fit.chi2:.5g} -> {lin.chi2:.5g} "
+              + ("(deferred)" if lin.deferred else
                  "(counted)" if closer else "(resolved)"))
 
 
-def _judge_refit(diag: Diagnosis, fit: Fit, entry: dict, r, refit: Fit, moved: np.ndarray,
-                 jumped: bool, seen: np.ndarray, excess: float):
+def _judge_refit(diag: Diagnosis, fit: Fit, dof: int, r, refit: Fit, moved: np.ndarray,
+                 jumped: bool, seen: np.ndarray, excess: float
+                 ) -> tuple[str, RefittedOption, tuple | None]:
     """A refitted refinement: whether it matters, is deferred or is counted (module
-    constants), recorded and said; (r, gain, refit) when it matters, else None."""
-    exp, what, dof = fit.experiment, r.label, entry["dof"]
+    constants), and said; (its label, its option, (r, gain, refit) when it matters, else
+    None)."""
+    exp, what = fit.experiment, r.label
     gain = fit.chi2 - refit.chi2
     change = _change(diag, fit, refit.sim, seen)
     matters = refinement_matters(gain, excess, change, diag.sigma)
@@ -651,29 +665,24 @@ def _judge_refit(diag: Diagnosis, fit: Fit, entry: dict, r, refit: Fit, moved: n
         diag.model_error[what] = change * current
     else:
         diag.model_error.pop(what, None)
-    option = entry["options"][what] = {
-        "chi2": refit.chi2, "chi2_per_dof": refit.chi2 / dof, "gain": gain,
-        "matters": matters, "change_rms": change,
-        "change_over_noise": change / diag.sigma,
-        "change_same_parameters": fixed,
-        "change_same_parameters_over_noise": fixed / diag.sigma,
-        "how": r.describe(exp),
-        "parameters": dict(zip(refit.names, map(float, refit.values), strict=True)),
-        "refit": refit.by or "calibrated",
-        "error_estimate": diag.model_error.get(what, 0.0),
-        "remaining_estimate": change * remaining}
-    if later:
-        option["deferred"] = fit.rms / diag.sigma
-    if jumped:
+    option = RefittedOption(
+        chi2=refit.chi2, chi2_per_dof=refit.chi2 / dof, gain=gain, matters=matters,
+        change_rms=change, change_over_noise=change / diag.sigma,
+        change_same_parameters=fixed, change_same_parameters_over_noise=fixed / diag.sigma,
+        how=r.describe(exp),
+        parameters=dict(zip(refit.names, map(float, refit.values), strict=True)),
+        refit=refit.by or "calibrated", error_estimate=diag.model_error.get(what, 0.0),
+        remaining_estimate=change * remaining,
+        deferred=fit.rms / diag.sigma if later else None,
         # its same-parameter change is Richardson's, from the halved step's run
-        option["same_parameters_from"] = STEP_HALVED.label
+        same_parameters_from=STEP_HALVED.label if jumped else None)
     outcome = _outcome(gain, excess, change, matters, later, fit.rms, diag.sigma)
     diag.tell(f"numerics: {what} ({r.describe(exp)}): the simulation changes by "
               f"{fixed / diag.sigma:.3g}x the noise"
               + (" (estimated from the step/2 run)" if jumped else "")
               + f" ({change / diag.sigma:.3g}x "
               f"refitted); chi2 {fit.chi2:.5g} -> {refit.chi2:.5g} {outcome}")
-    return (r, gain, refit) if matters else None
+    return what, option, ((r, gain, refit) if matters else None)
 
 
 def _outcome(gain: float, excess: float, change: float, matters: bool, later: bool,
@@ -692,29 +701,30 @@ def _outcome(gain: float, excess: float, change: float, matters: bool, later: bo
     return "(resolved)"
 
 
-def _adopt(diag: Diagnosis, entry: dict, r, gain: float, fit: Fit) -> tuple[Fit, dict]:
-    """Adopt refinement ``r`` (its fit ``fit``) as the round's best: its remaining error
-    bounded and counted when the next round cannot (or need not) measure it; (fit, its
-    evidence)."""
-    entry["adopted"] = r.label
+def _adopt(diag: Diagnosis, entry: NumericsRound, r, gain: float, fit: Fit
+           ) -> tuple[NumericsRound, Fit, Evidence]:
+    """Adopt refinement ``r`` (its fit ``fit``) as the best of round ``entry``: its remaining
+    error bounded and counted when the next round cannot (or need not) measure it; (the round
+    with its adoption, fit, its evidence)."""
     # the adopted model's own error: Richardson's estimate, but no more than the refined
     # fit leaves above the noise (seen: a 648-tet mesh's change of 41x the noise gave an
     # estimate of 14x while the refined fit was within 1.2x the noise of the data)
-    chosen = entry["options"][r.label]
+    chosen = entry.options[r.label]
     above = float(np.sqrt(max(fit.rms ** 2 - diag.sigma ** 2, 0.0)))
-    chosen["remaining_bound"] = min(chosen["remaining_estimate"], above)
+    chosen = replace(chosen, remaining_bound=min(chosen.remaining_estimate, above))
+    entry = replace(entry, options={**entry.options, r.label: chosen}, adopted=r.label)
     again = _why_not(r, fit.experiment)
     if again is None and r.kind == "step":
         again = estimated_instead(chosen, diag.sigma)
-    if again is not None and chosen["remaining_bound"] > 0.0:
+    if again is not None and chosen.remaining_bound > 0.0:
         # the next round cannot measure it, or need not: keep the estimate in the
         # verdict's budget (a next round is made only if the verdict still asks for one)
-        diag.model_error[r.label] = chosen["remaining_bound"]
-        entry["remaining_counted"] = again
+        diag.model_error[r.label] = chosen.remaining_bound
+        entry = replace(entry, remaining_counted=again)
     ev = evidence_of(diag, fit)
     diag.tell(f"numerics: adopted {r.label} (step {fit.experiment.time.step:.4g} s); verdict "
-              f"{ev['verdict']} (chi2/dof {ev['noise_test'].chi2_per_dof:.4g})")
-    return fit, ev
+              f"{ev.verdict} (chi2/dof {ev.noise_test.chi2_per_dof:.4g})")
+    return entry, fit, ev
 
 
 def superseded_by_order(tried: list) -> dict[str, str]:
@@ -733,7 +743,7 @@ def superseded_by_order(tried: list) -> dict[str, str]:
                       "nodes and a higher order of accuracy") for r in tried if r.kind == "mesh"}
 
 
-def measure_untried(diag: Diagnosis, fit: Fit, rounds: list[dict]) -> bool:
+def measure_untried(diag: Diagnosis, fit: Fit, rounds: list[NumericsRound]) -> bool:
     """Measure, once per mesh, each mesh refinement of ``fit``'s model that was too large to fit
     (:func:`measurable`), into the last round's entry (a new one when that round adopted a
     refinement: its options were those of the model before); a mesh measured before keeps its
@@ -744,27 +754,37 @@ def measure_untried(diag: Diagnosis, fit: Fit, rounds: list[dict]) -> bool:
     todo = [r for r in REFINEMENTS if measurable(r, exp)]
     if not todo:
         return False
-    if rounds and "adopted" not in rounds[-1]:
+    again = bool(rounds) and rounds[-1].adopted is None
+    if again:
         entry = rounds[-1]
     else:
-        dof = diag.dof(len(fit.names))
-        entry = {"chi2": fit.chi2, "dof": dof, "step": exp.time.step, "options": {},
-                 "tets": mesh_cells(exp), "measured_only": True,
-                 "parameters": dict(zip(fit.names, map(float, fit.values), strict=True))}
-        rounds.append(entry)
+        entry = NumericsRound(
+            chi2=fit.chi2, dof=diag.dof(len(fit.names)), step=exp.time.step, options={},
+            parameters=dict(zip(fit.names, map(float, fit.values), strict=True)),
+            tets=mesh_cells(exp), measured_only=True)
+    options = dict(entry.options)
+    not_tried = None if entry.not_tried is None else dict(entry.not_tried)
     # Each refinement alone moved the fit away from the data (the step's refit and the
     # split mesh's linearised one): a step error and a mesh error of opposite signs can offset
     # each other, so that neither shows alone; refined together they do.
     both = MESH_AND_STEP_HALVED
-    step = next((o for label, o in entry["options"].items()
-                 if refinement(label).kind == "step"), {})
-    maybe_both = step.get("gain", 1.0) <= 0.0 and measurable(both, exp)
+    step = next((o for label, o in options.items() if refinement(label).kind == "step"), None)
+    maybe_both = (step is not None and not step.failed and step.gain <= 0.0
+                  and measurable(both, exp))
     made = _simulated_side_by_side(diag, fit, todo + ([both] if maybe_both else []))
     for r in todo:
-        _measure_into(diag, fit, r, entry, made.get(r.label))
-    mesh = entry["options"].get("mesh x2", {})
-    if maybe_both and mesh.get("measured_only") and mesh.get("gain", 1.0) <= 0.0:
-        _measure_into(diag, fit, both, entry, made.get(both.label))
+        options[r.label] = _measure(diag, fit, r, made.get(r.label))
+        (not_tried or {}).pop(r.label, None)
+    mesh = options.get("mesh x2")
+    if (maybe_both and mesh is not None and not mesh.failed and mesh.measured_only
+            and mesh.gain <= 0.0):
+        options[both.label] = _measure(diag, fit, both, made.get(both.label))
+        (not_tried or {}).pop(both.label, None)
+    entry = replace(entry, options=options, not_tried=not_tried)
+    if again:
+        rounds[-1] = entry
+    else:
+        rounds.append(entry)
     return True
 
 
@@ -807,11 +827,11 @@ def _simulated_side_by_side(diag: Diagnosis, fit: Fit, wanted: list) -> dict:
     return {r.label: res for r, res in zip(todo, runs, strict=True)}
 
 
-def _measure_into(diag: Diagnosis, fit: Fit, r, entry: dict, made=None) -> None:
-    """:func:`measure_refinement` of ``r`` into ``entry``'s options, once per model (a model
-    measured before keeps its measurement), and its error in (or out of) the verdict's
-    budget. ``made``: its measuring run's result when already made
-    (:func:`_simulated_side_by_side`)."""
+def _measure(diag: Diagnosis, fit: Fit, r, made=None) -> LinearisedOption | FailedOption:
+    """:func:`measure_refinement` of ``r``, once per model (a model measured before keeps
+    its measurement), and its error in (or out of) the verdict's budget; returns its option.
+    ``made``: its measuring run's result when already made (:func:`_simulated_side_by_side`).
+    """
     exp = fit.experiment
     key = _measuring_key(r, exp)
     done = diag.measured_meshes
@@ -822,35 +842,34 @@ def _measure_into(diag: Diagnosis, fit: Fit, r, entry: dict, made=None) -> None:
             done[key] = measure_refinement(diag, fit, r,
                                            None if made is None else made.value)
         except PetsoftError as err:   # collective, as the fits
-            done[key] = {"error": f"the refined simulation failed ({err})"}
+            done[key] = FailedOption(f"the refined simulation failed ({err})")
     o = done[key]
-    entry["options"][r.label] = o
-    entry.get("not_tried", {}).pop(r.label, None)
     _count_error(diag, r.label, o)
+    return o
 
 
-def _count_error(diag: Diagnosis, label: str, o: dict) -> None:
-    """Book refinement ``label``'s estimated error ``o["error_estimate"]`` in the verdict's
-    noise budget (``diag.model_error``), or take it out when there is none."""
-    if o.get("error_estimate", 0.0) > 0.0:
-        diag.model_error[label] = o["error_estimate"]
+def _count_error(diag: Diagnosis, label: str, o: Option) -> None:
+    """Book refinement ``label``'s estimated error ``o.error_estimate`` in the verdict's
+    noise budget (``diag.model_error``), or take it out when there is none (or it failed)."""
+    if not o.failed and o.error_estimate > 0.0:
+        diag.model_error[label] = o.error_estimate
     else:
         diag.model_error.pop(label, None)
 
 
-def measured_on(entry: dict, fit: Fit, model_error: dict) -> bool:
+def measured_on(entry: NumericsRound, fit: Fit, model_error: dict) -> bool:
     """Whether numerics round ``entry`` (:func:`resolve_numerics`'s record) measured every
     error booked in ``model_error`` on ``fit`` itself: the round adopted nothing, started from
     this fit (its chi2, parameters and step) and has an outcome, not an error, for each booked
     label (each such outcome set or cleared its label's booking)."""
-    if "adopted" in entry or entry.get("chi2") != fit.chi2:
+    if entry.adopted is not None or entry.chi2 != fit.chi2:
         return False
-    if entry.get("step") != fit.experiment.time.step:
+    if entry.step != fit.experiment.time.step:
         return False
-    if entry.get("parameters") != dict(zip(fit.names, map(float, fit.values), strict=True)):
+    if entry.parameters != dict(zip(fit.names, map(float, fit.values), strict=True)):
         return False
-    options = entry.get("options", {})
-    return all(label in options and "error" not in options[label] for label in model_error)
+    return all(label in entry.options and not entry.options[label].failed
+               for label in model_error)
 
 
 def refinement_matters(gain: float, excess: float, change: float, sigma: float) -> bool:
@@ -913,7 +932,7 @@ def _better(r, gain: float, best_r, best_gain: float) -> bool:
     return gain > best_gain
 
 
-def screened(o: dict, excess: float, sigma: float) -> bool:
+def screened(o: LinearisedOption, excess: float, sigma: float) -> bool:
     """Whether a refinement whose linearised refit is ``o`` (:func:`linearised_refit`) is not
     refitted: it moves the simulation by at most :data:`SCREEN_BELOW` times the noise ``sigma``
     and its linearised refit is either no closer to the data or so little closer that twice its
@@ -922,10 +941,10 @@ def screened(o: dict, excess: float, sigma: float) -> bool:
     linearised change, as a measured mesh's). Seen: the independent L-bracket
     with damping and added mass, chi2/dof 75, where the halved step (0.51x the noise, 0.6 % of
     the excess) was refitted for 45 s to be called resolved."""
-    if o["change_same_parameters"] > SCREEN_BELOW * sigma:
+    if o.change_same_parameters > SCREEN_BELOW * sigma:
         return False
-    return o["gain"] <= 0.0 or not refinement_matters(2.0 * o["gain"], excess,
-                                                      2.0 * o["change_rms"], sigma)
+    return o.gain <= 0.0 or not refinement_matters(2.0 * o.gain, excess, 2.0 * o.change_rms,
+                                                   sigma)
 
 
 def _simulate_refined(diag: Diagnosis, fit: Fit, what: str, comm) -> np.ndarray:
@@ -958,16 +977,16 @@ def _refit(diag: Diagnosis, fit: Fit, what: str, comm, cols: np.ndarray | None,
     if cols is not None:
         o = linearised_refit(diag, fit, refinement(what), moved, cols)
         if screened(o, diag.excess(fit), diag.sigma):
-            return None, moved, {**o, "screened": True}, what
-        if (gains_enough(o["gain"], diag.excess(fit), o["change_rms"], diag.sigma)
-                and deferred(o["change_rms"], fit.rms, diag.sigma)):
+            return None, moved, replace(o, screened=True), what
+        if (gains_enough(o.gain, diag.excess(fit), o.change_rms, diag.sigma)
+                and deferred(o.change_rms, fit.rms, diag.sigma)):
             # it would gain enough to matter, but a refit would be deferred anyway (its change
             # is small beside the misfit; or under ADOPT_CHANGE, never adopted): not refitted,
             # counted from the linearised refit and checked again later. Seen: the independent
             # L-bracket's halved step on the 10-node model with a concealed viscoelastic
             # branch, 1.01x the noise refitted, deferred after a 236 s refit at chi2/dof 49.
-            return None, moved, {**o, "screened": True, "matters": False,
-                                 "deferred": fit.rms / diag.sigma}, what
+            return None, moved, replace(o, screened=True, matters=False,
+                                        deferred=fit.rms / diag.sigma), what
     if cols is not None and what == STEP_HALVED.label:
         seen = np.isfinite(diag.data[diag.ident])
         same = _change(diag, fit, moved, seen)
@@ -984,7 +1003,7 @@ def _refit(diag: Diagnosis, fit: Fit, what: str, comm, cols: np.ndarray | None,
                               estimate)
             if (gains_enough(fit.chi2 - refit.chi2, diag.excess(fit),
                              _change(diag, fit, refit.sim, seen), diag.sigma)
-                    and refit.chi2 <= o["chi2"]):
+                    and refit.chi2 <= o.chi2):
                 # kept, and judged by the caller: adopted when it matters, else (its refitted
                 # change under ADOPT_CHANGE: half the step's would be smaller still) counted
                 # from this refit, without another at half the step
@@ -998,7 +1017,7 @@ def _refit(diag: Diagnosis, fit: Fit, what: str, comm, cols: np.ndarray | None,
             # material.nonlinear (recorded the same way) at 1 ms 2394 -> 1699, at 2 ms -> 1097,
             # where the 1 ms model then took a spurious second term.
             diag.group_says(comm, f"numerics {quarter}: refitted, chi2 {fit.chi2:.5g} -> "
-                                  f"{refit.chi2:.5g}, against {o['chi2']:.5g} linearised at half "
+                                  f"{refit.chi2:.5g}, against {o.chi2:.5g} linearised at half "
                                   "the step: refitting at half the step instead")
     return _refitted(diag, fit, what, experiment, comm, cols, moved), moved, None, what
 
@@ -1031,19 +1050,19 @@ class NumericsChecks:
 
     def __init__(self, diag: Diagnosis, enabled: bool):
         self.diag, self.enabled = diag, enabled
-        #: every refinement tried, in order (report.json ``numerics.refinements``)
-        self.refinements: list[dict] = []
+        #: every round, in order (summary.json ``numerics.refinements``)
+        self.refinements: list[NumericsRound] = []
         #: the excess chi2 the last check left (None before the first)
         self.checked_excess: float | None = None
         #: a model switch added since the last check (it may need a finer step)
         self.switch_since_check: str | None = None
 
-    def first(self, fit: Fit, ev: dict, added: int):
+    def first(self, fit: Fit, ev: Evidence, added: int):
         """Rule out numerics before blaming physics, when :func:`numerics_due` says a check is
         due; returns the (possibly refined) fit and its evidence."""
         if not self.enabled:
             return fit, ev
-        if ev["verdict"] == "consistent":
+        if ev.verdict == "consistent":
             # a mesh file is checked before anything else even then: a coarse mesh's stiffness
             # hides in the calibrated parameters (issue 14: E 26 % low)
             if self.checked_excess is None and is_mesh_file(fit.experiment):
@@ -1053,21 +1072,17 @@ class NumericsChecks:
         why = numerics_due(self.checked_excess, self.diag.excess(fit), self.switch_since_check)
         return self.refine(fit, ev, why, added) if why else (fit, ev)
 
-    def refine(self, fit: Fit, ev: dict, why: str, added: int, final: bool = False):
+    def refine(self, fit: Fit, ev: Evidence, why: str, added: int, final: bool = False):
         """:func:`resolve_numerics`, its rounds recorded, and the excess it leaves remembered so
         that the next round's :meth:`first` does not repeat it at once."""
         fit, ev, rounds = resolve_numerics(self.diag, fit, ev)
-        for r in rounds:
-            r["after_additions"] = added
-            r["why"] = why
-            if final:
-                r["final_check"] = True
-        self.refinements += rounds
+        self.refinements += [replace(r, after_additions=added, why=why, final_check=final)
+                             for r in rounds]
         self.checked_excess = self.diag.excess(fit)
         self.switch_since_check = None
         return fit, ev
 
-    def recheck_final(self, fit: Fit, ev: dict, added: int):
+    def recheck_final(self, fit: Fit, ev: Evidence, added: int):
         """Measure an estimated discretisation error again on the final model.
 
         A consistent verdict may lean on a discretisation error estimated while a large
@@ -1077,7 +1092,7 @@ class NumericsChecks:
         2.2 x the noise. Returns (fit, ev, whether it ran).
         """
         diag = self.diag
-        if not (self.enabled and diag.model_error and ev["verdict"] == "consistent"):
+        if not (self.enabled and diag.model_error and ev.verdict == "consistent"):
             return fit, ev, False
         counted = ("numerics: the verdict counts an estimated discretisation error ("
                    + ", ".join(f"{k} {v:.3g} m" for k, v in diag.model_error.items()) + ")")

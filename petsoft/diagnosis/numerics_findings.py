@@ -2,9 +2,11 @@
 
 :func:`numerics_findings` turns the rounds of :func:`~petsoft.diagnosis.numerics.resolve_numerics`
 and the final :func:`~petsoft.diagnosis.numerics.numerics_check` into report.json's ``numerics``
-(``findings``: which refinement matters and by how much, what was adopted and what error is left,
-round by round; ``summary``: one sentence and one number per refinement, on the final model;
-``adopted``; ``recommendation``: the mesh and step to use; ``mesh``: the tet counts behind them).
+(a :class:`~petsoft.diagnosis.numerics_records.NumericsFindings`: ``findings``: which
+refinement matters and by how much, what was adopted and what error is left, round by round;
+``summary``: one sentence and one number per refinement, on the final model; ``adopted``;
+``recommendation``: the mesh and step to use; ``mesh``: the tet counts behind them). The rounds
+and the final check it reads are records too (:mod:`petsoft.diagnosis.numerics_records`).
 report.md says ``summary`` and ``recommendation`` in "In short", ``findings`` in its appendix.
 """
 
@@ -12,10 +14,14 @@ from __future__ import annotations
 
 from petsoft.calibration.refinement import STEP_HALVED, levels_needed, mesh_cells, refinement
 from petsoft.diagnosis.numerics import ADOPT_CHANGE, too_small_to_adopt
+from petsoft.diagnosis.numerics_records import (
+    FinalCheck,
+    LinearisedOption,
+    NumericsFindings,
+    NumericsRound,
+    RefittedOption,
+)
 from petsoft.dynamics.factory import system_class
-
-#: The keys of :func:`numerics_findings` that go to report.json's ``numerics``.
-REPORT_KEYS = ("findings", "recommendation", "mesh", "summary", "adopted")
 
 #: The order and the name of each refinement in the summary (one sentence each).
 _SUMMARY_ORDER = ("step/2", "mesh x2", "P2", "mesh x2 + step/2")
@@ -55,80 +61,79 @@ def _shifts(before: dict, after: dict) -> str:
     return f", {' and '.join(moved)}" if moved else ""
 
 
-def _measured_sentence(head: str, o: dict, sigma: float, noun: str) -> str:
-    """What one run of a mesh too large to fit measured (``measured_only`` entries)."""
-    text = (f"{head}, simulated once (over diagnose's fitting limit); after a {o['refit']} "
-            f"it still changes by {_x(o['change_over_noise'])}x the noise")
-    if o["error_estimate"] > 0.0:
-        return (text + f": counted as a {noun} error of {_x(o['error_estimate'] / sigma)}x the "
+def _measured_sentence(head: str, o: LinearisedOption, sigma: float, noun: str) -> str:
+    """What one run of a mesh too large to fit measured (``measured_only`` options)."""
+    text = (f"{head}, simulated once (over diagnose's fitting limit); after a {o.refit} "
+            f"it still changes by {_x(o.change_over_noise)}x the noise")
+    if o.error_estimate > 0.0:
+        return (text + f": counted as a {noun} error of {_x(o.error_estimate / sigma)}x the "
                 "noise in the verdict's noise budget, not blamed on physics"
-                + (" (it matters: refine the mesh to resolve it)." if o["matters"] else "."))
+                + (" (it matters: refine the mesh to resolve it)." if o.matters else "."))
     return text + f", but no closer to the data: the {noun} is not what the model misses."
 
 
-def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
+def _round_sentences(r: NumericsRound, sigma: float, first: bool) -> list[str]:
     out = []
-    where = ("" if first else "Checked again on the final model: " if r.get("final_check")
+    where = ("" if first else "Checked again on the final model: " if r.final_check
              else "Then, on the adopted model: ")
-    for label, o in r["options"].items():
+    for label, o in r.options.items():
         action, noun = refinement_words(label)
-        if "error" in o:
-            out.append(f"{where}when {action}, the refined fit failed: {o['error']}.")
+        if o.failed:
+            out.append(f"{where}when {action}, the refined fit failed: {o.error}.")
             continue
-        x = o.get("change_same_parameters_over_noise", o["change_over_noise"])
-        head = f"{where}the simulation changes by {_x(x)}x the noise when {action} ({o['how']})"
+        x = o.change_same_parameters_over_noise
+        head = f"{where}the simulation changes by {_x(x)}x the noise when {action} ({o.how})"
         head = head[0].upper() + head[1:]
-        fit = f"chi2/dof {r['chi2'] / r['dof']:.3g} -> {o['chi2_per_dof']:.3g}"
-        moved = _shifts(r["parameters"], o["parameters"])
+        fit = f"chi2/dof {r.chi2 / r.dof:.3g} -> {o.chi2_per_dof:.3g}"
+        moved = _shifts(r.parameters, o.parameters)
         # closer to the data by enough, but its refit changes the simulation by less than
         # ADOPT_CHANGE x the noise: not adopted for that alone
-        small = too_small_to_adopt(o.get("gain", 0.0), max(r["chi2"] - r["dof"], 0.0),
-                                   o.get("change_rms", 0.0), sigma)
-        floor = (f"changes the simulation by only {_x(o['change_over_noise'])}x the noise "
+        small = too_small_to_adopt(o.gain, max(r.chi2 - r.dof, 0.0), o.change_rms, sigma)
+        floor = (f"changes the simulation by only {_x(o.change_over_noise)}x the noise "
                  f"(a refinement is adopted from {ADOPT_CHANGE:g}x)")
-        if o.get("measured_only"):
+        if o.measured_only:
             out.append(_measured_sentence(head, o, sigma, noun))
-        elif o.get("screened") and o.get("deferred"):
+        elif o.screened and o.deferred:
             # not refitted: a refit would have been deferred (small beside the misfit)
             out.append(f"{head}, and a linearised refit improves the fit ({fit}), but while "
-                       f"the model misses the data by {_x(o['deferred'])}x the noise an error "
+                       f"the model misses the data by {_x(o.deferred)}x the noise an error "
                        f"this small is not what it misses: counted as a {noun} error of "
-                       f"{_x(o.get('error_estimate', 0.0) / sigma)}x the noise and checked "
+                       f"{_x(o.error_estimate / sigma)}x the noise and checked "
                        "again once the misfit is smaller (not refitted).")
-        elif o.get("screened") and o.get("error_estimate", 0.0) > 0.0:
+        elif o.screened and o.error_estimate > 0.0:
             # not refitted: its linearised refit was closer to the data by too little to matter
             improves = (f"comes closer to the data ({fit}) but {floor}" if small else
                         f"improves little ({fit})")
             out.append(f"{head}, and a linearised refit {improves}: counted as a "
-                       f"{noun} error of {_x(o['error_estimate'] / sigma)}x the noise, not "
+                       f"{noun} error of {_x(o.error_estimate / sigma)}x the noise, not "
                        "blamed on physics (not refitted).")
-        elif o.get("screened"):
+        elif o.screened:
             # not refitted: its linearised refit was no closer to the data
             out.append(f"{head}" + (": less than the noise on this model" if x < 1.0 else
                                     f", but a linearised refit is no closer to the data "
                                     f"({fit}): the {noun} is not what the model misses")
                        + " (not refitted).")
-        elif r.get("adopted") == label:
+        elif r.adopted == label:
             blame = (f"the mismatch is the {noun}, not physics" if x >= 3.0 else
                      f"part of the mismatch is the {noun}")
             out.append(f"{head}; refitted, {fit}{moved}: {blame}. The refined model is "
                        "adopted.")
-        elif o["matters"]:
+        elif o.matters:
             out.append(f"{head}; refitted, the fit improves ({fit}), but less than when "
-                       f"{refinement_words(r['adopted'])[0]}.")
-        elif o.get("deferred"):
+                       f"{refinement_words(r.adopted)[0]}.")
+        elif o.deferred:
             out.append(f"{head}; refitted, the fit improves ({fit}{moved}), but while the "
-                       f"model misses the data by {_x(o['deferred'])}x the noise an error this "
+                       f"model misses the data by {_x(o.deferred)}x the noise an error this "
                        f"small is not what it misses: counted as a {noun} error of "
-                       f"{_x(o.get('error_estimate', 0.0) / sigma)}x the noise and checked "
+                       f"{_x(o.error_estimate / sigma)}x the noise and checked "
                        "again once the misfit is smaller.")
         elif x < 1.0:
             out.append(f"{head}: less than the noise on this model.")
-        elif o.get("error_estimate", 0.0) > 0.0:
+        elif o.error_estimate > 0.0:
             improves = (f"comes closer to the data ({fit}{moved}) but {floor}" if small else
                         f"improves little ({fit}{moved})")
             out.append(f"{head}, but refitted it {improves}: counted "
-                       f"as a {noun} error of {_x(o['error_estimate'] / sigma)}x the noise, "
+                       f"as a {noun} error of {_x(o.error_estimate / sigma)}x the noise, "
                        "not blamed on physics.")
         else:
             out.append(f"{head}, but refitted it is no closer to the data ({fit}): the {noun} "
@@ -136,13 +141,13 @@ def _round_sentences(r: dict, sigma: float, first: bool) -> list[str]:
     return out
 
 
-def measured_error(rounds: list[dict]) -> tuple[float, str | None]:
+def measured_error(rounds: list[NumericsRound]) -> tuple[float, str | None]:
     """The largest error measured by one run of a mesh too large to fit, on the last round
     that measured one, and its label (``"mesh x2"``, or ``"mesh x2 + step/2"`` when only the
     split mesh at half the step came closer to the data); (0, None) if none."""
     for r in reversed(rounds):
-        measured = {label: float(o.get("error_estimate", 0.0))
-                    for label, o in r["options"].items() if o.get("measured_only")}
+        measured = {label: float(o.error_estimate)
+                    for label, o in r.options.items() if not o.failed and o.measured_only}
         if measured:
             label = max(measured, key=measured.get)
             return measured[label], label
@@ -159,7 +164,7 @@ def _adopted_setting(label: str, final) -> str:
     return f"the refined mesh ({mesh_cells(final.experiment)} tets)"
 
 
-def numerics_summary(num: dict, rounds: list[dict], final, sigma: float
+def numerics_summary(num: FinalCheck | None, rounds: list[NumericsRound], final, sigma: float
                      ) -> tuple[list[str], list[str], dict[str, str]]:
     """(one sentence per refinement, the labels adopted, {label: why} of the refinements never
     made): what a reader needs of the numerics.
@@ -169,8 +174,9 @@ def numerics_summary(num: dict, rounds: list[dict], final, sigma: float
     rounds' changes, on other models, stay in ``findings``). A refinement is said to be fine
     only when that change is below the noise; one whose refit came closer to the data and whose
     error is counted in the verdict's noise budget (``sigma``: the noise) is said to be counted.
+    ``num``: the final model's check (None: not made).
     """
-    adopted = [r["adopted"] for r in rounds if r.get("adopted")]
+    adopted = [r.adopted for r in rounds if r.adopted]
     slots = {_slot(a) for a in adopted}
     last: dict[str, tuple[dict, bool]] = {}      # label -> (its last measurement, refitted?)
     closer: dict[str, bool] = {}                 # label -> its last refit came closer
@@ -178,31 +184,28 @@ def numerics_summary(num: dict, rounds: list[dict], final, sigma: float
     not_tried: dict[str, str] = {}
     covered: dict[str, bool] = {}
     for r in rounds:
-        for raw, o in r["options"].items():
-            if "error" in o:
+        for raw, o in r.options.items():
+            if o.failed:
                 continue
             label = _slot(raw)
-            refitted = not (o.get("screened") or o.get("measured_only"))
+            refitted = not (o.screened or o.measured_only)
             # "adopting": the change is the one that made the refinement adopted, not a
             # further refinement of the adopted model
-            last[label] = ({"x": o.get("change_same_parameters_over_noise",
-                                       o["change_over_noise"]), "how": o["how"],
-                            "adopting": r.get("adopted") == raw,
-                            "refitted_x": o["change_over_noise"],
-                            "counted": o.get("error_estimate", 0.0) / sigma}, refitted)
+            last[label] = ({"x": o.change_same_parameters_over_noise, "how": o.how,
+                            "adopting": r.adopted == raw,
+                            "refitted_x": o.change_over_noise,
+                            "counted": o.error_estimate / sigma}, refitted)
             # whether its last refit (a full or a linearised one) came closer to the data
-            closer[label] = bool(o.get("matters"))
+            closer[label] = bool(o.matters)
             largest[label] = max(largest.get(label, 0.0), last[label][0]["x"])
-        for label, why in r.get("not_tried", {}).items():
+        for label, why in (r.not_tried or {}).items():
             not_tried[label] = why
             # the split mesh is not made when 10-node elements, which have its nodes, are
             # tried in its place: then it is covered, not unchecked
-            covered[label] = label == "mesh x2" and "P2" in r["options"]
-    for label, v in num.items():
-        if isinstance(v, dict) and "change" in v:
-            last[label] = ({"x": v["change_over_noise"], "how": v["how"], "adopting": False,
-                            "estimated": bool(v.get("estimated"))},
-                           last.get(label, ({}, False))[1])
+            covered[label] = label == "mesh x2" and "P2" in r.options
+    for label, v in (num.made() if num is not None else {}).items():
+        last[label] = ({"x": v.change_over_noise, "how": v.how, "adopting": False,
+                        "estimated": v.estimated}, last.get(label, ({}, False))[1])
     out = []
     unchecked: dict[str, str] = {}
     for label in sorted(set(last) | set(not_tried),
@@ -259,31 +262,32 @@ def numerics_summary(num: dict, rounds: list[dict], final, sigma: float
     return out, adopted, unchecked
 
 
-def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
-    """report.json's ``numerics``: ``findings`` (sentences), ``recommendation`` (a sentence or
-    None) and ``mesh`` (tets of the user's and the final model, and the recommended count).
+def numerics_findings(diag, num: FinalCheck | None, rounds: list[NumericsRound], base,
+                      final) -> NumericsFindings:
+    """report.json's ``numerics``: ``findings`` (sentences), ``summary``, ``adopted``,
+    ``recommendation`` (a sentence or None) and ``mesh`` (tets of the user's and the final
+    model, and the recommended count).
 
     Parameters
     ----------
     diag : Diagnosis
-    num : dict
-        :func:`~petsoft.diagnosis.numerics.numerics_check` of the final model (may be empty).
-    rounds : list of dict
+    num : FinalCheck or None
+        :func:`~petsoft.diagnosis.numerics.numerics_check` of the final model (None: not made).
+    rounds : list of NumericsRound
         The rounds of :func:`~petsoft.diagnosis.numerics.resolve_numerics`, in order.
     base, final : Fit
         The user's calibrated model and the final one.
     """
     sigma = diag.sigma
-    remaining = {r["adopted"]: r["options"][r["adopted"]] for r in rounds if r.get("adopted")}
+    remaining = {r.adopted: r.options[r.adopted] for r in rounds if r.adopted}
     findings = (_rounds_findings(rounds, sigma)
                 + [_remaining_sentence(label, o, rounds, diag.model_error, sigma)
                    for label, o in remaining.items()]
                 + _final_model_findings(num))
     summary, adopted, unchecked = numerics_summary(num, rounds, final, sigma)
-    out = {"findings": findings, "recommendation": None, "summary": summary,
-           "adopted": adopted, "unchecked": unchecked}
     if not system_class(base.experiment).volume_cells:
-        return out
+        return NumericsFindings(findings=findings, recommendation=None, summary=summary,
+                                adopted=adopted, unchecked=unchecked)
     mesh = {"tets": mesh_cells(base.experiment), "tets_final": mesh_cells(final.experiment)}
     advice = _mesh_advice(num, rounds, remaining, unchecked, base, final, sigma, mesh)
     if final.experiment.mesh.order > base.experiment.mesh.order:
@@ -293,44 +297,44 @@ def numerics_findings(diag, num: dict, rounds: list[dict], base, final) -> dict:
     if final.experiment.time.step < base.experiment.time.step:
         advice.append(f"Use a time step of at most {final.experiment.time.step:.4g} s (yours is "
                       f"{base.experiment.time.step:.4g} s).")
-    out["recommendation"] = " ".join(advice) or None
-    out["mesh"] = mesh
-    return out
+    return NumericsFindings(findings=findings, recommendation=" ".join(advice) or None,
+                            summary=summary, adopted=adopted, unchecked=unchecked, mesh=mesh)
 
 
-def _rounds_findings(rounds: list[dict], sigma: float) -> list[str]:
+def _rounds_findings(rounds: list[NumericsRound], sigma: float) -> list[str]:
     """What each round found (:func:`_round_sentences`), and each refinement not tried, said
     once, where it was first not tried."""
     findings: list[str] = []
     said_not_tried: set[str] = set()
     for i, r in enumerate(rounds):
         findings += _round_sentences(r, sigma, first=i == 0)
-        for label, why in r.get("not_tried", {}).items():
+        for label, why in (r.not_tried or {}).items():
             if label not in said_not_tried:
                 said_not_tried.add(label)
-                again = " again" if any(label in q["options"] for q in rounds) else ""
+                again = " again" if any(label in q.options for q in rounds) else ""
                 findings.append(f"The {refinement_words(label)[1]} was not refined{again}: {why}.")
     return findings
 
 
-def _remaining_sentence(label: str, o: dict, rounds: list[dict], model_error: dict,
-                        sigma: float) -> str:
+def _remaining_sentence(label: str, o: RefittedOption, rounds: list[NumericsRound],
+                        model_error: dict, sigma: float) -> str:
     """What remains of the adopted refinement ``label`` (its round's option ``o``): its own
     error, bounded by what the refined fit leaves, and whether the verdict counts it."""
     noun = refinement_words(label)[1]
-    if o["remaining_estimate"] == 0.0:
+    if o.remaining_estimate == 0.0:
         # a refinement whose own error is taken as nil (10-node elements on the same mesh:
         # their error falls as h^3), not estimated from the change it made
-        at = next(i for i, q in enumerate(rounds) if q.get("adopted") == label)
-        measured = any("mesh x2" in q["options"] for q in rounds[at + 1:])
+        at = next(i for i, q in enumerate(rounds) if q.adopted == label)
+        measured = any("mesh x2" in q.options for q in rounds[at + 1:])
         return (f"What remains: the adopted {noun} is taken as resolved on this mesh "
                 "(10-node elements' error falls as h^3)"
                 + ("; the mesh refinement above measured it." if measured else
                    "; the mesh split 1->8 that would measure it was not made."))
-    rem, bound = o["remaining_estimate"], o.get("remaining_bound", o["remaining_estimate"])
+    rem = o.remaining_estimate
+    bound = rem if o.remaining_bound is None else o.remaining_bound
     counted = label in model_error and any(
-        q.get("adopted") == label and q.get("remaining_counted") for q in rounds)
-    share = rem / o["change_rms"] if o["change_rms"] > 0 else 0.0
+        q.adopted == label and q.remaining_counted for q in rounds)
+    share = rem / o.change_rms if o.change_rms > 0 else 0.0
     text = (f"What remains: the adopted {noun}'s own error is estimated at {_x(rem / sigma)}x "
             f"the noise (Richardson: {share:.2g} of the change refining made)")
     if bound < 0.05 * sigma:
@@ -347,30 +351,28 @@ def _remaining_sentence(label: str, o: dict, rounds: list[dict], model_error: di
     return text + "."
 
 
-def _final_model_findings(num: dict) -> list[str]:
-    """What each refinement changes on the final model (``num``: its numerics check),
-    measured or estimated."""
+def _final_model_findings(num: FinalCheck | None) -> list[str]:
+    """What each refinement changes on the final model (``num``: its numerics check, None
+    when not made), measured or estimated."""
     findings = []
-    for label, v in num.items():
-        if not (isinstance(v, dict) and "change" in v):
-            continue
+    for label, v in (num.made() if num is not None else {}).items():
         action, noun = refinement_words(label)
-        limits = ("" if v["resolved"] else f": more than the noise, so the {noun} still "
+        limits = ("" if v.resolved else f": more than the noise, so the {noun} still "
                   "limits what this diagnosis can tell apart")
-        if v.get("estimated"):
+        if v.estimated:
             findings.append(f"On the final model, the simulation would change by an "
-                            f"estimated {_x(v['change_over_noise'])}x the noise when "
-                            f"{action} ({v['how']}; Richardson, from the last refinement's "
+                            f"estimated {_x(v.change_over_noise)}x the noise when "
+                            f"{action} ({v.how}; Richardson, from the last refinement's "
                             f"change: not simulated, being far below the noise){limits}.")
         else:
             findings.append(f"On the final model, the simulation changes by "
-                            f"{_x(v['change_over_noise'])}x the noise when {action} "
-                            f"({v['how']}){limits}.")
+                            f"{_x(v.change_over_noise)}x the noise when {action} "
+                            f"({v.how}){limits}.")
     return findings
 
 
-def _mesh_advice(num: dict, rounds: list[dict], remaining: dict, unchecked: dict, base, final,
-                 sigma: float, mesh: dict) -> list[str]:
+def _mesh_advice(num: FinalCheck | None, rounds: list[NumericsRound], remaining: dict,
+                 unchecked: dict, base, final, sigma: float, mesh: dict) -> list[str]:
     """What the recommendation says of the mesh (at most one sentence, a list to extend):
     refine it to a count (set in ``mesh["recommended_tets"]``), refine it because a run
     measured its error or the final model's check found it unresolved, check it with
@@ -378,8 +380,9 @@ def _mesh_advice(num: dict, rounds: list[dict], remaining: dict, unchecked: dict
     user, now = mesh["tets"], mesh["tets_final"]
     measured, measured_by = measured_error(rounds)
     if "mesh x2" in remaining or now > user:
-        o = remaining.get("mesh x2", {})
-        rem = o.get("remaining_bound", o.get("remaining_estimate", 0.0)) / sigma
+        o = remaining.get("mesh x2")
+        rem = (0.0 if o is None else o.remaining_estimate if o.remaining_bound is None
+               else o.remaining_bound) / sigma
         extra = levels_needed(rem)
         need = now * 8 ** extra
         levels = 0
@@ -397,9 +400,9 @@ def _mesh_advice(num: dict, rounds: list[dict], remaining: dict, unchecked: dict
         return [f"Refine the mesh ({user} tets){' and the time step' if both else ''}: "
                 f"one run of the split mesh{' at half the step' if both else ''} measured "
                 f"an error of {_x(measured / sigma)}x the noise on the final model."]
+    made = num.made() if num is not None else {}
     unresolved = [label for label in ("mesh x2", "P2")
-                  if isinstance(num.get(label), dict) and "change" in num[label]
-                  and not num[label]["resolved"]]
+                  if label in made and not made[label].resolved]
     if unresolved:
         return [f"Refine the mesh ({user} tets) before using the calibrated values "
                 "beyond this recording: on the final model, refining the "
@@ -409,8 +412,7 @@ def _mesh_advice(num: dict, rounds: list[dict], remaining: dict, unchecked: dict
         return [f"Your mesh ({user} tets) could not be refined within diagnose's limit "
                 f"({unchecked['mesh x2']}): check the calibrated parameters with "
                 "`petsoft calibrate --check-mesh`."]
-    if (any("mesh x2" in r["options"] or "P2" in r["options"] for r in rounds)
-            or isinstance(num.get("mesh x2"), dict)):
+    if any("mesh x2" in r.options or "P2" in r.options for r in rounds) or "mesh x2" in made:
         raised = final.experiment.mesh.order > base.experiment.mesh.order
         text = (f"Your mesh ({user} tets) is fine for this recording"
                 + (" with 10-node elements (below)" if raised else ""))
@@ -421,7 +423,8 @@ def _mesh_advice(num: dict, rounds: list[dict], remaining: dict, unchecked: dict
                      f"measured an error of {_x(measured / sigma)}x the noise on the final "
                      "model, below the noise and counted in the verdict's noise budget")
         return [text + "."]
-    if any("mesh x2" in r.get("not_tried", {}) for r in rounds) or "mesh x2" in num:
+    if (any("mesh x2" in (r.not_tried or {}) for r in rounds)
+            or (num is not None and "mesh x2" in num.changes)):
         return [f"Your mesh ({user} tets) could not be checked within diagnose's limit: "
                 "check the calibrated parameters with `petsoft calibrate --check-mesh`."]
     return []

@@ -16,7 +16,7 @@ from petsoft.diagnosis.figures import (
     rms_per_marker,
 )
 from petsoft.diagnosis.html import write_report_html
-from petsoft.diagnosis.records import AddedTerm
+from petsoft.diagnosis.records import AddedTerm, Evidence
 from petsoft.diagnosis.result import DiagnoseResult
 from petsoft.dynamics.factory import system_class
 from petsoft.experiment.writer import write_experiment_update
@@ -40,7 +40,7 @@ def gravity_words(gravity) -> dict:
     return out
 
 
-def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict,
+def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: Evidence, ev: Evidence,
                            added: list[AddedTerm], rejected, numerics: dict | None = None,
                            skipped: list[dict] = ()) -> dict:
     """report.json of a diagnosis (formats.md section 3). An added term's ``parameters`` and
@@ -55,7 +55,7 @@ def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict,
     validation = None
     if base.heldout_rms is not None and final.heldout_rms is not None:
         validation = {"base_rms": base.heldout_rms, "final_rms": final.heldout_rms}
-    mismatch = base_ev["mismatch"]
+    mismatch = base_ev.mismatch
     region = mismatch["region"]
     spatial = [a.region for a in added if a.region]
     if spatial:
@@ -72,7 +72,7 @@ def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict,
     adopted = (numerics or {}).get("adopted", [])
     return build_report(
         # the verdict is about the user's model: anything missing makes it missing-physics
-        verdict=base_ev["verdict"],
+        verdict=base_ev.verdict,
         noise_std=diag.sigma,
         base=fit_summary(d, base.sim[diag.ident], diag.sigma, len(base.names)),
         final=fit_summary(d, final.sim[diag.ident], diag.sigma, len(final.names)),
@@ -80,12 +80,12 @@ def build_diagnosis_report(diag, base: Fit, final: Fit, base_ev: dict, ev: dict,
         validation=validation, markers=mismatch["markers"],
         time_windows=mismatch["time_windows"], frequencies_hz=mismatch["frequencies_hz"],
         region=region, added=final_added, rejected=rejected, numerics=numerics or None,
-        cause=mismatch_cause(base_ev["verdict"], added, adopted), skipped=skipped,
-        parameters_std=std_all, final_verdict=ev["verdict"])
+        cause=mismatch_cause(base_ev.verdict, added, adopted), skipped=skipped,
+        parameters_std=std_all, final_verdict=ev.verdict)
 
 
 def write_diagnosis_figures(out: Path, diag: Diagnosis, result: DiagnoseResult,
-                            base_ev: dict | None = None) -> list[Path]:
+                            base_ev: Evidence | None = None) -> list[Path]:
     """displacement.png, residual_on_body.png, spectra.png and (when candidates were scored)
     candidates.png: the mismatch over the whole record, where it is, the candidates, and the
     frequencies (:mod:`petsoft.diagnosis.figures`)."""
@@ -103,7 +103,8 @@ def write_diagnosis_figures(out: Path, diag: Diagnosis, result: DiagnoseResult,
                               rms_per_marker(diag.data, before), diag.sigma, names)
         figs.append(out / "residual_on_body.png")
     plot_spectra_before_after(out / "spectra.png", diag.times, diag.data, before, after,
-                              data_modes=(base_ev or {}).get("data_modes") or ())
+                              data_modes=(base_ev.data_modes if base_ev is not None else None)
+                              or ())
     figs.append(out / "spectra.png")
     if result.scores:
         plot_candidates(out / "candidates.png", result.scores,
@@ -122,7 +123,7 @@ def _why_adopted(r: dict) -> str:
     return f"it lowered chi2 by more than 10, {floor}, more than the noise"
 
 
-def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: dict,
+def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: Evidence,
                   wall_time: float, spelled_out: bool = False) -> None:
     """report.json, report.md, figures, diagnosed.toml, summary.json (rank 0 writes)."""
     from petsoft.diagnosis.evidence import write_figures
@@ -131,19 +132,19 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
     if not diag.rank0:
         return
     out.mkdir(parents=True, exist_ok=True)
-    if system_class(result.base.experiment).volume_cells and base_ev.get("markers") is not None:
+    if system_class(result.base.experiment).volume_cells and base_ev.markers is not None:
         # where on the body: the base fit's per-marker residual spread over the mesh (ParaView)
         from petsoft.diagnosis.locate import write_residual_field
 
         mesh = load_mesh(result.base.experiment)
         write_residual_field(out / "residual_field.xdmf", mesh.points, mesh.tets,
-                             diag.recording.reference, base_ev["markers"])
+                             diag.recording.reference, base_ev.markers)
     write_report(out / "report.json", result.report)
     t = diag.times[diag.ident]
     figs = write_figures(out, base_ev, t, diag.data[diag.ident], result.base.sim[diag.ident],
                          modes=False)
     figs += write_diagnosis_figures(out, diag, result, base_ev)
-    notes = list(result.evidence.get("notes", [])) if result.evidence else []
+    notes = list(result.evidence.notes) if result.evidence is not None else []
     notes.append(f"identification window t <= {diag.cut:.4g} s; held out: "
                  f"{int(diag.held.sum())} later frames")
     for s in result.scores:
@@ -166,9 +167,10 @@ def write_outputs(out: Path, diag: Diagnosis, result: DiagnoseResult, base_ev: d
                                  result.numerics["model_error"].items())
                      + f"; the verdict tests the residual against the noise and this error in "
                      f"quadrature ({result.numerics['sigma_verdict']:.3g} m)")
-    ev = dict(result.evidence or {})
-    ev["notes"] = notes
-    write_report_md(out / "report.md", result.report, ev, [f.name for f in figs])
+    # report.md states the evidence's findings (its report form) and this log as its notes
+    ev = result.evidence.as_report() if result.evidence is not None else {}
+    write_report_md(out / "report.md", result.report, {**ev, "notes": notes},
+                    [f.name for f in figs])
     write_report_html(out / "report.html", out / "report.md", figs)
     write_experiment_update(diag.base_experiment, result.final.experiment,
                             out / "diagnosed.toml", spelled_out=spelled_out)

@@ -145,11 +145,11 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
                 best = (bic, s, alt, fit)
             elif alt is not None and as_good(diag, fit, current, extra):
                 # kept by the tie-break, but the user must know the data cannot tell
-                added.entry.evidence += (
+                added.entry = replace(added.entry, evidence=added.entry.evidence + (
                     f"; ambiguous: with {later} in, {alt.physics} in its place fits and "
                     f"predicts as well (chi2 {fit.chi2:.6g} vs {current.chi2:.6g}, held-out "
                     f"rms {fmt(fit.heldout_rms)} vs {fmt(current.heldout_rms)} m): the data "
-                    f"do not tell the two apart; {cand.physics} is kept (added first)")
+                    f"do not tell the two apart; {cand.physics} is kept (added first)"))
         if best is None:
             continue
         _, s, alt, fit = best
@@ -186,5 +186,6 @@ def reconsider(diag: Diagnosis, current: Fit, history: list[Added],
         # every term's values and deviations from the final fit: the later terms were
         # refitted beside the replacement
         for h in history:
-            h.entry.parameters, h.entry.std = term_values(current, h.candidate.parameters)
+            values, std = term_values(current, h.candidate.parameters)
+            h.entry = replace(h.entry, parameters=values, std=std)
     return current

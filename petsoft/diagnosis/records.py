@@ -1,6 +1,7 @@
 """The diagnosis' typed records: what one candidate's score test gave and what its round made
-of it (:class:`ScoreEntry`), what the tests made of its fit (:class:`Judgement`), and a term a
-round added (:class:`AddedTerm`).
+of it (:class:`ScoreEntry`), what the tests made of its fit (:class:`Judgement`), a term a
+round added (:class:`AddedTerm`), and the mismatch analysis of a fit (:class:`Evidence`). The
+numerics check's are in :mod:`petsoft.diagnosis.numerics_records`.
 
 A score entry is made when a candidate is scored and then travels through its round: the
 shortlist, the fits, the choice and the final ranking each set their own fields, declared here
@@ -12,13 +13,16 @@ was skipped) stay out of it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 if TYPE_CHECKING:       # (context.py makes score entries: importing it here would be a cycle)
     from petsoft.diagnosis.context import Fit
+    from petsoft.diagnosis.locate import MarkerResiduals
+    from petsoft.diagnosis.noise import ChiSquareResult
 
 
 # eq=False: an entry is one candidate's in one round, recognised by identity (a round's lists
@@ -27,6 +31,11 @@ if TYPE_CHECKING:       # (context.py makes score entries: importing it here wou
 @dataclass(eq=False)
 class ScoreEntry:
     """One candidate's score entry in one round of the diagnosis.
+
+    The one record here that stays mutable: each step of the round sets its own fields on the
+    same entry (below: who sets which), and the round's lists (the report's order, the ranking,
+    the shortlist, the contenders, a later round's runners-up) hold that one entry, recognised
+    by identity. A frozen entry would have to be replaced in each of those lists at each step.
 
     Attributes
     ----------
@@ -145,14 +154,16 @@ class ScoreEntry:
 
 
 # eq=False: as a ScoreEntry, one round's addition, recognised by identity
-@dataclass(eq=False)
+@dataclass(frozen=True, eq=False)
 class AddedTerm:
     """A physics term a round added: report.json's ``added`` entry while the run goes on.
 
     Made by :func:`~petsoft.diagnosis.selection.judge` when the candidate passes both tests;
     :func:`~petsoft.diagnosis.selection.choose` and :func:`~petsoft.diagnosis.reconsider.
     reconsider` extend its ``evidence``; :func:`~petsoft.diagnosis.geometry.refit_added_sphere`
-    and ``reconsider`` replace it (a fitted sphere, a replacement term) or its values.
+    and ``reconsider`` replace it (a fitted sphere, a replacement term) or its values. Each
+    makes a changed copy (:func:`dataclasses.replace`): the round's history
+    (:class:`~petsoft.diagnosis.reconsider.Added`) holds the current one.
 
     Attributes
     ----------
@@ -213,3 +224,91 @@ class Judgement:
     def added(self) -> bool:
         """Whether the candidate passes both tests."""
         return self.entry is not None
+
+
+# eq=False: its arrays do not compare to one bool
+@dataclass(frozen=True, eq=False)
+class Evidence:
+    """The mismatch analysis of a fit (:func:`~petsoft.diagnosis.evidence.collect_evidence`):
+    the noise, the verdict, and where, when and at which frequencies the residual is not noise.
+
+    Made once per fit; :func:`~petsoft.diagnosis.context.evidence_of` makes a changed copy
+    (:func:`dataclasses.replace`) when the verdict counts a discretisation error.
+
+    Attributes
+    ----------
+    noise_std : float
+        The position noise std (m) the verdict tests against.
+    noise_source : str
+        Where it comes from (the recording, or estimated from the data and how).
+    noise_summary : dict or None
+        :func:`~petsoft.diagnosis.noise.noise_summary` of the data (None: too few frames).
+    noise_test : ChiSquareResult
+        The verdict's chi-square level and whiteness test.
+    verdict : str
+        ``"consistent"`` or ``"missing-physics"``.
+    fit : dict
+        ``{rms, chi2_per_dof}`` (:func:`~petsoft.diagnosis.report.fit_summary`).
+    markers : MarkerResiduals
+        The per-marker residuals and the markers that stand out.
+    region : dict or None
+        The sphere ``{"center", "radius"}`` of the mismatch on the body.
+    windows : dict
+        :func:`~petsoft.diagnosis.locate.mismatch_time_windows`.
+    data_modes, sim_modes, residual_modes : list of dict or None
+        The dominant modes of the data, the simulation and the residual (None: the spectral
+        analysis could not be made, said in ``notes``).
+    modes : dict or None
+        Their comparison (:func:`~petsoft.diagnosis.spectral.compare_modes`).
+    frequencies_hz : list of float
+        The residual's frequencies (none when the verdict is consistent).
+    envelope : dict or None
+        The data's decay envelope (:func:`~petsoft.diagnosis.spectral.decay_envelope`).
+    friction_terms, sim_friction_terms : dict or None
+        The decay-rate regression of the data's envelope and of the simulation's.
+    notes : list of str
+        What could not be analysed, and why the verdict was made as it was.
+    field : Path or None
+        The nodal residual field written (XDMF).
+    mismatch : dict
+        The report's ``mismatch`` entries (``markers``, ``time_windows``, ``frequencies_hz``,
+        ``region``; empty when the verdict is consistent).
+    offset, offset_z, axis_rms : ndarray (3,)
+        The mean residual per axis (m), it over its white-noise standard error, and the
+        residual's rms per axis.
+    offset_halves : ndarray (2, 3)
+        The mean residual of each half of the record.
+    duration : float
+        The record's span (s).
+    """
+
+    noise_std: float
+    noise_source: str
+    noise_summary: dict | None
+    noise_test: ChiSquareResult
+    verdict: str
+    fit: dict
+    markers: MarkerResiduals
+    region: dict | None
+    windows: dict
+    data_modes: list | None
+    sim_modes: list | None
+    modes: dict | None
+    residual_modes: list | None
+    frequencies_hz: list[float]
+    envelope: dict | None
+    friction_terms: dict | None
+    sim_friction_terms: dict | None
+    notes: list[str]
+    field: Path | None
+    mismatch: dict
+    offset: np.ndarray
+    offset_z: np.ndarray
+    axis_rms: np.ndarray
+    offset_halves: np.ndarray
+    duration: float
+
+    def as_report(self) -> dict:
+        """The evidence as the dict :func:`~petsoft.diagnosis.evidence.collect_evidence` once
+        returned: every field under its name, in this order (the same objects)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}

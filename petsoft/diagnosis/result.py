@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from petsoft.diagnosis.context import Fit
+from petsoft.diagnosis.records import Evidence
 from petsoft.results import FitResult
 
 
@@ -32,7 +33,7 @@ class DiagnoseResult(FitResult):
     scores: list[dict] = field(default_factory=list)
     not_modelled: dict = field(default_factory=dict)
     numerics: dict = field(default_factory=dict)
-    evidence: dict | None = None
+    evidence: Evidence | None = None
 
     @property
     def names(self) -> list[str]:

@@ -6,7 +6,7 @@ chi2 + k ln n, then the vocabulary's order), fitting the simplest first
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import stats
@@ -349,19 +349,27 @@ def choose(diag: Diagnosis, current: Fit, contenders: list, decide: bool = True)
         passed.remove(first)
         passed.insert(0, first)
         chi2_best, _, s_best, c_best, v_best = passed[0]
+        # what it was preferred to, said after the tests' words
+        evidence = v_best.entry.evidence
         if len(tied) > 1:
-            v_best.entry.evidence += (
+            evidence += (
                 "; ambiguous: " + ", ".join(t[3].physics for t in tied if t is not first)
                 + f" predicted and fitted as well (held-out rms within 2 % or the noise, "
                 f"as many parameters, chi2 + k ln n within {TIE_CHI2:g}); chosen by the "
                 "vocabulary's order")
         simpler = [t for t in close if t not in simplest]
         if simpler:
-            v_best.entry.evidence += (
+            evidence += (
                 "; " + ", ".join(t[3].physics for t in simpler) + " (more parameters) "
                 "predicted the held-out data no better (within 2 % or the noise): the "
                 "explanation with fewer parameters is kept")
-        accepted = (v_best.entry, s_best.fit)
+        if len(passed) > 1:
+            evidence += (
+                "; among the best-scoring candidates it predicted the held-out data best ("
+                + ", ".join(f"{c.physics} held-out rms {fmt(h)} m, chi2 + k ln n "
+                            f"{chi2:.6g}" for chi2, h, _, c, _ in passed)
+                + ")")
+        accepted = (replace(v_best.entry, evidence=evidence), s_best.fit)
         diag.tell(f"  chosen: {c_best.physics}" + (
             f" (of {len(passed)} that pass both tests: the best held-out prediction, then the "
             "fewest parameters)" if len(passed) > 1 else ""))
@@ -373,12 +381,6 @@ def choose(diag: Diagnosis, current: Fit, contenders: list, decide: bool = True)
                                        f"(held-out rms {fmt(s_best.fit.heldout_rms)} "
                                        f"vs {fmt(s.fit.heldout_rms)} m; chi2 + k ln n "
                                        f"{chi2_best:.6g} vs {chi2:.6g})"})
-        if len(passed) > 1:
-            accepted[0].evidence += (
-                "; among the best-scoring candidates it predicted the held-out data best ("
-                + ", ".join(f"{c.physics} held-out rms {fmt(h)} m, chi2 + k ln n "
-                            f"{chi2:.6g}" for chi2, h, _, c, _ in passed)
-                + ")")
     if accepted is None:
         return Choice(accepted, rejected, switch)
     return Choice(accepted, rejected, switch, c_best, [(s, c) for _, _, s, c, _ in passed[1:]])

@@ -122,8 +122,8 @@ def published_model_evidence(rec, length: float = 0.1528) -> dict:
     sim[:, 0, 2] = -length * np.cos(sphi)
     ev = evidence.collect_evidence(rec.positions, sim, t, rec.reference, rec.names,
                                    sigma=rec.noise["position_std"])
-    return {"verdict": ev["verdict"], "fit": ev["fit"],
-            "hints": ev["modes"]["hints"] if ev["modes"] else [],
+    return {"verdict": ev.verdict, "fit": ev.fit,
+            "hints": ev.modes["hints"] if ev.modes else [],
             "suggestions": evidence.suggest_physics(ev)}
 
 
