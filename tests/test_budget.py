@@ -97,3 +97,132 @@ def test_costs_are_the_longest_unit_so_far():
     budget.record("other", 100.0)
     assert budget.cost("poll") == pytest.approx(12.5)
     assert budget.cost("other") == pytest.approx(100.0)
+
+
+# -- a round of candidate physics, the final numerics check (issue 40) -------------------------
+class _Diag:
+    """What the diagnosis' budget decisions read of a Diagnosis: its budget and its log."""
+
+    def __init__(self, budget):
+        self.budget, self.said = budget, []
+
+    def tell(self, line: str) -> None:
+        self.said.append(line)
+
+
+def _ev(verdict: str = "inconsistent", chi2: float = 3.0):
+    """What round_stops reads of the evidence (records.Evidence): its verdict and noise test."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(verdict=verdict, noise_test=SimpleNamespace(chi2_per_dof=chi2))
+
+
+def _contender(seconds: float, stopped: str = "", unfinished: str | None = None,
+               fitted: bool = True):
+    from types import SimpleNamespace
+
+    fit = SimpleNamespace(seconds=seconds, stopped=stopped) if fitted else None
+    return SimpleNamespace(fit=fit, unfinished=unfinished), None
+
+
+def _after_round_1(budget, scoring: float = 40.0, fits=(60.0, 20.0)) -> _Diag:
+    """``budget``'s diagnosis after a round 1 whose scoring took ``scoring`` s and whose
+    finished fits ``fits`` s (and a fit stopped as unable to win, one cut by the budget, one
+    not fitted: none of them says what a finished fit takes)."""
+    from petsoft.diagnosis.budget import ROUND_SCORING
+    from petsoft.diagnosis.diagnose import record_shortest_fit
+
+    diag = _Diag(budget)
+    budget.record(ROUND_SCORING, scoring)
+    record_shortest_fit(diag, [_contender(s) for s in fits]
+                        + [_contender(1.0, stopped="it cannot win"),
+                           _contender(2.0, unfinished="cut short"),
+                           _contender(0.0, fitted=False)])
+    return diag
+
+
+def test_round_1_always_starts_inside_the_budget():
+    """Nothing foresees round 1 (no round was scored yet): 1 s before the budget it starts;
+    a spent budget stops it."""
+    from petsoft.diagnosis.diagnose import round_stops
+
+    diag = _Diag(_budget(100.0, 99.0))
+    assert not round_stops(diag, 1, _ev())
+    assert diag.budget.skipped == [] and diag.said == []
+    spent = _Diag(_budget(100.0, 100.0))
+    assert round_stops(spent, 1, _ev())
+    assert spent.budget.skipped[0]["check"] == "round 1 of candidate physics"
+
+
+@pytest.mark.parametrize("left, starts", [(59.0, False), (61.0, True)])
+def test_a_round_that_cannot_end_inside_the_budget_is_not_started(left, starts):
+    """Round 2 is foreseen at round 1's scoring (40 s) and its shortest finished candidate
+    fit (20 s, not the 1 s of a fit stopped as unable to win nor the 2 s of one cut short):
+    60 s. With 59 s left it is not started (a skipped entry with the round's risk, saying what
+    was left and needed; the budget not spent); with 61 s it starts. The other ranks' clocks
+    have all the time: the first rank's decides for every rank."""
+    from petsoft.diagnosis.diagnose import round_stops
+
+    comm = MPI.COMM_WORLD
+    now = 100.0 - left if comm.rank == 0 else 0.0
+    diag = _after_round_1(_budget(100.0, now))
+    assert round_stops(diag, 2, _ev(chi2=3.0)) is not starts
+    assert comm.allgather(diag.budget.skipped) == [diag.budget.skipped] * comm.size
+    if starts:
+        assert diag.budget.skipped == []
+        return
+    [entry] = diag.budget.skipped
+    assert entry["check"] == "round 2 of candidate physics"
+    assert entry["risk"].startswith("the model's verdict is inconsistent (chi2/dof 3)")
+    assert entry["why"] == (
+        "the time budget (100 s, petsoft diagnose --budget) had 59 s left at 41 s, less than "
+        "the ~60 s the round's scoring (~40 s, as the last rounds') and one candidate fit "
+        "(~20 s, as the shortest finished fit of the last rounds) need")
+    assert not diag.budget.summary()["spent"]
+
+
+def test_a_round_without_a_finished_fit_is_foreseen_by_its_scoring():
+    """A round 1 whose fits were none finished: round 2 needs its scoring at least (40 s)."""
+    from petsoft.diagnosis.diagnose import round_stops
+
+    diag = _after_round_1(_budget(100.0, 61.0), fits=())
+    assert round_stops(diag, 2, _ev())
+    assert "less than the ~40 s the round's scoring (~40 s, as the last rounds') need" in \
+        diag.budget.skipped[0]["why"]
+    assert not round_stops(_after_round_1(_budget(100.0, 59.0), fits=()), 2, _ev())
+
+
+@pytest.mark.parametrize("left, starts", [(29.0, False), (31.0, True)])
+def test_a_final_numerics_check_that_cannot_end_inside_the_budget_is_not_started(left, starts):
+    """The final check is foreseen at the longest refined runs of the numerics checks before
+    it (30 s here; a round's scoring of 80 s does not count): with 29 s left it is not started
+    (the numerics risk, what was left and needed; the budget not spent), with 31 s it starts.
+    The first rank's clock decides for every rank."""
+    from petsoft.diagnosis.budget import REFINED_RUNS
+    from petsoft.diagnosis.diagnose import final_check_stops
+    from petsoft.diagnosis.story import NUMERICS_RISK
+
+    comm = MPI.COMM_WORLD
+    now = 100.0 - left if comm.rank == 0 else 0.0
+    diag = _after_round_1(_budget(100.0, now), scoring=80.0)
+    diag.budget.record(REFINED_RUNS, 12.0)
+    diag.budget.record(REFINED_RUNS, 30.0)
+    assert final_check_stops(diag) is not starts
+    assert comm.allgather(diag.budget.skipped) == [diag.budget.skipped] * comm.size
+    if starts:
+        assert diag.budget.skipped == []
+        return
+    [entry] = diag.budget.skipped
+    assert entry == {"check": "numerics check of the final model", "risk": NUMERICS_RISK,
+                     "why": "the time budget (100 s, petsoft diagnose --budget) had 29 s left "
+                            "at 71 s, less than the ~30 s the check's refined runs (as the "
+                            "longest of the numerics checks' so far) need"}
+    assert not diag.budget.summary()["spent"]
+
+
+def test_a_final_numerics_check_not_foreseen_starts_until_the_budget_is_spent():
+    """No numerics check before it (nothing foresees it): 1 s before the budget it starts."""
+    from petsoft.diagnosis.diagnose import final_check_stops
+
+    assert not final_check_stops(_after_round_1(_budget(100.0, 99.0)))
+    assert final_check_stops(_after_round_1(_budget(100.0, 100.0)))

@@ -840,6 +840,43 @@ def test_a_budget_spent_mid_run_keeps_the_work_done(case, monkeypatch):
     assert isinstance(full.numerics.get("step/2"), dict)
 
 
+def test_a_run_records_what_foresees_its_next_round_and_final_check(case, monkeypatch):
+    """A diagnosis records, on every rank, round 1's scoring, its shortest finished candidate
+    fit and its numerics checks' refined runs: what foresees a next round and the final
+    numerics check (budget.round_needs, budget.final_check_needs; their decisions are
+    tests/test_budget.py's)."""
+    from petsoft.diagnosis import diagnose as diagnose_module
+    from petsoft.diagnosis.budget import (
+        CANDIDATE_FIT,
+        REFINED_RUNS,
+        ROUND_SCORING,
+        TimeBudget,
+        final_check_needs,
+        round_needs,
+    )
+
+    made = []
+
+    class Kept(TimeBudget):
+        def __init__(self, *args):
+            super().__init__(*args)
+            made.append(self)
+
+    monkeypatch.setattr(diagnose_module, "TimeBudget", Kept)
+    res = run_diagnose(load_experiment(case["user"]), case["damped"], comm=PETSc.COMM_WORLD)
+    [budget] = made
+    assert [a["physics"] for a in res.added] == ["damping.mass"]
+    assert res.numerics.get("refinements"), res.numerics.keys()
+    for kind in (ROUND_SCORING, CANDIDATE_FIT, REFINED_RUNS):
+        assert budget.cost(kind) is not None and budget.cost(kind) > 0.0, kind
+    # one record a round (round 1 only here) and the fits': the shortest finished one
+    assert len(budget._costs[ROUND_SCORING]) == len(budget._costs[CANDIDATE_FIT]) == 1
+    assert budget.cost(CANDIDATE_FIT) < budget.elapsed()
+    assert round_needs(budget)[0] == pytest.approx(budget.cost(ROUND_SCORING)
+                                                   + budget.cost(CANDIDATE_FIT))
+    assert final_check_needs(budget)[0] == budget.cost(REFINED_RUNS)
+
+
 @pytest.mark.parametrize("in_fits", [1, 3, 5])
 def test_a_budget_spent_inside_a_rounds_fits_leaves_them_out(case, monkeypatch, in_fits):
     """The budget spent inside round 1's candidate fits (its ``in_fits``-th check there,

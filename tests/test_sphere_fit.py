@@ -248,17 +248,24 @@ def _first_poll_trials(diag, fit, cand) -> int:
     return len(keys - {search.cells(cand.region).tobytes()})
 
 
-def test_a_search_that_cannot_end_inside_the_budget_is_not_started(recording, monkeypatch):
-    """A search is costed at its first poll (8 trials, in rounds side by side on the ranks, at
-    a run of the last calibration's) and its closing calibration: 5 s short of that it is not
-    started (a skipped entry saying what it needed, the budget not spent); 5 s more than
-    that, it starts."""
+@pytest.mark.parametrize("kept", [False, True])
+def test_a_search_that_cannot_end_inside_the_budget_is_not_started(recording, monkeypatch,
+                                                                    kept):
+    """A search is costed at the model's sensitivities it runs before its first poll (a run
+    of the last calibration's; nothing when they are ``kept``), its first poll (8 trials, in
+    rounds side by side on the ranks, a run each as the last calibration's) and its closing
+    calibration: 5 s short of that it is not started (a skipped entry saying what it needed,
+    the budget not spent); 5 s more than that, it starts."""
     from petsoft.diagnosis import geometry
+    from petsoft.diagnosis.numerics import keep_sensitivities
 
     diag, fit, cand = _start(recording, (0.225, 0.02, 0.02), "foresee.toml")
     fit = _timed(fit)
+    if kept:
+        keep_sensitivities(diag, fit, np.zeros((1, len(fit.names))))
     rounds = -(-8 // MPI.COMM_WORLD.size)
-    needs = TRIAL_SECONDS * rounds + CALIBRATION_SECONDS
+    sensitivities = 0.0 if kept else TRIAL_SECONDS
+    needs = sensitivities + TRIAL_SECONDS * rounds + CALIBRATION_SECONDS
     started = []
     monkeypatch.setattr(geometry, "fit_sphere", lambda *a, **k: started.append(k) or None)
     entry = AddedTerm(physics=cand.physics, parameters={}, std={}, score=1.0,
@@ -269,8 +276,10 @@ def test_a_search_that_cannot_end_inside_the_budget_is_not_started(recording, mo
     [skipped] = diag.budget.skipped
     assert skipped["check"] == "mass.added's sphere search 1 of 2"
     assert "first guess" in skipped["risk"]
-    assert (f"had {needs - 5.0:.0f} s left at 0 s, less than the ~{needs:.0f} s a poll of 8 "
-            f"trial run(s) (~{TRIAL_SECONDS * rounds:.0f} s, {rounds} round(s)"
+    first = ("" if kept else f"the model's sensitivities (~{TRIAL_SECONDS:.0f} s, a run as the "
+             "last calibration's), ")
+    assert (f"had {needs - 5.0:.0f} s left at 0 s, less than the ~{needs:.0f} s {first}a poll "
+            f"of 8 trial run(s) (~{TRIAL_SECONDS * rounds:.0f} s, {rounds} round(s)"
             in skipped["why"]), skipped
     assert "closing calibration (~30 s" in skipped["why"]
     assert not diag.budget.summary()["spent"]

@@ -39,6 +39,15 @@ what the piece needed; the budget is then *not* spent (``spent`` stays false in 
 until the clock reaches it): a shorter piece may still fit. The sphere search
 (:mod:`petsoft.diagnosis.geometry`) uses it for its polls and its searches.
 
+**A round of candidate physics, the final numerics check.** A round started inside the
+budget used to run its scoring whole (~37 s on the payload case) and its fits' first
+iterations past it, and the final numerics check (35-85 s on realistic cases) started
+whenever the budget was not spent. Both are now foreseen (:func:`round_needs`,
+:func:`final_check_needs`) from the pieces of their kind this run made: a round by round 1's
+scoring and its shortest finished candidate fit, the final check by the refined runs of the
+numerics checks made before it. Round 1 always starts (unless the budget is spent): nothing
+of its kind has been made yet, and without it the diagnosis names no physics at all.
+
 Every rank of the diagnosis must take the same decision at the same point (the pieces are
 collective), so the first rank's clock decides and the decision is broadcast; once spent, a
 budget stays spent. A candidate fit runs on its own group of ranks, side by side with the
@@ -191,6 +200,55 @@ class TimeBudget:
         return {"seconds": self.seconds, "spent": self._spent,
                 "spent_at": None if self.spent_at is None else round(self.spent_at, 1),
                 "left_out": [k["check"] for k in self.skipped]}
+
+
+#: :meth:`TimeBudget.record` kinds: a round's scoring (the misfit's maps and the candidates'
+#: scores, one unit a round), a round's shortest finished candidate fit (one a round), and
+#: the refined runs of a numerics check (each refinement at the current parameters, one
+#: unit a check's runs)
+ROUND_SCORING = "round scoring"
+CANDIDATE_FIT = "shortest candidate fit"
+REFINED_RUNS = "numerics refined runs"
+
+
+def round_needs(budget: TimeBudget) -> tuple[float | None, str]:
+    """(seconds, what they are) a round of candidate physics needs at least, for
+    :meth:`TimeBudget.stops`; ``(None, "")`` before a round's scoring was made (round 1: not
+    foreseen, module docstring).
+
+    A round is its scoring (:data:`ROUND_SCORING`, as long as the longest so far: the
+    scoring runs the same maps and scores on a model a term larger) and its candidate fits,
+    costed at the *shortest* finished candidate fit of the rounds so far
+    (:data:`CANDIDATE_FIT`). The shortest, not the longest: the fits run side by side and the
+    budget cuts each at its next iteration (:class:`FitStop`), so the least a round must have
+    to add a term is one finished fit of the simplest kind, the one
+    :func:`~petsoft.diagnosis.selection.fit_simplest_first` makes first; foreseeing the longest
+    would leave out rounds whose quick fit could name the physics. The cost is a bound from
+    below: a round that starts may still run its longer fits to the budget."""
+    scoring = budget.cost(ROUND_SCORING)
+    if scoring is None:
+        return None, ""
+    fit = budget.cost(CANDIDATE_FIT)
+    words = f"the round's scoring (~{scoring:.0f} s, as the last rounds')"
+    if fit is None:
+        return scoring, words + " needs"
+    return scoring + fit, (words + f" and one candidate fit (~{fit:.0f} s, as the shortest "
+                           "finished fit of the last rounds) need")
+
+
+def final_check_needs(budget: TimeBudget) -> tuple[float | None, str]:
+    """(seconds, what they are) the numerics check of the final model needs, for
+    :meth:`TimeBudget.stops`; ``(None, "")`` when no numerics check ran before (nothing
+    foresees it: it starts unless the budget is spent).
+
+    The final check simulates the final model once under each refinement, at its parameters
+    (no refit): the runs a numerics check makes first (:data:`REFINED_RUNS`), at the longest
+    they took (the later checks' models are the finer, so the nearer)."""
+    runs = budget.cost(REFINED_RUNS)
+    if runs is None:
+        return None, ""
+    return runs, ("the check's refined runs (as the longest of the numerics checks' so far) "
+                  "need")
 
 
 @dataclass

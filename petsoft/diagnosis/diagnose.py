@@ -49,7 +49,14 @@ from pathlib import Path
 from petsoft.calibration.calibrate import canonical_method
 from petsoft.calibration.forward import forward_defaults
 from petsoft.calibration.groups import TaskResult
-from petsoft.diagnosis.budget import DEFAULT_BUDGET, TimeBudget
+from petsoft.diagnosis.budget import (
+    CANDIDATE_FIT,
+    DEFAULT_BUDGET,
+    ROUND_SCORING,
+    TimeBudget,
+    final_check_needs,
+    round_needs,
+)
 from petsoft.diagnosis.clock import PhaseClock
 
 # names the tests and scripts import from here
@@ -263,8 +270,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             if not (ran and ev.verdict != "consistent" and len(added) < max_additions):
                 break
         rnd = len(added) + 1
-        if over_budget(diag, f"round {rnd} of candidate physics", ROUND_RISK.format(
-                verdict=ev.verdict, chi2=ev.noise_test.chi2_per_dof)):
+        if round_stops(diag, rnd, ev):
             break
         if rnd > 1:
             with clock.phase("numerics"):
@@ -272,6 +278,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
             if ev.verdict == "consistent":
                 break
         clock.switch("scoring")
+        scoring_from = diag.budget.elapsed()
         plane = escape_plane(diag.data[diag.ident], current.sim[diag.ident], diag.sigma)
 
         # the shared run's candidates need no sensitivity region: it runs beside the adjoint
@@ -337,10 +344,12 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         # branch) makes nearly the same first-order change, and a score's p-value favours
         # terms of several parameters (gravity's 3 components out-scored a hidden added mass
         # on a cantilever), so the score alone decides neither.
+        diag.budget.record(ROUND_SCORING, diag.budget.elapsed() - scoring_from)
         clock.switch("fits")
         contenders, hopeless = worth_fitting(significant)
         rejected += hopeless
         fit_simplest_first(diag, current, contenders)
+        record_shortest_fit(diag, contenders)
         # fits the time budget left unfinished are not judged (partial_round.py)
         contenders, decide = conclude(diag, current, contenders, rnd)
         choice = choose(diag, current, contenders, decide)
@@ -383,8 +392,7 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
         seen_r.setdefault(r["physics"], r)
     rejected = list(seen_r.values())
     clock.switch("final")
-    final_check = numerics and not over_budget(diag, "numerics check of the final model",
-                                               NUMERICS_RISK)
+    final_check = numerics and not final_check_stops(diag)
     num = (numerics_check(diag, current, final_estimates(diag, checks.refinements, current))
            if final_check else None)
     findings = None
@@ -440,10 +448,40 @@ RECONSIDER_RISK = ("an earlier term may be one a later term makes unnecessary; i
                    "without that check")
 
 
-def over_budget(diag, what: str, risk: str, when: bool = True) -> bool:
+def over_budget(diag, what: str, risk: str, when: bool = True,
+                needs: tuple[float | None, str] = (None, "")) -> bool:
     """:meth:`TimeBudget.stops <petsoft.diagnosis.budget.TimeBudget.stops>` of the diagnosis'
-    budget, said on its log (collective)."""
-    return diag.budget.stops(what, risk, diag.tell, when)
+    budget, said on its log (collective); ``needs``: (seconds, what they are) the piece is
+    foreseen to need, seconds None when it is not foreseen."""
+    return diag.budget.stops(what, risk, diag.tell, when, needs=needs[0], needs_for=needs[1])
+
+
+def round_stops(diag, rnd: int, ev) -> bool:
+    """Whether round ``rnd`` of candidate physics is not to start (collective): the budget is
+    spent, or the round is foreseen to end past it (:func:`~petsoft.diagnosis.budget.
+    round_needs`; round 1 is not foreseen: nothing of its kind was made)."""
+    return over_budget(diag, f"round {rnd} of candidate physics", ROUND_RISK.format(
+        verdict=ev.verdict, chi2=ev.noise_test.chi2_per_dof),
+        needs=round_needs(diag.budget) if rnd > 1 else (None, ""))
+
+
+def final_check_stops(diag) -> bool:
+    """Whether the numerics check of the final model is not to start (collective): the
+    budget is spent, or the check's refined runs, as long as a numerics check's before it,
+    would end past it (:func:`~petsoft.diagnosis.budget.final_check_needs`)."""
+    return over_budget(diag, "numerics check of the final model", NUMERICS_RISK,
+                       needs=final_check_needs(diag.budget))
+
+
+def record_shortest_fit(diag, contenders: list) -> None:
+    """Record a round's shortest finished candidate fit (its wall time, the same on every
+    rank: it travels with the fit) for :func:`~petsoft.diagnosis.budget.round_needs`. A fit
+    the budget left unfinished or that was stopped as unable to win says nothing of what a
+    fit that can add a term takes; a round without a finished one records nothing."""
+    done = [s.fit.seconds for s, _ in contenders
+            if s.fit is not None and not s.fit.stopped and not s.unfinished]
+    if done:
+        diag.budget.record(CANDIDATE_FIT, min(done))
 
 
 def _reconsidered(diag, current, history, rejected, added, ev):

@@ -43,7 +43,9 @@ the recalibration changed.
 when it could not end inside the budget together with the search's closing calibration: a
 poll is costed by the rounds of trial runs it makes (its trials over the ranks, side by side)
 at the longest a round took in this run's polls so far, and the closing calibration by the
-calibration of the model the search starts from (:func:`_poll_needs` says why). A search or
+calibration of the model the search starts from (:func:`_poll_needs` says why); a search's
+start adds the model-sensitivities run it makes before its first poll (:func:`_search_needs`;
+left out of it before, it let a search start ~a run too late). A search or
 polls left out are ``skipped`` entries of the report; a search stopped between polls keeps its
 best sphere so far.
 
@@ -74,7 +76,7 @@ from petsoft.diagnosis.context import (
     petsc_comm,
     term_values,
 )
-from petsoft.diagnosis.numerics import model_sensitivities
+from petsoft.diagnosis.numerics import has_sensitivities, model_sensitivities
 from petsoft.diagnosis.records import AddedTerm
 from petsoft.diagnosis.reduced_trials import ReducedTrials
 from petsoft.experiment import experiment_from_dict, get_parameter, with_parameters
@@ -264,6 +266,20 @@ def _poll_needs(diag: Diagnosis, fit: Fit, trials: int) -> tuple[float, str]:
                                 "calibration's) need")
 
 
+def _search_needs(diag: Diagnosis, fit: Fit) -> tuple[float, str]:
+    """(seconds, what they are) a sphere search from ``fit`` needs at least: its first poll
+    and closing calibration (:func:`_poll_needs`, at most :data:`POLL_TRIALS` trials) and,
+    unless they are kept, the model's sensitivities it runs before that poll (a trial's
+    linearised refit scores in them, :attr:`_Sphere.cols`): a run with sensitivities, costed
+    as a run of ``fit``'s calibration, whose iterations are such runs."""
+    needs, words = _poll_needs(diag, fit, POLL_TRIALS)
+    if has_sensitivities(diag, fit):
+        return needs, words
+    run = fit.seconds / max(int(fit.evaluations), 1)
+    return needs + run, (f"the model's sensitivities (~{run:.0f} s, a run as the last "
+                         f"calibration's), {words}")
+
+
 def fit_sphere(diag: Diagnosis, fit: Fit, candidate, max_polls: int = MAX_POLLS,
                notes: list | None = None,
                scale: tuple[float, float] | None = None) -> SphereFit | None:
@@ -423,7 +439,7 @@ def refit_added_sphere(diag: Diagnosis, entry: AddedTerm, fit: Fit, candidate,
     for search in range(1, searches + 1):
         # not started when its first poll and its closing calibration would end past the
         # budget (a poll's trials are at most POLL_TRIALS)
-        needs, needs_for = _poll_needs(diag, fit, POLL_TRIALS)
+        needs, needs_for = _search_needs(diag, fit)
         if diag.budget.stops(f"{candidate.physics}'s sphere search {search} of {searches}",
                              SEARCH_RISK, diag.tell, needs=needs, needs_for=needs_for):
             break

@@ -28,6 +28,7 @@ from petsoft.calibration.refinement import (
     refinement,
     why_not,
 )
+from petsoft.diagnosis.budget import REFINED_RUNS
 from petsoft.diagnosis.chord_refit import chord_refit, refit_step
 from petsoft.diagnosis.context import Diagnosis, Fit, evidence_of, petsc_comm, rms
 from petsoft.diagnosis.numerics_records import (
@@ -408,6 +409,11 @@ def _sensitivities_key(fit: Fit) -> tuple:
     return ("sensitivities", _mesh_key(exp), exp.time.step, tuple(map(float, fit.values)))
 
 
+def has_sensitivities(diag: Diagnosis, fit: Fit) -> bool:
+    """Whether :func:`model_sensitivities` of ``fit`` are kept (no run to make them)."""
+    return _sensitivities_key(fit) in diag.measured_meshes
+
+
 def model_sensitivities(diag: Diagnosis, fit: Fit, comm=None) -> np.ndarray:
     """d(simulated markers)/d(parameters) of ``fit``'s model at its values on the
     identification window (one Jacobian run, on ``comm``: default the diagnosis'), kept for the
@@ -559,10 +565,13 @@ def _simulate_and_refit(diag: Diagnosis, fit: Fit, tried: list):
               and _sensitivities_key(fit) not in diag.measured_meshes)
     # on one rank each when every model of the round is small (placement.py)
     models = [exp] + [refined(exp, what) for what in options]
+    started = diag.budget.elapsed()
     runs = diag.placement.on_groups(
         lambda what, sub, fit=fit: (model_sensitivities(diag, fit, sub) if what is None
                                     else _simulate_refined(diag, fit, what, sub)),
         options + ([None] if beside else []), *models)
+    # what the final model's check repeats: it foresees that check (budget.final_check_needs)
+    diag.budget.record(REFINED_RUNS, diag.budget.elapsed() - started)
     if beside:
         done = runs.pop()
         if done.ok:      # (every rank keeps them; a failure is met again below)
