@@ -4,17 +4,18 @@
 A test draw generated over several sittings (README.md, "A test draw generated over several
 sittings") grows its N until at least ``--written`` cases are written, with at least
 ``--controls`` controls and ``--off`` off-vocabulary effects among them: a rule that reads only
-the generator's verdicts (truth.json / discarded.json on disk), never a diagnosis. This driver
-runs one process's share of it: the indices ``i = K, K + S, K + 2S, ...`` (``--stride S
---offset K``), each by the rules commit's own ``draw_and_run.sh test-cases N OUT i`` (given
-by ``--rules``, a worktree at the draw's commit), skipping the cases already made. When its
-next index is at or past the protocol's N and the rule is not met by the cases finished so
-far, it raises N by one block of eight (random_draw.PATTERN: every category keeps its share)
-under a lock shared by the processes; when the rule is met it stops. Cases already inside N
-are always made, so a draw stops with none pending.
+the generator's verdicts (truth.json / discarded.json on disk), never a diagnosis. Each process
+running this driver takes, under a lock the processes share, the lowest index below N that is
+neither made nor being made (by another driver's claim, or by a generate.py process still
+running from an earlier sitting), and makes it by the rules commit's own ``draw_and_run.sh
+test-cases N OUT i`` (``--rules``: a worktree at the draw's commit). When no such index is left
+and the rule is not met by the cases finished so far, it raises N by one block of eight
+(random_draw.PATTERN: every category keeps its share); when the rule is met it stops once
+nothing below N is left to make. A shared queue, not a fixed split of the indices: the
+categories sit at fixed positions of a block (the controls at even ones), so a split by parity
+let one process run far ahead on the other's categories.
 
-    /usr/bin/python3 grow_draw.py --rules /work/rules3 --out random/test-233281001 \\
-        --stride 2 --offset 0      # and --offset 1 in a second process
+    /usr/bin/python3 grow_draw.py --rules /work/rules3 --out random/test-233281001   # twice
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from __future__ import annotations
 import argparse
 import fcntl
 import json
+import os
 import subprocess
 import sys
 import time
@@ -52,26 +54,62 @@ def protocol_n(out: Path) -> int:
     return int(json.loads((out / "protocol.json").read_text())["N"])
 
 
-def raise_n(out: Path, index: int, cases: Path, draw_of, need: dict) -> int | None:
-    """Under the draw's lock: the N to generate ``index`` with, raised by a block when needed;
-    None when the stopping rule is met and ``index`` lies outside N."""
+def running_indices(out: Path) -> set[int]:
+    """Indices a generate.py process is making for this draw now (``--only i --out OUT/cases``),
+    whoever started it: a driver of this sitting or one cut off in an earlier one."""
+    found = set()
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            argv = (Path("/proc") / pid / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        args = [a.decode(errors="replace") for a in argv]
+        if any(a.endswith("generate.py") for a in args) and "--only" in args and "--out" in args:
+            if Path(args[args.index("--out") + 1]).resolve() == (out / "cases").resolve():
+                found.update(int(i) for i in args[args.index("--only") + 1].split(","))
+    return found
+
+
+def claim(out: Path, cases: Path, draw_of, need: dict,
+          max_running: int) -> tuple[int, int] | None:
+    """Under the draw's lock: the next index to make and the N to make it with (N raised by a
+    block when nothing below it is left and the rule is not met), claimed for this process;
+    None when nothing is left to make and the rule is met; ``(-1, N)`` to wait: ``max_running``
+    cases are being made, or cases inside N still are and may meet the rule."""
     with open(out / ".grow.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        n = protocol_n(out)
-        if index < n:
-            return n
-        met, count = rule_met(cases, draw_of(n), need)
-        if met:
-            print(f"[grow] stopping rule met at N {n}: {count}", flush=True)
-            return None
-        new = (index // BLOCK + 1) * BLOCK
-        p = json.loads((out / "protocol.json").read_text())
-        p["N"] = new
-        tmp = out / ".protocol.json.tmp"
-        tmp.write_text(json.dumps(p, indent=1))
-        tmp.replace(out / "protocol.json")
-        print(f"[grow] {count} at N {n}: N raised to {new}", flush=True)
-        return new
+        claims_path = out / ".grow.claims.json"
+        claims = json.loads(claims_path.read_text()) if claims_path.exists() else {}
+        live = {int(i) for i, pid in claims.items() if Path(f"/proc/{pid}").exists()}
+        busy = live | running_indices(out)
+        while True:
+            n = protocol_n(out)
+            draw = draw_of(max(n, max(busy, default=-1) + 1))
+            making = {c["index"] for c in draw if c["index"] in busy
+                      and case_state(cases, c["name"]) == "pending"}
+            if len(making) >= max_running:      # e.g. cases left running by an earlier sitting
+                return -1, n
+            draw = draw[:n]
+            todo = [c["index"] for c in draw if case_state(cases, c["name"]) == "pending"
+                    and c["index"] not in busy]
+            if todo:
+                claims = {str(i): claims[str(i)] for i in map(str, live) if str(i) in claims}
+                claims[str(todo[0])] = os.getpid()
+                claims_path.write_text(json.dumps(claims))
+                return todo[0], n
+            met, count = rule_met(cases, draw, need)
+            if met or making & set(range(n)):
+                # the rule is met, or cases inside N are still being made: raise N only once
+                # they are finished (they may meet the rule)
+                if met:
+                    print(f"[grow] stopping rule met at N {n}: {count}", flush=True)
+                return None if met else (-1, n)
+            p = json.loads((out / "protocol.json").read_text())
+            p["N"] = n + BLOCK
+            tmp = out / ".protocol.json.tmp"
+            tmp.write_text(json.dumps(p, indent=1))
+            tmp.replace(out / "protocol.json")
+            print(f"[grow] {count} at N {n}: N raised to {n + BLOCK}", flush=True)
 
 
 def main() -> int:
@@ -79,11 +117,11 @@ def main() -> int:
     ap.add_argument("--rules", type=Path, required=True,
                     help="a worktree at the draw's rules commit (its generator is used)")
     ap.add_argument("--out", type=Path, required=True, help="the draw's folder")
-    ap.add_argument("--stride", type=int, default=2)
-    ap.add_argument("--offset", type=int, default=0)
     ap.add_argument("--written", type=int, default=40)
     ap.add_argument("--controls", type=int, default=10)
     ap.add_argument("--off", type=int, default=6)
+    ap.add_argument("--max-running", type=int, default=2,
+                    help="cases made at once by all the processes (the machine's cores)")
     a = ap.parse_args()
     out = a.out.resolve()
     cases = out / "cases"
@@ -93,26 +131,27 @@ def main() -> int:
 
     p = json.loads((out / "protocol.json").read_text())
     need = {"written": a.written, "controls": a.controls, "off": a.off}
-    index = a.offset
     while True:
-        n = raise_n(out, index, cases, lambda m: rd.draw(p["seed"], m, p["size"]), need)
-        if n is None:
+        got = claim(out, cases, lambda m: rd.draw(p["seed"], m, p["size"]), need,
+                    a.max_running)
+        if got is None:
             return 0
+        index, n = got
+        if index < 0:           # wait for the cases being made before raising N
+            time.sleep(30)
+            continue
         name = rd.draw(p["seed"], index + 1, p["size"])[index]["name"]
-        if case_state(cases, name) == "pending":
-            for _attempt in range(5):
-                # another process may raise N between our read and the script's check
-                n = max(n, protocol_n(out))
-                r = subprocess.run([str(here / "draw_and_run.sh"), "test-cases", str(n), str(out),
-                                    str(index)])
-                if r.returncode == 0:
-                    break
-                print(f"[grow] {name}: draw_and_run.sh exited {r.returncode}; again", flush=True)
-                time.sleep(5)
-            else:
-                return 1
-        index += a.stride
-
+        for _attempt in range(5):
+            # another process may raise N between our read and the script's check
+            n = max(n, protocol_n(out))
+            r = subprocess.run([str(here / "draw_and_run.sh"), "test-cases", str(n), str(out),
+                                str(index)])
+            if r.returncode == 0:
+                break
+            print(f"[grow] {name}: draw_and_run.sh exited {r.returncode}; again", flush=True)
+            time.sleep(5)
+        else:
+            return 1
 
 if __name__ == "__main__":
     sys.exit(main())
