@@ -207,6 +207,12 @@ def _experiment_update(d):
                             d / "e.toml")
 
 
+def _experiment_file(d):
+    from petsoft.experiment import load_experiment
+    from petsoft.experiment.writer import write_toml
+    write_toml(load_experiment(ROOT / "scripts" / "examples" / "cantilever.toml"), d / "w.toml")
+
+
 #: Every writer of petsoft that writes a file as a whole, and that file (in the directory given).
 #: (An .xdmf document is removed before its series or static grid is written, by design: its
 #: temporary and rename are tests/test_xdmf.py's test_failure_while_updating_xdmf.)
@@ -220,6 +226,7 @@ WRITERS = {
     "xdmf series mesh file": (_xdmf_series, "run.h5"),
     "xdmf static data": (_xdmf_static, "s.h5"),
     "edited experiment": (_experiment_update, "e.toml"),
+    "experiment file": (_experiment_file, "w.toml"),
 }
 
 
@@ -250,3 +257,22 @@ def test_no_module_but_petsoft_atomic_renames_a_file_into_place():
     homes = [p.relative_to(ROOT).as_posix() for p in (ROOT / "petsoft").rglob("*.py")
              if re.search(r"os\.(replace|rename)\(", p.read_text())]
     assert homes == ["petsoft/atomic.py"]
+
+
+def test_no_module_writes_a_file_in_place():
+    """Path.write_text/write_bytes, open(..., "w") and h5py.File(..., "w") appear in petsoft only
+    on a temporary of :func:`petsoft.atomic.atomic_path` (named ``tmp``): a writer that wrote its
+    target in place would leave a half file that looks whole when killed."""
+    in_place = re.compile(r"""(?P<who>[\w.()/" ]+)\.write_(?:text|bytes)\("""
+                          r"""|open\((?P<a>[^,)]+),\s*["'][wa]"""
+                          r"""|h5py\.File\((?P<b>[^,)]+),\s*["'][wa]""")
+    found = []
+    for p in (ROOT / "petsoft").rglob("*.py"):
+        if p.name == "atomic.py":
+            continue
+        for n, line in enumerate(p.read_text().splitlines(), 1):
+            for m in in_place.finditer(line):
+                target = (m.group("who") or m.group("a") or m.group("b")).strip()
+                if target != "tmp":
+                    found.append(f"{p.relative_to(ROOT)}:{n}: {line.strip()}")
+    assert found == []

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.atomic import write_text
 from petsoft.dynamics.simulate import Simulation
 from petsoft.errors import PetsoftError
 from petsoft.experiment import experiment_from_dict, get_parameter, load_experiment, parameter_names
@@ -224,7 +225,7 @@ def synth(experiment, options: SynthOptions, *, say=None) -> SynthResult:
                         "nodes": None if node_ids is None else node_ids.tolist()},
         }
         truth_path = out.parent / "truth.json"
-        truth_path.write_text(json.dumps(truth, indent=2) + "\n")
+        write_text(truth_path, json.dumps(truth, indent=2) + "\n")
         summary = {"recording": str(out), "truth": str(truth_path), "markers": len(markers),
                    "frames": int(len(frame_times)), "dropped_samples": int(dropped.sum()),
                    "max_displacement_markers": float(np.abs(clean - markers).max())}

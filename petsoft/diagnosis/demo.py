@@ -26,6 +26,7 @@ from pathlib import Path
 
 from mpi4py import MPI
 
+from petsoft.atomic import write_text
 from petsoft.calibration.synth import SynthOptions, synth
 from petsoft.experiment import dumps_toml, load_experiment
 
@@ -84,8 +85,8 @@ def run_diagnosis_demo(out: Path, say=print, *, end: float = 0.3, numerics: bool
                             {"step": 0.001, "integrator": "midpoint"}, calibrate=False, end=end)
         user = _experiment({}, 0.9 * E_TRUE, {"step": 0.002, "integrator": "alpha",
                                               "alpha_radius": 0.9}, calibrate=True, end=end)
-        (out / "truth.toml").write_text(dumps_toml(truth))
-        (out / "user.toml").write_text(dumps_toml(user))
+        write_text(out / "truth.toml", dumps_toml(truth))
+        write_text(out / "user.toml", dumps_toml(user))
         say(f"demo: the truth has {HIDDEN['physics']} {HIDDEN['tables']}; the user's model "
             f"(user.toml) lacks it and starts with E 10 % low")
     comm.Barrier()

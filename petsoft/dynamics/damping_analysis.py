@@ -48,6 +48,7 @@ of the phase at which the run stops.
 from __future__ import annotations
 
 import csv
+import io
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,6 +56,7 @@ from pathlib import Path
 import numpy as np
 from petsc4py import PETSc
 
+from petsoft.atomic import write_text
 from petsoft.dynamics.system import DynamicSystem
 from petsoft.errors import ExperimentError
 from petsoft.io.summary import write_summary
@@ -608,11 +610,12 @@ FEM_COLUMNS = [("mode", "mode", ""), ("frequency_hz", "f (Hz)", ".5g"),
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({k: ("" if v is None else v) for k, v in r.items()})
+    text = io.StringIO(newline="")
+    writer = csv.DictWriter(text, fieldnames=list(rows[0]))
+    writer.writeheader()
+    for r in rows:
+        writer.writerow({k: ("" if v is None else v) for k, v in r.items()})
+    write_text(path, text.getvalue())
 
 
 def plot(rows: list[ScalarRow], path: Path, fem: FemModesResult | None = None) -> Path:
@@ -717,7 +720,7 @@ def report(out: Path, schemes, fem: FemModesResult | None, rows: list[ScalarRow]
         for line in fem_lines[3:]:
             printer(line)
         lines += fem_lines
-    (out / "damping.md").write_text("\n".join(lines) + "\n")
+    write_text(out / "damping.md", "\n".join(lines) + "\n")
     _write_csv(out / "damping_scalar.csv", full)
     files = ["damping.png", "damping.md", "damping_scalar.csv"]
     if fem_rows:

@@ -128,21 +128,23 @@ class RegionSpec:
 
 @dataclass(frozen=True)
 class DampingSpec:
-    """``[damping]``: Rayleigh damping D = mass * M + stiffness * K (1/s and s, both >= 0)."""
+    """``[damping]``: Rayleigh damping D = mass * M + stiffness * K (1/s and s, both >= 0). The
+    keys and their defaults are the terms' (``damping.mass``, ``damping.stiffness``)."""
 
-    mass: float = 0.0
-    stiffness: float = 0.0
+    mass: float = _declared("damping.mass")
+    stiffness: float = _declared("damping.stiffness")
 
 
 @dataclass(frozen=True)
 class ViscoelasticSpec:
     """``[viscoelastic]``: a Maxwell branch (standard linear solid) beside the elastic law.
 
-    ``ratio`` = E_M / E >= 0 (0: no branch), ``relaxation_time`` tau > 0 in s.
+    ``ratio`` = E_M / E >= 0 (0: no branch), ``relaxation_time`` tau > 0 in s. The keys and
+    their defaults are the term's (``material.viscoelastic``).
     """
 
-    ratio: float = 0.0
-    relaxation_time: float = 0.1
+    ratio: float = _declared("viscoelastic.ratio")
+    relaxation_time: float = _declared("viscoelastic.relaxation_time")
 
 
 @dataclass(frozen=True)

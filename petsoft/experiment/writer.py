@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from petsoft.atomic import atomic_path
+from petsoft.atomic import atomic_path, write_text
 from petsoft.experiment.spec import Experiment
 
 _BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
@@ -93,12 +93,13 @@ def dumps_toml(data: Mapping[str, Any]) -> str:
 
 def write_toml(experiment: Experiment, path: str | os.PathLike) -> None:
     """Write ``experiment`` as a TOML experiment file that :func:`load_experiment` reads back
-    equal; paths inside it are written relative to the file's directory."""
+    equal; paths inside it are written relative to the file's directory. Written atomically
+    (:mod:`petsoft.atomic`): a reader never sees half a file."""
     target = Path(path)
     text = "# petsoft experiment (formats.md section 1), written by petsoft\n" + dumps_toml(
         experiment.to_dict(relative_to=target.parent.resolve())
     )
-    target.write_text(text, encoding="utf-8")
+    write_text(target, text)
 
 
 #: Keys whose values are paths, written relative to the file's directory.

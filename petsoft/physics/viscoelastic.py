@@ -94,7 +94,7 @@ class MaxwellBranch:
         tau > 0, s.
     """
 
-    def __init__(self, system, ratio: float = 0.0, relaxation_time: float = 0.1):
+    def __init__(self, system, ratio: float, relaxation_time: float):
         self.system = system
         self.set(ratio, relaxation_time)
         #: Update z also at ratio 0 (no force): the forward sensitivities then differentiate
