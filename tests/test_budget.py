@@ -90,13 +90,14 @@ def test_costs_are_the_longest_unit_so_far():
     """A kind's cost per unit is the longest recorded (the load varies; the budget is a
     bound), None before any; a record of no units is none."""
     budget = _budget(100.0, 0.0)
-    assert budget.cost("poll") is None
+    assert budget.cost("poll") is None and budget.made("poll") == 0
     budget.record("poll", 30.0, 3)
     budget.record("poll", 50.0, 4)
     budget.record("poll", 10.0, 0)
     budget.record("other", 100.0)
     assert budget.cost("poll") == pytest.approx(12.5)
     assert budget.cost("other") == pytest.approx(100.0)
+    assert (budget.made("poll"), budget.made("other")) == (2, 1)
 
 
 # -- a round of candidate physics, the final numerics check (issue 40) -------------------------

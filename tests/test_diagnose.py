@@ -870,7 +870,7 @@ def test_a_run_records_what_foresees_its_next_round_and_final_check(case, monkey
     for kind in (ROUND_SCORING, CANDIDATE_FIT, REFINED_RUNS):
         assert budget.cost(kind) is not None and budget.cost(kind) > 0.0, kind
     # one record a round (round 1 only here) and the fits': the shortest finished one
-    assert len(budget._costs[ROUND_SCORING]) == len(budget._costs[CANDIDATE_FIT]) == 1
+    assert budget.made(ROUND_SCORING) == budget.made(CANDIDATE_FIT) == 1
     assert budget.cost(CANDIDATE_FIT) < budget.elapsed()
     assert round_needs(budget)[0] == pytest.approx(budget.cost(ROUND_SCORING)
                                                    + budget.cost(CANDIDATE_FIT))

@@ -194,6 +194,10 @@ class TimeBudget:
         made = self._costs.get(kind)
         return max(made) if made else None
 
+    def made(self, kind: str) -> int:
+        """How many records of ``kind`` :meth:`record` took on this rank (0 before any)."""
+        return len(self._costs.get(kind, ()))
+
     def summary(self) -> dict:
         """report.json ``budget``: the budget, whether and when it was spent, what was left
         out (the checks' names)."""
