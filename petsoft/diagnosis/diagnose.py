@@ -279,65 +279,11 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                 break
         clock.switch("scoring")
         scoring_from = diag.budget.elapsed()
-        plane = escape_plane(diag.data[diag.ident], current.sim[diag.ident], diag.sigma)
-
-        # the shared run's candidates need no sensitivity region: it runs beside the adjoint
-        together = _shareable(diag, current, _round_candidates(diag, current, ev, plane,
-                                                              NO_REGIONS)[0])
-        diag.tell(f"round {rnd}: the misfit's sensitivity maps"
-                  + (f" beside one scoring run of {', '.join(c.physics for c in together)}"
-                     if len(together) > 1 else ""))
-        # each group scores what its own job allows while the other's still runs (one rank a
-        # group: the runs the scoring below would make, on the same ranks)
-        early_scores = (functools.partial(_score_early, diag, current, ev, plane)
-                        if diag.placement.one_rank_each(current.experiment) else None)
-        maps, shared, early = diag.regions_and_shared_scores(
-            current, together, regions=system_class(current.experiment).volume_cells,
-            then=early_scores)
-        cands, not_modelled = _round_candidates(diag, current, ev, plane, maps)
-        diag.tell(f"round {rnd}: ranking {len(cands)} candidates "
-                  f"({', '.join(c.physics for c in cands)})")
-        gc.collect()
-        entry_of = ({c.physics: e for c, e in zip(together, shared, strict=True)}
-                    if shared is not None else {})
-        ranked = {i: TaskResult(i, 0, entry_of[c.physics]) for i, c in enumerate(cands)
-                  if c.physics in entry_of and _shareable(diag, current, [c])}
-        ranked.update({i: early[_candidate_key(c)] for i, c in enumerate(cands)
-                       if i not in ranked and _candidate_key(c) in early})
-        alone = [i for i in range(len(cands)) if i not in ranked]
-        ranked.update(zip(alone, diag.placement.on_groups(
-            lambda c, sub, cur=current: diag.score(cur, c, comm=sub),
-            [cands[i] for i in alone], current.experiment), strict=True))
-        gc.collect()
-        scores = []
-        for i, c in enumerate(cands):
-            res = ranked[i]
-            s = res.value if res.ok else ScoreEntry.unscored(c, res.error)
-            s.round = rnd
-            scores.append((s, c))
-            diag.tell(f"  {'switch' if c.kind == 'switch' else 'score'} {c.physics:<24} "
-                      f"S = {s.score:10.4g}  dof {s.dof}  p = {s.p_value:.3g}"
-                      + (f"  ({s.note})" if s.note else ""))
+        scores, not_modelled = _score_round(diag, current, ev, rnd)
         # the round's report entries, in the candidates' order (ranked below)
         reported = [s for s, _ in scores]
-        # by log p (p underflows to 0 for strong candidates of different dof), then S
-        scores.sort(key=lambda sc: (sc[0].log10_p, -sc[0].score))
-        ranked_significant = [(s, c) for s, c in scores if s.p_value < diag.alpha]
-        significant, exchanged, left_out = shortlist(ranked_significant, max_tries)
-        if exchanged:
-            diag.tell(exchanged)
-        for s, _ in scores:
-            s.direction = None
-        for s, c in scores:
-            if s.p_value >= diag.alpha:
-                rejected.append({"physics": c.physics, "score": s.score,
-                                 "reason": f"score not significant (p = {s.p_value:.3g})"
-                                 + (f": {s.note}" if s.note else "")})
-        for s, c in ranked_significant:
-            if not any(s is t for t, _ in significant):
-                rejected.append({"physics": c.physics, "score": s.score,
-                                 "reason": f"not tried: max {max_tries} tries per round"
-                                 + (f" ({exchanged})" if exchanged else "")})
+        significant, left_out, not_tried = _sift(diag, scores, max_tries)
+        rejected += not_tried
         # The max_tries best-scoring significant candidates are all fitted (concurrently on
         # groups of ranks) and the best fit among those that pass both tests is added: on a
         # short record every dissipation law (viscous, drag, dry friction, a viscoelastic
@@ -384,6 +330,98 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                                 RECONSIDER_RISK)):
         with clock.phase("fits"):
             current, added, ev = _reconsidered(diag, current, history, rejected, added, ev)
+    result = _conclude(diag, numerics, checks, clock, base, base_ev, current, ev, added,
+                       rejected, all_scores, not_modelled)
+    # Collect the garbage of this run's PETSc objects on every rank *now*, at the same point:
+    # freeing the last object of a communicator is collective (PETSc's garbage cleanup), and
+    # rank 0's plotting alone would otherwise trigger Python's collector there only (observed:
+    # a 2-rank deadlock in DMPlex creation vs PetscGarbageCleanup).
+    gc.collect()
+    if out is not None:
+        write_outputs(Path(out), diag, result, base_ev, time.perf_counter() - t0,
+                      spelled_out=spelled_out)
+        diag.tell(f"wrote {out}/ (report.html, report.md, report.json, figures, diagnosed.toml, "
+                  "summary.json)")
+    return result
+
+
+def _score_round(diag, current, ev, rnd: int) -> tuple[list, dict]:
+    """Round ``rnd``'s candidates for ``current`` (evidence ``ev``) scored: the misfit's
+    sensitivity maps beside one shared scoring run, then each candidate's score (early on
+    single-rank groups where it can, else on the groups of ranks); returns the (score entry,
+    candidate) pairs in the candidates' order, and what the round could not model."""
+    plane = escape_plane(diag.data[diag.ident], current.sim[diag.ident], diag.sigma)
+
+    # the shared run's candidates need no sensitivity region: it runs beside the adjoint
+    together = _shareable(diag, current, _round_candidates(diag, current, ev, plane,
+                                                          NO_REGIONS)[0])
+    diag.tell(f"round {rnd}: the misfit's sensitivity maps"
+              + (f" beside one scoring run of {', '.join(c.physics for c in together)}"
+                 if len(together) > 1 else ""))
+    # each group scores what its own job allows while the other's still runs (one rank a
+    # group: the runs the scoring below would make, on the same ranks)
+    early_scores = (functools.partial(_score_early, diag, current, ev, plane)
+                    if diag.placement.one_rank_each(current.experiment) else None)
+    maps, shared, early = diag.regions_and_shared_scores(
+        current, together, regions=system_class(current.experiment).volume_cells,
+        then=early_scores)
+    cands, not_modelled = _round_candidates(diag, current, ev, plane, maps)
+    diag.tell(f"round {rnd}: ranking {len(cands)} candidates "
+              f"({', '.join(c.physics for c in cands)})")
+    gc.collect()
+    entry_of = ({c.physics: e for c, e in zip(together, shared, strict=True)}
+                if shared is not None else {})
+    ranked = {i: TaskResult(i, 0, entry_of[c.physics]) for i, c in enumerate(cands)
+              if c.physics in entry_of and _shareable(diag, current, [c])}
+    ranked.update({i: early[_candidate_key(c)] for i, c in enumerate(cands)
+                   if i not in ranked and _candidate_key(c) in early})
+    alone = [i for i in range(len(cands)) if i not in ranked]
+    ranked.update(zip(alone, diag.placement.on_groups(
+        lambda c, sub, cur=current: diag.score(cur, c, comm=sub),
+        [cands[i] for i in alone], current.experiment), strict=True))
+    gc.collect()
+    scores = []
+    for i, c in enumerate(cands):
+        res = ranked[i]
+        s = res.value if res.ok else ScoreEntry.unscored(c, res.error)
+        s.round = rnd
+        scores.append((s, c))
+        diag.tell(f"  {'switch' if c.kind == 'switch' else 'score'} {c.physics:<24} "
+                  f"S = {s.score:10.4g}  dof {s.dof}  p = {s.p_value:.3g}"
+                  + (f"  ({s.note})" if s.note else ""))
+    return scores, not_modelled
+
+
+def _sift(diag, scores: list, max_tries: int) -> tuple[list, list, list[dict]]:
+    """Sort a round's (score entry, candidate) pairs in place (by log p, then S) and short-list
+    the significant ones to fit (at most ``max_tries``; :func:`shortlist`); returns the short
+    list, the significant ones left out of it, and the rejected entries of the others."""
+    rejected: list[dict] = []
+    # by log p (p underflows to 0 for strong candidates of different dof), then S
+    scores.sort(key=lambda sc: (sc[0].log10_p, -sc[0].score))
+    ranked_significant = [(s, c) for s, c in scores if s.p_value < diag.alpha]
+    significant, exchanged, left_out = shortlist(ranked_significant, max_tries)
+    if exchanged:
+        diag.tell(exchanged)
+    for s, _ in scores:
+        s.direction = None
+    for s, c in scores:
+        if s.p_value >= diag.alpha:
+            rejected.append({"physics": c.physics, "score": s.score,
+                             "reason": f"score not significant (p = {s.p_value:.3g})"
+                             + (f": {s.note}" if s.note else "")})
+    for s, c in ranked_significant:
+        if not any(s is t for t, _ in significant):
+            rejected.append({"physics": c.physics, "score": s.score,
+                             "reason": f"not tried: max {max_tries} tries per round"
+                             + (f" ({exchanged})" if exchanged else "")})
+    return significant, left_out, rejected
+
+
+def _conclude(diag, numerics: bool, checks, clock, base, base_ev, current, ev, added,
+              rejected, all_scores, not_modelled) -> DiagnoseResult:
+    """After the last round: the rejected list cleaned (a physics added later is not
+    rejected), the final numerics check if it is made and its findings, and the report."""
     # a physics rejected in one round and added in a later one is reported as added only
     names_added = {a.physics for a in added}
     rejected = [r for r in rejected if r["physics"] not in names_added]
@@ -425,16 +463,6 @@ def _run_diagnose(experiment, recording, *, out, fraction, alpha, max_additions,
                             rejected=rejected, scores=all_scores,
                             not_modelled=not_modelled, numerics=outcome.as_report(),
                             evidence=ev)
-    # Collect the garbage of this run's PETSc objects on every rank *now*, at the same point:
-    # freeing the last object of a communicator is collective (PETSc's garbage cleanup), and
-    # rank 0's plotting alone would otherwise trigger Python's collector there only (observed:
-    # a 2-rank deadlock in DMPlex creation vs PetscGarbageCleanup).
-    gc.collect()
-    if out is not None:
-        write_outputs(Path(out), diag, result, base_ev, time.perf_counter() - t0,
-                      spelled_out=spelled_out)
-        diag.tell(f"wrote {out}/ (report.html, report.md, report.json, figures, diagnosed.toml, "
-                  "summary.json)")
     return result
 
 
