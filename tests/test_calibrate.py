@@ -129,6 +129,26 @@ def test_other_methods_and_gradients_agree(case, method, gradient):
     np.testing.assert_allclose(res.values, ref.values, rtol=2e-4)
 
 
+def test_random_starts_are_fitted_and_the_best_is_the_result(case):
+    """``starts=2``: the user's start and two random ones in the bounds (on groups of ranks),
+    each fitted; the result is the best of them, every start's outcome is in
+    ``result.starts``, and the user's start reaches the one-start fit (the random ones here
+    stop in worse minima at the bounds: damping trades against stiffness on a 30 ms record)."""
+    d, rec, start = case
+    exp = load_experiment(start)
+    one = run_calibration(exp, rec, method="gauss-newton")
+    many = run_calibration(exp, rec, method="gauss-newton", starts=2, seed=3)
+    assert [s["index"] for s in many.starts] == [0, 1, 2]
+    assert many.starts[0]["start"] == pytest.approx([1.15e6, 1.0])    # the user's own start
+    assert all(s["error"] == "" for s in many.starts)
+    assert len({tuple(s["start"]) for s in many.starts}) == 3
+    best = min(many.starts, key=lambda s: s["objective"])
+    assert many.objective_after == pytest.approx(best["objective"], rel=1e-12)
+    np.testing.assert_allclose(many.values, best["parameters"], rtol=1e-12)
+    assert many.starts[0]["objective"] == pytest.approx(one.objective_after, rel=1e-6)
+    np.testing.assert_allclose(many.starts[0]["parameters"], one.values, rtol=2e-4)
+
+
 def test_nothing_to_calibrate_and_frames_before_zero(case, tmp_path_factory):
     d, rec, start = case
     exp = load_experiment(d / "truth.toml")

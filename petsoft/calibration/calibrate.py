@@ -12,6 +12,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from petsc4py import PETSc
@@ -27,6 +28,9 @@ from petsoft.io.recording import Recording, read_recording_on_all_ranks
 from petsoft.io.summary import write_summary
 from petsoft.results import OptimizerFit
 from petsoft.solvers.options import SolverOptions
+
+if TYPE_CHECKING:
+    from petsoft.calibration.optimize import OptimizeResult
 
 GRADIENTS = ("adjoint", "sensitivity", "fd")
 
@@ -306,6 +310,78 @@ def build_forward(experiment, names, recording, frame_times, comm, integrator=No
                         recording=recording, mesh=mesh)
 
 
+def _observations(recording, noise: float | None, comm) -> Observations:
+    """``recording`` as :class:`Observations`: as given, or a Recording (read from its path
+    on rank 0 and shared) with the ``noise`` given."""
+    if isinstance(recording, Observations):
+        if noise is not None:
+            raise ExperimentError("give the noise in the Observations, not also as noise=")
+        return recording
+    if not isinstance(recording, Recording):
+        recording = read_recording_on_all_ranks(recording, comm)
+    return Observations(recording, noise=noise)
+
+
+def _best_of_starts(make_problem, zs, mpi, *, method, scaling, monitor_for, optimizer_options,
+                    tell) -> tuple[OptimizeResult, list[dict]]:
+    """Fit from each scaled start of ``zs`` on groups of ranks
+    (:func:`~petsoft.calibration.multistart.multistart`); returns the best fit and every
+    start's report entry (summary.json ``starts``)."""
+    from petsoft.calibration.multistart import multistart
+
+    zlo, zhi = scaling.bounds()
+    ms = multistart(make_problem, zs, comm=mpi, method=method, bounds=(zlo, zhi),
+                    scaling=scaling, monitor_factory=lambda i, sub: monitor_for(i),
+                    solver_options=optimizer_options)
+    all_starts = [{"index": s.index, "group": s.group,
+                   "start": scaling.to_physical(s.start).tolist(),
+                   "objective": None if s.result is None else float(s.result.f),
+                   "parameters": None if s.result is None else s.result.p.tolist(),
+                   "error": s.error} for s in ms.starts]
+    opt = ms.best.result
+    tell(f"multistart: best of {len(zs)} starts is start {ms.best.index} (f = {opt.f:.6e})")
+    return opt, all_starts
+
+
+def _result_at_optimum(problem, opt, scaling, names, start, bounds, data, sigma, sigma_source,
+                       all_starts, tell) -> CalibrationResult:
+    """The calibration's result at the optimizer's ``opt``: the fit before (at the user's
+    start) and after, the noise estimated from the residual, and the parameters' standard
+    deviations and correlations from the Jacobian at the optimum."""
+    from petsoft.calibration.uncertainty import UnidentifiableError, uncertainty
+
+    # the user's start, not a polish start; with one start from it, the optimizer's first
+    # evaluation (remembered by the problem, as is its last Jacobian at the optimum)
+    before = problem.simulate(scaling.to_scaled(start))
+    f_before = 0.5 * float(np.sum(problem.data_residual(before) ** 2))
+    z = opt.z
+    r, J = problem.residual_jacobian(z)
+    after = problem.last_simulation
+    residual_m = (after - data)[np.isfinite(data)]
+    noise_estimate = noise_from_residual(residual_m, len(names))
+    try:
+        unc = uncertainty(J, r, scaling=scaling, z=z,
+                          noise_std=1.0 if sigma_source != ESTIMATED else None)
+        std, corr = unc.std, unc.correlation
+    except UnidentifiableError as exc:
+        tell(f"warning: {exc}")
+        std, corr = np.full(len(names), np.inf), None
+    if sigma_source == ESTIMATED:
+        sigma = noise_estimate
+    result = CalibrationResult(
+        names=names, start=start, values=scaling.to_physical(z), std=np.asarray(std),
+        bounds=bounds, rms_before=problem.rms(before), rms_after=problem.rms(after),
+        objective_before=f_before, objective_after=float(opt.f), iterations=opt.iterations,
+        evaluations=opt.evaluations, reason=opt.reason, sigma=sigma, sigma_source=sigma_source,
+        noise_estimate=noise_estimate,
+        history=[{"iteration": h.iteration, "objective": float(h.f), "gradient_norm":
+                  float(h.gnorm), "parameters": h.p.tolist()} for h in opt.history],
+        starts=all_starts, correlation=None if corr is None else np.asarray(corr),
+        simulated_before=before, simulated_after=after)
+    return result
+
+
+
 def run_calibration(experiment, recording, *, method: str = "gauss-newton",
                     gradient: str = "adjoint", integrator: str | None = None, starts: int = 0,
                     seed: int = 0, regularization: float = 0.0, noise: float | None = None,
@@ -358,11 +434,10 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         Ends the fit early (:func:`~petsoft.calibration.optimize.minimize`'s ``stop``; the
         result's ``reason`` is then ``STOPPED_BY_CALLER``); one start only.
     """
-    from petsoft.calibration.multistart import multistart, random_starts
+    from petsoft.calibration.multistart import random_starts
     from petsoft.calibration.objective import MarkerMisfit
     from petsoft.calibration.optimize import minimize
     from petsoft.calibration.scaling import ParameterScaling
-    from petsoft.calibration.uncertainty import UnidentifiableError, uncertainty
 
     t_start = time.perf_counter()
     comm = _petsc_comm(comm if comm is not None else PETSc.COMM_WORLD)
@@ -377,14 +452,7 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
     if gradient not in GRADIENTS:
         raise ExperimentError(f"unknown gradient method {gradient!r}; valid: "
                               f"{', '.join(GRADIENTS)}")
-    if isinstance(recording, Observations):
-        if noise is not None:
-            raise ExperimentError("give the noise in the Observations, not also as noise=")
-        observations = recording
-    else:
-        if not isinstance(recording, Recording):
-            recording = read_recording_on_all_ranks(recording, comm)
-        observations = Observations(recording, noise=noise)
+    observations = _observations(recording, noise, comm)
     recording = observations.recording
     recording_path = recording.source
     names, start, bounds = calibration_parameters(experiment)
@@ -432,19 +500,10 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
         z0 = opt.z
     all_starts: list[dict] = []
     if starts > 0:
-        zs = random_starts(zlo, zhi, starts, seed=seed, include=z0)
-        ms = multistart(make_problem, zs, comm=mpi, method=method, bounds=(zlo, zhi),
-                        scaling=scaling, monitor_factory=lambda i, sub: monitor_for(i),
-                        solver_options=optimizer_options)
-        for s in ms.starts:
-            all_starts.append({"index": s.index, "group": s.group,
-                               "start": scaling.to_physical(s.start).tolist(),
-                               "objective": None if s.result is None else float(s.result.f),
-                               "parameters": None if s.result is None else s.result.p.tolist(),
-                               "error": s.error})
-        opt = ms.best.result
-        tell(f"multistart: best of {len(zs)} starts is start {ms.best.index} "
-             f"(f = {opt.f:.6e})")
+        opt, all_starts = _best_of_starts(
+            make_problem, random_starts(zlo, zhi, starts, seed=seed, include=z0), mpi,
+            method=method, scaling=scaling, monitor_for=monitor_for,
+            optimizer_options=optimizer_options, tell=tell)
     problem = make_problem(comm)
     if known is not None and starts == 0 and transform is None:
         sim0, columns = known
@@ -453,34 +512,8 @@ def run_calibration(experiment, recording, *, method: str = "gauss-newton",
     if starts == 0:
         opt = minimize(problem, z0, method=method, bounds=(zlo, zhi), scaling=scaling,
                        monitor=monitor_for(0), stop=stop, solver_options=optimizer_options)
-    # the user's start, not a polish start; with one start from it, the optimizer's first
-    # evaluation (remembered by the problem, as is its last Jacobian at the optimum)
-    before = problem.simulate(scaling.to_scaled(start))
-    f_before = 0.5 * float(np.sum(problem.data_residual(before) ** 2))
-    z = opt.z
-    r, J = problem.residual_jacobian(z)
-    after = problem.last_simulation
-    residual_m = (after - data)[np.isfinite(data)]
-    noise_estimate = noise_from_residual(residual_m, len(names))
-    try:
-        unc = uncertainty(J, r, scaling=scaling, z=z,
-                          noise_std=1.0 if sigma_source != ESTIMATED else None)
-        std, corr = unc.std, unc.correlation
-    except UnidentifiableError as exc:
-        tell(f"warning: {exc}")
-        std, corr = np.full(len(names), np.inf), None
-    if sigma_source == ESTIMATED:
-        sigma = noise_estimate
-    result = CalibrationResult(
-        names=names, start=start, values=scaling.to_physical(z), std=np.asarray(std),
-        bounds=bounds, rms_before=problem.rms(before), rms_after=problem.rms(after),
-        objective_before=f_before, objective_after=float(opt.f), iterations=opt.iterations,
-        evaluations=opt.evaluations, reason=opt.reason, sigma=sigma, sigma_source=sigma_source,
-        noise_estimate=noise_estimate,
-        history=[{"iteration": h.iteration, "objective": float(h.f), "gradient_norm":
-                  float(h.gnorm), "parameters": h.p.tolist()} for h in opt.history],
-        starts=all_starts, correlation=None if corr is None else np.asarray(corr),
-        simulated_before=before, simulated_after=after)
+    result = _result_at_optimum(problem, opt, scaling, names, start, bounds, data, sigma,
+                                sigma_source, all_starts, tell)
     if say is not None and rank0:
         _print_table(say, result)
     if check_mesh:
