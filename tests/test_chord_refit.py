@@ -168,3 +168,34 @@ def test_the_numerics_check_refits_the_step_by_the_chord_at_a_quarter(case):
     real = diag.simulate_identification(quarter)
     actual = np.sqrt(np.mean((real[diag.ident][seen] - fit.sim[diag.ident][seen]) ** 2))
     assert step.change_same_parameters == pytest.approx(actual, rel=0.1)
+
+
+def test_a_fits_own_sensitivities_are_its_models_and_cost_no_run(case, monkeypatch):
+    """A calibration's fit carries its Jacobian run at the optimum (Fit.sensitivities): equal
+    to a fresh forward sensitivity run of its model at its values, taken by
+    model_sensitivities with no run; a copy of the fit at other values does not carry it."""
+    import petsoft.calibration.calibrate as calibrate_module
+    from petsoft.diagnosis.context import petsc_comm, sensitivities_key
+    from petsoft.diagnosis.numerics import has_sensitivities
+
+    diag, fit, _, _, cols, _ = case
+    assert fit.sensitivities is not None and fit.sensitivities[0] == sensitivities_key(fit)
+    fm = calibrate_module.build_forward(fit.experiment, fit.names, diag.recording,
+                                        diag.times[diag.ident], petsc_comm(diag.comm),
+                                        diag.integrator)
+    fresh = fm.jacobian(np.asarray(fit.values, dtype=float))[1]
+    fm.destroy()
+    assert fresh.shape == cols.shape == diag.data[diag.ident].shape + (len(fit.names),)
+    np.testing.assert_allclose(cols, fresh, rtol=0, atol=1e-9 * np.abs(fresh).max())
+
+    def no_run(*args, **kwargs):
+        raise AssertionError("a Jacobian run was made")
+
+    monkeypatch.setattr(calibrate_module, "build_forward", no_run)
+    diag.measured_meshes.pop(sensitivities_key(fit), None)
+    assert has_sensitivities(diag, fit)
+    np.testing.assert_array_equal(model_sensitivities(diag, fit), cols)
+    moved = dataclasses.replace(fit, values=fit.values * 1.01)
+    assert not has_sensitivities(diag, moved)
+    with pytest.raises((AssertionError, RuntimeError), match="a Jacobian run"):   # 2 ranks: wrapped
+        model_sensitivities(diag, moved)

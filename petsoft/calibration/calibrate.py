@@ -80,6 +80,9 @@ class CalibrationResult(OptimizerFit):
     correlation: np.ndarray | None = None
     simulated_before: np.ndarray | None = None
     simulated_after: np.ndarray | None = None
+    #: d simulated_after / d values (K, M, 3, P) on the fitted window: the forward
+    #: sensitivities at the optimum (None with finite-difference gradients)
+    sensitivities_after: np.ndarray | None = None
     #: ``check_mesh=True``: the fit on the refined mesh and the parameters' shifts in standard
     #: deviations (:func:`petsoft.calibration.check_mesh.check_mesh`)
     mesh_check: dict | None = None
@@ -377,7 +380,8 @@ def _result_at_optimum(problem, opt, scaling, names, start, bounds, data, sigma,
         history=[{"iteration": h.iteration, "objective": float(h.f), "gradient_norm":
                   float(h.gnorm), "parameters": h.p.tolist()} for h in opt.history],
         starts=all_starts, correlation=None if corr is None else np.asarray(corr),
-        simulated_before=before, simulated_after=after)
+        simulated_before=before, simulated_after=after,
+        sensitivities_after=problem.sensitivities(z))
     return result
 
 

@@ -150,20 +150,29 @@ class MarkerMisfit:
         copies of those already computed at exactly this z, if remembered."""
         memo = self._memo(z)
         if "rJ" not in memo:
-            memo["rJ"] = self._residual_jacobian(z)
+            memo["rJ"], memo["dsim"] = self._residual_jacobian(z)
             memo["sim"] = self.last_simulation
         self.last_simulation = memo["sim"].copy()
         r, J = memo["rJ"]
         return r.copy(), J.copy()
 
-    def _residual_jacobian(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _residual_jacobian(self, z: np.ndarray):
+        """((r, dr/dz), dsim/dp): dsim/dp (K, M, 3, P) from forward sensitivities, None with
+        finite differences (they are taken in z)."""
         p = self.scaling.to_physical(z)
         self.evaluations += 1
         if self.gradient_method == "fd":
             sim = self.forward.simulate(p)
-            return self._with_residual(z, sim, self._fd_scaled(z, sim), in_z=True)
+            return self._with_residual(z, sim, self._fd_scaled(z, sim), in_z=True), None
         sim, dsim = self.forward.jacobian(p)
-        return self._with_residual(z, sim, dsim)
+        return self._with_residual(z, sim, dsim), dsim
+
+    def sensitivities(self, z: np.ndarray) -> np.ndarray | None:
+        """d sim / d p (K, M, 3, P: the physical parameters in order) at exactly ``z`` when a
+        forward sensitivity run there is remembered (:meth:`residual_jacobian`,
+        :meth:`remember_sensitivities`), else None (no run is made)."""
+        dsim = self._memo(z).get("dsim")
+        return None if dsim is None else dsim.copy()
 
     def _with_residual(self, z, sim, dsim, in_z: bool = False) -> tuple[np.ndarray, np.ndarray]:
         """(r, dr/dz) from the simulation at z and its derivatives dsim (K, M, 3, P): with
@@ -191,6 +200,7 @@ class MarkerMisfit:
                              f"shape {self.data.shape} and {self.n} parameter(s)")
         memo = self._memo(z)
         memo["rJ"] = self._with_residual(z, np.array(sim), np.array(dsim))
+        memo["dsim"] = np.array(dsim)
         memo["sim"] = self.last_simulation
 
     def value_gradient(self, z: np.ndarray) -> tuple[float, np.ndarray]:

@@ -13,7 +13,7 @@ import functools
 import gc
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from petsc4py import PETSc
@@ -94,6 +94,26 @@ class Fit:
     #: its wall time (s) on the first rank of the ranks that made it (travels with the fit
     #: gathered from a group: the time budget foresees a calibration by it, geometry.py)
     seconds: float = 0.0
+    #: (:func:`sensitivities_key`, d sim / d values (K, M, 3, P) on the identification window)
+    #: of the calibration's last Jacobian run, at these values: travels with the fit (every
+    #: rank gets it), so that numerics.model_sensitivities needs no run of its own; None when
+    #: the fit made none (finite differences). Checked against the key where it is used: a
+    #: Fit copied with other values does not pass it on.
+    sensitivities: tuple | None = field(default=None, repr=False, compare=False)
+
+
+def mesh_key(experiment) -> tuple:
+    """What identifies ``experiment``'s discretisation in space (mesh file or box, refinement,
+    element order): with the step, the key of a measured run (``Diagnosis.measured_meshes``)."""
+    m = experiment.mesh
+    return (str(m.file), m.refine, m.order, tuple(m.box.cells) if m.box is not None else None)
+
+
+def sensitivities_key(fit: Fit) -> tuple:
+    """The ``Diagnosis.measured_meshes`` key of ``fit``'s forward sensitivities on the
+    identification window (its mesh, step and values)."""
+    exp = fit.experiment
+    return ("sensitivities", mesh_key(exp), exp.time.step, tuple(map(float, fit.values)))
 
 
 def term_values(fit: Fit, names) -> tuple[dict, dict]:
@@ -422,14 +442,21 @@ class Diagnosis:
         sim = self.simulate(calibrated, comm=comm)
         seconds = time.perf_counter() - started
         self.fit_seconds.append(seconds)
-        return Fit(experiment=calibrated, names=names, values=np.asarray(res.values),
-                   std=np.asarray(res.std), chi2=chi2(sim[self.ident], self.data[self.ident],
-                                                        self.sigma),
-                   rms=rms(sim[self.ident], self.data[self.ident]) or 0.0,
-                   heldout_rms=rms(sim[self.held], self.data[self.held]) if self.held.any()
-                   else None, sim=sim, iterations=res.iterations, evaluations=res.evaluations,
-                   stopped=stop.why if stop is not None and res.reason == STOPPED else "",
-                   seconds=seconds)
+        fit = Fit(experiment=calibrated, names=names, values=np.asarray(res.values),
+                  std=np.asarray(res.std), chi2=chi2(sim[self.ident], self.data[self.ident],
+                                                       self.sigma),
+                  rms=rms(sim[self.ident], self.data[self.ident]) or 0.0,
+                  heldout_rms=rms(sim[self.held], self.data[self.held]) if self.held.any()
+                  else None, sim=sim, iterations=res.iterations, evaluations=res.evaluations,
+                  stopped=stop.why if stop is not None and res.reason == STOPPED else "",
+                  seconds=seconds)
+        # the fit's own sensitivities at its optimum are the numerics checks' and the sphere
+        # searches' (numerics.model_sensitivities): carried by the fit (it reaches every
+        # rank), they cost those no Jacobian run
+        dsim = res.sensitivities_after
+        if dsim is not None and dsim.shape[:3] == self.data[self.ident].shape:
+            fit = replace(fit, sensitivities=(sensitivities_key(fit), dsim))
+        return fit
 
     def round_estimate(self, names: list[str]) -> str:
         """A line announcing a round of fits and roughly how long it takes: the fits so far

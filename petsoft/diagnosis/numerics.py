@@ -30,7 +30,15 @@ from petsoft.calibration.refinement import (
 )
 from petsoft.diagnosis.budget import REFINED_RUNS
 from petsoft.diagnosis.chord_refit import chord_refit, refit_step
-from petsoft.diagnosis.context import Diagnosis, Fit, evidence_of, petsc_comm, rms
+from petsoft.diagnosis.context import (
+    Diagnosis,
+    Fit,
+    evidence_of,
+    mesh_key,
+    petsc_comm,
+    rms,
+    sensitivities_key,
+)
 from petsoft.diagnosis.numerics_records import (
     FailedOption,
     FinalChange,
@@ -257,11 +265,6 @@ def measurable(r, experiment) -> bool:
     return cost is not None and MESH_CELLS < cost <= MEASURE_CELLS
 
 
-def _mesh_key(experiment) -> tuple:
-    m = experiment.mesh
-    return (str(m.file), m.refine, m.order, tuple(m.box.cells) if m.box is not None else None)
-
-
 def measure_refinement(diag: Diagnosis, fit: Fit, r, moved: np.ndarray | None = None
                        ) -> LinearisedOption:
     """The error ``fit``'s mesh leaves, measured by one run of the refined mesh (not fitted).
@@ -404,14 +407,18 @@ def linearised_refit(diag: Diagnosis, fit: Fit, r, moved: np.ndarray,
         remaining_estimate=change * remaining)
 
 
-def _sensitivities_key(fit: Fit) -> tuple:
-    exp = fit.experiment
-    return ("sensitivities", _mesh_key(exp), exp.time.step, tuple(map(float, fit.values)))
+def _carried(fit: Fit) -> np.ndarray | None:
+    """The sensitivities ``fit`` carries from its calibration (:attr:`Fit.sensitivities`),
+    when they are of its own mesh, step and values."""
+    if fit.sensitivities is None or fit.sensitivities[0] != sensitivities_key(fit):
+        return None
+    return fit.sensitivities[1]
 
 
 def has_sensitivities(diag: Diagnosis, fit: Fit) -> bool:
-    """Whether :func:`model_sensitivities` of ``fit`` are kept (no run to make them)."""
-    return _sensitivities_key(fit) in diag.measured_meshes
+    """Whether :func:`model_sensitivities` of ``fit`` are kept or carried by the fit (no run
+    to make them)."""
+    return sensitivities_key(fit) in diag.measured_meshes or _carried(fit) is not None
 
 
 def model_sensitivities(diag: Diagnosis, fit: Fit, comm=None) -> np.ndarray:
@@ -420,7 +427,9 @@ def model_sensitivities(diag: Diagnosis, fit: Fit, comm=None) -> np.ndarray:
     measurements of the same fit."""
     from petsoft.calibration.calibrate import build_forward
 
-    key = _sensitivities_key(fit)
+    key = sensitivities_key(fit)
+    if key not in diag.measured_meshes and _carried(fit) is not None:
+        diag.measured_meshes[key] = _carried(fit)
     if key not in diag.measured_meshes:
         def run(sub):
             fm = build_forward(fit.experiment, fit.names, diag.recording,
@@ -442,7 +451,7 @@ def keep_sensitivities(diag: Diagnosis, fit: Fit, columns: np.ndarray) -> None:
     """Keep ``columns`` as :func:`model_sensitivities` of ``fit``: the same Jacobian run made
     for another purpose (a reduced model's training run,
     :mod:`petsoft.diagnosis.reduced_trials`) on every rank."""
-    diag.measured_meshes.setdefault(_sensitivities_key(fit), columns)
+    diag.measured_meshes.setdefault(sensitivities_key(fit), columns)
 
 
 def refined(experiment, what: str):
@@ -561,8 +570,7 @@ def _simulate_and_refit(diag: Diagnosis, fit: Fit, tried: list):
     # and are computed beside them, on a group of ranks of their own.
     exact = not diag.all_differenced(exp)
     halves_step = any(r.kind == "step" for r in tried)
-    beside = (exact and halves_step
-              and _sensitivities_key(fit) not in diag.measured_meshes)
+    beside = exact and halves_step and not has_sensitivities(diag, fit)
     # on one rank each when every model of the round is small (placement.py)
     models = [exp] + [refined(exp, what) for what in options]
     started = diag.budget.elapsed()
@@ -575,7 +583,7 @@ def _simulate_and_refit(diag: Diagnosis, fit: Fit, tried: list):
     if beside:
         done = runs.pop()
         if done.ok:      # (every rank keeps them; a failure is met again below)
-            diag.measured_meshes[_sensitivities_key(fit)] = done.value
+            diag.measured_meshes[sensitivities_key(fit)] = done.value
     seen = np.isfinite(diag.data[diag.ident])
     small = [res.ok and _change(diag, fit, res.value, seen) <= SCREEN_BELOW * diag.sigma
              for res in runs]
@@ -800,7 +808,7 @@ def measure_untried(diag: Diagnosis, fit: Fit, rounds: list[NumericsRound]) -> b
 def _measuring_key(r, experiment) -> tuple:
     """What a measurement of refinement ``r`` of ``experiment`` is kept under
     (``diag.measured_meshes``): one per refinement, mesh and step."""
-    return (r.label, _mesh_key(experiment), experiment.time.step)
+    return (r.label, mesh_key(experiment), experiment.time.step)
 
 
 def _simulated_side_by_side(diag: Diagnosis, fit: Fit, wanted: list) -> dict:
