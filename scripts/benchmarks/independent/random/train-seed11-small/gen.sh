@@ -6,7 +6,7 @@
 #
 #   RULES=/work/rules3 OUT=$PWD/cases bash gen.sh
 set -euo pipefail
-OUT=${OUT:?the draw's cases folder}
+OUT=${OUT:?give OUT, the draw cases folder}
 cd "${RULES:-/work/rules3}"
 names=$(/usr/bin/python3 -c "import sys; sys.path.insert(0, 'scripts/benchmarks/independent')
 import random_draw as rd; print(' '.join(c['name'] for c in rd.draw(11, 24, 'small')))")
