@@ -428,8 +428,9 @@ def model_sensitivities(diag: Diagnosis, fit: Fit, comm=None) -> np.ndarray:
     from petsoft.calibration.calibrate import build_forward
 
     key = sensitivities_key(fit)
-    if key not in diag.measured_meshes and _carried(fit) is not None:
-        diag.measured_meshes[key] = _carried(fit)
+    carried = _carried(fit)
+    if key not in diag.measured_meshes and carried is not None:
+        diag.measured_meshes[key] = carried
     if key not in diag.measured_meshes:
         def run(sub):
             fm = build_forward(fit.experiment, fit.names, diag.recording,
